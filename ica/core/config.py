@@ -1,0 +1,97 @@
+"""The ICA's configuration: which algorithm variant, limits and tolerances."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+
+from ica.core.planner import Kinematics
+from ica.core.route import SpeedCaps
+
+
+@dataclass(frozen=True, slots=True)
+class Techniques:
+    """The four enhancements of chapter 4, each switchable on its own.
+
+    1. ``reduced_set``: skip confirmed vehicles on compatible routes or whose
+       crossing interval does not overlap the requester's.
+    2. ``conflict_zones``: test only occupancies inside the offline conflict
+       zone of the two routes.
+    3. ``estimated_oti``: occupancy time intervals from offline overlap
+       distances instead of the exhaustive search.
+    4. ``bisection``: for each occupancy of a confirmed vehicle, find the
+       requester's occupancies whose intervals can overlap by binary search.
+
+    All off is basic DICA (Algorithms 1-2); all on is enhanced DICA.
+    """
+
+    reduced_set: bool = True
+    conflict_zones: bool = True
+    estimated_oti: bool = True
+    bisection: bool = True
+
+    @property
+    def name(self) -> str:
+        on = [str(i + 1) for i, f in enumerate(fields(self)) if getattr(self, f.name)]
+        if len(on) == 4:
+            return "enhanced"
+        if not on:
+            return "basic"
+        return "t" + "+".join(on)
+
+    @staticmethod
+    def parse(name: str) -> Techniques:
+        """'basic', 'enhanced', or 't' plus technique numbers joined by '+' ('t2+4')."""
+        if name == "basic":
+            return BASIC
+        if name == "enhanced":
+            return ENHANCED
+        if not name.startswith("t"):
+            raise ValueError(f"unknown DICA variant {name!r}: use basic, enhanced or t1..t4 (t2+4)")
+        try:
+            nums = {int(x) for x in name[1:].split("+")}
+        except ValueError:
+            raise ValueError(f"unknown DICA variant {name!r}") from None
+        if not nums or not nums <= {1, 2, 3, 4}:
+            raise ValueError(f"unknown DICA variant {name!r}: techniques are 1 to 4")
+        names = [f.name for f in fields(Techniques)]
+        return Techniques(**{n: (i + 1) in nums for i, n in enumerate(names)})
+
+
+BASIC = Techniques(False, False, False, False)
+ENHANCED = Techniques()
+
+
+@dataclass(frozen=True, slots=True)
+class IcaConfig:
+    """One ICA's settings; the defaults are the dissertation's set-up.
+
+    ``margin_m`` grows every occupancy on each side: the gap the ICA keeps
+    between footprints, and where tracking error or delay bounds go.
+    ``head_rule`` says when a vehicle counts as head of its lane: ``entered``
+    (the dissertation: every vehicle ahead has begun to enter) or
+    ``confirmed`` (every vehicle ahead holds a confirmation).
+    """
+
+    techniques: Techniques = ENHANCED
+    step_s: float = 0.05
+    margin_m: float = 0.25
+    kinematics: Kinematics = field(default_factory=Kinematics)
+    caps: SpeedCaps = field(default_factory=SpeedCaps)
+    max_length_m: float = 12.0
+    max_width_m: float = 3.0
+    max_tss_samples: int = 4000
+    on_route_tol_m: float = 0.5
+    heading_tol_rad: float = 0.2
+    speed_tol_mps: float = 0.05
+    accel_tol_mps2: float = 0.1
+    max_request_age_s: float = 1.0
+    head_rule: str = "entered"
+    max_iterations: int = 2000
+
+    def __post_init__(self) -> None:
+        if self.head_rule not in ("entered", "confirmed"):
+            raise ValueError(f"head_rule must be 'entered' or 'confirmed', not {self.head_rule!r}")
+        if not (0 < self.step_s <= 1.0):
+            raise ValueError("step_s must be in (0, 1] seconds")
+        if self.margin_m < 0:
+            raise ValueError("margin_m must not be negative")

@@ -1,0 +1,209 @@
+"""DICA and enhanced DICA: confirm a head vehicle's request against the confirmed set.
+
+Algorithm 1 of the dissertation, with one change that a real vehicle needs:
+``updateDTOT`` does not shift the requester's times (a vehicle that must
+brake or stop cannot fly a shifted DTOT) but asks the planner for a new plan
+from the state in the request that enters no earlier than the shifted entry
+time. Entry times only grow, every step by at least one sample step, and past
+the last confirmed vehicle's exit nothing is left to conflict with, so the loop
+ends: the deadlock- and starvation-freedom arguments of chapter 3 carry over,
+with the wait of a vehicle bounded by the exit time of the vehicles confirmed
+before it.
+
+The class keeps the ICA's state: per-lane order of detected vehicles (to tell
+head vehicles), the confirmed set and the answers already given (a repeated
+request gets the same answer, never a second reservation). It does no I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from ica.core.config import IcaConfig
+from ica.core.conflict import Conflict, get_cv
+from ica.core.dtot import Dtot, build_dtot
+from ica.core.intersection import Intersection
+from ica.core.planner import Planner
+from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
+from ica.core.route import Route
+from ica.core.trajectory import Trajectory, sample
+from ica.core.validate import check_request
+from ica.core.zones import ConflictTables, Shape
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Confirmed:
+    vin: str
+    dtot: Dtot
+    confirmation: Confirmation
+
+
+class Dica:
+    """The intersection control agent's decision core for one junction."""
+
+    def __init__(self, intersection: Intersection, config: IcaConfig | None = None) -> None:
+        self.intersection = intersection
+        self.config = config or IcaConfig()
+        self.tables = ConflictTables(intersection, self.config.margin_m)
+        self.tables.precompute(Shape.of(5.0, 1.8))
+        self._confirmed: dict[str, Confirmed] = {}
+        self._lanes: dict[str, list[str]] = {lane: [] for lane in intersection.in_lanes}
+        self._lane_of: dict[str, str] = {}
+        self._entered: set[str] = set()
+
+    # -- state -------------------------------------------------------------
+    @property
+    def confirmed(self) -> dict[str, Confirmed]:
+        return dict(self._confirmed)
+
+    def confirmed_dtots(self) -> Iterator[tuple[str, Dtot]]:
+        return ((vin, c.dtot) for vin, c in self._confirmed.items())
+
+    def detect(self, vin: str, lane: str, t_s: float) -> None:
+        """A vehicle crossed the communication region's entry line on ``lane``."""
+        if lane not in self._lanes:
+            raise RequestError(
+                Reason.UNKNOWN_LANE, f"{lane!r} is not an incoming lane of this junction"
+            )
+        if vin in self._lane_of:
+            if self._lane_of[vin] == lane:
+                return  # a repeated detection
+            raise RequestError(Reason.BAD_STATE, f"{vin} already detected on {self._lane_of[vin]}")
+        self._lanes[lane].append(vin)
+        self._lane_of[vin] = lane
+
+    def advance(self, now_s: float) -> list[str]:
+        """Move the ICA's clock: note who has entered, forget who has left."""
+        for vin, c in self._confirmed.items():
+            if vin not in self._entered and c.confirmation.entry_time_s <= now_s:
+                self._entered.add(vin)
+                lane = self._lane_of.pop(vin, None)
+                if lane is not None:
+                    self._lanes[lane].remove(vin)
+        gone = [vin for vin, c in self._confirmed.items() if c.dtot.end_s < now_s]
+        for vin in gone:
+            del self._confirmed[vin]
+            self._entered.discard(vin)
+        return gone
+
+    def is_head(self, vin: str, now_s: float) -> bool:
+        lane = self._lane_of.get(vin)
+        if lane is None:
+            return False
+        for ahead in self._lanes[lane]:
+            if ahead == vin:
+                return True
+            c = self._confirmed.get(ahead)
+            if c is None:
+                return False
+            if self.config.head_rule == "entered" and c.confirmation.entry_time_s > now_s:
+                return False
+        return False
+
+    # -- REQUEST -----------------------------------------------------------
+    def handle(self, req: Request, now_s: float) -> Confirmation | Rejection:
+        """Answer one REQUEST. Bad input gives a Rejection and changes nothing."""
+        try:
+            return self._handle(req, now_s)
+        except RequestError as e:
+            vin = req.vin if isinstance(req.vin, str) else repr(req.vin)
+            seq = req.seq if isinstance(req.seq, int) else -1
+            return Rejection(vin, seq, e.reason, e.detail)
+
+    def _handle(self, req: Request, now_s: float) -> Confirmation:
+        done = self._confirmed.get(req.vin) if isinstance(req.vin, str) else None
+        if done is not None:
+            if done.confirmation.seq == req.seq:
+                return done.confirmation
+            raise RequestError(
+                Reason.ALREADY_CONFIRMED,
+                f"{req.vin} holds confirmation seq {done.confirmation.seq}",
+            )
+        route, shape, traj = check_request(req, self.intersection, self.config, now_s)
+        lane = self._lane_of.get(req.vin)
+        if lane is None:
+            raise RequestError(
+                Reason.NOT_DETECTED, f"{req.vin} was never detected entering the region"
+            )
+        if lane != req.in_lane:
+            raise RequestError(
+                Reason.BAD_STATE, f"{req.vin} was detected on {lane}, requests from {req.in_lane}"
+            )
+        if not self.is_head(req.vin, now_s):
+            raise RequestError(Reason.NOT_HEAD, f"{req.vin} is not the head vehicle of {lane}")
+
+        dtot, iterations, earliest = self._resolve(req, route, shape, traj)
+        entry = dtot.trajectory.entry_time_s()
+        front, heading = dtot.trajectory.xy_heading(route, req.length_m)
+        conf = Confirmation(
+            vin=req.vin,
+            seq=req.seq,
+            route_id=route.id,
+            tss=Tss(dtot.trajectory.t_s, front[:, 0].copy(), front[:, 1].copy(), heading),
+            entry_time_s=entry,
+            exit_time_s=float(dtot.t_s[-1]),
+            delay_s=max(0.0, entry - earliest),
+            iterations=iterations,
+        )
+        self._confirmed[req.vin] = Confirmed(req.vin, dtot, conf)
+        return conf
+
+    def front_cap_mps(self, route: Route) -> float:
+        """checkFV: a vehicle may not cross faster than the slowest confirmed
+        vehicle leaving by the same exit lane (which covers the same route ahead)."""
+        cap = route.speed_cap_mps
+        for c in self._confirmed.values():
+            if c.dtot.route.out_lane == route.out_lane:
+                cap = min(cap, max(c.dtot.exit_speed_mps, self.config.kinematics.creep_mps))
+        return cap
+
+    def _resolve(
+        self, req: Request, route: Route, shape: Shape, traj: Trajectory
+    ) -> tuple[Dtot, int, float]:
+        cfg = self.config
+        cap = self.front_cap_mps(route)
+        s_end = route.cross_length_m + shape.length_m
+        planner = Planner(
+            d_m=max(req.dist_to_entry_m, 0.0),
+            v0_mps=req.speed_mps,
+            road_mps=cfg.caps.road_mps,
+            cap_mps=cap,
+            s_end_m=s_end,
+            kin=cfg.kinematics,
+        )
+        earliest = req.t0_s + planner.earliest_entry_s()
+        if not math.isfinite(earliest):
+            raise RequestError(
+                Reason.INFEASIBLE, "cannot slow to the crossing speed cap before the entry line"
+            )
+        inside = traj.s_m[:-1] >= 0.0
+        if np.any(traj.speeds()[inside] > cap + cfg.speed_tol_mps):
+            traj = self._plan(planner, req.t0_s, traj.entry_time_s() - req.t0_s, s_end)
+        grid = self.tables.grid(route, shape) if cfg.techniques.estimated_oti else None
+
+        for iteration in range(1, cfg.max_iterations + 1):
+            dtot = build_dtot(route, shape, traj, cfg.margin_m, grid)
+            conflicts: list[Conflict] = get_cv(
+                dtot, self.confirmed_dtots(), cfg.techniques, self.tables
+            )
+            if not conflicts:
+                return dtot, iteration, earliest
+            first = conflicts[0]
+            target = traj.entry_time_s() - req.t0_s + max(first.delay_s, cfg.step_s)
+            traj = self._plan(planner, req.t0_s, target, s_end)
+        raise RequestError(
+            Reason.INFEASIBLE, f"no conflict-free plan after {cfg.max_iterations} updates"
+        )
+
+    def _plan(self, planner: Planner, t0_s: float, entry_rel_s: float, s_end: float) -> Trajectory:
+        profile = planner.at_or_after(entry_rel_s)
+        if profile is None:
+            raise RequestError(
+                Reason.INFEASIBLE,
+                f"cannot delay the entry to t={t0_s + entry_rel_s:.2f} s from the state",
+            )
+        return sample(profile, t0_s, self.config.step_s, s_end)

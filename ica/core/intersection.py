@@ -1,0 +1,51 @@
+"""The intersection as the ICA sees it: its routes, region and lanes."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ica.core.route import Route
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Intersection:
+    """Routes through one junction, its area polygon and its approaches.
+
+    ``comm_length_m`` is the length of the communication region: its entry
+    line lies that far upstream of every entry line (50 m in the dissertation).
+    ``region`` (K, 2) is the junction's area polygon as SUMO draws it.
+    """
+
+    junction_id: str
+    routes: tuple[Route, ...]
+    region: np.ndarray
+    comm_length_m: float = 50.0
+    _by_lanes: Mapping[tuple[str, str], Route] = field(init=False, repr=False)
+    _by_id: Mapping[str, Route] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        by_lanes = {(r.in_lane, r.out_lane): r for r in self.routes}
+        if len(by_lanes) != len(self.routes):
+            raise ValueError("two routes join the same incoming and outgoing lane")
+        object.__setattr__(self, "_by_lanes", by_lanes)
+        object.__setattr__(self, "_by_id", {r.id: r for r in self.routes})
+
+    @property
+    def in_lanes(self) -> tuple[str, ...]:
+        return tuple(sorted({r.in_lane for r in self.routes}))
+
+    @property
+    def out_lanes(self) -> tuple[str, ...]:
+        return tuple(sorted({r.out_lane for r in self.routes}))
+
+    def route(self, in_lane: str, out_lane: str) -> Route | None:
+        return self._by_lanes.get((in_lane, out_lane))
+
+    def route_by_id(self, route_id: str) -> Route | None:
+        return self._by_id.get(route_id)
+
+    def routes_from(self, in_lane: str) -> tuple[Route, ...]:
+        return tuple(r for r in self.routes if r.in_lane == in_lane)

@@ -1,0 +1,283 @@
+"""Longitudinal motion plans a vehicle can really fly.
+
+The dissertation delays a DTOT by shifting its times, which a vehicle that has
+to brake or stop cannot follow. Here a later entry time is met by a new plan
+from the vehicle's state in the request, built from pieces of constant
+acceleration within the vehicle's limits:
+
+* **slow-down family** A(v_m): change speed from v0 to a cruise speed v_m,
+  cruise, then accelerate to the entry speed reached exactly at the entry line
+  (or brake to the junction's cap when cruising above it). Larger v_m arrives
+  earlier; the largest feasible v_m is the time-optimal plan.
+* **stop family** B(w): brake to a stop ``stop_gap_m`` before the entry line,
+  wait ``w`` seconds, then pull away at full acceleration.
+
+Inside the junction every plan accelerates at ``accel`` up to the crossing
+cap and holds it until the vehicle is fully out. A-plans whose cruise speed
+would fall below ``creep_mps`` give way to stopping, as a driver would.
+
+Positions are arc length along the route with 0 at the entry line, times are
+relative to the request (``t = 0`` at the state the vehicle reported).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+_EPS = 1e-9
+
+
+@dataclass(frozen=True, slots=True)
+class Kinematics:
+    """Vehicle limits used for planning [m/s^2, m/s, m]; the dissertation's defaults."""
+
+    accel_mps2: float = 2.0
+    decel_mps2: float = 4.5
+    creep_mps: float = 2.0
+    stop_gap_m: float = 0.5
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Profile:
+    """Piecewise constant acceleration: segment k starts at ``t_s[k]`` with
+    ``s_m[k]``, ``v_mps[k]`` and accelerates at ``a_mps2[k]``. After the last
+    segment the vehicle holds its speed."""
+
+    t_s: np.ndarray
+    s_m: np.ndarray
+    v_mps: np.ndarray
+    a_mps2: np.ndarray
+    entry_time_s: float
+    entry_speed_mps: float
+
+    def position(self, t: np.ndarray) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        k = np.clip(np.searchsorted(self.t_s, t, side="right") - 1, 0, len(self.t_s) - 1)
+        tau = np.maximum(t - self.t_s[k], 0.0)
+        return self.s_m[k] + self.v_mps[k] * tau + 0.5 * self.a_mps2[k] * tau * tau
+
+    def time_at(self, s: float) -> float:
+        """First time the front reaches arc length ``s`` (inf if never)."""
+        for k in range(len(self.t_s)):
+            s0, v0, a = self.s_m[k], self.v_mps[k], self.a_mps2[k]
+            end = self.t_s[k + 1] - self.t_s[k] if k + 1 < len(self.t_s) else math.inf
+            ds = s - s0
+            if ds <= 0.0:
+                return float(self.t_s[k])
+            if abs(a) < _EPS:
+                tau = ds / v0 if v0 > _EPS else math.inf
+            else:
+                disc = v0 * v0 + 2.0 * a * ds
+                tau = math.inf if disc < 0.0 else (math.sqrt(disc) - v0) / a
+            if tau <= end + 1e-9:
+                return float(self.t_s[k] + tau)
+        return math.inf
+
+
+class _Builder:
+    """Accumulates constant-acceleration segments."""
+
+    def __init__(self, s0: float, v0: float) -> None:
+        self.t, self.s, self.v = 0.0, s0, v0
+        self.segs: list[tuple[float, float, float, float]] = []
+
+    def accel_to(self, v1: float, rate: float) -> None:
+        if abs(v1 - self.v) < _EPS:
+            return
+        a = rate if v1 > self.v else -rate
+        dt = (v1 - self.v) / a
+        self.segs.append((self.t, self.s, self.v, a))
+        self.s += (self.v + v1) / 2.0 * dt
+        self.t += dt
+        self.v = v1
+
+    def hold(self, dt: float) -> None:
+        if dt <= _EPS:
+            return
+        self.segs.append((self.t, self.s, self.v, 0.0))
+        self.s += self.v * dt
+        self.t += dt
+
+    def cruise_to(self, s1: float) -> None:
+        if s1 - self.s > _EPS and self.v > _EPS:
+            self.hold((s1 - self.s) / self.v)
+
+    def profile(self, entry_time: float, entry_speed: float) -> Profile:
+        self.segs.append((self.t, self.s, self.v, 0.0))  # hold speed afterwards
+        arr = np.array(self.segs, dtype=float)
+        return Profile(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], entry_time, entry_speed)
+
+
+@dataclass(frozen=True, slots=True)
+class Planner:
+    """Plans for one vehicle: distance ``d_m`` to the entry line, speed ``v0_mps``.
+
+    ``road_mps`` caps the approach, ``cap_mps`` the crossing (turn cap, or a
+    front vehicle's exit speed); ``s_end_m`` is where the front is when the
+    vehicle is fully out (crossing length plus vehicle length).
+    """
+
+    d_m: float
+    v0_mps: float
+    road_mps: float
+    cap_mps: float
+    s_end_m: float
+    kin: Kinematics = Kinematics()
+
+    # -- the two families -------------------------------------------------
+    def _crossing(self, b: _Builder) -> None:
+        """From the entry line: accelerate to the cap, hold until fully out."""
+        b.accel_to(max(b.v, self.cap_mps), self.kin.accel_mps2)
+        # If accelerating to the cap overshoots s_end we still keep the plan:
+        # samples past s_end are never used.
+        b.cruise_to(self.s_end_m)
+
+    def _a_phases(self, v_m: float) -> tuple[float, float, float, float] | None:
+        """(D1, D3, v_e, T) of A(v_m), or None if it does not fit in d."""
+        a, br, v0, d, cap = (
+            self.kin.accel_mps2,
+            self.kin.decel_mps2,
+            self.v0_mps,
+            self.d_m,
+            self.cap_mps,
+        )
+        d1 = (v_m * v_m - v0 * v0) / (2 * a) if v_m >= v0 else (v0 * v0 - v_m * v_m) / (2 * br)
+        t1 = abs(v_m - v0) / (a if v_m >= v0 else br)
+        if d1 > d + 1e-7:
+            return None
+        if v_m > cap:
+            v_e = cap
+            d3 = (v_m * v_m - cap * cap) / (2 * br)
+            t3 = (v_m - cap) / br
+        else:
+            v_e = min(cap, math.sqrt(max(v_m * v_m + 2 * a * (d - d1), 0.0)))
+            d3 = (v_e * v_e - v_m * v_m) / (2 * a)
+            t3 = (v_e - v_m) / a
+        d2 = d - d1 - d3
+        if d2 < -1e-7:
+            return None
+        if d2 > 1e-9 and v_m <= _EPS:
+            return None
+        t2 = d2 / v_m if d2 > 1e-9 else 0.0
+        return d1, d3, v_e, t1 + t2 + t3
+
+    def _v_max(self) -> float:
+        """Cruise speed of the time-optimal plan (largest feasible v_m)."""
+        a, br, v0, d, cap = (
+            self.kin.accel_mps2,
+            self.kin.decel_mps2,
+            self.v0_mps,
+            self.d_m,
+            self.cap_mps,
+        )
+        reach = math.sqrt(v0 * v0 + 2 * a * d)
+        if reach <= cap and v0 <= cap:
+            return min(reach, self.road_mps)
+        peak2 = (d + v0 * v0 / (2 * a) + cap * cap / (2 * br)) / (1 / (2 * a) + 1 / (2 * br))
+        return min(self.road_mps, math.sqrt(max(peak2, 0.0)))
+
+    def _v_min_a(self) -> float:
+        v_floor = math.sqrt(max(0.0, self.v0_mps**2 - 2 * self.kin.decel_mps2 * self.d_m))
+        return max(self.kin.creep_mps, v_floor)
+
+    def _build_a(self, v_m: float) -> Profile | None:
+        ph = self._a_phases(v_m)
+        if ph is None:
+            return None
+        _, d3, v_e, t_entry = ph
+        rate_up, rate_dn = self.kin.accel_mps2, self.kin.decel_mps2
+        b = _Builder(-self.d_m, self.v0_mps)
+        b.accel_to(v_m, rate_up if v_m >= self.v0_mps else rate_dn)
+        b.cruise_to(-d3)
+        b.accel_to(v_e, rate_up if v_e >= v_m else rate_dn)
+        b.s = 0.0  # absorb rounding at the entry line
+        self._crossing(b)
+        return b.profile(t_entry, v_e)
+
+    def _stop_gap(self) -> float:
+        return min(self.kin.stop_gap_m, self.d_m)
+
+    def can_stop(self) -> bool:
+        d_stop = self.d_m - self._stop_gap()
+        return self.v0_mps**2 <= 2 * self.kin.decel_mps2 * d_stop + 1e-7
+
+    def _b_base(self) -> tuple[_Builder, float]:
+        """Time-optimal stop ``stop_gap`` before the line; returns builder and stop time."""
+        a, br, v0 = self.kin.accel_mps2, self.kin.decel_mps2, self.v0_mps
+        d_stop = self.d_m - self._stop_gap()
+        b = _Builder(-self.d_m, v0)
+        peak2 = (d_stop + v0 * v0 / (2 * a)) / (1 / (2 * a) + 1 / (2 * br))
+        peak = max(v0, min(self.road_mps, math.sqrt(max(peak2, 0.0))))
+        b.accel_to(peak, a)
+        b.cruise_to(-self._stop_gap() - peak * peak / (2 * br))
+        b.accel_to(0.0, br)
+        b.s = -self._stop_gap()
+        return b, b.t
+
+    def _build_b(self, wait_s: float) -> Profile:
+        b, _ = self._b_base()
+        b.hold(0.0)
+        if wait_s > 0:
+            b.segs.append((b.t, b.s, 0.0, 0.0))
+            b.t += wait_s
+        gap = self._stop_gap()
+        a = self.kin.accel_mps2
+        v_e = min(self.cap_mps, math.sqrt(2 * a * gap))
+        t_entry = b.t + self._pull_away_time(gap)
+        self._crossing(b)
+        return b.profile(t_entry, v_e)
+
+    def _pull_away_time(self, gap: float) -> float:
+        """Time from standstill ``gap`` before the line until the front reaches it."""
+        a, cap = self.kin.accel_mps2, self.cap_mps
+        if gap <= cap * cap / (2 * a):
+            return math.sqrt(2 * gap / a)
+        return cap / a + (gap - cap * cap / (2 * a)) / cap
+
+    # -- public ---------------------------------------------------------
+    def feasible(self) -> bool:
+        """Can the vehicle reach the entry line at or below the crossing cap at all?"""
+        return self._a_phases(self._v_max()) is not None
+
+    def fastest(self) -> Profile | None:
+        return self._build_a(self._v_max())
+
+    def earliest_entry_s(self) -> float:
+        ph = self._a_phases(self._v_max())
+        return math.inf if ph is None else ph[3]
+
+    def at_or_after(self, t_entry_s: float) -> Profile | None:
+        """The plan entering soonest at or after ``t_entry_s`` (None if none exists).
+
+        Prefers slowing down (higher entry speed) and stops at the line when
+        that would mean creeping.
+        """
+        v_hi = self._v_max()
+        hi = self._a_phases(v_hi)
+        if hi is None:
+            return None
+        if t_entry_s <= hi[3] + 1e-9:
+            return self._build_a(v_hi)
+        v_lo = self._v_min_a()
+        lo = self._a_phases(v_lo) if v_lo < v_hi else None
+        if lo is not None and t_entry_s <= lo[3]:
+            # T(v_m) decreases with v_m: bisect for the cruise speed that arrives on time.
+            lo_v, hi_v = v_lo, v_hi
+            for _ in range(60):
+                mid = 0.5 * (lo_v + hi_v)
+                ph = self._a_phases(mid)
+                if ph is None or ph[3] > t_entry_s:
+                    lo_v = mid
+                else:
+                    hi_v = mid
+                if hi_v - lo_v < 1e-7:
+                    break
+            return self._build_a(hi_v)
+        if not self.can_stop():
+            return None
+        _, t_stop = self._b_base()
+        t_b0 = t_stop + self._pull_away_time(self._stop_gap())
+        return self._build_b(max(0.0, t_entry_s - t_b0))

@@ -1,0 +1,188 @@
+"""Crossing routes: the path a front bumper follows through a junction.
+
+A route is one incoming lane, the internal lanes of the junction and one
+outgoing lane, joined into a single polyline with an arc-length coordinate
+``s`` [m]. ``s = 0`` is the entry line (the end of the incoming lane, where a
+DTOT starts) and ``s = cross_length_m`` the exit line (the start of the outgoing
+lane). Negative ``s`` lies in the approach. Everything the ICA reasons about,
+trajectories included, is expressed in this coordinate; (x, y) only appears
+when occupancies are drawn as rectangles.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+KMH = 1.0 / 3.6  # [m/s per km/h]
+
+
+class Turn(StrEnum):
+    LEFT = "left"
+    THROUGH = "through"
+    RIGHT = "right"
+
+
+@dataclass(frozen=True, slots=True)
+class SpeedCaps:
+    """Speed limits [m/s]: the road's, and the comfortable caps inside the junction.
+
+    Defaults are the dissertation's: 70 km/h road, 25 / 35 / 65 km/h for right,
+    left and through movements.
+    """
+
+    road_mps: float = 70.0 * KMH
+    left_mps: float = 35.0 * KMH
+    through_mps: float = 65.0 * KMH
+    right_mps: float = 25.0 * KMH
+
+    def for_turn(self, turn: Turn) -> float:
+        cap = {Turn.LEFT: self.left_mps, Turn.THROUGH: self.through_mps, Turn.RIGHT: self.right_mps}
+        return min(cap[turn], self.road_mps)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Route:
+    """One way through a junction, as a polyline with arc length.
+
+    ``xy`` (M, 2) are the vertices and ``s`` (M,) their arc length, strictly
+    increasing, with 0 at the entry line. The polyline reaches at least
+    ``approach_m`` upstream of the entry line and ``tail_m`` downstream of the
+    exit line so that every vehicle the ICA accepts can be drawn anywhere in
+    its communication region and until it is fully out.
+    """
+
+    id: str
+    in_lane: str
+    out_lane: str
+    via_lanes: tuple[str, ...]
+    turn: Turn
+    speed_cap_mps: float
+    cross_length_m: float
+    xy: np.ndarray
+    s: np.ndarray
+
+    @property
+    def s_min(self) -> float:
+        return float(self.s[0])
+
+    @property
+    def s_max(self) -> float:
+        return float(self.s[-1])
+
+    def points(self, s: np.ndarray | float) -> np.ndarray:
+        """Points (..., 2) at arc lengths ``s``; clamps outside the polyline."""
+        s = np.asarray(s, dtype=float)
+        return np.stack(
+            [np.interp(s, self.s, self.xy[:, 0]), np.interp(s, self.s, self.xy[:, 1])], -1
+        )
+
+    def project(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Arc length of the nearest polyline point and the distance to it, per point.
+
+        Used to check that a requested TSS really lies on this route.
+        """
+        p = np.asarray(xy, dtype=float).reshape(-1, 2)
+        a = self.xy[:-1]  # (M-1, 2)
+        d = self.xy[1:] - a
+        seg_len2 = np.einsum("ij,ij->i", d, d)
+        w = p[:, None, :] - a[None, :, :]  # (N, M-1, 2)
+        u = np.clip(np.einsum("nij,ij->ni", w, d) / seg_len2, 0.0, 1.0)
+        closest = a[None] + u[..., None] * d[None]
+        dist2 = np.sum((p[:, None, :] - closest) ** 2, axis=-1)
+        k = np.argmin(dist2, axis=1)
+        rows = np.arange(len(p))
+        s = self.s[k] + u[rows, k] * np.sqrt(seg_len2[k])
+        return s, np.sqrt(dist2[rows, k])
+
+
+def classify_turn(xy: np.ndarray, straight_deg: float = 30.0) -> Turn:
+    """Turn class from the heading change between the path's first and last segment.
+
+    Used when the network does not say (SUMO's ``dir`` is preferred when present).
+    """
+    h0 = xy[1] - xy[0]
+    h1 = xy[-1] - xy[-2]
+    change = math.degrees(math.atan2(h0[0] * h1[1] - h0[1] * h1[0], h0 @ h1))
+    if change > straight_deg:
+        return Turn.LEFT
+    if change < -straight_deg:
+        return Turn.RIGHT
+    return Turn.THROUGH
+
+
+def _dedup(xy: np.ndarray, eps: float = 1e-6) -> np.ndarray:
+    keep = np.ones(len(xy), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(xy, axis=0), axis=1) > eps
+    return xy[keep]
+
+
+def build_route(
+    *,
+    route_id: str,
+    in_lane: str,
+    out_lane: str,
+    via_lanes: tuple[str, ...],
+    in_shape: np.ndarray,
+    via_shapes: list[np.ndarray],
+    out_shape: np.ndarray,
+    turn: Turn,
+    caps: SpeedCaps,
+    approach_m: float,
+    tail_m: float,
+) -> Route:
+    """Join lane shapes into a route; extend straight where a lane is too short.
+
+    ``approach_m`` is how far upstream of the entry line the polyline must
+    reach (communication region plus the longest vehicle), ``tail_m`` how far
+    past the exit line. Shapes shorter than that are extended along their end
+    segment, which is how a vehicle on a short lane would be drawn anyway.
+    """
+    in_shape = _dedup(np.asarray(in_shape, dtype=float))
+    out_shape = _dedup(np.asarray(out_shape, dtype=float))
+    inner = [_dedup(np.asarray(v, dtype=float)) for v in via_shapes]
+    if len(in_shape) < 2 or len(out_shape) < 2:
+        raise ValueError(f"route {route_id}: lane shapes need at least two distinct points")
+
+    def seglen(p: np.ndarray) -> np.ndarray:
+        return np.linalg.norm(np.diff(p, axis=0), axis=1)
+
+    in_len = float(seglen(in_shape).sum())
+    if in_len < approach_m:
+        d = in_shape[0] - in_shape[1]
+        d /= np.linalg.norm(d)
+        in_shape = np.vstack([in_shape[0] + d * (approach_m - in_len + 1.0), in_shape])
+    out_len = float(seglen(out_shape).sum())
+    if out_len < tail_m:
+        d = out_shape[-1] - out_shape[-2]
+        d /= np.linalg.norm(d)
+        out_shape = np.vstack([out_shape, out_shape[-1] + d * (tail_m - out_len + 1.0)])
+
+    entry_xy = in_shape[-1]
+    middle = (
+        np.vstack([entry_xy[None], *inner, out_shape[:1]])
+        if inner
+        else np.vstack([entry_xy[None], out_shape[:1]])
+    )
+    middle = _dedup(middle)
+    cross_length = float(seglen(middle).sum()) if len(middle) > 1 else 0.0
+    if cross_length <= 0.0:
+        raise ValueError(f"route {route_id}: zero length inside the junction")
+
+    xy = _dedup(np.vstack([in_shape, middle[1:], out_shape[1:]]))
+    s = np.concatenate([[0.0], np.cumsum(seglen(xy))])
+    s -= float(seglen(in_shape).sum())  # entry line at s = 0
+    return Route(
+        id=route_id,
+        in_lane=in_lane,
+        out_lane=out_lane,
+        via_lanes=via_lanes,
+        turn=turn,
+        speed_cap_mps=caps.for_turn(turn),
+        cross_length_m=cross_length,
+        xy=xy,
+        s=s,
+    )

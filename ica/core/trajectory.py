@@ -1,0 +1,73 @@
+"""Sampled trajectories along a route: the TSS in the route's own coordinate."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from ica.core.planner import Profile
+from ica.core.route import Route
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Trajectory:
+    """Front-bumper arc length ``s_m`` [m] sampled every ``step_s`` from ``t0_s``.
+
+    Between samples a vehicle moves at constant speed, which is exactly what
+    SUMO does with ``setSpeed((s[k+1] - s[k]) / step)`` each step, so a
+    confirmed trajectory is flown without tracking error in simulation.
+    """
+
+    t0_s: float
+    step_s: float
+    s_m: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.s_m)
+
+    @property
+    def t_s(self) -> np.ndarray:
+        return self.t0_s + self.step_s * np.arange(len(self.s_m))
+
+    def speeds(self) -> np.ndarray:
+        """Speed over each step [m/s], (N-1,)."""
+        return np.diff(self.s_m) / self.step_s
+
+    def entry_index(self) -> int:
+        """Index of the last sample before the front crosses the entry line."""
+        inside = np.nonzero(self.s_m >= 0.0)[0]
+        if len(inside) == 0:
+            return len(self.s_m) - 1
+        return max(int(inside[0]) - 1, 0)
+
+    def exit_index(self, s_end_m: float) -> int:
+        """Index of the first sample at which the front is at ``s_end_m`` or beyond."""
+        out = np.nonzero(self.s_m >= s_end_m - 1e-9)[0]
+        return int(out[0]) if len(out) else len(self.s_m) - 1
+
+    def entry_time_s(self) -> float:
+        """Time the front reaches s = 0, linear between samples as the vehicle moves."""
+        k = self.entry_index()
+        if self.s_m[k] >= 0.0:
+            return self.t0_s + k * self.step_s
+        s0, s1 = self.s_m[k], self.s_m[k + 1]
+        return self.t0_s + (k + (0.0 - s0) / (s1 - s0)) * self.step_s
+
+    def xy_heading(self, route: Route, length_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """Front-bumper points (N, 2) and headings [rad, CCW from +x], rear-to-front."""
+        front = route.points(self.s_m)
+        rear = route.points(self.s_m - length_m)
+        d = front - rear
+        return front, np.arctan2(d[:, 1], d[:, 0])
+
+
+def sample(profile: Profile, t0_s: float, step_s: float, s_end_m: float) -> Trajectory:
+    """Sample a plan from the request time until the front is at or past ``s_end_m``."""
+    t_out = profile.time_at(s_end_m)
+    if not math.isfinite(t_out):
+        raise ValueError("plan never leaves the junction")
+    n = math.ceil(t_out / step_s - 1e-9) + 1
+    s = profile.position(step_s * np.arange(n))
+    return Trajectory(t0_s, step_s, s)

@@ -1,0 +1,159 @@
+"""Checks that turn an untrusted REQUEST into a trajectory on a known route.
+
+Every check raises :class:`RequestError` with a stable reason, so a bad
+request is answered with a REJECT and never touches the confirmed set.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ica.core.config import IcaConfig
+from ica.core.intersection import Intersection
+from ica.core.request import Reason, Request, RequestError
+from ica.core.route import Route
+from ica.core.trajectory import Trajectory
+from ica.core.zones import Shape
+
+
+def _finite(name: str, x: float) -> None:
+    if not isinstance(x, (int, float)) or isinstance(x, bool) or not math.isfinite(x):
+        raise RequestError(Reason.NOT_FINITE, f"{name} must be a finite number, got {x!r}")
+
+
+def check_request(
+    req: Request, inter: Intersection, cfg: IcaConfig, now_s: float
+) -> tuple[Route, Shape, Trajectory]:
+    """Validate ``req``; return its route, planning shape and TSS as a trajectory."""
+    if not isinstance(req.vin, str) or not req.vin or len(req.vin) > 64:
+        raise RequestError(
+            Reason.BAD_STATE, "vin must be a non-empty string of at most 64 characters"
+        )
+    if not isinstance(req.seq, int) or isinstance(req.seq, bool) or req.seq < 0:
+        raise RequestError(Reason.BAD_STATE, f"seq must be a non-negative integer, got {req.seq!r}")
+    for name in ("length_m", "width_m", "t0_s", "dist_to_entry_m", "speed_mps"):
+        _finite(name, getattr(req, name))
+    if req.length_m <= 0 or req.width_m <= 0:
+        raise RequestError(
+            Reason.BAD_SIZE, f"vehicle size must be positive, got {req.length_m} x {req.width_m} m"
+        )
+    if req.length_m > cfg.max_length_m or req.width_m > cfg.max_width_m:
+        raise RequestError(
+            Reason.TOO_LARGE,
+            f"vehicle {req.length_m} x {req.width_m} m exceeds the junction's design envelope "
+            f"{cfg.max_length_m} x {cfg.max_width_m} m",
+        )
+    if req.in_lane not in inter.in_lanes:
+        raise RequestError(
+            Reason.UNKNOWN_LANE, f"{req.in_lane!r} is not an incoming lane of this junction"
+        )
+    route = inter.route(req.in_lane, req.out_lane)
+    if route is None:
+        raise RequestError(
+            Reason.UNKNOWN_ROUTE,
+            f"no route from {req.in_lane!r} to {req.out_lane!r} through this junction",
+        )
+    if req.dist_to_entry_m < -cfg.on_route_tol_m or req.dist_to_entry_m > inter.comm_length_m + 1.0:
+        raise RequestError(
+            Reason.BAD_STATE,
+            f"distance to the entry line {req.dist_to_entry_m:.2f} m lies outside the region",
+        )
+    if req.speed_mps < 0 or req.speed_mps > cfg.caps.road_mps + cfg.speed_tol_mps:
+        raise RequestError(
+            Reason.BAD_STATE, f"speed {req.speed_mps:.2f} m/s outside [0, road limit]"
+        )
+    if req.t0_s > now_s + cfg.step_s + 1e-9:
+        raise RequestError(Reason.BAD_TIME, f"request planned at t={req.t0_s:.3f} s, in the future")
+    if now_s - req.t0_s > cfg.max_request_age_s:
+        raise RequestError(Reason.STALE, f"request is {now_s - req.t0_s:.3f} s old")
+
+    traj = _check_tss(req, route, cfg)
+    return route, Shape.of(req.length_m, req.width_m), traj
+
+
+def _check_tss(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
+    tss = req.tss
+    arrays = [np.asarray(a) for a in (tss.t_s, tss.x_m, tss.y_m, tss.heading_rad)]
+    n = len(arrays[0])
+    if any(a.ndim != 1 or len(a) != n for a in arrays):
+        raise RequestError(
+            Reason.BAD_STATE, "TSS arrays must be one-dimensional and of equal length"
+        )
+    if n < 2 or n > cfg.max_tss_samples:
+        raise RequestError(
+            Reason.BAD_STATE, f"TSS must have 2..{cfg.max_tss_samples} samples, has {n}"
+        )
+    try:
+        t, x, y, h = (a.astype(float) for a in arrays)
+    except (TypeError, ValueError):
+        raise RequestError(Reason.NOT_FINITE, "TSS holds values that are not numbers") from None
+    if not all(np.isfinite(a).all() for a in (t, x, y, h)):
+        raise RequestError(Reason.NOT_FINITE, "TSS holds NaN or infinite values")
+    dt = np.diff(t)
+    if np.any(dt <= 0):
+        raise RequestError(Reason.BAD_TIME, "TSS times must increase strictly")
+    if np.any(np.abs(dt - cfg.step_s) > 1e-6):
+        raise RequestError(Reason.BAD_TIME, f"TSS must be sampled every {cfg.step_s} s")
+    if abs(t[0] - req.t0_s) > 1e-6:
+        raise RequestError(Reason.BAD_TIME, "TSS must start at the request's state time t0")
+
+    s, off = route.project(np.stack([x, y], -1))
+    worst = float(off.max())
+    if worst > cfg.on_route_tol_m:
+        raise RequestError(
+            Reason.OFF_ROUTE,
+            f"TSS leaves route {route.id} by {worst:.2f} m (tolerance {cfg.on_route_tol_m} m)",
+        )
+    if abs(s[0] + req.dist_to_entry_m) > cfg.on_route_tol_m:
+        raise RequestError(
+            Reason.BAD_STATE,
+            f"TSS starts {-s[0]:.2f} m before the entry line, the state {req.dist_to_entry_m:.2f} m",
+        )
+    if np.any(np.diff(s) < -1e-6):
+        raise RequestError(Reason.BAD_STATE, "TSS moves backwards along the route")
+    s = np.maximum.accumulate(s)
+    s_end = route.cross_length_m + req.length_m
+    if s[-1] < s_end - 1e-6:
+        raise RequestError(
+            Reason.BAD_STATE, "TSS ends before the vehicle is fully out of the junction"
+        )
+
+    front = route.points(s)
+    rear = route.points(s - req.length_m)
+    d = front - rear
+    expect = np.arctan2(d[:, 1], d[:, 0])
+    dh = np.abs((h - expect + np.pi) % (2 * np.pi) - np.pi)
+    if float(dh.max()) > cfg.heading_tol_rad:
+        raise RequestError(
+            Reason.OFF_ROUTE, f"TSS heading deviates from the route by {float(dh.max()):.2f} rad"
+        )
+
+    traj = Trajectory(float(t[0]), cfg.step_s, s)
+    check_limits(traj, route, cfg, v0_mps=req.speed_mps)
+    return traj
+
+
+def check_limits(
+    traj: Trajectory, route: Route, cfg: IcaConfig, v0_mps: float | None = None
+) -> None:
+    """Speed and acceleration limits on the sampled motion (what the vehicle will fly)."""
+    v = traj.speeds()
+    kin = cfg.kinematics
+    if np.any(v > cfg.caps.road_mps + cfg.speed_tol_mps):
+        raise RequestError(Reason.LIMITS, f"TSS exceeds the road limit ({float(v.max()):.2f} m/s)")
+    inside = traj.s_m[:-1] >= 0.0
+    if np.any(v[inside] > route.speed_cap_mps + cfg.speed_tol_mps):
+        raise RequestError(
+            Reason.LIMITS,
+            f"TSS exceeds the {route.turn.value} cap of {route.speed_cap_mps:.2f} m/s inside",
+        )
+    vs = v if v0_mps is None else np.concatenate([[v0_mps], v])
+    acc = np.diff(vs) / traj.step_s
+    # The first step may deviate by half a step of acceleration from the reported speed.
+    slack = np.full(len(acc), cfg.accel_tol_mps2)
+    if v0_mps is not None and len(slack):
+        slack[0] += max(kin.accel_mps2, kin.decel_mps2)
+    if np.any(acc > kin.accel_mps2 + slack) or np.any(acc < -kin.decel_mps2 - slack):
+        raise RequestError(Reason.LIMITS, "TSS exceeds the acceleration or deceleration limit")

@@ -1,0 +1,173 @@
+"""Read a junction of any SUMO ``.net.xml`` into the ICA's :class:`Intersection`.
+
+Kept outside ``ica.core`` because it does file I/O and depends on sumolib; the
+core only ever sees the resulting polylines. Nothing here is specific to the
+dissertation's layouts: the routes are whatever connections the network has.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import sumolib
+
+from ica.core.intersection import Intersection
+from ica.core.route import Route, SpeedCaps, Turn, build_route, classify_turn
+
+_DIR_TO_TURN = {"l": Turn.LEFT, "L": Turn.LEFT, "r": Turn.RIGHT, "R": Turn.RIGHT, "s": Turn.THROUGH}
+_VEHICLE_CLASS = "passenger"
+_MAX_VIA_CHAIN = 16  # internal lanes per connection; SUMO uses at most a handful
+_MARGIN_M = 5.0  # slack beyond the longest vehicle at both ends of a route
+DEFAULT_CAPS = SpeedCaps()  # frozen, so one shared default is safe
+
+
+class NetworkError(Exception):
+    """The network file or junction cannot give routes; the message is one line."""
+
+
+def load_intersection(
+    net_path: str | Path,
+    junction_id: str,
+    *,
+    comm_length_m: float = 50.0,
+    caps: SpeedCaps = DEFAULT_CAPS,
+    max_vehicle_length_m: float = 12.0,
+) -> Intersection:
+    """Routes of ``junction_id``: one per (incoming lane, outgoing lane) connection.
+
+    Each route joins the incoming lane, the chain of internal lanes SUMO drives
+    through (on priority junctions a left turn may use two) and the outgoing
+    lane. The polyline reaches ``comm_length_m`` plus a vehicle length upstream
+    of the entry line so any accepted vehicle can be placed on it.
+    """
+    net = _read(Path(net_path))
+    if not net.hasNode(junction_id):
+        known = sorted(n.getID() for n in net.getNodes())
+        shown = ", ".join(known[:8]) + (", ..." if len(known) > 8 else "")
+        raise NetworkError(
+            f"junction {junction_id!r} not in {net_path} (known junctions: {shown or 'none'})"
+        )
+    node = net.getNode(junction_id)
+    approach_m = comm_length_m + max_vehicle_length_m + _MARGIN_M
+    tail_m = max_vehicle_length_m + _MARGIN_M
+
+    routes: list[Route] = []
+    for edge in node.getIncoming():
+        if edge.isSpecial():  # internal edges list the junction as both ends
+            continue
+        for lane in edge.getLanes():
+            if not lane.allows(_VEHICLE_CLASS):
+                continue
+            for conn in lane.getOutgoing():
+                if conn.getDirection() == "t" or not conn.allows(_VEHICLE_CLASS):
+                    continue
+                routes.append(_route(net, conn, caps, approach_m, tail_m))
+
+    if not routes:
+        raise NetworkError(
+            f"junction {junction_id!r} in {net_path} has no crossing routes "
+            f"for {_VEHICLE_CLASS} vehicles"
+        )
+    routes.sort(key=lambda r: r.id)
+    return Intersection(
+        junction_id=junction_id,
+        routes=tuple(routes),
+        region=_region(node, routes),
+        comm_length_m=comm_length_m,
+    )
+
+
+def _read(path: Path) -> sumolib.net.Net:
+    if not path.is_file():
+        raise NetworkError(f"network file not found: {path}")
+    try:
+        return sumolib.net.readNet(str(path), withInternal=True)
+    except Exception as exc:  # sumolib raises whatever its XML parser raises
+        detail = " ".join(str(exc).split()) or type(exc).__name__
+        raise NetworkError(f"cannot read SUMO network {path}: {detail}") from exc
+
+
+def _via_chain(
+    net: sumolib.net.Net, conn: sumolib.net.connection.Connection
+) -> list[sumolib.net.lane.Lane]:
+    """Internal lanes from the incoming to the outgoing lane, in driving order.
+
+    An internal lane's own connection to the target lane may name a further
+    internal lane (the second half of a left turn waiting inside the junction).
+    """
+    target = conn.getToLane()
+    chain: list[sumolib.net.lane.Lane] = []
+    via_id = conn.getViaLaneID()
+    while via_id:
+        if len(chain) >= _MAX_VIA_CHAIN:
+            raise NetworkError(f"via chain of {_conn_name(conn)} does not end")
+        try:
+            via = net.getLane(via_id)
+        except (KeyError, IndexError, ValueError) as exc:
+            raise NetworkError(f"{_conn_name(conn)} uses unknown internal lane {via_id}") from exc
+        chain.append(via)
+        nxt = [c for c in via.getOutgoing() if c.getToLane() is target]
+        via_id = nxt[0].getViaLaneID() if nxt else ""
+    return chain
+
+
+def _route(
+    net: sumolib.net.Net,
+    conn: sumolib.net.connection.Connection,
+    caps: SpeedCaps,
+    approach_m: float,
+    tail_m: float,
+) -> Route:
+    in_lane, out_lane = conn.getFromLane(), conn.getToLane()
+    vias = _via_chain(net, conn)
+    in_shape = _xy(in_lane.getShape())
+    via_shapes = [_xy(v.getShape()) for v in vias]
+    out_shape = _xy(out_lane.getShape())
+    turn = _DIR_TO_TURN.get(conn.getDirection())
+    if turn is None:
+        # Headings just before the entry and just after the exit line.
+        turn = classify_turn(_distinct(np.vstack([in_shape[-2:], *via_shapes, out_shape[:2]])))
+    route_id = f"{in_lane.getID()}>{out_lane.getID()}"
+    try:
+        return build_route(
+            route_id=route_id,
+            in_lane=in_lane.getID(),
+            out_lane=out_lane.getID(),
+            via_lanes=tuple(v.getID() for v in vias),
+            in_shape=in_shape,
+            via_shapes=via_shapes,
+            out_shape=out_shape,
+            turn=turn,
+            caps=caps,
+            approach_m=approach_m,
+            tail_m=tail_m,
+        )
+    except ValueError as exc:
+        raise NetworkError(f"bad geometry for route {route_id}: {exc}") from exc
+
+
+def _region(node: sumolib.net.node.Node, routes: list[Route]) -> np.ndarray:
+    """The junction polygon; the hull of the routes' junction parts if SUMO gave none."""
+    shape = node.getShape() or []
+    if len(shape) >= 3:
+        return _xy(shape)
+    import shapely
+
+    pts = np.vstack([r.points(np.linspace(0.0, r.cross_length_m, 16)) for r in routes])
+    hull = shapely.MultiPoint(pts).convex_hull.buffer(0.5)
+    return np.asarray(hull.exterior.coords, dtype=float)[:-1]
+
+
+def _xy(shape: list) -> np.ndarray:
+    return np.asarray(shape, dtype=float).reshape(-1, 2)
+
+
+def _distinct(xy: np.ndarray) -> np.ndarray:
+    keep = np.ones(len(xy), dtype=bool)
+    keep[1:] = np.linalg.norm(np.diff(xy, axis=0), axis=1) > 1e-6
+    return xy[keep]
+
+
+def _conn_name(conn: sumolib.net.connection.Connection) -> str:
+    return f"connection {conn.getFromLane().getID()}->{conn.getToLane().getID()}"

@@ -1,0 +1,243 @@
+"""The dissertation's two intersections, built from plain XML with ``netconvert``.
+
+Both are a 4-way junction ``C`` at the origin with straight approaches along
+the axes (``N_in``, ``N_out``, ``E_in``, ...; ``_in`` drives towards ``C``).
+Only the movements listed in an explicit connections file exist, so the ICA
+sees exactly the routes of the reference layouts:
+
+- ``ch3``: 2 incoming lanes, 1 outgoing lane; lane 0 turns right or goes
+  through, lane 1 goes through or turns left.
+- ``ch45``: 3 incoming lanes, 2 outgoing lanes; lane 0 right and through to
+  out lane 0, lane 1 through to out lane 1, lane 2 left only to out lane 1.
+
+The junction type is ``priority``: with speed mode 32 on every vehicle SUMO
+leaves right of way to the ICA but still reports junction collisions.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from xml.sax.saxutils import quoteattr
+
+LAYOUTS: tuple[str, ...] = ("ch3", "ch45")
+JUNCTION_ID = "C"
+ROAD_SPEED_MPS = 70.0 / 3.6
+
+# Flags every network of this project is built with (see STACK-NOTES): keep the
+# junction at the origin, no U-turns, no traffic lights, smooth internal lanes.
+NETCONVERT_FLAGS: tuple[str, ...] = (
+    "--offset.disable-normalization",
+    "true",
+    "--no-turnarounds",
+    "true",
+    "--tls.guess",
+    "false",
+    "--junctions.internal-link-detail",
+    "20",
+)
+NETCONVERT_TIMEOUT_S = 120.0
+_STDERR_TAIL_CHARS = 600
+
+# Approaches clockwise; for a vehicle coming from APPROACHES[i], the right turn
+# leaves towards APPROACHES[i - 1], through towards i + 2 and left towards i + 1.
+APPROACHES: tuple[str, ...] = ("N", "E", "S", "W")
+_FAR_NODE_UNIT = {"N": (0.0, 1.0), "E": (1.0, 0.0), "S": (0.0, -1.0), "W": (-1.0, 0.0)}
+
+# layout -> (incoming lanes, outgoing lanes, [(from lane, movement, to lane)])
+_LAYOUT_SPEC: dict[str, tuple[int, int, tuple[tuple[int, str, int], ...]]] = {
+    "ch3": (2, 1, ((0, "right", 0), (0, "through", 0), (1, "through", 0), (1, "left", 0))),
+    "ch45": (3, 2, ((0, "right", 0), (0, "through", 0), (1, "through", 1), (2, "left", 1))),
+}
+_TURN_OFFSET = {"right": -1, "through": 2, "left": 1}
+
+
+class ScenarioError(Exception):
+    """A scenario could not be built; the message is one line meant for a person."""
+
+
+@dataclass(frozen=True)
+class Scenario:
+    layout: str
+    net_path: Path
+    junction_id: str
+
+
+def netconvert_binary() -> str:
+    """Path of ``netconvert``: the venv's first, so the version matches sumolib/libsumo."""
+    exe_names = ("netconvert.exe", "netconvert") if os.name == "nt" else ("netconvert",)
+    candidates = [Path(sys.executable).parent / n for n in exe_names]
+    try:
+        import sumo  # eclipse-sumo wheel
+
+        candidates += [Path(sumo.SUMO_HOME) / "bin" / n for n in exe_names]
+    except (ImportError, AttributeError):
+        pass
+    for cand in candidates:
+        if cand.is_file() and os.access(cand, os.X_OK):
+            return str(cand)
+    found = shutil.which("netconvert")
+    if found:
+        return found
+    raise ScenarioError(
+        "netconvert not found (looked next to the Python interpreter, in sumo.SUMO_HOME/bin "
+        "and on PATH); install eclipse-sumo"
+    )
+
+
+def run_netconvert(
+    nodes_xml: Path,
+    edges_xml: Path,
+    out_net: Path,
+    connections_xml: Path | None = None,
+    extra_args: Sequence[str] = (),
+) -> None:
+    """Run netconvert on plain XML with the project's standard flags."""
+    cmd = [
+        netconvert_binary(),
+        "--node-files",
+        str(nodes_xml),
+        "--edge-files",
+        str(edges_xml),
+    ]
+    if connections_xml is not None:
+        cmd += ["--connection-files", str(connections_xml)]
+    cmd += [*NETCONVERT_FLAGS, *extra_args, "--output-file", str(out_net)]
+    try:
+        proc = subprocess.run(
+            cmd, capture_output=True, text=True, timeout=NETCONVERT_TIMEOUT_S, check=False
+        )
+    except subprocess.TimeoutExpired as exc:
+        raise ScenarioError(
+            f"netconvert timed out after {exc.timeout:.0f} s for {out_net}"
+        ) from exc
+    except OSError as exc:
+        raise ScenarioError(f"netconvert could not be started: {exc}") from exc
+    if proc.returncode != 0:
+        raise ScenarioError(
+            f"netconvert failed (exit {proc.returncode}) for {out_net}: {_tail(proc.stderr)}"
+        )
+    if not out_net.is_file():
+        raise ScenarioError(f"netconvert wrote no network to {out_net}: {_tail(proc.stderr)}")
+
+
+def _tail(text: str) -> str:
+    """Last part of a multi-line tool output, squeezed onto one line."""
+    flat = " | ".join(line.strip() for line in text.strip().splitlines() if line.strip())
+    if not flat:
+        return "(no output on stderr)"
+    return flat if len(flat) <= _STDERR_TAIL_CHARS else "..." + flat[-_STDERR_TAIL_CHARS:]
+
+
+def _check_layout(layout: str) -> None:
+    if layout not in _LAYOUT_SPEC:
+        raise ScenarioError(f"unknown layout {layout!r}; known layouts: {', '.join(LAYOUTS)}")
+
+
+def plain_xml(layout: str, approach_length_m: float = 250.0) -> dict[str, str]:
+    """Node, edge and connection files of a layout, keyed by suffix (``nod``, ``edg``, ``con``)."""
+    _check_layout(layout)
+    if not approach_length_m > 30.0:
+        raise ScenarioError(f"approach_length_m must exceed 30 m, got {approach_length_m}")
+    n_in, n_out, movements = _LAYOUT_SPEC[layout]
+
+    nodes = [f'    <node id="{JUNCTION_ID}" x="0.00" y="0.00" type="priority"/>']
+    for a in APPROACHES:
+        ux, uy = _FAR_NODE_UNIT[a]
+        x, y = ux * approach_length_m, uy * approach_length_m
+        nodes.append(f'    <node id="{a}" x="{x:.2f}" y="{y:.2f}" type="dead_end"/>')
+
+    edges = []
+    for a in APPROACHES:
+        edges.append(
+            f'    <edge id="{a}_in" from="{a}" to="{JUNCTION_ID}" numLanes="{n_in}" '
+            f'speed="{ROAD_SPEED_MPS:.6f}" priority="1"/>'
+        )
+        edges.append(
+            f'    <edge id="{a}_out" from="{JUNCTION_ID}" to="{a}" numLanes="{n_out}" '
+            f'speed="{ROAD_SPEED_MPS:.6f}" priority="1"/>'
+        )
+
+    conns = []
+    for i, a in enumerate(APPROACHES):
+        for from_lane, movement, to_lane in movements:
+            target = APPROACHES[(i + _TURN_OFFSET[movement]) % len(APPROACHES)]
+            conns.append(
+                f"    <connection from={quoteattr(a + '_in')} to={quoteattr(target + '_out')} "
+                f'fromLane="{from_lane}" toLane="{to_lane}"/>'
+            )
+
+    def doc(root: str, lines: list[str]) -> str:
+        return (
+            f'<?xml version="1.0" encoding="UTF-8"?>\n<{root}>\n'
+            + "\n".join(lines)
+            + f"\n</{root}>\n"
+        )
+
+    return {
+        "nod": doc("nodes", nodes),
+        "edg": doc("edges", edges),
+        "con": doc("connections", conns),
+    }
+
+
+def build_scenario(layout: str, out_dir: Path, *, approach_length_m: float = 250.0) -> Scenario:
+    """Write ``<layout>.{nod,edg,con}.xml`` and build ``<layout>.net.xml`` in ``out_dir``."""
+    files = plain_xml(layout, approach_length_m)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {kind: out_dir / f"{layout}.{kind}.xml" for kind in files}
+    for kind, text in files.items():
+        paths[kind].write_text(text, encoding="utf-8")
+    net = out_dir / f"{layout}.net.xml"
+    run_netconvert(paths["nod"], paths["edg"], net, connections_xml=paths["con"])
+    return Scenario(layout=layout, net_path=net, junction_id=JUNCTION_ID)
+
+
+def repo_root() -> Path:
+    return Path(__file__).resolve().parent.parent
+
+
+def default_scenario(layout: str = "ch45", cache_dir: Path | None = None) -> Scenario:
+    """The layout's network in ``<cache_dir or repo/build/scenarios>/<layout>/``, built once.
+
+    Rebuilt only when the net is missing or the plain XML this code would write
+    differs from the stored copy (so a change of layout code is not served stale).
+    Concurrent callers each build in a private temp dir and move the results in
+    with ``os.replace``; the net is moved first, so whoever sees the new plain
+    files also sees the new net.
+    """
+    _check_layout(layout)
+    base = Path(cache_dir) if cache_dir is not None else repo_root() / "build" / "scenarios"
+    target = base / layout
+    files = plain_xml(layout)
+    net = target / f"{layout}.net.xml"
+    if net.is_file() and _same_inputs(target, layout, files):
+        return Scenario(layout=layout, net_path=net, junction_id=JUNCTION_ID)
+
+    target.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{layout}-build-", dir=target))
+    try:
+        built = build_scenario(layout, tmp)
+        os.replace(built.net_path, net)
+        for kind in files:
+            os.replace(tmp / f"{layout}.{kind}.xml", target / f"{layout}.{kind}.xml")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return Scenario(layout=layout, net_path=net, junction_id=JUNCTION_ID)
+
+
+def _same_inputs(target: Path, layout: str, files: dict[str, str]) -> bool:
+    for kind, text in files.items():
+        try:
+            if (target / f"{layout}.{kind}.xml").read_text(encoding="utf-8") != text:
+                return False
+        except OSError:
+            return False
+    return True

@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Make .venv/ hold everything the project needs. Idempotent: a second call with
+# an unchanged pyproject.toml returns in well under a second.
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$root"
+
+need_py() {
+  command -v python3 >/dev/null 2>&1 &&
+    python3 -c 'import sys, venv; sys.exit(sys.version_info < (3, 11))' 2>/dev/null
+}
+if ! need_py; then
+  echo "setup: installing Python 3.11+ with apt-get" >&2
+  export DEBIAN_FRONTEND=noninteractive
+  apt-get update -qq && apt-get install -y -qq python3 python3-venv python3-pip >/dev/null
+  need_py || { echo "setup: Python >= 3.11 with venv is required" >&2; exit 1; }
+fi
+
+if [ ! -x .venv/bin/python ]; then
+  echo "setup: creating .venv" >&2
+  python3 -m venv .venv
+fi
+
+stamp=.venv/.dica-installed
+want="$(sha256sum pyproject.toml | cut -d' ' -f1)"
+if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
+  echo "setup: installing packages into .venv (first run takes about a minute)" >&2
+  .venv/bin/python -m pip install -q --upgrade pip
+  .venv/bin/python -m pip install -q -e '.[dev]'
+  echo "$want" > "$stamp"
+fi
