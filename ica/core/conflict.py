@@ -21,6 +21,7 @@ import numpy as np
 from ica.core.config import Techniques
 from ica.core.dtot import Dtot
 from ica.core.occupancy import overlap_matrix, overlap_pairs
+from ica.core.trajectory import Trajectory
 from ica.core.zones import ConflictTables
 
 
@@ -114,3 +115,33 @@ def _candidate_pairs(
     starts = np.repeat(lo - np.concatenate([[0], np.cumsum(count)[:-1]]), count)
     pos = np.arange(total) + starts
     return ki[pos], pj
+
+
+def follow_conflict(
+    follower: Trajectory, leader: Trajectory, leader_length_m: float, gap_m: float
+) -> tuple[float, float] | None:
+    """checkFV in the approach: keep ``gap_m`` behind the lane leader's rear.
+
+    Both vehicles share the incoming lane's coordinate (s < 0). A confirmed
+    vehicle flies its TSS exactly, so before its DTOT starts nothing else
+    keeps it off the vehicle ahead. Both move linearly between samples, so
+    testing at the union of their sample times is exact. Returns
+    (first violation time, delay that clears every violating sample) or None.
+    """
+    tf, sf = follower.t_s, follower.s_m
+    tl, sl = leader.t_s, leader.s_m
+    approach = sf < 0.0
+    if not approach.any():
+        return None
+    t_end = tf[approach][-1] + follower.step_s
+    extra = tl[(tl >= tf[0]) & (tl <= t_end)]
+    t = np.concatenate([tf[approach], extra])
+    s_f = np.interp(t, tf, sf)
+    s_l = np.interp(t, tl, sl)
+    bad = (s_f < 0.0) & (s_f > s_l - leader_length_m - gap_m)
+    if not bad.any():
+        return None
+    need = s_f[bad] + leader_length_m + gap_m
+    k = np.minimum(np.searchsorted(sl, need, side="left"), len(sl) - 1)
+    delay = float((tl[k] - t[bad]).max())
+    return float(t[bad].min()), max(delay, 0.0)

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ica.core.config import IcaConfig
-from ica.core.conflict import Conflict, get_cv
+from ica.core.conflict import Conflict, follow_conflict, get_cv
 from ica.core.dtot import Dtot, build_dtot
 from ica.core.intersection import Intersection
 from ica.core.planner import Planner
@@ -54,6 +54,7 @@ class Dica:
         self._lanes: dict[str, list[str]] = {lane: [] for lane in intersection.in_lanes}
         self._lane_of: dict[str, str] = {}
         self._entered: set[str] = set()
+        self._lane_tail: dict[str, str] = {}  # last vehicle confirmed from each lane
 
     # -- state -------------------------------------------------------------
     @property
@@ -136,7 +137,8 @@ class Dica:
         if not self.is_head(req.vin, now_s):
             raise RequestError(Reason.NOT_HEAD, f"{req.vin} is not the head vehicle of {lane}")
 
-        dtot, iterations, earliest = self._resolve(req, route, shape, traj)
+        leader = self._confirmed.get(self._lane_tail.get(lane, ""))
+        dtot, iterations, earliest = self._resolve(req, route, shape, traj, leader)
         entry = dtot.trajectory.entry_time_s()
         front, heading = dtot.trajectory.xy_heading(route, req.length_m)
         conf = Confirmation(
@@ -150,6 +152,7 @@ class Dica:
             iterations=iterations,
         )
         self._confirmed[req.vin] = Confirmed(req.vin, dtot, conf)
+        self._lane_tail[lane] = req.vin
         return conf
 
     def front_cap_mps(self, route: Route) -> float:
@@ -162,7 +165,12 @@ class Dica:
         return cap
 
     def _resolve(
-        self, req: Request, route: Route, shape: Shape, traj: Trajectory
+        self,
+        req: Request,
+        route: Route,
+        shape: Shape,
+        traj: Trajectory,
+        leader: Confirmed | None,
     ) -> tuple[Dtot, int, float]:
         cfg = self.config
         cap = self.front_cap_mps(route)
@@ -184,12 +192,24 @@ class Dica:
         if np.any(traj.speeds()[inside] > cap + cfg.speed_tol_mps):
             traj = self._plan(planner, req.t0_s, traj.entry_time_s() - req.t0_s, s_end)
         grid = self.tables.grid(route, shape) if cfg.techniques.estimated_oti else None
+        gap = 2.0 * cfg.margin_m
 
         for iteration in range(1, cfg.max_iterations + 1):
             dtot = build_dtot(route, shape, traj, cfg.margin_m, grid)
             conflicts: list[Conflict] = get_cv(
                 dtot, self.confirmed_dtots(), cfg.techniques, self.tables
             )
+            if leader is not None:
+                lead = leader.dtot
+                found = follow_conflict(traj, lead.trajectory, lead.shape.length_m, gap)
+                if found is not None:
+                    if found[0] <= req.t0_s + cfg.step_s + 1e-9:
+                        raise RequestError(
+                            Reason.BAD_STATE,
+                            f"the state is within {gap:.2f} m of {leader.vin} ahead in the lane",
+                        )
+                    conflicts.append(Conflict(leader.vin, *found))
+                    conflicts.sort(key=lambda c: c.first_time_s)
             if not conflicts:
                 return dtot, iteration, earliest
             first = conflicts[0]

@@ -245,6 +245,13 @@ class Planner:
     def fastest(self) -> Profile | None:
         return self._build_a(self._v_max())
 
+    def stop_entry_s(self) -> float:
+        """Earliest entry of a plan that stops at the line first (inf if it cannot stop)."""
+        if not self.can_stop():
+            return math.inf
+        _, t_stop = self._b_base()
+        return t_stop + self._pull_away_time(self._stop_gap())
+
     def earliest_entry_s(self) -> float:
         ph = self._a_phases(self._v_max())
         return math.inf if ph is None else ph[3]
@@ -276,8 +283,7 @@ class Planner:
                 if hi_v - lo_v < 1e-7:
                     break
             return self._build_a(hi_v)
-        if not self.can_stop():
+        t_b0 = self.stop_entry_s()
+        if not math.isfinite(t_b0):
             return None
-        _, t_stop = self._b_base()
-        t_b0 = t_stop + self._pull_away_time(self._stop_gap())
         return self._build_b(max(0.0, t_entry_s - t_b0))

@@ -36,8 +36,8 @@ class Trajectory:
         return np.diff(self.s_m) / self.step_s
 
     def entry_index(self) -> int:
-        """Index of the last sample before the front crosses the entry line."""
-        inside = np.nonzero(self.s_m >= 0.0)[0]
+        """Index of the last sample before the front passes the entry line (s > 0)."""
+        inside = np.nonzero(self.s_m > 0.0)[0]
         if len(inside) == 0:
             return len(self.s_m) - 1
         return max(int(inside[0]) - 1, 0)
@@ -50,7 +50,7 @@ class Trajectory:
     def entry_time_s(self) -> float:
         """Time the front reaches s = 0, linear between samples as the vehicle moves."""
         k = self.entry_index()
-        if self.s_m[k] >= 0.0:
+        if self.s_m[k] > 0.0 or k + 1 >= len(self.s_m):
             return self.t0_s + k * self.step_s
         s0, s1 = self.s_m[k], self.s_m[k + 1]
         return self.t0_s + (k + (0.0 - s0) / (s1 - s0)) * self.step_s

@@ -1,0 +1,74 @@
+"""Offline tables and estimated intervals are never less safe than the exhaustive ones."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ica.core.dtot import build_dtot
+from ica.core.occupancy import footprints, overlap_matrix
+from ica.core.planner import Kinematics, Planner
+from ica.core.trajectory import sample
+from ica.core.zones import ConflictTables, Shape
+
+SHAPES = [Shape.of(5.0, 1.8), Shape.of(7.3, 2.2), Shape.of(3.6, 1.6)]
+
+
+def trajectories(route, shape, seed):
+    rng = np.random.default_rng(seed)
+    s_end = route.cross_length_m + shape.length_m
+    for _ in range(4):
+        pl = Planner(float(rng.uniform(0.5, 50)), float(rng.uniform(0, 19)), 70 / 3.6,
+                     route.speed_cap_mps, s_end, Kinematics())
+        if not pl.feasible():
+            continue
+        p = pl.at_or_after(pl.earliest_entry_s() + float(rng.uniform(0, 8)))
+        if p is not None:
+            yield sample(p, 0.0, 0.05, s_end)
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])
+def test_estimated_intervals_contain_exhaustive(request, junction):
+    inter = request.getfixturevalue(junction)
+    tables = ConflictTables(inter, margin_m=0.25)
+    for k, route in enumerate(inter.routes):
+        for shape in SHAPES:
+            for traj in trajectories(route, shape, k):
+                exact = build_dtot(route, shape, traj, 0.25)
+                est = build_dtot(route, shape, traj, 0.25, tables.grid(route, shape))
+                assert (est.lb_s <= exact.lb_s + 1e-12).all()
+                assert (est.ub_s >= exact.ub_s - 1e-12).all()
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed"])
+def test_conflict_zones_cover_every_overlap_off_grid(request, junction):
+    """Positions between grid points: any real overlap lies inside both zones."""
+    inter = request.getfixturevalue(junction)
+    tables = ConflictTables(inter, margin_m=0.25)
+    rng = np.random.default_rng(7)
+    shape = SHAPES[0]
+    routes = inter.routes
+    for _ in range(40):
+        ra, rb = routes[rng.integers(len(routes))], routes[rng.integers(len(routes))]
+        sa = rng.uniform(-1.0, ra.cross_length_m + shape.length_m + 1.0, 300)
+        sb = rng.uniform(-1.0, rb.cross_length_m + shape.length_m + 1.0, 300)
+        fa = footprints(ra, sa, shape.length_m, shape.width_m, 0.25)
+        fb = footprints(rb, sb, shape.length_m, shape.width_m, 0.25)
+        hit = overlap_matrix(fa, fb)
+        za = tables.zone(ra, shape, rb, shape)[tables.grid(ra, shape).index(sa)]
+        zb = tables.zone(rb, shape, ra, shape)[tables.grid(rb, shape).index(sb)]
+        assert za[hit.any(axis=1)].all()
+        assert zb[hit.any(axis=0)].all()
+        if tables.compatible(ra, shape, rb, shape):
+            assert not hit.any()
+
+
+def test_compatible_routes_exist_and_same_lane_routes_conflict(ch45):
+    tables = ConflictTables(ch45, margin_m=0.25)
+    shape = SHAPES[0]
+    pairs = [(a, b) for a in ch45.routes for b in ch45.routes if a.id < b.id]
+    compatible = [p for p in pairs if tables.compatible(p[0], shape, p[1], shape)]
+    assert 0 < len(compatible) < len(pairs)
+    for a, b in pairs:
+        if a.in_lane == b.in_lane or a.out_lane == b.out_lane:
+            assert not tables.compatible(a, shape, b, shape)
