@@ -11,6 +11,7 @@ of either vehicle (positions interpolated linearly, as vehicles move).
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -77,7 +78,7 @@ def conflicts(flown: list[Flown], margin_m: float) -> list[tuple[str, str, float
     for a in range(len(occ)):
         fa, ta, pa, lba, uba = occ[a]
         for b in range(a + 1, len(occ)):
-            fb, tb, pb, lbb, ubb = occ[b]
+            fb, _tb, pb, lbb, ubb = occ[b]
             if uba[-1] < lbb[0] or ubb[-1] < lba[0]:
                 continue  # disjoint in time: no interval can overlap
             hit = shapely.intersects(pa[:, None], pb[None, :])
@@ -96,7 +97,7 @@ def _approach_conflicts(flown: list[Flown], margin_m: float) -> list[tuple[str, 
         by_lane.setdefault(f.route.in_lane, []).append(f)
     for group in by_lane.values():
         group.sort(key=lambda f: f.t_s[0])
-        for lead, fol in zip(group, group[1:], strict=False):
+        for lead, fol in itertools.pairwise(group):
             s_f, _ = fol.route.project(np.stack([fol.x_m, fol.y_m], -1))
             t = np.union1d(fol.t_s[s_f < 0], lead.t_s)
             t = t[(t >= max(fol.t_s[0], lead.t_s[0])) & (t <= min(fol.t_s[-1], lead.t_s[-1]))]

@@ -67,8 +67,12 @@ def cases(req):
             dataclasses.replace(req, speed_mps=-1.0),
             dataclasses.replace(req, vin=""),
             dataclasses.replace(req, seq=-3),
-            tss_with(req, t_s=t.t_s[:1], x_m=t.x_m[:1], y_m=t.y_m[:1], heading_rad=t.heading_rad[:1]),
-            tss_with(req, t_s=t.t_s[:20], x_m=t.x_m[:20], y_m=t.y_m[:20], heading_rad=t.heading_rad[:20]),
+            tss_with(
+                req, t_s=t.t_s[:1], x_m=t.x_m[:1], y_m=t.y_m[:1], heading_rad=t.heading_rad[:1]
+            ),
+            tss_with(
+                req, t_s=t.t_s[:20], x_m=t.x_m[:20], y_m=t.y_m[:20], heading_rad=t.heading_rad[:20]
+            ),
             tss_with(req, x_m=t.x_m[:-1]),
         ],
         Reason.STALE: [],
@@ -117,7 +121,9 @@ def test_speeding_tss_is_rejected(ch45):
     # squeeze the same positions into fewer steps: twice the speed
     t = req.tss
     k = np.arange(0, len(t), 2)
-    sped = tss_with(req, t_s=t.t_s[: len(k)], x_m=t.x_m[k], y_m=t.y_m[k], heading_rad=t.heading_rad[k])
+    sped = tss_with(
+        req, t_s=t.t_s[: len(k)], x_m=t.x_m[k], y_m=t.y_m[k], heading_rad=t.heading_rad[k]
+    )
     assert ica.handle(sped, 0.0).reason == Reason.LIMITS
     assert fast.vin == "x"
 

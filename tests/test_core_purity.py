@@ -39,7 +39,8 @@ def test_core_runs_with_io_modules_blocked(ch45_net):
         ica = Dica(inter)
         r = inter.routes[0]
         ica.detect("a", r.in_lane, 0.0)
-        out = ica.handle(propose(r, vin="a", seq=0, t0_s=0.0, dist_to_entry_m=50.0, speed_mps=10.0), 0.0)
+        req = propose(r, vin="a", seq=0, t0_s=0.0, dist_to_entry_m=50.0, speed_mps=10.0)
+        out = ica.handle(req, 0.0)
         assert type(out).__name__ == "Confirmation", out
         bad = [m for m in sys.modules if m.split(".")[0] in BLOCKED]
         assert not bad, bad

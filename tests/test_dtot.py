@@ -18,8 +18,14 @@ def trajectories(route, shape, seed):
     rng = np.random.default_rng(seed)
     s_end = route.cross_length_m + shape.length_m
     for _ in range(4):
-        pl = Planner(float(rng.uniform(0.5, 50)), float(rng.uniform(0, 19)), 70 / 3.6,
-                     route.speed_cap_mps, s_end, Kinematics())
+        pl = Planner(
+            float(rng.uniform(0.5, 50)),
+            float(rng.uniform(0, 19)),
+            70 / 3.6,
+            route.speed_cap_mps,
+            s_end,
+            Kinematics(),
+        )
         if not pl.feasible():
             continue
         p = pl.at_or_after(pl.earliest_entry_s() + float(rng.uniform(0, 8)))
@@ -35,7 +41,9 @@ def test_estimated_intervals_contain_exhaustive(request, junction):
         for shape in SHAPES:
             for traj in trajectories(route, shape, k):
                 exact = build_dtot(route, shape, traj, 0.25)
-                est = build_dtot(route, shape, traj, 0.25, tables.grid(route, shape))
+                est = build_dtot(
+                    route, shape, traj, 0.25, tables.grid(route, shape), estimated=True
+                )
                 assert (est.lb_s <= exact.lb_s + 1e-12).all()
                 assert (est.ub_s >= exact.ub_s - 1e-12).all()
 

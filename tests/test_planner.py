@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
@@ -94,4 +95,4 @@ def test_entry_time_decreases_with_cruise_speed():
     pl = Planner(50.0, 12.0, ROAD, 35 / 3.6, 30.0, KIN)
     speeds = np.linspace(pl._v_min_a(), pl._v_max(), 80)
     times = [pl._a_phases(v)[3] for v in speeds]
-    assert all(a >= b - 1e-12 for a, b in zip(times, times[1:], strict=False))
+    assert all(a >= b - 1e-12 for a, b in itertools.pairwise(times))

@@ -22,7 +22,7 @@ from ica.core.config import Techniques
 from ica.core.dtot import Dtot
 from ica.core.occupancy import overlap_matrix, overlap_pairs
 from ica.core.trajectory import Trajectory
-from ica.core.zones import ConflictTables
+from ica.core.zones import MAYBE, TOUCH, ConflictTables
 
 
 @dataclass(frozen=True, slots=True)
@@ -63,19 +63,32 @@ def pair_conflict(
     """(firstTimeAtCollision, delay) for requester ``i`` against confirmed ``j``."""
     ki = np.arange(len(i))
     kj = np.arange(len(j))
+    table = None
     if tech.conflict_zones:
-        zi = tables.zone(i.route, i.shape, j.route, j.shape)
-        zj = tables.zone(j.route, j.shape, i.route, i.shape)
-        ki = ki[zi[tables.grid(i.route, i.shape).index(i.s_m)]]
-        kj = kj[zj[tables.grid(j.route, j.shape).index(j.s_m)]]
+        if i.grid_idx is None or j.grid_idx is None:
+            raise ValueError("conflict zones need DTOTs built with their offline grid")
+        ki = ki[tables.zone(i.route, i.shape, j.route, j.shape)[i.grid_idx]]
+        kj = kj[tables.zone(j.route, j.shape, i.route, i.shape)[j.grid_idx]]
         if len(ki) == 0 or len(kj) == 0:
             return None
-    if tech.bisection:
-        pi, pj = _candidate_pairs(i, ki, j, kj)
+        table = tables.pairs(i.route, i.shape, j.route, j.shape)
+    if tech.bisection or table is not None:
+        if tech.bisection:
+            pi, pj = _candidate_pairs(i, ki, j, kj)
+        else:
+            pi, pj = np.repeat(ki, len(kj)), np.tile(kj, len(ki))
+        when = (i.lb_s[pi] <= j.ub_s[pj]) & (j.lb_s[pj] <= i.ub_s[pi])
+        pi, pj = pi[when], pj[when]
         if len(pi) == 0:
             return None
-        hit = overlap_pairs(i.rects, pi, j.rects, pj)
-        hit &= (i.lb_s[pi] <= j.ub_s[pj]) & (j.lb_s[pj] <= i.ub_s[pi])
+        if table is not None:
+            # the offline tables settle pairs clearly apart or clearly touching
+            code = table[i.grid_idx[pi], j.grid_idx[pj]]
+            hit = code == TOUCH
+            unsure = np.nonzero(code == MAYBE)[0]
+            hit[unsure] = overlap_pairs(i.rects, pi[unsure], j.rects, pj[unsure])
+        else:
+            hit = overlap_pairs(i.rects, pi, j.rects, pj)
         if not hit.any():
             return None
         pi, pj = pi[hit], pj[hit]

@@ -191,11 +191,11 @@ class Dica:
         inside = traj.s_m[:-1] >= 0.0
         if np.any(traj.speeds()[inside] > cap + cfg.speed_tol_mps):
             traj = self._plan(planner, req.t0_s, traj.entry_time_s() - req.t0_s, s_end)
-        grid = self.tables.grid(route, shape) if cfg.techniques.estimated_oti else None
+        grid = self.tables.grid(route, shape)
         gap = 2.0 * cfg.margin_m
 
         for iteration in range(1, cfg.max_iterations + 1):
-            dtot = build_dtot(route, shape, traj, cfg.margin_m, grid)
+            dtot = build_dtot(route, shape, traj, cfg.margin_m, grid, cfg.techniques.estimated_oti)
             conflicts: list[Conflict] = get_cv(
                 dtot, self.confirmed_dtots(), cfg.techniques, self.tables
             )

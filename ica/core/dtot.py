@@ -41,6 +41,7 @@ class Dtot:
     rects: Rects
     lb_s: np.ndarray
     ub_s: np.ndarray
+    grid_idx: np.ndarray | None = None  # nearest offline grid point per occupancy
 
     def __len__(self) -> int:
         return len(self.t_s)
@@ -67,8 +68,9 @@ def build_dtot(
     traj: Trajectory,
     margin_m: float,
     grid: RouteGrid | None = None,
+    estimated: bool = False,
 ) -> Dtot:
-    """Occupancies of ``traj``; intervals exhaustively, or from ``grid`` when given.
+    """Occupancies of ``traj``; intervals exhaustively, or from ``grid`` if ``estimated``.
 
     The exhaustive intervals follow the dissertation's getOTI; the grid ones
     (enhanced DICA, technique 3) are never narrower than the exhaustive ones.
@@ -79,11 +81,14 @@ def build_dtot(
     s = traj.s_m[k0 : k1 + 1]
     t = traj.t0_s + traj.step_s * np.arange(k0, k1 + 1)
     rects = footprints(route, s, shape.length_m, shape.width_m, margin_m)
-    if grid is None:
-        lb, ub = exhaustive_intervals(t, rects)
-    else:
+    if estimated:
+        if grid is None:
+            raise ValueError("estimated intervals need the route's offline grid")
         lb, ub = estimated_intervals(t, s, grid)
-    return Dtot(route, shape, traj, k0, t, s, rects, lb, ub)
+    else:
+        lb, ub = exhaustive_intervals(t, rects)
+    g = grid.index(s) if grid is not None else None
+    return Dtot(route, shape, traj, k0, t, s, rects, lb, ub, g)
 
 
 def exhaustive_intervals(t: np.ndarray, rects: Rects) -> tuple[np.ndarray, np.ndarray]:

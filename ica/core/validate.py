@@ -109,7 +109,7 @@ def _check_tss(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
     if abs(s[0] + req.dist_to_entry_m) > cfg.on_route_tol_m:
         raise RequestError(
             Reason.BAD_STATE,
-            f"TSS starts {-s[0]:.2f} m before the entry line, the state {req.dist_to_entry_m:.2f} m",
+            f"TSS starts {-s[0]:.2f} m before the line, state says {req.dist_to_entry_m:.2f} m",
         )
     if np.any(np.diff(s) < -1e-6):
         raise RequestError(Reason.BAD_STATE, "TSS moves backwards along the route")

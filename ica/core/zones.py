@@ -14,7 +14,10 @@ computed once per vehicle shape, on a grid of front positions every ``ds``:
 
 Grid tables are made safe for any position in between: the footprints used
 to build them are longer by ``ds`` and wider by ``pad_m``, so a footprint at any
-``s`` lies inside the padded footprint at the nearest grid point.
+``s`` lies inside the padded footprint at the nearest grid point. A second,
+shrunk footprint (shorter by ``ds``, narrower by ``pad_m``) lies inside every
+real footprint near its grid point, so shrunk ones touching proves that the
+real ones touch. Between the two, the exact test decides.
 """
 
 from __future__ import annotations
@@ -51,13 +54,14 @@ class RouteGrid:
     s0_m: float
     ds_m: float
     rects: Rects
+    inner: Rects  # shrunk footprints: inside the real one at any nearest position
     fwd_m: np.ndarray  # distance ahead beyond which the footprint is clear of itself
     back_m: np.ndarray  # distance behind beyond which it is clear of itself
 
     def index(self, s: np.ndarray) -> np.ndarray:
         """Nearest grid index per position (clipped to the grid)."""
         k = np.rint((np.asarray(s) - self.s0_m) / self.ds_m).astype(np.int64)
-        return np.clip(k, 0, len(self.rects) - 1)
+        return np.minimum(np.maximum(k, 0), len(self.rects) - 1)
 
     def clear_ahead_m(self, s: np.ndarray) -> np.ndarray:
         """Conservative distance ahead after which a footprint at ``s`` is clear of it."""
@@ -75,6 +79,12 @@ def _route_grid(
     s = np.arange(s0, s1 + ds_m / 2, ds_m)
     base = footprints(route, s, shape.length_m, shape.width_m, margin_m)
     rects = Rects(base.centre, base.heading, base.half_length + ds_m / 2, base.half_width + pad_m)
+    inner = Rects(
+        base.centre,
+        base.heading,
+        max(base.half_length - ds_m / 2, 0.0),
+        max(base.half_width - pad_m, 0.0),
+    )
     self_overlap = overlap_matrix(rects, rects)
     idx = np.arange(len(s))
     ahead = np.where(self_overlap & (idx[None, :] >= idx[:, None]), idx[None, :], -1).max(axis=1)
@@ -83,7 +93,10 @@ def _route_grid(
     )
     fwd = (ahead - idx + 1) * ds_m
     back = (idx - behind + 1) * ds_m
-    return RouteGrid(route, shape, s0, ds_m, rects, fwd, back)
+    return RouteGrid(route, shape, s0, ds_m, rects, inner, fwd, back)
+
+
+APART, MAYBE, TOUCH = 0, 1, 2
 
 
 @dataclass(eq=False)
@@ -95,7 +108,9 @@ class ConflictTables:
     ds_m: float = 0.25
     pad_m: float = 0.1
     _grids: dict[tuple[str, Shape], RouteGrid] = field(default_factory=dict)
+    _pairs: dict[tuple[str, Shape, str, Shape], np.ndarray] = field(default_factory=dict)
     _zones: dict[tuple[str, Shape, str, Shape], np.ndarray] = field(default_factory=dict)
+    _compatible: dict[tuple[str, Shape, str, Shape], bool] = field(default_factory=dict)
 
     def grid(self, route: Route, shape: Shape) -> RouteGrid:
         key = (route.id, shape)
@@ -105,20 +120,42 @@ class ConflictTables:
             self._grids[key] = g
         return g
 
+    def pairs(self, ra: Route, sa: Shape, rb: Route, sb: Shape) -> np.ndarray:
+        """int8 (grid a, grid b): APART, MAYBE or TOUCH for footprints nearest those points.
+
+        APART and TOUCH settle a pair exactly; only MAYBE needs the exact test.
+        """
+        key = (ra.id, sa, rb.id, sb)
+        m = self._pairs.get(key)
+        if m is None:
+            ga, gb = self.grid(ra, sa), self.grid(rb, sb)
+            maybe = _overlap_bbox_filtered(ga.rects, gb.rects)
+            m = maybe.astype(np.int8)
+            if maybe.any():
+                rows, cols = np.nonzero(maybe.any(axis=1))[0], np.nonzero(maybe.any(axis=0))[0]
+                sure = overlap_matrix(ga.inner.take(rows), gb.inner.take(cols))
+                m[np.ix_(rows, cols)] += sure.astype(np.int8)
+            self._pairs[key] = m
+            self._pairs[(rb.id, sb, ra.id, sa)] = m.T
+            self._zones[key] = maybe.any(axis=1)
+            self._zones[(rb.id, sb, ra.id, sa)] = maybe.any(axis=0)
+        return m
+
     def zone(self, ra: Route, sa: Shape, rb: Route, sb: Shape) -> np.ndarray:
         """Boolean mask over route a's grid: where a can touch route b."""
-        key = (ra.id, sa, rb.id, sb)
-        z = self._zones.get(key)
+        z = self._zones.get((ra.id, sa, rb.id, sb))
         if z is None:
-            ga, gb = self.grid(ra, sa), self.grid(rb, sb)
-            m = _overlap_bbox_filtered(ga.rects, gb.rects)
-            z = m.any(axis=1)
-            self._zones[key] = z
-            self._zones[(rb.id, sb, ra.id, sa)] = m.any(axis=0)
+            self.pairs(ra, sa, rb, sb)
+            z = self._zones[(ra.id, sa, rb.id, sb)]
         return z
 
     def compatible(self, ra: Route, sa: Shape, rb: Route, sb: Shape) -> bool:
-        return not self.zone(ra, sa, rb, sb).any()
+        key = (ra.id, sa, rb.id, sb)
+        c = self._compatible.get(key)
+        if c is None:
+            c = not self.zone(ra, sa, rb, sb).any()
+            self._compatible[key] = c
+        return c
 
     def precompute(self, shape: Shape) -> None:
         """Build every table for one shape now (the offline step, done at start-up)."""
