@@ -9,8 +9,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from ica.core.config import BASIC, IcaConfig, Techniques
-from tests.oracle import Flown, conflicts, kinematic_violations
-from tools.stream import StreamResult, StreamSpec, run_stream
+from tools.audit import conflicts, kinematic_violations
+from tools.stream import StreamResult, StreamSpec, flown, run_stream
 
 JUNCTIONS = ["ch3", "ch45", "tee", "skewed"]
 VARIANTS = ["basic", "enhanced", "t1", "t2", "t3", "t4", "t2+4"]
@@ -22,22 +22,6 @@ PROPERTY = settings(
     database=None,
     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
 )
-
-
-def flown(res: StreamResult) -> list[Flown]:
-    return [
-        Flown(
-            v.vin,
-            v.route,
-            v.length_m,
-            v.width_m,
-            v.confirmation.tss.t_s,
-            v.confirmation.tss.x_m,
-            v.confirmation.tss.y_m,
-            v.confirmation.tss.heading_rad,
-        )
-        for v in res.confirmed
-    ]
 
 
 def check_stream(res: StreamResult, cfg: IcaConfig) -> None:

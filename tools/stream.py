@@ -24,8 +24,9 @@ from ica.core.dica import Dica
 from ica.core.intersection import Intersection
 from ica.core.planner import Planner
 from ica.core.proposal import propose
-from ica.core.request import Confirmation, Reason, Rejection, RequestError
+from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from ica.core.route import Route, Turn
+from tools.audit import Flown
 
 QUEUE_SPACING_M = 2.5  # [m] standstill gap behind the vehicle ahead
 
@@ -140,6 +141,7 @@ def run_stream(
     spec: StreamSpec,
     *,
     progress: Callable[[int], None] | None = None,
+    before_request: Callable[[Dica, Request, float], None] | None = None,
 ) -> StreamResult:
     """Feed a stream through one :class:`Dica` until every vehicle is confirmed."""
     ica = Dica(inter, config)
@@ -163,8 +165,6 @@ def run_stream(
 
     def free_at(lead: Vehicle) -> float:
         """When the vehicle behind ``lead`` becomes head of the lane."""
-        if config.head_rule == "confirmed":
-            return now
         return max(_ceil_step(lead.confirmation.entry_time_s, h), now)
 
     def state_at(v: Vehicle, t: float, queued: bool) -> tuple[float, float]:
@@ -190,7 +190,7 @@ def run_stream(
 
     def ask(v: Vehicle, queued: bool) -> None:
         d, speed = state_at(v, now, queued)
-        _request(ica, v, now, d, speed, config, events, rejections, request_times)
+        _request(ica, v, now, d, speed, config, events, rejections, request_times, before_request)
         if v.confirmation is None:
             return
         lane = lanes[v.route.in_lane]
@@ -236,6 +236,7 @@ def _request(
     events: list[tuple[float, float, str, str]],
     rejections: dict[str, int],
     request_times: list[float],
+    before_request: Callable[[Dica, Request, float], None] | None = None,
 ) -> None:
     h = config.step_s
     try:
@@ -253,6 +254,8 @@ def _request(
     except RequestError as e:
         out: Confirmation | Rejection = Rejection(v.vin, v.seq, e.reason, e.detail)
     else:
+        if before_request is not None:
+            before_request(ica, req, now)
         busy = max((c.dtot.end_s for c in ica.confirmed.values()), default=-math.inf)
         t = time.perf_counter()
         out = ica.handle(req, now)
@@ -272,3 +275,20 @@ def _request(
     v.rejections.append(out.reason)
     rejections[out.reason.value] = rejections.get(out.reason.value, 0) + 1
     heapq.heappush(events, (_ceil_step(now + 1.0, h), v.arrival_s, "retry", v.vin))
+
+
+def flown(res: StreamResult) -> list[Flown]:
+    """The confirmed vehicles as the audit sees them: their TSS and nothing else."""
+    return [
+        Flown(
+            v.vin,
+            v.route,
+            v.length_m,
+            v.width_m,
+            v.confirmation.tss.t_s,
+            v.confirmation.tss.x_m,
+            v.confirmation.tss.y_m,
+            v.confirmation.tss.heading_rad,
+        )
+        for v in res.confirmed
+    ]

@@ -67,9 +67,8 @@ class IcaConfig:
 
     ``margin_m`` grows every occupancy on each side: the gap the ICA keeps
     between footprints, and where tracking error or delay bounds go.
-    ``head_rule`` says when a vehicle counts as head of its lane: ``entered``
-    (the dissertation: every vehicle ahead has begun to enter) or
-    ``confirmed`` (every vehicle ahead holds a confirmation).
+    A vehicle is head of its lane when every vehicle ahead of it has begun
+    to enter the junction (the dissertation's rule).
     """
 
     techniques: Techniques = ENHANCED
@@ -85,12 +84,10 @@ class IcaConfig:
     speed_tol_mps: float = 0.05
     accel_tol_mps2: float = 0.1
     max_request_age_s: float = 1.0
-    head_rule: str = "entered"
     max_iterations: int = 2000
+    max_wait_s: float = 300.0
 
     def __post_init__(self) -> None:
-        if self.head_rule not in ("entered", "confirmed"):
-            raise ValueError(f"head_rule must be 'entered' or 'confirmed', not {self.head_rule!r}")
         if not (0 < self.step_s <= 1.0):
             raise ValueError("step_s must be in (0, 1] seconds")
         if self.margin_m < 0:

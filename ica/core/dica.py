@@ -45,10 +45,19 @@ class Confirmed:
 class Dica:
     """The intersection control agent's decision core for one junction."""
 
-    def __init__(self, intersection: Intersection, config: IcaConfig | None = None) -> None:
+    def __init__(
+        self,
+        intersection: Intersection,
+        config: IcaConfig | None = None,
+        tables: ConflictTables | None = None,
+    ) -> None:
         self.intersection = intersection
         self.config = config or IcaConfig()
-        self.tables = ConflictTables(intersection, self.config.margin_m)
+        if tables is not None and (
+            tables.intersection is not intersection or tables.margin_m != self.config.margin_m
+        ):
+            raise ValueError("shared conflict tables belong to another junction or margin")
+        self.tables = tables or ConflictTables(intersection, self.config.margin_m)
         self.tables.precompute(Shape.of(5.0, 1.8))
         self._confirmed: dict[str, Confirmed] = {}
         self._lanes: dict[str, list[str]] = {lane: [] for lane in intersection.in_lanes}
@@ -91,6 +100,30 @@ class Dica:
             self._entered.discard(vin)
         return gone
 
+    def adopt(
+        self, confirmation: Confirmation, length_m: float, width_m: float, in_lane: str
+    ) -> None:
+        """Take over a confirmation made earlier (a restarted ICA, or a benchmark replay).
+
+        The DTOT is rebuilt from the confirmed TSS with this ICA's own interval
+        method, so the state is exactly what this ICA would have stored.
+        """
+        route = self.intersection.route_by_id(confirmation.route_id)
+        if route is None or route.in_lane != in_lane:
+            raise RequestError(
+                Reason.UNKNOWN_ROUTE, f"route {confirmation.route_id!r} unknown here"
+            )
+        shape = Shape.of(length_m, width_m)
+        tss = confirmation.tss
+        s, _ = route.project(np.stack([tss.x_m, tss.y_m], -1))
+        traj = Trajectory(float(tss.t_s[0]), self.config.step_s, np.maximum.accumulate(s))
+        grid = self.tables.grid(route, shape)
+        dtot = build_dtot(
+            route, shape, traj, self.config.margin_m, grid, self.config.techniques.estimated_oti
+        )
+        self._confirmed[confirmation.vin] = Confirmed(confirmation.vin, dtot, confirmation)
+        self._lane_tail[in_lane] = confirmation.vin
+
     def is_head(self, vin: str, now_s: float) -> bool:
         lane = self._lane_of.get(vin)
         if lane is None:
@@ -101,7 +134,7 @@ class Dica:
             c = self._confirmed.get(ahead)
             if c is None:
                 return False
-            if self.config.head_rule == "entered" and c.confirmation.entry_time_s > now_s:
+            if c.confirmation.entry_time_s > now_s:
                 return False
         return False
 
@@ -214,6 +247,10 @@ class Dica:
                 return dtot, iteration, earliest
             first = conflicts[0]
             target = traj.entry_time_s() - req.t0_s + max(first.delay_s, cfg.step_s)
+            if target > cfg.max_wait_s:
+                raise RequestError(
+                    Reason.INFEASIBLE, f"no conflict-free entry within {cfg.max_wait_s:.0f} s"
+                )
             traj = self._plan(planner, req.t0_s, target, s_end)
         raise RequestError(
             Reason.INFEASIBLE, f"no conflict-free plan after {cfg.max_iterations} updates"

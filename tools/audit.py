@@ -1,4 +1,6 @@
-"""A brute-force safety oracle that trusts nothing but the confirmed TSSs.
+"""A brute-force safety audit that trusts nothing but the confirmed TSSs.
+
+The tests use it as their oracle; ``dica stream`` runs it on every stream.
 
 Footprints are rebuilt from each confirmed TSS (front bumper, heading) with
 shapely, grown by the ICA's margin. Inside the junction (from the last sample

@@ -1,0 +1,277 @@
+"""``dica``: one command for scenarios, geometry, request streams and benchmarks.
+
+Every subcommand has ``--help``. Bad input ends with one line on stderr and
+exit status 2, never a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import json
+import sys
+import time
+from pathlib import Path
+
+EXAMPLES = """examples:
+  dica scenario build --layout ch45 --out nets/
+  dica geometry --layout ch3
+  dica stream --volume 500 --vehicles 1000 --variant enhanced
+  dica bench ica --json
+"""
+
+
+class UsageError(Exception):
+    """Bad input from the user: reported as one line, exit status 2."""
+
+
+def _intersection(args: argparse.Namespace):
+    from ica.netfile import NetworkError, load_intersection
+    from sim_gateway.scenario import ScenarioError, default_scenario
+
+    try:
+        if args.net:
+            if not args.junction:
+                raise UsageError("--net needs --junction (the junction id in that network)")
+            return load_intersection(args.net, args.junction)
+        sc = default_scenario(args.layout)
+        return load_intersection(sc.net_path, sc.junction_id)
+    except (NetworkError, ScenarioError) as e:
+        raise UsageError(str(e)) from None
+
+
+def _add_net_args(p: argparse.ArgumentParser) -> None:
+    from sim_gateway.scenario import LAYOUTS
+
+    p.add_argument(
+        "--layout",
+        choices=LAYOUTS,
+        default="ch45",
+        help="built-in intersection: ch3 (2 lanes in, 1 out) or ch45 (3 in, 2 out; default)",
+    )
+    p.add_argument("--net", type=Path, help="any SUMO .net.xml instead of a built-in layout")
+    p.add_argument("--junction", help="junction id in --net")
+
+
+# -- scenario -------------------------------------------------------------------
+def cmd_scenario(args: argparse.Namespace) -> int:
+    from sim_gateway.scenario import ScenarioError, build_scenario
+
+    try:
+        sc = build_scenario(args.layout, args.out)
+    except ScenarioError as e:
+        raise UsageError(str(e)) from None
+    print(f"{sc.layout}: junction {sc.junction_id} in {sc.net_path}")
+    return 0
+
+
+# -- geometry -------------------------------------------------------------------
+def cmd_geometry(args: argparse.Namespace) -> int:
+    from ica.core.zones import ConflictTables, Shape
+
+    inter = _intersection(args)
+    tables = ConflictTables(inter, margin_m=args.margin)
+    shape = Shape.of(5.0, 1.8)
+    rows = []
+    for r in inter.routes:
+        conflicting = [
+            o.id for o in inter.routes if o is not r and not tables.compatible(r, shape, o, shape)
+        ]
+        rows.append(
+            {
+                "route": r.id,
+                "turn": r.turn.value,
+                "cross_length_m": round(r.cross_length_m, 3),
+                "speed_cap_kmh": round(r.speed_cap_mps * 3.6, 1),
+                "conflicts_with": len(conflicting),
+                "compatible_with": len(inter.routes) - 1 - len(conflicting),
+            }
+        )
+    if args.json:
+        print(json.dumps({"junction": inter.junction_id, "routes": rows}, indent=2))
+        return 0
+    print(f"junction {inter.junction_id}: {len(rows)} routes, region {inter.comm_length_m} m")
+    head = ("route", "turn", "length m", "cap km/h", "conflicts", "compatible")
+    print(f"{head[0]:<24} {head[1]:<8} {head[2]:>9} {head[3]:>9} {head[4]:>9} {head[5]:>10}")
+    for row in rows:
+        print(
+            f"{row['route']:<24} {row['turn']:<8} {row['cross_length_m']:>9.2f} "
+            f"{row['speed_cap_kmh']:>9.1f} {row['conflicts_with']:>9} {row['compatible_with']:>10}"
+        )
+    return 0
+
+
+# -- stream ----------------------------------------------------------------------
+def cmd_stream(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from ica.core.config import IcaConfig, Techniques
+    from tools.audit import conflicts, kinematic_violations
+    from tools.stream import StreamSpec, flown, run_stream
+
+    if not 1 <= args.vehicles <= 100_000:
+        raise UsageError("--vehicles must be between 1 and 100000")
+    if not 1.0 <= args.volume <= 20_000.0:
+        raise UsageError("--volume must be between 1 and 20000 vehicles per 10 min")
+    try:
+        tech = Techniques.parse(args.variant)
+        cfg = IcaConfig(techniques=tech, margin_m=args.margin)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    inter = _intersection(args)
+    spec = StreamSpec(volume_per_10min=args.volume, n_vehicles=args.vehicles, seed=args.seed)
+    out = args.out or Path("runs") / time.strftime("stream-%Y%m%d-%H%M%S")
+    out.mkdir(parents=True, exist_ok=True)
+
+    t0 = time.perf_counter()
+    with tqdm(total=args.vehicles, desc="confirmed", unit="veh", disable=args.quiet) as bar:
+        res = run_stream(inter, cfg, spec, progress=bar.update)
+    wall = time.perf_counter() - t0
+    summary = res.summary()
+    summary["wall_s"] = wall
+    if args.audit:
+        fl = flown(res)
+        with tqdm(total=1, desc="audit", disable=args.quiet) as bar:
+            bad = conflicts(fl, cfg.margin_m)
+            kin = cfg.kinematics
+            limits = [
+                (f.vin, p)
+                for f in fl
+                for p in kinematic_violations(f, cfg.caps.road_mps, kin.accel_mps2, kin.decel_mps2)
+            ]
+            bar.update()
+        summary["audit"] = {"conflicts": len(bad), "limit_violations": len(limits)}
+
+    config = {
+        "junction": inter.junction_id,
+        "net": str(args.net) if args.net else f"layout:{args.layout}",
+        "ica": _jsonable(dataclasses.asdict(cfg)),
+        "stream": dataclasses.asdict(spec),
+    }
+    (out / "config.json").write_text(json.dumps(config, indent=2))
+    (out / "summary.json").write_text(json.dumps(summary, indent=2))
+    with (out / "vehicles.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(
+            ["vin", "route", "turn", "arrival_s", "entry_s", "exit_s", "delay_s", "iterations"]
+        )
+        for v in res.vehicles:
+            c = v.confirmation
+            w.writerow(
+                [v.vin, v.route.id, v.route.turn.value, f"{v.arrival_s:.2f}"]
+                + (
+                    [
+                        f"{c.entry_time_s:.3f}",
+                        f"{c.exit_time_s:.3f}",
+                        f"{c.delay_s:.3f}",
+                        c.iterations,
+                    ]
+                    if c
+                    else ["", "", "", ""]
+                )
+            )
+    print(json.dumps(summary, indent=2))
+    print(f"wrote {out}/summary.json, vehicles.csv, config.json")
+    audit = summary.get("audit", {})
+    return 1 if audit.get("conflicts") or audit.get("limit_violations") else 0
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {k: _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    return x
+
+
+# -- bench -----------------------------------------------------------------------
+def cmd_bench(args: argparse.Namespace) -> int:
+    if args.what == "ica":
+        from tools import bench_ica
+
+        return bench_ica.main(args.rest)
+    raise UsageError(f"unknown benchmark {args.what!r}")
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="dica",
+        description="Signal-free intersection control (DICA, enhanced DICA) for connected "
+        "autonomous vehicles.",
+        epilog=EXAMPLES,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    sc = sub.add_parser("scenario", help="build a dissertation intersection with netconvert")
+    sc.add_argument("action", choices=["build"])
+    sc.add_argument("--layout", choices=["ch3", "ch45"], default="ch45")
+    sc.add_argument(
+        "--out", type=Path, required=True, help="directory for the .net.xml and plain XML"
+    )
+    sc.set_defaults(func=cmd_scenario)
+
+    g = sub.add_parser("geometry", help="routes, turn classes and conflicts of a junction")
+    _add_net_args(g)
+    g.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
+    g.add_argument("--json", action="store_true")
+    g.set_defaults(func=cmd_geometry)
+
+    s = sub.add_parser(
+        "stream",
+        help="feed a random request stream through the ICA core and audit the result",
+        description="Vehicles arrive at random (the volume is the expected count per 10 min), "
+        "request when head of their lane, and every confirmed trajectory is audited by an "
+        "independent brute-force check. Writes summary.json, vehicles.csv and config.json.",
+    )
+    _add_net_args(s)
+    s.add_argument(
+        "--variant", default="enhanced", help="basic, enhanced, or t1..t4 / t2+4 (default enhanced)"
+    )
+    s.add_argument("--volume", type=float, default=300.0, help="vehicles per 10 min (default 300)")
+    s.add_argument("--vehicles", type=int, default=500, help="how many vehicles (default 500)")
+    s.add_argument("--seed", type=int, default=12)
+    s.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
+    s.add_argument("--out", type=Path, help="output directory (default runs/stream-TIMESTAMP)")
+    s.add_argument("--no-audit", dest="audit", action="store_false", help="skip the audit")
+    s.add_argument("--quiet", action="store_true", help="no progress bars")
+    s.set_defaults(func=cmd_stream)
+
+    b = sub.add_parser("bench", help="benchmarks (ica: seconds per REQUEST per DICA variant)")
+    b.add_argument("what", choices=["ica"])
+    b.add_argument(
+        "rest",
+        nargs=argparse.REMAINDER,
+        help="options of the benchmark (see dica bench ica --help)",
+    )
+    b.set_defaults(func=cmd_bench)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    # `dica bench ica --help` is the benchmark's own help
+    if len(argv) >= 2 and argv[0] == "bench" and argv[1] == "ica":
+        from tools import bench_ica
+
+        try:
+            return bench_ica.main(argv[2:])
+        except KeyboardInterrupt:
+            return 130
+    args = parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except UsageError as e:
+        print(f"dica: {e}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print("dica: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # output piped into head and the like
+        sys.stderr.close()
+        return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
