@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ica.core.config import IcaConfig, Techniques
-from ica.core.dica import Dica
+from ica.core.baselines import BASELINES, make_controller
+from ica.core.config import ENHANCED, IcaConfig, Techniques
 from ica.core.intersection import Intersection
 from ica.core.planner import Planner
 from ica.core.proposal import propose
@@ -59,6 +59,7 @@ class RunConfig:
     length_m: float = 5.0
     width_m: float = 1.8
     sumo_args: tuple[str, ...] = ()
+    tile_m: float = 1.0
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.volume_per_10min <= 2000.0:
@@ -69,10 +70,16 @@ class RunConfig:
             raise RunError("duration must be positive")
         if self.until_left is not None and self.until_left < 1:
             raise RunError("--until-left must be at least 1")
-        try:
-            Techniques.parse(self.algorithm)
-        except ValueError as e:
-            raise RunError(str(e)) from None
+        if self.algorithm not in BASELINES:
+            try:
+                Techniques.parse(self.algorithm)
+            except ValueError:
+                raise RunError(
+                    f"unknown algorithm {self.algorithm!r}: use basic, enhanced, t1..t4 (t2+4), "
+                    + ", ".join(BASELINES)
+                ) from None
+        if not 0.1 <= self.tile_m <= 10.0:
+            raise RunError("--tile-size must be between 0.1 and 10 m")
 
 
 @dataclass(slots=True)
@@ -127,9 +134,10 @@ def run(
     """Run one simulation to the end and return its metrics and safety report."""
     import libsumo as ls
 
-    ica_cfg = IcaConfig(techniques=Techniques.parse(cfg.algorithm), margin_m=cfg.margin_m)
+    tech = ENHANCED if cfg.algorithm in BASELINES else Techniques.parse(cfg.algorithm)
+    ica_cfg = IcaConfig(techniques=tech, margin_m=cfg.margin_m)
     h = ica_cfg.step_s
-    ica = Dica(inter, ica_cfg)
+    ica = make_controller(cfg.algorithm, inter, ica_cfg, cfg.tile_m)
     n = cfg.until_left or max(1, math.ceil(cfg.volume_per_10min / 600.0 * cfg.duration_s * 2 + 20))
     spec = StreamSpec(
         volume_per_10min=cfg.volume_per_10min,

@@ -25,13 +25,14 @@ MAX_LISTED_OVERLAPS = 100
 # |sin|, |cos| below this are set to 0 so that axis-aligned poses (straight SUMO lanes
 # along the axes) give exact corners: a 6e-17 residue must not decide "touching".
 _AXIS_SNAP = 1e-12
-# Rounding allowance on the numpy lower bound of a pair's gap [m]: pairs whose bound is
-# within this of a threshold are handed to GEOS rather than decided in numpy.
-_BOUND_SLACK_M = 1e-6
+# Rounding allowance [m] on the numpy pre-filter of pairs, and the GEOS distance at or
+# below which the exact intersects predicate (not float distance) decides "overlap".
+_SLACK_M = 1e-6
 # Corners of a rectangle as multiples of (centre -> front, centre -> right side), closed.
 _CORNER_L = np.array([1.0, 1.0, -1.0, -1.0, 1.0])
 _CORNER_W = np.array([1.0, -1.0, -1.0, 1.0, 1.0])
 _RIGHT_OF_HEADING = np.array([1.0, -1.0])  # right normal of (hx, hy) is (hy, -hx)
+_SIN_COS_PHASE_DEG = np.array([0.0, 90.0])  # sin(a + 90 deg) = cos(a): heading in one call
 
 
 @dataclass(frozen=True)
@@ -84,34 +85,6 @@ def _as_column(name: str, a: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def _separation_lower_bound_m(
-    ia: np.ndarray,
-    ib: np.ndarray,
-    head: np.ndarray,
-    half_l: np.ndarray,
-    half_w: np.ndarray,
-    centre: np.ndarray,
-) -> np.ndarray:
-    """Per pair (ia, ib), the largest gap between the rectangles' projections on their 4 axes.
-
-    Projection onto a unit axis never lengthens a segment, so this is a lower bound on the
-    true distance [m]; it is <= 0 exactly when no axis separates them (they overlap). Used
-    only to skip GEOS calls for pairs that are provably far apart.
-    """
-    d = centre[ib] - centre[ia]
-    ha, hb = head[ia], head[ib]
-    ax, ay, bx, by, dx, dy = ha[:, 0], ha[:, 1], hb[:, 0], hb[:, 1], d[:, 0], d[:, 1]
-    la, wa, lb, wb = half_l[ia], half_w[ia], half_l[ib], half_w[ib]
-    # Right normals are (hy, -hx): |h_a . h_b| = |n_a . n_b|, |h_a . n_b| = |n_a . h_b|.
-    hh = np.abs(ax * bx + ay * by)
-    hn = np.abs(ax * by - ay * bx)
-    sep = np.abs(dx * ax + dy * ay) - la - lb * hh - wb * hn  # along h_a
-    np.maximum(sep, np.abs(dx * ay - dy * ax) - wa - lb * hn - wb * hh, out=sep)  # n_a
-    np.maximum(sep, np.abs(dx * bx + dy * by) - lb - la * hh - wa * hn, out=sep)  # h_b
-    np.maximum(sep, np.abs(dx * by - dy * bx) - wb - la * hn - wa * hh, out=sep)  # n_b
-    return sep
-
-
 class SafetyMonitor:
     """Counts overlapping vehicle rectangles in (and near) a junction, step by step.
 
@@ -127,9 +100,6 @@ class SafetyMonitor:
         self._region = _region_polygon(region)
         self._margin_m = margin
         shapely.prepare(self._region)
-        # Cheap numpy pre-filter: a rectangle with half-diagonal r can reach the grown
-        # region only if its centre is inside the region's bounds grown by margin + r.
-        self._bounds = np.asarray(self._region.bounds, dtype=float)
         self._edges_m = np.asarray(GAP_HIST_EDGES_M, dtype=float)
         self._hist_max_m = float(self._edges_m[-1])
         self._steps = 0
@@ -178,74 +148,52 @@ class SafetyMonitor:
         if n < 2:
             return 0
 
-        rad = np.deg2rad(ang)
-        head = np.stack((np.sin(rad), np.cos(rad)), axis=1)  # unit heading, 0 deg = +y
+        # Per-call cost is dominated by the number of numpy/GEOS calls, not by n: keep few.
+        head = np.sin(np.deg2rad(ang[:, None] + _SIN_COS_PHASE_DEG))  # (sin a, cos a)
         head[np.abs(head) < _AXIS_SNAP] = 0.0
-        half_l, half_w = 0.5 * length, 0.5 * width
-        along = head * half_l[:, None]  # rectangle centre -> front bumper
+        along = head * (0.5 * length)[:, None]  # rectangle centre -> front bumper
+        across = head[:, ::-1] * (0.5 * width)[:, None] * _RIGHT_OF_HEADING  # -> right side
         centre = xy - along
-        radius = np.hypot(half_l, half_w)
-
-        # Watched: numpy bounds pre-filter (a rectangle lies within its half-diagonal of
-        # its centre), then the exact GEOS test on the survivors.
-        reach = (self._margin_m + radius)[:, None]
-        near = (centre >= self._bounds[:2] - reach) & (centre <= self._bounds[2:] + reach)
-        idx = np.flatnonzero(near.all(axis=1))
-        if len(idx) < 2:
-            return 0
-        if len(idx) < n:
-            head, half_l, half_w = head[idx], half_l[idx], half_w[idx]
-            along, centre, radius = along[idx], centre[idx], radius[idx]
-        across = head[:, ::-1] * (half_w[:, None] * _RIGHT_OF_HEADING)  # centre -> right side
         corners = centre[:, None, :] + _CORNER_L[:, None] * along[:, None, :]
         corners += _CORNER_W[:, None] * across[:, None, :]
-        rings = shapely.linearrings(corners)
-        polys = shapely.polygons(rings)
+        polys = shapely.polygons(corners)
         if self._margin_m > 0.0:
             watched = shapely.dwithin(polys, self._region, self._margin_m)
         else:
             watched = shapely.intersects(polys, self._region)
-        keep = np.flatnonzero(watched)
-        m = len(keep)
+        idx = np.flatnonzero(watched)
+        m = len(idx)
         if m < 2:
             return 0
-        if m < len(idx):
-            idx, rings, polys = idx[keep], rings[keep], polys[keep]
-            head, half_l, half_w = head[keep], half_l[keep], half_w[keep]
-            centre, radius = centre[keep], radius[keep]
+        if m < n:
+            polys, centre, along, across = polys[idx], centre[idx], along[idx], across[idx]
 
-        # Candidate pairs, in two numpy filters so GEOS only sees pairs that matter: pairs
-        # provably beyond the histogram range are dropped (or, while no pair has come that
-        # close, beyond the smallest gap so far, so that min_gap_m stays exact).
-        within = max(self._hist_max_m, self._min_gap_m) + _BOUND_SLACK_M
-        # 1. Centre distance minus both half-diagonals, over the m x m matrix.
-        d = centre[:, None, :] - centre[None, :, :]
-        reach_m = radius[:, None] + radius[None, :] + within
-        ia, ib = np.nonzero((np.einsum("ijk,ijk->ij", d, d) <= reach_m * reach_m) & self._upper(m))
+        # Candidate pairs i < j: the centre distance minus both half-diagonals is a lower
+        # bound on the gap, so pairs beyond the histogram range are dropped before GEOS
+        # (while no pair has come that close, nothing is dropped: min_gap_m stays exact).
+        within = max(self._hist_max_m, self._min_gap_m) + _SLACK_M
+        radius = np.hypot(along[:, 0], along[:, 1]) + np.hypot(across[:, 0], across[:, 1])
+        reach = radius[:, None] + radius + within
+        d = centre[:, None, :] - centre
+        near = np.einsum("ijk,ijk->ij", d, d) <= reach * reach
+        ia, ib = np.nonzero(near & self._upper(m))
         if len(vins) != len(set(vins)):
             names = np.asarray(vins, dtype=object)[idx]
             differ = names[ia] != names[ib]
             ia, ib = ia[differ], ib[differ]
-        # 2. Separating-axis lower bound on the survivors.
-        lower = _separation_lower_bound_m(ia, ib, head, half_l, half_w, centre)
-        cand = lower < within
-        ia, ib, lower = ia[cand], ib[cand], lower[cand]
         if len(ia) == 0:
             return 0
-        # Overlap is decided by GEOS intersects for every pair not provably apart.
+        gap = shapely.distance(polys[ia], polys[ib])
+        # The exact GEOS predicate, not the float distance, decides touching pairs.
+        maybe = np.flatnonzero(gap <= _SLACK_M)
         overlap = np.zeros(len(ia), dtype=bool)
-        maybe = np.flatnonzero(lower <= _BOUND_SLACK_M)
         if len(maybe):
             overlap[maybe] = shapely.intersects(polys[ia[maybe]], polys[ib[maybe]])
-        # Disjoint rectangles are closest on their boundaries: ring distance is the gap
-        # (and GEOS computes it faster than polygon distance, which tests containment).
-        gap = np.zeros(len(ia))
-        apart = ~overlap
-        gap[apart] = shapely.distance(rings[ia[apart]], rings[ib[apart]])
+            gap[maybe[overlap[maybe]]] = 0.0
 
-        in_hist = gap < self._hist_max_m
-        bins = np.searchsorted(self._edges_m, gap[in_hist], side="right") - 1
-        self._hist += np.bincount(bins, minlength=len(self._hist))
+        # Bin k holds edges[k] <= gap < edges[k + 1]; the extra last bin (>= 10 m) is dropped.
+        counts = np.bincount(np.searchsorted(self._edges_m[1:], gap, side="right"))
+        self._hist[: len(counts)] += counts[: len(self._hist)]
 
         k = int(np.argmin(gap))
         if gap[k] < self._min_gap_m:

@@ -74,3 +74,24 @@ def test_oracle_sees_conflicts_when_the_margin_grows(ch45):
     res = run_stream(ch45, cfg, StreamSpec(volume_per_10min=900.0, n_vehicles=30, seed=12))
     assert conflicts(flown(res), cfg.margin_m) == []
     assert len(conflicts(flown(res), cfg.margin_m + 1.0)) > 0
+
+
+@pytest.mark.parametrize("baseline", ["fifo", "concurrent", "tiles"])
+@pytest.mark.parametrize("junction", ["ch45", "skewed"])
+def test_baselines_are_conflict_free(request, junction, baseline):
+    inter = request.getfixturevalue(junction)
+    cfg = IcaConfig()
+    spec = StreamSpec(volume_per_10min=600.0, n_vehicles=20, seed=21)
+    check_stream(run_stream(inter, cfg, spec, controller=baseline, tile_m=0.8), cfg)
+
+
+def test_dtots_use_space_better_than_tiles_fifo_worst(ch45):
+    """The dissertation's ordering on the same stream: DICA <= tiles <= concurrent <= FIFO."""
+    spec = StreamSpec(volume_per_10min=600.0, n_vehicles=80, seed=12)
+    cfg = IcaConfig()
+    mean_delay = {
+        name: run_stream(ch45, cfg, spec, controller=name).summary()["mean_delay_s"]
+        for name in ("dica", "tiles", "concurrent", "fifo")
+    }
+    assert mean_delay["dica"] <= mean_delay["tiles"] <= mean_delay["concurrent"]
+    assert mean_delay["concurrent"] < mean_delay["fifo"]

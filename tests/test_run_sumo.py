@@ -37,7 +37,14 @@ def dica(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
 
 @pytest.mark.parametrize(
     ("layout", "algorithm", "volume"),
-    [("ch45", "enhanced", 500), ("ch45", "basic", 300), ("ch3", "enhanced", 300)],
+    [
+        ("ch45", "enhanced", 500),
+        ("ch45", "basic", 300),
+        ("ch3", "enhanced", 300),
+        ("ch45", "fifo", 300),
+        ("ch45", "concurrent", 300),
+        ("ch45", "tiles", 300),
+    ],
 )
 def test_run_is_collision_free_and_writes_metrics(tmp_path, layout, algorithm, volume):
     out = tmp_path / "run"
@@ -63,7 +70,7 @@ def test_run_is_collision_free_and_writes_metrics(tmp_path, layout, algorithm, v
     assert m["collisions"] == 0
     assert m["sumo_collisions"] == 0
     assert m["min_gap_m"] > 2 * 0.25 - 1e-6  # never closer than the ICA's two margins
-    assert m["crossed"] > 0.7 * m["generated"] > 0
+    assert m["crossed"] > (0.2 if algorithm == "fifo" else 0.7) * m["generated"] > 0
     assert m["mean_trip_time_s"] > 0
     assert m["requests"]["rejections"] == {}
     cfg = json.loads((out / "config.json").read_text())
@@ -101,7 +108,7 @@ def test_until_left_runs_until_every_vehicle_has_left(tmp_path):
         (["--junction", "ZZ", "--net", "{net}"], "not in"),
         (["--volume", "0"], "out of range"),
         (["--volume", "99999"], "out of range"),
-        (["--algorithm", "magic"], "unknown DICA variant"),
+        (["--algorithm", "magic"], "unknown algorithm"),
     ],
 )
 def test_bad_input_is_one_clear_line(tmp_path, ch45_net, args, needle):

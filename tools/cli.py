@@ -218,6 +218,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             until_left=args.until_left,
             margin_m=args.margin,
             sumo_args=tuple(shlex.split(args.sumo_args)) if args.sumo_args else (),
+            tile_m=args.tile_size,
         )
     except RunError as e:
         raise UsageError(str(e)) from None
@@ -318,7 +319,12 @@ def parser() -> argparse.ArgumentParser:
         "collision was seen.",
     )
     _add_net_args(r)
-    r.add_argument("--algorithm", default="enhanced", help="basic, enhanced, or t1..t4 / t2+4")
+    r.add_argument(
+        "--algorithm",
+        default="enhanced",
+        help="DICA: basic, enhanced, t1..t4 (t2+4); baselines: fifo, concurrent, tiles",
+    )
+    r.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
     r.add_argument(
         "--volume",
         type=float,

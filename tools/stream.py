@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ica.core.baselines import make_controller
 from ica.core.config import IcaConfig
 from ica.core.dica import Dica
 from ica.core.intersection import Intersection
@@ -142,9 +143,15 @@ def run_stream(
     *,
     progress: Callable[[int], None] | None = None,
     before_request: Callable[[Dica, Request, float], None] | None = None,
+    controller: str | None = None,
+    tile_m: float = 1.0,
 ) -> StreamResult:
-    """Feed a stream through one :class:`Dica` until every vehicle is confirmed."""
-    ica = Dica(inter, config)
+    """Feed a stream through one controller until every vehicle is confirmed.
+
+    ``controller`` names a baseline (fifo, concurrent, tiles); by default the
+    DICA variant of ``config`` decides.
+    """
+    ica = make_controller(controller or "dica", inter, config, tile_m)
     h = config.step_s
     vehicles = make_vehicles(inter, spec, h)
     by_vin = {v.vin: v for v in vehicles}

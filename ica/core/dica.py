@@ -229,9 +229,7 @@ class Dica:
 
         for iteration in range(1, cfg.max_iterations + 1):
             dtot = build_dtot(route, shape, traj, cfg.margin_m, grid, cfg.techniques.estimated_oti)
-            conflicts: list[Conflict] = get_cv(
-                dtot, self.confirmed_dtots(), cfg.techniques, self.tables
-            )
+            conflicts = self.conflicts(dtot)
             if leader is not None:
                 lead = leader.dtot
                 found = follow_conflict(traj, lead.trajectory, lead.shape.length_m, gap)
@@ -255,6 +253,15 @@ class Dica:
         raise RequestError(
             Reason.INFEASIBLE, f"no conflict-free plan after {cfg.max_iterations} updates"
         )
+
+    def conflicts(self, dtot: Dtot) -> list[Conflict]:
+        """getCV: confirmed vehicles in space-time conflict with ``dtot``.
+
+        The one place where the baselines differ: they replace what counts as
+        a conflict and keep everything else (validation, flyable plans,
+        checkFV, the lane leader).
+        """
+        return get_cv(dtot, self.confirmed_dtots(), self.config.techniques, self.tables)
 
     def _plan(self, planner: Planner, t0_s: float, entry_rel_s: float, s_end: float) -> Trajectory:
         profile = planner.at_or_after(entry_rel_s)
