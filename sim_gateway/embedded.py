@@ -33,9 +33,11 @@ from ica.core.request import Confirmation, RequestError
 from ica.core.route import Route
 from sim_gateway.metrics import Trip, TripLog, summarize
 from sim_gateway.safety import SafetyMonitor
-from tools.stream import StreamSpec, make_vehicles
+from sim_gateway.signals import retime
+from tools.stream import StreamSpec, expected_lane_flows, make_vehicles
 
 VTYPE = "cav"
+LIGHTS = ("fixed", "actuated")  # SUMO drives; the junction is signalised
 STOP_DECEL_MPS2 = 4.0  # [m/s^2] braking an unconfirmed vehicle plans with (below SUMO's 4.5)
 
 
@@ -70,13 +72,13 @@ class RunConfig:
             raise RunError("duration must be positive")
         if self.until_left is not None and self.until_left < 1:
             raise RunError("--until-left must be at least 1")
-        if self.algorithm not in BASELINES:
+        if self.algorithm not in BASELINES + LIGHTS:
             try:
                 Techniques.parse(self.algorithm)
             except ValueError:
                 raise RunError(
                     f"unknown algorithm {self.algorithm!r}: use basic, enhanced, t1..t4 (t2+4), "
-                    + ", ".join(BASELINES)
+                    + ", ".join(BASELINES + LIGHTS)
                 ) from None
         if not 0.1 <= self.tile_m <= 10.0:
             raise RunError("--tile-size must be between 0.1 and 10 m")
@@ -105,6 +107,7 @@ class RunResult:
     sim_time_s: float
     wall_s: float
     sumo_command: list[str] = field(default_factory=list)
+    signal: dict | None = None
 
 
 def sumo_command(net_path: str, step_s: float, extra: tuple[str, ...]) -> list[str]:
@@ -134,10 +137,12 @@ def run(
     """Run one simulation to the end and return its metrics and safety report."""
     import libsumo as ls
 
-    tech = ENHANCED if cfg.algorithm in BASELINES else Techniques.parse(cfg.algorithm)
+    light = cfg.algorithm in LIGHTS
+    named = cfg.algorithm in BASELINES or light
+    tech = ENHANCED if named else Techniques.parse(cfg.algorithm)
     ica_cfg = IcaConfig(techniques=tech, margin_m=cfg.margin_m)
     h = ica_cfg.step_s
-    ica = make_controller(cfg.algorithm, inter, ica_cfg, cfg.tile_m)
+    ica = make_controller("fifo" if light else cfg.algorithm, inter, ica_cfg, cfg.tile_m)
     n = cfg.until_left or max(1, math.ceil(cfg.volume_per_10min / 600.0 * cfg.duration_s * 2 + 20))
     spec = StreamSpec(
         volume_per_10min=cfg.volume_per_10min,
@@ -156,12 +161,42 @@ def run(
     except Exception as e:  # libsumo raises its own TraCIException or a plain error
         raise RunError(f"SUMO would not start: {e}") from None
     try:
-        return _loop(ls, cfg, inter, ica, schedule, horizon, progress, cmd)
+        signal = _setup_signal(ls, cfg, inter, spec) if light else None
+        result = _loop(ls, cfg, inter, ica, schedule, horizon, progress, cmd, light)
+        result.signal = signal
+        return result
     finally:
         ls.close()
 
 
-def _loop(ls, cfg, inter, ica, schedule, horizon, progress, cmd) -> RunResult:
+def _setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: StreamSpec) -> dict:
+    """Check the junction is signalised; re-time a fixed program to the expected demand."""
+    if inter.junction_id not in ls.trafficlight.getIDList():
+        raise RunError(
+            f"junction {inter.junction_id} has no traffic light; the light baselines need a "
+            "signalised net (the built-in layouts are built with one automatically)"
+        )
+    tls = inter.junction_id
+    logic = ls.trafficlight.getAllProgramLogics(tls)[0]
+    if cfg.algorithm == "actuated":
+        return {"type": "actuated", "phases": [(p.duration, p.state) for p in logic.phases]}
+    links = ls.trafficlight.getControlledLinks(tls)
+    link_lanes = [group[0][0] if group else "" for group in links]
+    states = [p.state for p in logic.phases]
+    durations, timing = retime(states, link_lanes, expected_lane_flows(inter, spec))
+    for p, d in zip(logic.phases, durations, strict=True):
+        p.duration = p.minDur = p.maxDur = d
+    ls.trafficlight.setProgramLogic(tls, logic)
+    ls.trafficlight.setProgram(tls, logic.programID)
+    return {
+        "type": "fixed",
+        "cycle_s": timing.cycle_s,
+        "flow_ratio_sum": timing.flow_ratio_sum,
+        "phases": list(zip(durations, states, strict=True)),
+    }
+
+
+def _loop(ls, cfg, inter, ica, schedule, horizon, progress, cmd, light) -> RunResult:
     h = ica.config.step_s
     comm = inter.comm_length_m
     ls.vehicletype.copy("DEFAULT_VEHTYPE", VTYPE)
@@ -250,7 +285,14 @@ def _loop(ls, cfg, inter, ica, schedule, horizon, progress, cmd) -> RunResult:
                     trip.free_flow_s = (
                         p.time_at(c.route.cross_length_m + cfg.length_m) if p else None
                     )
-                    c.state = "waiting"
+                    c.state = "free" if light else "waiting"
+            if c.state == "free":  # a signalised junction: SUMO drives
+                if ls.vehicle.getSpeed(c.vin) < 0.1:
+                    log.trips[c.vin].stopped = True
+                    waiting += 1
+                if _left_junction(ls, c, t, cfg, log):
+                    crossed += 1
+                continue
             if c.state == "waiting":
                 waiting += 1
                 _drive_waiting(ls, ica, c, t, lane_len, log, compute, rejections, cfg)
@@ -350,17 +392,23 @@ def _drive_waiting(ls, ica, c: Car, t, lane_len, log, compute, rejections, cfg) 
     ls.vehicle.setSpeed(c.vin, max(0.0, min(c.entry_speed_mps, v_stop, room / h)))
 
 
+def _left_junction(ls, c: Car, t, cfg, log) -> bool:
+    """Rear past the exit line: note the time (interpolated) and mark the car exited."""
+    if ls.vehicle.getRoadID(c.vin) != c.route.out_lane.rsplit("_", 1)[0]:
+        return False
+    over = ls.vehicle.getLanePosition(c.vin) - cfg.length_m
+    if over < 0:
+        return False
+    log.trips[c.vin].exited_s = t - over / max(ls.vehicle.getSpeed(c.vin), 0.1)
+    c.state = "exited"
+    return True
+
+
 def _drive_confirmed(ls, c: Car, t, h, cfg, log) -> None:
     """Fly the confirmed TSS: the speed that reaches the next sample; release once out."""
-    road = ls.vehicle.getRoadID(c.vin)
-    out_edge = c.route.out_lane.rsplit("_", 1)[0]
-    if road == out_edge and ls.vehicle.getLanePosition(c.vin) >= cfg.length_m:
-        over = ls.vehicle.getLanePosition(c.vin) - cfg.length_m
-        v = max(ls.vehicle.getSpeed(c.vin), 0.1)
-        log.trips[c.vin].exited_s = t - over / v
+    if _left_junction(ls, c, t, cfg, log):
         ls.vehicle.setSpeedMode(c.vin, 31)
         ls.vehicle.setSpeed(c.vin, -1)
-        c.state = "exited"
         return
     k = round((t - c.t0_s) / h)
     speeds = c.speeds
@@ -396,7 +444,11 @@ def write_outputs(out: Path, cfg: RunConfig, result: RunResult) -> None:
     metrics["wall_s"] = result.wall_s
     metrics["real_time_factor"] = result.sim_time_s / result.wall_s if result.wall_s > 0 else None
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    config = {"run": dataclasses.asdict(cfg), "sumo_command": result.sumo_command}
+    config = {
+        "run": dataclasses.asdict(cfg),
+        "sumo_command": result.sumo_command,
+        "signal": result.signal,
+    }
     (out / "config.json").write_text(json.dumps(config, indent=2, default=list))
     with (out / "vehicles.csv").open("w", newline="") as fh:
         w = csv.writer(fh)

@@ -11,7 +11,10 @@ sees exactly the routes of the reference layouts:
   out lane 0, lane 1 through to out lane 1, lane 2 left only to out lane 1.
 
 The junction type is ``priority``: with speed mode 32 on every vehicle SUMO
-leaves right of way to the ICA but still reports junction collisions.
+leaves right of way to the ICA but still reports junction collisions. For the
+traffic-light baselines the same layout is built with a ``traffic_light``
+junction, ``static`` (its phases are re-timed at run time) or ``actuated``
+(SUMO's own actuated control).
 """
 
 from __future__ import annotations
@@ -140,14 +143,30 @@ def _check_layout(layout: str) -> None:
         raise ScenarioError(f"unknown layout {layout!r}; known layouts: {', '.join(LAYOUTS)}")
 
 
-def plain_xml(layout: str, approach_length_m: float = 250.0) -> dict[str, str]:
+TLS_TYPES: tuple[str, ...] = ("static", "actuated")
+
+
+def _check_tls(tls: str | None) -> None:
+    if tls is not None and tls not in TLS_TYPES:
+        raise ScenarioError(f"unknown traffic light type {tls!r}; known: {', '.join(TLS_TYPES)}")
+
+
+def _stem(layout: str, tls: str | None) -> str:
+    return layout if tls is None else f"{layout}-tls-{tls}"
+
+
+def plain_xml(
+    layout: str, approach_length_m: float = 250.0, tls: str | None = None
+) -> dict[str, str]:
     """Node, edge and connection files of a layout, keyed by suffix (``nod``, ``edg``, ``con``)."""
     _check_layout(layout)
+    _check_tls(tls)
     if not approach_length_m > 30.0:
         raise ScenarioError(f"approach_length_m must exceed 30 m, got {approach_length_m}")
     n_in, n_out, movements = _LAYOUT_SPEC[layout]
 
-    nodes = [f'    <node id="{JUNCTION_ID}" x="0.00" y="0.00" type="priority"/>']
+    kind = "priority" if tls is None else "traffic_light"
+    nodes = [f'    <node id="{JUNCTION_ID}" x="0.00" y="0.00" type="{kind}"/>']
     for a in APPROACHES:
         ux, uy = _FAR_NODE_UNIT[a]
         x, y = ux * approach_length_m, uy * approach_length_m
@@ -187,16 +206,23 @@ def plain_xml(layout: str, approach_length_m: float = 250.0) -> dict[str, str]:
     }
 
 
-def build_scenario(layout: str, out_dir: Path, *, approach_length_m: float = 250.0) -> Scenario:
-    """Write ``<layout>.{nod,edg,con}.xml`` and build ``<layout>.net.xml`` in ``out_dir``."""
-    files = plain_xml(layout, approach_length_m)
+def build_scenario(
+    layout: str, out_dir: Path, *, approach_length_m: float = 250.0, tls: str | None = None
+) -> Scenario:
+    """Write ``<stem>.{nod,edg,con}.xml`` and build ``<stem>.net.xml`` in ``out_dir``.
+
+    The stem is the layout, or ``<layout>-tls-<type>`` with a traffic light.
+    """
+    files = plain_xml(layout, approach_length_m, tls)
+    stem = _stem(layout, tls)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    paths = {kind: out_dir / f"{layout}.{kind}.xml" for kind in files}
+    paths = {kind: out_dir / f"{stem}.{kind}.xml" for kind in files}
     for kind, text in files.items():
         paths[kind].write_text(text, encoding="utf-8")
-    net = out_dir / f"{layout}.net.xml"
-    run_netconvert(paths["nod"], paths["edg"], net, connections_xml=paths["con"])
+    net = out_dir / f"{stem}.net.xml"
+    extra = [] if tls is None else ["--tls.default-type", tls]
+    run_netconvert(paths["nod"], paths["edg"], net, connections_xml=paths["con"], extra_args=extra)
     return Scenario(layout=layout, net_path=net, junction_id=JUNCTION_ID)
 
 
@@ -204,7 +230,9 @@ def repo_root() -> Path:
     return Path(__file__).resolve().parent.parent
 
 
-def default_scenario(layout: str = "ch45", cache_dir: Path | None = None) -> Scenario:
+def default_scenario(
+    layout: str = "ch45", cache_dir: Path | None = None, tls: str | None = None
+) -> Scenario:
     """The layout's network in ``<cache_dir or repo/build/scenarios>/<layout>/``, built once.
 
     Rebuilt only when the net is missing or the plain XML this code would write
@@ -214,20 +242,22 @@ def default_scenario(layout: str = "ch45", cache_dir: Path | None = None) -> Sce
     files also sees the new net.
     """
     _check_layout(layout)
+    _check_tls(tls)
+    stem = _stem(layout, tls)
     base = Path(cache_dir) if cache_dir is not None else repo_root() / "build" / "scenarios"
-    target = base / layout
-    files = plain_xml(layout)
-    net = target / f"{layout}.net.xml"
-    if net.is_file() and _same_inputs(target, layout, files):
+    target = base / stem
+    files = plain_xml(layout, tls=tls)
+    net = target / f"{stem}.net.xml"
+    if net.is_file() and _same_inputs(target, stem, files):
         return Scenario(layout=layout, net_path=net, junction_id=JUNCTION_ID)
 
     target.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{layout}-build-", dir=target))
+    tmp = Path(tempfile.mkdtemp(prefix=f".{stem}-build-", dir=target))
     try:
-        built = build_scenario(layout, tmp)
+        built = build_scenario(layout, tmp, tls=tls)
         os.replace(built.net_path, net)
         for kind in files:
-            os.replace(tmp / f"{layout}.{kind}.xml", target / f"{layout}.{kind}.xml")
+            os.replace(tmp / f"{stem}.{kind}.xml", target / f"{stem}.{kind}.xml")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return Scenario(layout=layout, net_path=net, junction_id=JUNCTION_ID)

@@ -199,10 +199,14 @@ def cmd_run(args: argparse.Namespace) -> int:
             raise UsageError("--net needs --junction (the junction id in that network)")
         net, junction = str(args.net), args.junction
     else:
+        from sim_gateway.embedded import LIGHTS
         from sim_gateway.scenario import ScenarioError, default_scenario
 
+        tls = None
+        if args.algorithm in LIGHTS:
+            tls = "actuated" if args.algorithm == "actuated" else "static"
         try:
-            sc = default_scenario(args.layout)
+            sc = default_scenario(args.layout, tls=tls)
         except ScenarioError as e:
             raise UsageError(str(e)) from None
         net, junction = str(sc.net_path), sc.junction_id
@@ -322,7 +326,8 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument(
         "--algorithm",
         default="enhanced",
-        help="DICA: basic, enhanced, t1..t4 (t2+4); baselines: fifo, concurrent, tiles",
+        help="DICA: basic, enhanced, t1..t4 (t2+4); baselines: fifo, concurrent, tiles, "
+        "fixed (optimised fixed-cycle light), actuated (SUMO's actuated light)",
     )
     r.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
     r.add_argument(

@@ -299,3 +299,20 @@ def flown(res: StreamResult) -> list[Flown]:
         )
         for v in res.confirmed
     ]
+
+
+def expected_lane_flows(inter: Intersection, spec: StreamSpec) -> dict[str, float]:
+    """Expected demand per incoming lane [veh/h], by the same draw as make_vehicles."""
+    by_approach: dict[str, dict[Turn, list[Route]]] = {}
+    for r in inter.routes:
+        by_approach.setdefault(approach_of(r.in_lane), {}).setdefault(r.turn, []).append(r)
+    probs = dict(zip((Turn.LEFT, Turn.THROUGH, Turn.RIGHT), spec.turn_probs, strict=True))
+    per_approach = spec.volume_per_10min * 6.0 / len(by_approach)
+    flows: dict[str, float] = {}
+    for turns in by_approach.values():
+        total = sum(probs[t] for t in turns)
+        for turn, routes in turns.items():
+            for r in routes:
+                share = probs[turn] / total / len(routes)
+                flows[r.in_lane] = flows.get(r.in_lane, 0.0) + per_approach * share
+    return flows
