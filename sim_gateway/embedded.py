@@ -62,6 +62,9 @@ class RunConfig:
     width_m: float = 1.8
     sumo_args: tuple[str, ...] = ()
     tile_m: float = 1.0
+    approach_weights: tuple[tuple[str, float], ...] = ()
+    volume_end_per_10min: float | None = None
+    ramp_s: float = 1200.0
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.volume_per_10min <= 2000.0:
@@ -80,6 +83,8 @@ class RunConfig:
                     f"unknown algorithm {self.algorithm!r}: use basic, enhanced, t1..t4 (t2+4), "
                     + ", ".join(BASELINES + LIGHTS)
                 ) from None
+        if self.volume_end_per_10min is not None and not 1.0 <= self.volume_end_per_10min <= 2000:
+            raise RunError("--volume-end is out of range: 1 to 2000 vehicles per 10 min")
         if not 0.1 <= self.tile_m <= 10.0:
             raise RunError("--tile-size must be between 0.1 and 10 m")
 
@@ -150,8 +155,14 @@ def run(
         seed=cfg.seed,
         length_range_m=(cfg.length_m, cfg.length_m),
         width_range_m=(cfg.width_m, cfg.width_m),
+        approach_weights=cfg.approach_weights,
+        volume_end_per_10min=cfg.volume_end_per_10min,
+        ramp_s=cfg.ramp_s,
     )
-    schedule = make_vehicles(inter, spec, h)
+    try:
+        schedule = make_vehicles(inter, spec, h)
+    except ValueError as e:
+        raise RunError(str(e)) from None
     horizon = math.inf if cfg.until_left else cfg.duration_s
     schedule = [v for v in schedule if v.arrival_s <= horizon]
 
@@ -286,15 +297,14 @@ def _loop(ls, cfg, inter, ica, schedule, horizon, progress, cmd, light) -> RunRe
                         p.time_at(c.route.cross_length_m + cfg.length_m) if p else None
                     )
                     c.state = "free" if light else "waiting"
+            if c.state in ("free", "waiting", "confirmed") and ls.vehicle.getSpeed(c.vin) < 0.1:
+                log.trips[c.vin].stopped = True  # stopped in the region before leaving
+                waiting += 1
             if c.state == "free":  # a signalised junction: SUMO drives
-                if ls.vehicle.getSpeed(c.vin) < 0.1:
-                    log.trips[c.vin].stopped = True
-                    waiting += 1
                 if _left_junction(ls, c, t, cfg, log):
                     crossed += 1
                 continue
             if c.state == "waiting":
-                waiting += 1
                 _drive_waiting(ls, ica, c, t, lane_len, log, compute, rejections, cfg)
             if c.state == "confirmed":
                 _drive_confirmed(ls, c, t, h, cfg, log)
@@ -348,8 +358,6 @@ def _drive_waiting(ls, ica, c: Car, t, lane_len, log, compute, rejections, cfg) 
     pos = ls.vehicle.getLanePosition(c.vin)
     d = ln - pos
     v = ls.vehicle.getSpeed(c.vin)
-    if v < 0.1:
-        log.trips[c.vin].stopped = True
     if t >= c.next_request_s and ica.is_head(c.vin, t):
         try:
             req = propose(

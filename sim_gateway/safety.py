@@ -32,7 +32,6 @@ _SLACK_M = 1e-6
 _CORNER_L = np.array([1.0, 1.0, -1.0, -1.0, 1.0])
 _CORNER_W = np.array([1.0, -1.0, -1.0, 1.0, 1.0])
 _RIGHT_OF_HEADING = np.array([1.0, -1.0])  # right normal of (hx, hy) is (hy, -hx)
-_SIN_COS_PHASE_DEG = np.array([0.0, 90.0])  # sin(a + 90 deg) = cos(a): heading in one call
 
 
 @dataclass(frozen=True)
@@ -83,6 +82,21 @@ def _as_column(name: str, a: np.ndarray, n: int) -> np.ndarray:
         bad = np.flatnonzero(~np.isfinite(out)).tolist()
         raise ValueError(f"{name} has non-finite values at indices {bad}")
     return out
+
+
+def _closest_per_vin_pair(a: np.ndarray, b: np.ndarray, gap_m: np.ndarray) -> np.ndarray:
+    """Indices keeping one entry per unordered vin pair (its smallest gap), in input order.
+
+    Only for steps where a vin appears twice, so that a pair still counts once per step.
+    """
+    seen: set[tuple[str, str]] = set()
+    keep = []
+    for k in np.argsort(gap_m, kind="stable"):
+        key = (a[k], b[k]) if a[k] <= b[k] else (b[k], a[k])
+        if key not in seen:
+            seen.add(key)
+            keep.append(k)
+    return np.sort(np.asarray(keep, dtype=np.intp))
 
 
 class SafetyMonitor:
@@ -149,10 +163,13 @@ class SafetyMonitor:
             return 0
 
         # Per-call cost is dominated by the number of numpy/GEOS calls, not by n: keep few.
-        head = np.sin(np.deg2rad(ang[:, None] + _SIN_COS_PHASE_DEG))  # (sin a, cos a)
+        rad = np.deg2rad(ang)
+        head = np.column_stack((np.sin(rad), np.cos(rad)))  # 0 deg = +y, clockwise
         head[np.abs(head) < _AXIS_SNAP] = 0.0
-        along = head * (0.5 * length)[:, None]  # rectangle centre -> front bumper
-        across = head[:, ::-1] * (0.5 * width)[:, None] * _RIGHT_OF_HEADING  # -> right side
+        half_l, half_w = 0.5 * length, 0.5 * width
+        radius = np.hypot(half_l, half_w)  # half-diagonal
+        along = head * half_l[:, None]  # rectangle centre -> front bumper
+        across = head[:, ::-1] * half_w[:, None] * _RIGHT_OF_HEADING  # centre -> right side
         centre = xy - along
         corners = centre[:, None, :] + _CORNER_L[:, None] * along[:, None, :]
         corners += _CORNER_W[:, None] * across[:, None, :]
@@ -166,17 +183,17 @@ class SafetyMonitor:
         if m < 2:
             return 0
         if m < n:
-            polys, centre, along, across = polys[idx], centre[idx], along[idx], across[idx]
+            polys, centre, radius = polys[idx], centre[idx], radius[idx]
 
         # Candidate pairs i < j: the centre distance minus both half-diagonals is a lower
         # bound on the gap, so pairs beyond the histogram range are dropped before GEOS
         # (while no pair has come that close, nothing is dropped: min_gap_m stays exact).
         within = max(self._hist_max_m, self._min_gap_m) + _SLACK_M
-        radius = np.hypot(along[:, 0], along[:, 1]) + np.hypot(across[:, 0], across[:, 1])
         reach = radius[:, None] + radius + within
         z = np.ascontiguousarray(centre).view(np.complex128)[:, 0]  # x + iy, no copy
         ia, ib = np.nonzero((np.abs(z[:, None] - z) <= reach) & self._upper(m))
-        if len(vins) != len(set(vins)):
+        names = None
+        if len(vins) != len(set(vins)):  # never in SUMO; tolerated rather than trusted
             names = np.asarray(vins, dtype=object)[idx]
             differ = names[ia] != names[ib]
             ia, ib = ia[differ], ib[differ]
@@ -189,6 +206,9 @@ class SafetyMonitor:
         if len(maybe):
             overlap[maybe] = shapely.intersects(polys[ia[maybe]], polys[ib[maybe]])
             gap[maybe[overlap[maybe]]] = 0.0
+        if names is not None:
+            keep = _closest_per_vin_pair(names[ia], names[ib], gap)
+            ia, ib, gap, overlap = ia[keep], ib[keep], gap[keep], overlap[keep]
 
         # Bin k holds edges[k] <= gap < edges[k + 1]; the extra last bin (>= 10 m) is dropped.
         counts = np.bincount(np.searchsorted(self._edges_m[1:], gap, side="right"))

@@ -125,3 +125,36 @@ def test_bad_input_is_one_clear_line(tmp_path, ch45_net, args, needle):
     err = p.stderr.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("dica: ") and needle in err[0], p.stderr
     assert "Traceback" not in p.stderr
+
+
+def test_experiment_grid_resumes_and_report_draws(tmp_path):
+    grid = tmp_path / "grid"
+    args = [
+        "experiment",
+        "--algorithms",
+        "enhanced,fixed",
+        "--volumes",
+        "300",
+        "--seeds",
+        "12",
+        "--duration",
+        "40",
+        "--jobs",
+        "2",
+        "--out",
+        str(grid),
+        "--quiet",
+    ]
+    p = dica(*args)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "2 to run" in p.stdout
+    again = dica(*args)
+    assert "2 already done, 0 to run" in again.stdout
+    r = dica("report", str(grid))
+    assert r.returncode == 0, r.stderr
+    md = (grid / "report" / "report.md").read_text()
+    assert "| enhanced | 300 |" in md and "| fixed | 300 |" in md
+    pngs = list((grid / "report").glob("*.png"))
+    assert len(pngs) == 2 and all(p.stat().st_size > 10_000 for p in pngs)
+    bad = dica("report", str(tmp_path / "nothing"))
+    assert bad.returncode == 2 and "no such directory" in bad.stderr

@@ -123,6 +123,16 @@ def test_sizes_come_from_the_arrays():
     assert mon.report().min_gap_m == pytest.approx(0.2, abs=1e-12)
 
 
+def test_car_entirely_inside_a_bus_footprint_is_an_overlap():
+    # No boundary crossings at all: only an area-aware check sees this.
+    mon = SafetyMonitor(BIG)
+    mon.observe(
+        0.0, ["bus", "car"], np.array([[0.0, 0.0], [-2.0, 0.0]]), np.array([90.0, 90.0]),
+        np.array([5.0, 1.0]), np.array([1.8, 0.5]),
+    )  # fmt: skip
+    assert mon.report().overlaps == 1
+
+
 # --- watched region ---------------------------------------------------------------------
 
 
@@ -161,11 +171,16 @@ def test_open_and_closed_region_rings_agree():
 # --- counting and report ----------------------------------------------------------------
 
 
-def test_same_vin_is_never_compared():
+def test_same_vin_is_never_compared_and_a_pair_counts_once_per_step():
     mon = SafetyMonitor(BIG)
     assert step(mon, 0.0, [("a", 0.0, 0.0, 0.0), ("a", 0.0, 0.0, 0.0), ("b", 9.0, 0, 0)]) == 0
-    assert step(mon, 0.1, [("a", 0.0, 0.0, 0.0), ("a", 0.0, 0.0, 0.0), ("b", 0.0, 0, 0)]) == 2
-    assert mon.report().overlap_pairs == [(0.1, "a", "b"), (0.1, "a", "b")]
+    r = mon.report()
+    assert r.min_gap_m == pytest.approx(7.2) and r.gap_hist_counts[-1] == 1
+    # "a" reported twice, both copies on top of "b": still one overlapping pair.
+    assert step(mon, 0.1, [("a", 0.0, 0.0, 0.0), ("b", 0.0, 0, 0), ("a", 0.0, 0.5, 0.0)]) == 1
+    r = mon.report()
+    assert r.overlaps == 1 and r.overlap_pairs == [(0.1, "a", "b")]
+    assert r.gap_hist_counts[0] == 1
 
 
 def test_histogram_bins_and_report_over_several_steps():

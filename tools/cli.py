@@ -19,6 +19,8 @@ EXAMPLES = """examples:
   dica geometry --layout ch3
   dica run --volume 500 --duration 600
   dica stream --volume 500 --vehicles 1000 --variant enhanced
+  dica experiment --layout ch45 --algorithms enhanced,fixed,actuated --out runs/ch4
+  dica report runs/ch4
   dica bench ica --json
 """
 
@@ -223,6 +225,9 @@ def cmd_run(args: argparse.Namespace) -> int:
             margin_m=args.margin,
             sumo_args=tuple(shlex.split(args.sumo_args)) if args.sumo_args else (),
             tile_m=args.tile_size,
+            approach_weights=_weights(args.approach_weights),
+            volume_end_per_10min=args.volume_end,
+            ramp_s=args.ramp if args.ramp is not None else args.duration,
         )
     except RunError as e:
         raise UsageError(str(e)) from None
@@ -254,6 +259,19 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     print(f"{result.sim_time_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json")
     return 1 if result.safety["overlaps"] or result.sumo_collisions else 0
+
+
+def _weights(text: str | None) -> tuple[tuple[str, float], ...]:
+    if not text:
+        return ()
+    out = []
+    for item in text.split(","):
+        name, _, value = item.partition("=")
+        try:
+            out.append((name.strip(), float(value)))
+        except ValueError:
+            raise UsageError(f"--approach-weights wants EDGE=WEIGHT,..., got {item!r}") from None
+    return tuple(out)
 
 
 def _num(x: float | None) -> str:
@@ -331,6 +349,14 @@ def parser() -> argparse.ArgumentParser:
     )
     r.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
     r.add_argument(
+        "--approach-weights",
+        help="relative demand per approach, e.g. N_in=1,S_in=1,E_in=0.3,W_in=0.3 (default equal)",
+    )
+    r.add_argument("--volume-end", type=float, help="volume reached by --ramp seconds (linear)")
+    r.add_argument(
+        "--ramp", type=float, help="seconds over which the volume ramps (default: duration)"
+    )
+    r.add_argument(
         "--volume",
         type=float,
         default=300.0,
@@ -347,6 +373,9 @@ def parser() -> argparse.ArgumentParser:
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=cmd_run)
 
+    sub.add_parser("experiment", help="a grid of runs in parallel, resumable (see its --help)")
+    sub.add_parser("report", help="markdown tables and PNG plots from runs (see its --help)")
+
     b = sub.add_parser("bench", help="benchmarks (ica: seconds per REQUEST per DICA variant)")
     b.add_argument("what", choices=["ica"])
     b.add_argument(
@@ -360,7 +389,14 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    # `dica bench ica --help` is the benchmark's own help
+    # these subcommands parse their own options (and --help)
+    if argv and argv[0] in ("experiment", "report"):
+        from tools import experiment, report
+
+        try:
+            return (experiment if argv[0] == "experiment" else report).main(argv[1:])
+        except KeyboardInterrupt:
+            return 130
     if len(argv) >= 2 and argv[0] == "bench" and argv[1] == "ica":
         from tools import bench_ica
 

@@ -42,6 +42,11 @@ class StreamSpec:
     length_range_m: tuple[float, float] = (5.0, 5.0)
     width_range_m: tuple[float, float] = (1.8, 1.8)
     retry_s: float = 1.0
+    # relative arrival weight per approach (incoming edge id); missing ones weigh 1
+    approach_weights: tuple[tuple[str, float], ...] = ()
+    # volume rising (or falling) linearly to this by ``ramp_s``, then held
+    volume_end_per_10min: float | None = None
+    ramp_s: float = 1200.0
 
 
 @dataclass(slots=True)
@@ -101,20 +106,45 @@ def approach_of(lane: str) -> str:
     return lane.rsplit("_", 1)[0]
 
 
+def _weights(approaches: list[str], spec: StreamSpec) -> np.ndarray:
+    given = dict(spec.approach_weights)
+    unknown = set(given) - set(approaches)
+    if unknown:
+        raise ValueError(f"unknown approach(es) {sorted(unknown)}; known: {approaches}")
+    w = np.array([given.get(a, 1.0) for a in approaches], dtype=float)
+    if (w < 0).any() or w.sum() <= 0:
+        raise ValueError("approach weights must be non-negative and not all zero")
+    return w / w.sum()
+
+
 def make_vehicles(inter: Intersection, spec: StreamSpec, step_s: float) -> list[Vehicle]:
-    """Arrivals in time order: approach uniform, turn by ``turn_probs``, lane uniform."""
+    """Arrivals in time order: approach by weight, turn by ``turn_probs``, lane uniform.
+
+    Arrivals are a Poisson process whose rate follows the (possibly ramped)
+    volume, drawn by thinning so the expected count matches exactly.
+    """
     rng = np.random.default_rng(spec.seed)
     by_approach: dict[str, dict[Turn, list[Route]]] = {}
     for r in inter.routes:
         by_approach.setdefault(approach_of(r.in_lane), {}).setdefault(r.turn, []).append(r)
     approaches = sorted(by_approach)
+    weights = _weights(approaches, spec)
     probs = dict(zip((Turn.LEFT, Turn.THROUGH, Turn.RIGHT), spec.turn_probs, strict=True))
-    rate = spec.volume_per_10min / 600.0
+    v0 = spec.volume_per_10min
+    v1 = v0 if spec.volume_end_per_10min is None else spec.volume_end_per_10min
+
+    def rate(t: float) -> float:
+        return (v0 + (v1 - v0) * min(t / spec.ramp_s, 1.0)) / 600.0
+
+    rate_max = max(v0, v1) / 600.0
     t = 0.0
     out: list[Vehicle] = []
     for k in range(spec.n_vehicles):
-        t += rng.exponential(1.0 / rate)
-        turns = by_approach[approaches[rng.integers(len(approaches))]]
+        while True:
+            t += rng.exponential(1.0 / rate_max)
+            if rng.uniform() * rate_max <= rate(t):
+                break
+        turns = by_approach[approaches[rng.choice(len(approaches), p=weights)]]
         options = sorted(turns, key=str)
         p = np.array([probs[x] for x in options])
         turn = options[rng.choice(len(options), p=p / p.sum())]
@@ -307,9 +337,10 @@ def expected_lane_flows(inter: Intersection, spec: StreamSpec) -> dict[str, floa
     for r in inter.routes:
         by_approach.setdefault(approach_of(r.in_lane), {}).setdefault(r.turn, []).append(r)
     probs = dict(zip((Turn.LEFT, Turn.THROUGH, Turn.RIGHT), spec.turn_probs, strict=True))
-    per_approach = spec.volume_per_10min * 6.0 / len(by_approach)
+    weights = dict(zip(sorted(by_approach), _weights(sorted(by_approach), spec), strict=True))
     flows: dict[str, float] = {}
-    for turns in by_approach.values():
+    for approach, turns in by_approach.items():
+        per_approach = spec.volume_per_10min * 6.0 * weights[approach]
         total = sum(probs[t] for t in turns)
         for turn, routes in turns.items():
             for r in routes:

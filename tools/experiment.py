@@ -1,0 +1,127 @@
+"""``dica experiment``: a grid of SUMO runs on the machine's cores, resumable.
+
+Each cell (algorithm x volume x seed) is one ``dica run`` in its own process
+(libsumo runs one simulation per process) writing to
+``OUT/<layout>/<algorithm>/v<volume>/s<seed>/``. A cell whose ``metrics.json``
+exists is skipped, so an interrupted grid picks up where it stopped.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor, as_completed
+from itertools import product
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected numbers separated by commas, got {text!r}"
+        ) from None
+
+
+def _ints(text: str) -> list[int]:
+    try:
+        return [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected integers separated by commas, got {text!r}"
+        ) from None
+
+
+def parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="dica experiment",
+        description="Run a grid of SUMO simulations (algorithms x volumes x seeds) in parallel. "
+        "Cells already done are skipped; run `dica report OUT` afterwards.",
+    )
+    p.add_argument("--layout", choices=["ch3", "ch45"], default="ch45")
+    p.add_argument("--algorithms", default="enhanced,fixed,actuated", help="comma-separated")
+    p.add_argument("--volumes", type=_floats, default=[100, 200, 300, 400, 500])
+    p.add_argument("--seeds", type=_ints, default=[12, 21, 66])
+    p.add_argument("--duration", type=float, default=600.0)
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel runs")
+    p.add_argument("--out", type=Path, required=True, help="grid directory")
+    p.add_argument("--extra", default="", help="extra options for every `dica run`, quoted")
+    p.add_argument("--quiet", action="store_true")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    import shlex
+
+    from tqdm import tqdm
+
+    args = parser().parse_args(argv)
+    if args.jobs < 1:
+        print("dica experiment: --jobs must be at least 1", file=sys.stderr)
+        return 2
+    algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
+    cells = []
+    for alg, vol, seed in product(algorithms, args.volumes, args.seeds):
+        cell = args.out / args.layout / alg / f"v{vol:g}" / f"s{seed}"
+        cmd = [
+            sys.executable,
+            "-m",
+            "tools.cli",
+            "run",
+            "--layout",
+            args.layout,
+            "--algorithm",
+            alg,
+            "--volume",
+            f"{vol:g}",
+            "--seed",
+            str(seed),
+            "--duration",
+            f"{args.duration:g}",
+            "--out",
+            str(cell),
+            "--quiet",
+            *shlex.split(args.extra),
+        ]
+        cells.append((cell, cmd))
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "experiment.json").write_text(
+        json.dumps({"layout": args.layout, "cells": [c[1][3:] for c in cells]}, indent=2)
+    )
+    todo = [(cell, cmd) for cell, cmd in cells if not (cell / "metrics.json").exists()]
+    print(f"{len(cells)} cells, {len(cells) - len(todo)} already done, {len(todo)} to run")
+
+    def one(cell: Path, cmd: list[str]) -> tuple[Path, int, str]:
+        cell.mkdir(parents=True, exist_ok=True)
+        p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+        (cell / "run.log").write_text(p.stdout + p.stderr)
+        tail = (p.stderr.strip().splitlines() or [""])[-1]
+        return cell, p.returncode, tail
+
+    failed = []
+    with (
+        ThreadPoolExecutor(max_workers=args.jobs) as pool,
+        tqdm(total=len(todo), desc="runs", unit="run", disable=args.quiet) as bar,
+    ):
+        futures = [pool.submit(one, cell, cmd) for cell, cmd in todo]
+        for f in as_completed(futures):
+            cell, rc, tail = f.result()
+            if rc == 1 and (cell / "metrics.json").exists():
+                failed.append(f"{cell}: collisions reported")
+            elif rc != 0:
+                failed.append(f"{cell}: exit {rc}: {tail}")
+            bar.update()
+    for line in failed:
+        print(f"dica experiment: {line}", file=sys.stderr)
+    print(f"done; `dica report {args.out}` writes the tables and plots")
+    return 1 if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

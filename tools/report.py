@@ -1,0 +1,236 @@
+"""``dica report DIR``: markdown tables and PNG plots from a directory of runs.
+
+Every ``metrics.json`` below DIR (with its ``config.json``) is one run. Runs
+are grouped by layout, algorithm, volume and demand shape and averaged over
+seeds, as the dissertation reports them. Collisions are summed, the minimum
+gap is the smallest seen.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+
+FIELDS = [
+    ("throughput", "rho", "{:.3f}"),
+    ("mean_trip_time_s", "mean tau [s]", "{:.2f}"),
+    ("std_trip_time_s", "std tau [s]", "{:.2f}"),
+    ("max_trip_time_s", "max tau [s]", "{:.1f}"),
+    ("stopped_rate", "eta", "{:.3f}"),
+    ("effective_mean_trip_time_s", "tau_e [s]", "{:.2f}"),
+    ("mean_delay_s", "delay [s]", "{:.2f}"),
+]
+
+
+def load_runs(root: Path) -> list[dict]:
+    runs = []
+    for m in sorted(root.rglob("metrics.json")):
+        cfg_path = m.parent / "config.json"
+        if not cfg_path.exists():
+            continue
+        metrics = json.loads(m.read_text())
+        cfg = json.loads(cfg_path.read_text())["run"]
+        weights = cfg.get("approach_weights") or []
+        shape = []
+        if weights:
+            shape.append("weights " + ",".join(f"{a}={w:g}" for a, w in weights))
+        if cfg.get("volume_end_per_10min") is not None:
+            shape.append(f"to {cfg['volume_end_per_10min']:g}")
+        layout = Path(cfg["net_path"]).name.split(".")[0].split("-tls")[0]
+        runs.append(
+            {
+                "dir": m.parent,
+                "layout": layout,
+                "algorithm": cfg["algorithm"],
+                "volume": cfg["volume_per_10min"],
+                "shape": "; ".join(shape),
+                "seed": cfg["seed"],
+                "metrics": metrics,
+            }
+        )
+    return runs
+
+
+def _mean(values: list) -> float | None:
+    vals = [v for v in values if v is not None]
+    return float(np.mean(vals)) if vals else None
+
+
+def aggregate(runs: list[dict]) -> dict[tuple, dict]:
+    groups: dict[tuple, list[dict]] = defaultdict(list)
+    for r in runs:
+        groups[(r["layout"], r["shape"], r["algorithm"], r["volume"])].append(r)
+    out = {}
+    for key, rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2], kv[0][3])):
+        row = {f: _mean([r["metrics"].get(f) for r in rs]) for f, _, _ in FIELDS}
+        row["generated"] = _mean([r["metrics"]["generated"] for r in rs])
+        row["collisions"] = sum(r["metrics"]["collisions"] for r in rs)
+        row["sumo_collisions"] = sum(r["metrics"].get("sumo_collisions", 0) for r in rs)
+        gaps = [r["metrics"]["min_gap_m"] for r in rs if r["metrics"]["min_gap_m"] is not None]
+        row["min_gap_m"] = min(gaps) if gaps else None
+        row["wall_s"] = _mean([r["metrics"].get("wall_s") for r in rs])
+        row["seeds"] = sorted(r["seed"] for r in rs)
+        row["runs"] = rs
+        out[key] = row
+    return out
+
+
+def _fmt(fmt: str, v: float | None) -> str:
+    return "-" if v is None else fmt.format(v)
+
+
+def markdown(agg: dict[tuple, dict], images: list[str]) -> str:
+    lines = ["# Run report", ""]
+    by_table: dict[tuple, list] = defaultdict(list)
+    for key, row in agg.items():
+        by_table[(key[0], key[1])].append((key, row))
+    for (layout, shape), rows in by_table.items():
+        lines += [f"## {layout}" + (f" ({shape})" if shape else ""), ""]
+        head = ["algorithm", "volume", *[h for _, h, _ in FIELDS]]
+        head += ["collisions", "SUMO collisions", "min gap [m]", "wall [s]", "seeds"]
+        lines.append("| " + " | ".join(head) + " |")
+        lines.append("|" + "---|" * len(head))
+        for key, row in rows:
+            cells = [key[2], f"{key[3]:g}"] + [_fmt(f, row[k]) for k, _, f in FIELDS]
+            cells += [
+                str(row["collisions"]),
+                str(row["sumo_collisions"]),
+                _fmt("{:.2f}", row["min_gap_m"]),
+                _fmt("{:.1f}", row["wall_s"]),
+                ",".join(map(str, row["seeds"])),
+            ]
+            lines.append("| " + " | ".join(cells) + " |")
+        lines.append("")
+    if images:
+        lines += ["## Plots", ""] + [f"![{Path(i).stem}]({i})" for i in images] + [""]
+    return "\n".join(lines)
+
+
+def plots(agg: dict[tuple, dict], out: Path) -> list[str]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    images = []
+    tables: dict[tuple, dict[str, list]] = defaultdict(lambda: defaultdict(list))
+    for key, row in agg.items():
+        tables[(key[0], key[1])][key[2]].append((key[3], row))
+    for (layout, shape), algs in tables.items():
+        tag = layout + ("-" + "".join(c if c.isalnum() else "_" for c in shape) if shape else "")
+        fig, axes = plt.subplots(2, 2, figsize=(10, 7))
+        panels = [
+            ("mean_trip_time_s", "mean trip time [s]"),
+            ("throughput", "throughput rho"),
+            ("effective_mean_trip_time_s", "effective mean trip time tau_e [s]"),
+            ("std_trip_time_s", "std of trip time [s]"),
+        ]
+        for ax, (field, label) in zip(axes.ravel(), panels, strict=True):
+            for alg, pts in sorted(algs.items()):
+                pts = sorted(pts, key=lambda p: p[0])
+                ax.plot([p[0] for p in pts], [p[1][field] for p in pts], marker="o", label=alg)
+            ax.set_xlabel("volume [veh / 10 min]")
+            ax.set_ylabel(label)
+            ax.grid(alpha=0.3)
+        axes[0, 0].legend()
+        fig.suptitle(f"{layout} {shape}".strip())
+        fig.tight_layout()
+        name = f"metrics_{tag}.png"
+        fig.savefig(out / name, dpi=110)
+        plt.close(fig)
+        images.append(name)
+
+        # trip-time histograms, waiting over time and gaps at the highest volume
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+        for alg, pts in sorted(algs.items()):
+            vol, row = max(pts, key=lambda p: p[0])
+            taus = []
+            for r in row["runs"]:
+                with (r["dir"] / "vehicles.csv").open() as fh:
+                    taus += [
+                        float(x["trip_time_s"]) for x in csv.DictReader(fh) if x["trip_time_s"]
+                    ]
+            if taus:
+                axes[0].hist(taus, bins=40, histtype="step", label=f"{alg} ({vol:g})")
+            first = row["runs"][0]["dir"] / "timeseries.csv"
+            if first.exists():
+                with first.open() as fh:
+                    ts = list(csv.DictReader(fh))
+                axes[1].plot(
+                    [float(x["t_s"]) for x in ts],
+                    [int(x["waiting"]) for x in ts],
+                    label=f"{alg} ({vol:g})",
+                    lw=0.8,
+                )
+            counts = np.sum(
+                [r["metrics"]["safety"]["gap_hist_counts"] for r in row["runs"]], axis=0
+            )
+            edges = row["runs"][0]["metrics"]["safety"]["gap_hist_edges_m"]
+            axes[2].step(edges[:-1], counts, where="post", label=f"{alg} ({vol:g})")
+        axes[0].set_xlabel("trip time [s]")
+        axes[0].set_ylabel("vehicles")
+        axes[1].set_xlabel("simulated time [s]")
+        axes[1].set_ylabel("vehicles waiting")
+        axes[2].set_xlabel("gap between vehicle rectangles [m] (bin start)")
+        axes[2].set_ylabel("pair-steps near the junction")
+        axes[2].set_yscale("log")
+        for ax in axes:
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7)
+        fig.tight_layout()
+        name = f"distributions_{tag}.png"
+        fig.savefig(out / name, dpi=110)
+        plt.close(fig)
+        images.append(name)
+    return images
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="dica report",
+        description="Tables (markdown) and plots (PNG) from a directory of `dica run` outputs, "
+        "averaged over seeds.",
+    )
+    p.add_argument("runs", type=Path, help="directory holding run directories (any depth)")
+    p.add_argument("--out", type=Path, help="where report.md and the PNGs go (default RUNS/report)")
+    p.add_argument("--json", action="store_true", help="also write report.json")
+    args = p.parse_args(argv)
+    if not args.runs.is_dir():
+        print(f"dica report: no such directory: {args.runs}", file=sys.stderr)
+        return 2
+    runs = load_runs(args.runs)
+    if not runs:
+        print(
+            f"dica report: no runs (metrics.json with config.json) under {args.runs}",
+            file=sys.stderr,
+        )
+        return 2
+    out = args.out or args.runs / "report"
+    out.mkdir(parents=True, exist_ok=True)
+    agg = aggregate(runs)
+    images = plots(agg, out)
+    (out / "report.md").write_text(markdown(agg, images))
+    if args.json:
+        rows = [
+            {
+                "layout": k[0],
+                "shape": k[1],
+                "algorithm": k[2],
+                "volume": k[3],
+                **{f: v for f, v in row.items() if f != "runs"},
+            }
+            for k, row in agg.items()
+        ]
+        (out / "report.json").write_text(json.dumps(rows, indent=2))
+    print(f"{len(runs)} runs in {len(agg)} groups; wrote {out}/report.md and {len(images)} plots")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
