@@ -376,8 +376,11 @@ def parser() -> argparse.ArgumentParser:
     sub.add_parser("experiment", help="a grid of runs in parallel, resumable (see its --help)")
     sub.add_parser("report", help="markdown tables and PNG plots from runs (see its --help)")
 
-    b = sub.add_parser("bench", help="benchmarks (ica: seconds per REQUEST per DICA variant)")
-    b.add_argument("what", choices=["ica"])
+    b = sub.add_parser(
+        "bench",
+        help="benchmarks: ica (seconds per REQUEST per DICA variant), run (real-time factor)",
+    )
+    b.add_argument("what", choices=["ica", "run"])
     b.add_argument(
         "rest",
         nargs=argparse.REMAINDER,
@@ -397,11 +400,11 @@ def main(argv: list[str] | None = None) -> int:
             return (experiment if argv[0] == "experiment" else report).main(argv[1:])
         except KeyboardInterrupt:
             return 130
-    if len(argv) >= 2 and argv[0] == "bench" and argv[1] == "ica":
-        from tools import bench_ica
+    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in ("ica", "run"):
+        from tools import bench_ica, bench_run
 
         try:
-            return bench_ica.main(argv[2:])
+            return (bench_ica if argv[1] == "ica" else bench_run).main(argv[2:])
         except KeyboardInterrupt:
             return 130
     args = parser().parse_args(argv)

@@ -1,0 +1,90 @@
+"""Benchmark: how fast a 10-minute run at volume 500 goes, and its cost against a light.
+
+Runs, one after the other in fresh processes (libsumo runs one simulation per
+process), the same seed under enhanced DICA and under the optimised
+fixed-cycle light, ``repeat`` times each, alternating, and reports the best
+wall time of each, the real-time factor (simulated / wall seconds) and the
+ratio of the two. Targets: at least 50x real time, at most 1.5x the light.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def one(algorithm: str, volume: float, duration: float, seed: int) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        cmd = [
+            sys.executable,
+            "-m",
+            "tools.cli",
+            "run",
+            "--algorithm",
+            algorithm,
+            "--volume",
+            f"{volume:g}",
+            "--duration",
+            f"{duration:g}",
+            "--seed",
+            str(seed),
+            "--out",
+            tmp,
+            "--quiet",
+        ]
+        p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+        if p.returncode not in (0, 1):
+            raise RuntimeError(f"{algorithm}: {p.stderr.strip().splitlines()[-1:]}")
+        return json.loads((Path(tmp) / "metrics.json").read_text())
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="dica bench run", description=__doc__.splitlines()[0])
+    p.add_argument("--volume", type=float, default=500.0)
+    p.add_argument("--duration", type=float, default=600.0)
+    p.add_argument("--seed", type=int, default=12)
+    p.add_argument("--repeat", type=int, default=3)
+    p.add_argument("--json", action="store_true")
+    args = p.parse_args(argv)
+    best: dict[str, dict] = {}
+    for _ in range(args.repeat):
+        for alg in ("enhanced", "fixed"):
+            m = one(alg, args.volume, args.duration, args.seed)
+            if alg not in best or m["wall_s"] < best[alg]["wall_s"]:
+                best[alg] = m
+    e, f = best["enhanced"], best["fixed"]
+    result = {
+        "volume": args.volume,
+        "duration_s": args.duration,
+        "seed": args.seed,
+        "enhanced_wall_s": e["wall_s"],
+        "enhanced_real_time_factor": e["real_time_factor"],
+        "enhanced_request_median_ms": e["requests"]["median_ms"],
+        "enhanced_request_p99_ms": e["requests"]["p99_ms"],
+        "fixed_wall_s": f["wall_s"],
+        "fixed_real_time_factor": f["real_time_factor"],
+        "wall_ratio_enhanced_to_fixed": e["wall_s"] / f["wall_s"],
+        "collisions": e["collisions"] + f["collisions"],
+    }
+    if args.json:
+        print(json.dumps(result, indent=2))
+    else:
+        print(
+            f"10-min-style run, volume {args.volume:g}, seed {args.seed}, best of {args.repeat}:\n"
+            f"  enhanced DICA: {e['wall_s']:.1f} s wall, {e['real_time_factor']:.0f}x real time "
+            f"(request median {e['requests']['median_ms']:.2f} ms, "
+            f"p99 {e['requests']['p99_ms']:.2f} ms)\n"
+            f"  fixed light:   {f['wall_s']:.1f} s wall, {f['real_time_factor']:.0f}x real time\n"
+            f"  ratio enhanced / fixed: {result['wall_ratio_enhanced_to_fixed']:.2f}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
