@@ -115,6 +115,20 @@ class RunResult:
     signal: dict | None = None
 
 
+def import_libsumo():
+    """libsumo, without the pyarrow version notice it prints on import.
+
+    libsumo bundles its own arrow, so the notice is harmless (checked on this
+    stack), but it would otherwise open every run's output.
+    """
+    import contextlib
+    import io
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        import libsumo
+    return libsumo
+
+
 def sumo_command(net_path: str, step_s: float, extra: tuple[str, ...]) -> list[str]:
     return [
         "sumo",
@@ -140,7 +154,7 @@ def run(
     cfg: RunConfig, inter: Intersection, progress: Callable[[float], None] | None = None
 ) -> RunResult:
     """Run one simulation to the end and return its metrics and safety report."""
-    import libsumo as ls
+    ls = import_libsumo()
 
     light = cfg.algorithm in LIGHTS
     named = cfg.algorithm in BASELINES or light
