@@ -10,8 +10,9 @@ out="${1:-runs/reproduce}"
 dica=".venv/bin/dica"
 seeds="12,21,66"
 
-# Chapter 3: DICA against Concurrent on the 2-lane intersection (volumes 1-3 read as 100-300)
-$dica experiment --layout ch3 --algorithms basic,concurrent --volumes 100,200,300 \
+# Chapter 3: DICA against Concurrent on the 2-lane intersection (its "volumes 1-3" have no
+# stated rate, so a range of volumes)
+$dica experiment --layout ch3 --algorithms basic,concurrent --volumes 100,200,300,400,500,600 \
   --seeds "$seeds" --out "$out/ch3"
 # Chapter 4: enhanced DICA against the optimised fixed-cycle and SUMO's actuated light,
 # and the reservation baselines, on the 3-lane intersection
