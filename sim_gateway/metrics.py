@@ -74,4 +74,12 @@ def summarize(log: TripLog, end_s: float) -> dict[str, float | int | None]:
     for turn in ("left", "through", "right"):
         sel = np.array([tr.exited_s - tr.entered_s for tr in crossed if tr.turn == turn])
         out[f"mean_trip_time_{turn}_s"] = float(sel.mean()) if len(sel) else math.nan
-    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in out.items()}
+    result = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in out.items()}
+    by_approach: dict[str, list[float]] = {}
+    for tr in crossed:
+        approach = tr.route_id.split(">")[0].rsplit("_", 1)[0]
+        by_approach.setdefault(approach, []).append(tr.exited_s - tr.entered_s)
+    result["mean_trip_time_by_approach_s"] = {
+        a: float(np.mean(v)) for a, v in sorted(by_approach.items())
+    }
+    return result
