@@ -76,6 +76,11 @@ def aggregate(runs: list[dict]) -> dict[tuple, dict]:
         row["min_gap_m"] = min(gaps) if gaps else None
         row["wall_s"] = _mean([r["metrics"].get("wall_s") for r in rs])
         row["seeds"] = sorted(r["seed"] for r in rs)
+        per: dict[str, list[float]] = defaultdict(list)
+        for r in rs:
+            for a, v in (r["metrics"].get("mean_trip_time_by_approach_s") or {}).items():
+                per[a].append(v)
+        row["by_approach"] = {a: float(np.mean(v)) for a, v in sorted(per.items())}
         row["runs"] = rs
         out[key] = row
     return out
@@ -94,6 +99,8 @@ def markdown(agg: dict[tuple, dict], images: list[str]) -> str:
         lines += [f"## {layout}" + (f" ({shape})" if shape else ""), ""]
         head = ["algorithm", "volume", *[h for _, h, _ in FIELDS]]
         head += ["collisions", "SUMO collisions", "min gap [m]", "wall [s]", "seeds"]
+        if shape:
+            head.append("mean tau by approach [s]")
         lines.append("| " + " | ".join(head) + " |")
         lines.append("|" + "---|" * len(head))
         for key, row in rows:
