@@ -101,6 +101,8 @@ def markdown(agg: dict[tuple, dict], images: list[str]) -> str:
         head += ["collisions", "SUMO collisions", "min gap [m]", "wall [s]", "seeds"]
         if shape:
             head.append("mean tau by approach [s]")
+        if shape:
+            head.append("mean tau by approach [s]")
         lines.append("| " + " | ".join(head) + " |")
         lines.append("|" + "---|" * len(head))
         for key, row in rows:
@@ -112,6 +114,8 @@ def markdown(agg: dict[tuple, dict], images: list[str]) -> str:
                 _fmt("{:.1f}", row["wall_s"]),
                 ",".join(map(str, row["seeds"])),
             ]
+            if shape:
+                cells.append(", ".join(f"{a} {v:.2f}" for a, v in row["by_approach"].items()))
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
     if images:
