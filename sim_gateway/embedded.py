@@ -162,7 +162,9 @@ def run(
     ica_cfg = IcaConfig(techniques=tech, margin_m=cfg.margin_m)
     h = ica_cfg.step_s
     ica = make_controller("fifo" if light else cfg.algorithm, inter, ica_cfg, cfg.tile_m)
-    n = cfg.until_left or max(1, math.ceil(cfg.volume_per_10min / 600.0 * cfg.duration_s * 2 + 20))
+    peak = max(cfg.volume_per_10min, cfg.volume_end_per_10min or 0.0)
+    # enough arrivals to outlast the horizon; the schedule is cut at the horizon below
+    n = cfg.until_left or max(1, math.ceil(peak / 600.0 * cfg.duration_s * 2 + 20))
     spec = StreamSpec(
         volume_per_10min=cfg.volume_per_10min,
         n_vehicles=n,

@@ -158,3 +158,30 @@ def test_experiment_grid_resumes_and_report_draws(tmp_path):
     assert len(pngs) == 2 and all(p.stat().st_size > 10_000 for p in pngs)
     bad = dica("report", str(tmp_path / "nothing"))
     assert bad.returncode == 2 and "no such directory" in bad.stderr
+
+
+def test_rising_volume_keeps_arriving_until_the_end(tmp_path):
+    out = tmp_path / "rise"
+    p = dica(
+        "run",
+        "--volume",
+        "100",
+        "--volume-end",
+        "500",
+        "--duration",
+        "240",
+        "--ramp",
+        "240",
+        "--out",
+        str(out),
+        "--quiet",
+    )
+    assert p.returncode == 0, p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    # expected arrivals: the mean of 100 and 500 per 10 min over 4 minutes = 120
+    assert 85 < m["generated"] < 160
+    with (out / "vehicles.csv").open() as fh:
+        departs = sorted(float(line.split(",")[3]) for line in list(fh)[1:])
+    assert departs[-1] > 225  # still arriving at the end
+    first, last = sum(d < 120 for d in departs), sum(d >= 120 for d in departs)
+    assert last > 1.5 * first  # and faster in the second half
