@@ -151,7 +151,9 @@ def sumo_command(net_path: str, step_s: float, extra: tuple[str, ...]) -> list[s
 
 
 def run(
-    cfg: RunConfig, inter: Intersection, progress: Callable[[float], None] | None = None
+    cfg: RunConfig,
+    inter: Intersection,
+    progress: Callable[[float, int, int], None] | None = None,
 ) -> RunResult:
     """Run one simulation to the end and return its metrics and safety report."""
     ls = import_libsumo()
@@ -343,7 +345,7 @@ def _loop(ls, cfg, inter, ica, schedule, horizon, progress, cmd, light) -> RunRe
             log.sample(t, waiting, crossed, next_car)
             last_sample = t
         if progress is not None:
-            progress(t)
+            progress(t, waiting, crossed)
         if cfg.until_left:
             if crossed >= len(schedule):
                 break
@@ -542,10 +544,11 @@ def write_outputs(out: Path, cfg: RunConfig, result: RunResult) -> None:
             )
     with (out / "timeseries.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(["t_s", "waiting", "crossed", "generated"])
+        w.writerow(["t_s", "waiting", "crossed", "generated", "flow_ratio"])
         log = result.trips
         for row in zip(log.t_s, log.waiting, log.crossed_cum, log.generated_cum, strict=True):
-            w.writerow([f"{row[0]:.2f}", *row[1:]])
+            ratio = f"{row[2] / row[3]:.4f}" if row[3] else ""
+            w.writerow([f"{row[0]:.2f}", *row[1:], ratio])
 
 
 def _f(x: float | None) -> str:

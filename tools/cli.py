@@ -236,8 +236,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     with tqdm(total=total, desc="sim time", unit="s", disable=args.quiet) as bar:
         last = [0.0]
 
-        def tick(t: float) -> None:
+        def tick(t: float, waiting: int, crossed: int) -> None:
             if t - last[0] >= 1.0:
+                bar.set_postfix(waiting=waiting, crossed=crossed, refresh=False)
                 bar.update(t - last[0])
                 last[0] = t
 

@@ -79,7 +79,7 @@ class IcaConfig:
     max_length_m: float = 12.0
     max_width_m: float = 3.0
     max_tss_samples: int = 4000
-    on_route_tol_m: float = 0.5
+    on_route_tol_m: float = 0.2  # never more than margin_m is used: see validate.py
     heading_tol_rad: float = 0.2
     speed_tol_mps: float = 0.05
     accel_tol_mps2: float = 0.1

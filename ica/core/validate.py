@@ -101,10 +101,13 @@ def _check_tss(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
 
     s, off = route.project(np.stack([x, y], -1))
     worst = float(off.max())
-    if worst > cfg.on_route_tol_m:
+    # a footprint is drawn on the route itself, so an offset is only safe while the
+    # margin around the footprint covers it
+    tol = min(cfg.on_route_tol_m, cfg.margin_m) + 1e-3
+    if worst > tol:
         raise RequestError(
             Reason.OFF_ROUTE,
-            f"TSS leaves route {route.id} by {worst:.2f} m (tolerance {cfg.on_route_tol_m} m)",
+            f"TSS leaves route {route.id} by {worst:.2f} m (tolerance {tol:.3f} m)",
         )
     if abs(s[0] + req.dist_to_entry_m) > cfg.on_route_tol_m:
         raise RequestError(
