@@ -294,16 +294,18 @@ def _loop(ls, cfg, inter, ica, schedule, horizon, progress, cmd, light) -> RunRe
         present = set(ls.vehicle.getIDList())
         for vid in ls.simulation.getDepartedIDList():
             ls.vehicle.setLaneChangeMode(vid, 0)
+            _Reads.subscribe(ls, vid)
+        vw = _Reads(ls)
 
         waiting = 0
         for c in active:
             if c.vin not in present:
                 continue
             if c.state == "approaching":
-                lane = ls.vehicle.getLaneID(c.vin)
-                d = lane_len.get(lane, math.inf) - ls.vehicle.getLanePosition(c.vin)
+                lane = vw.getLaneID(c.vin)
+                d = lane_len.get(lane, math.inf) - vw.getLanePosition(c.vin)
                 if lane == c.route.in_lane and d <= comm:
-                    v = ls.vehicle.getSpeed(c.vin)
+                    v = vw.getSpeed(c.vin)
                     trip = log.trips[c.vin]
                     trip.entered_s = t - (comm - d) / v if v > 0.1 else t
                     ica.detect(c.vin, c.route.in_lane, trip.entered_s)
@@ -320,17 +322,17 @@ def _loop(ls, cfg, inter, ica, schedule, horizon, progress, cmd, light) -> RunRe
                         p.time_at(c.route.cross_length_m + cfg.length_m) if p else None
                     )
                     c.state = "free" if light else "waiting"
-            if c.state in ("free", "waiting", "confirmed") and ls.vehicle.getSpeed(c.vin) < 0.1:
+            if c.state in ("free", "waiting", "confirmed") and vw.getSpeed(c.vin) < 0.1:
                 log.trips[c.vin].stopped = True  # stopped in the region before leaving
                 waiting += 1
             if c.state == "free":  # a signalised junction: SUMO drives
-                if _left_junction(ls, c, t, cfg, log):
+                if _left_junction(vw, c, t, cfg, log):
                     crossed += 1
                 continue
             if c.state == "waiting":
-                _drive_waiting(ls, ica, c, t, lane_len, log, compute, rejections, cfg)
+                _drive_waiting(ls, vw, ica, c, t, lane_len, log, compute, rejections, cfg)
             if c.state == "confirmed":
-                _drive_confirmed(ls, c, t, h, cfg, log)
+                _drive_confirmed(ls, vw, c, t, h, cfg, log)
                 if c.state == "exited":
                     crossed += 1
         # a car SUMO has not inserted yet (its spot is taken) stays tracked
@@ -375,12 +377,12 @@ def _loop(ls, cfg, inter, ica, schedule, horizon, progress, cmd, light) -> RunRe
     )
 
 
-def _drive_waiting(ls, ica, c: Car, t, lane_len, log, compute, rejections, cfg) -> None:
+def _drive_waiting(ls, vw, ica, c: Car, t, lane_len, log, compute, rejections, cfg) -> None:
     """Unconfirmed in the region: ask when head, else brake to stop before the line."""
     ln = lane_len[c.route.in_lane]
-    pos = ls.vehicle.getLanePosition(c.vin)
+    pos = vw.getLanePosition(c.vin)
     d = ln - pos
-    v = ls.vehicle.getSpeed(c.vin)
+    v = vw.getSpeed(c.vin)
     if t >= c.next_request_s and ica.is_head(c.vin, t):
         try:
             req = propose(
@@ -408,7 +410,7 @@ def _drive_waiting(ls, ica, c: Car, t, lane_len, log, compute, rejections, cfg) 
             c.state = "confirmed"
             log.trips[c.vin].confirmed_s = t
             ls.vehicle.setSpeedMode(c.vin, 32)
-            _drive_confirmed(ls, c, t, ica.config.step_s, cfg, log)
+            _drive_confirmed(ls, vw, c, t, ica.config.step_s, cfg, log)
             return
         reason = getattr(answer, "reason", None)
         key = reason.value if reason is not None else "error"
@@ -423,27 +425,62 @@ def _drive_waiting(ls, ica, c: Car, t, lane_len, log, compute, rejections, cfg) 
     ls.vehicle.setSpeed(c.vin, max(0.0, min(c.entry_speed_mps, v_stop, room / h)))
 
 
-def _left_junction(ls, c: Car, t, cfg, log) -> bool:
+def _left_junction(vw, c: Car, t, cfg, log) -> bool:
     """Rear past the exit line: note the time (interpolated) and mark the car exited."""
-    if ls.vehicle.getRoadID(c.vin) != c.route.out_lane.rsplit("_", 1)[0]:
+    if vw.getRoadID(c.vin) != c.route.out_lane.rsplit("_", 1)[0]:
         return False
-    over = ls.vehicle.getLanePosition(c.vin) - cfg.length_m
+    over = vw.getLanePosition(c.vin) - cfg.length_m
     if over < 0:
         return False
-    log.trips[c.vin].exited_s = t - over / max(ls.vehicle.getSpeed(c.vin), 0.1)
+    log.trips[c.vin].exited_s = t - over / max(vw.getSpeed(c.vin), 0.1)
     c.state = "exited"
     return True
 
 
-def _drive_confirmed(ls, c: Car, t, h, cfg, log) -> None:
+def _drive_confirmed(ls, vw, c: Car, t, h, cfg, log) -> None:
     """Fly the confirmed TSS: the speed that reaches the next sample; release once out."""
-    if _left_junction(ls, c, t, cfg, log):
+    if _left_junction(vw, c, t, cfg, log):
         ls.vehicle.setSpeedMode(c.vin, 31)
         ls.vehicle.setSpeed(c.vin, -1)
         return
     k = round((t - c.t0_s) / h)
     speeds = c.speeds
     ls.vehicle.setSpeed(c.vin, float(speeds[min(max(k, 0), len(speeds) - 1)]))
+
+
+class _Reads:
+    """This step's lane, position, speed and road of every vehicle, from one SUMO call.
+
+    Each vehicle is subscribed to those four values when it departs; a vehicle
+    missing from the results (not delivered yet) is read directly.
+    """
+
+    __slots__ = ("_ls", "_rows")
+
+    def __init__(self, ls) -> None:
+        self._ls = ls
+        self._rows = ls.vehicle.getAllSubscriptionResults()
+
+    @staticmethod
+    def subscribe(ls, vin: str) -> None:
+        c = ls.constants
+        ls.vehicle.subscribe(vin, [c.VAR_LANE_ID, c.VAR_LANEPOSITION, c.VAR_SPEED, c.VAR_ROAD_ID])
+
+    def _get(self, vin: str, var: int, direct):
+        row = self._rows.get(vin)
+        return row[var] if row is not None and var in row else direct(vin)
+
+    def getLaneID(self, vin: str) -> str:
+        return self._get(vin, self._ls.constants.VAR_LANE_ID, self._ls.vehicle.getLaneID)
+
+    def getLanePosition(self, vin: str) -> float:
+        return self._get(vin, self._ls.constants.VAR_LANEPOSITION, self._ls.vehicle.getLanePosition)
+
+    def getSpeed(self, vin: str) -> float:
+        return self._get(vin, self._ls.constants.VAR_SPEED, self._ls.vehicle.getSpeed)
+
+    def getRoadID(self, vin: str) -> str:
+        return self._get(vin, self._ls.constants.VAR_ROAD_ID, self._ls.vehicle.getRoadID)
 
 
 @dataclass(slots=True)
