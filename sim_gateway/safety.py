@@ -11,6 +11,7 @@ is ``(sin a, cos a)`` and the rectangle centre is ``front - heading * length / 2
 
 from __future__ import annotations
 
+import bisect
 import math
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
@@ -28,10 +29,12 @@ _AXIS_SNAP = 1e-12
 # Rounding allowance [m] on the numpy pre-filter of pairs, and the GEOS distance at or
 # below which the exact intersects predicate (not float distance) decides "overlap".
 _SLACK_M = 1e-6
-# Corners of a rectangle as multiples of (centre -> front, centre -> right side), closed.
-_CORNER_L = np.array([1.0, 1.0, -1.0, -1.0, 1.0])
-_CORNER_W = np.array([1.0, -1.0, -1.0, 1.0, 1.0])
-_RIGHT_OF_HEADING = np.array([1.0, -1.0])  # right normal of (hx, hy) is (hy, -hx)
+# Up to this many watched vehicles, candidate pairs are found in plain Python (faster).
+_PY_PAIRS_MAX = 12
+# Grid of region distances for the watch pre-check: cells per side of the grown box, and
+# how far beyond the margin it reaches (vehicles' half-diagonals, 12 m buses included).
+_GRID_CELLS = 64
+_GRID_REACH_M = 8.0
 
 
 @dataclass(frozen=True)
@@ -114,6 +117,42 @@ class SafetyMonitor:
         self._region = _region_polygon(region)
         self._margin_m = margin
         shapely.prepare(self._region)
+        # Cheap pre-checks, so that GEOS sees only the vehicles it must decide: a bounding
+        # circle (centre, half-diagonal) beyond the region's box grown by the margin is never
+        # watched; a point of the rectangle inside ``_surely_watched`` (the region grown by
+        # a bit less than the margin) makes it watched.
+        lo_x, lo_y, hi_x, hi_y = shapely.bounds(self._region).tolist()
+        self._box_centre = (0.5 * (lo_x + hi_x), 0.5 * (lo_y + hi_y))
+        scale = max(abs(lo_x), abs(lo_y), abs(hi_x), abs(hi_y), 1.0)
+        self._box_slack_m = _SLACK_M + 1e-9 * scale
+        grow = margin + self._box_slack_m
+        self._box_half = (0.5 * (hi_x - lo_x) + grow, 0.5 * (hi_y - lo_y) + grow)
+        inner = margin - _SLACK_M - 1e-9 * (scale + margin)
+        if inner > 0.0:
+            self._surely_watched = shapely.buffer(self._region, inner)
+        else:
+            self._surely_watched = self._region
+        shapely.prepare(self._surely_watched)
+        # A grid over the box grown by ``margin + _GRID_REACH_M`` holds, per cell, -1 when
+        # every centre in it is surely watched, else a lower bound on the distance from the
+        # cell to the region (a centre there is unwatched if farther than margin + radius).
+        # Cells are grown by a rounding allowance so the looked-up cell holds the centre.
+        reach = margin + _GRID_REACH_M
+        self._grid_lo = (lo_x - reach, lo_y - reach)
+        cell = (max(hi_x - lo_x, hi_y - lo_y) + 2.0 * reach) / _GRID_CELLS
+        self._grid_inv_cell = 1.0 / cell
+        self._grid_n = (
+            math.ceil((hi_x - lo_x + 2.0 * reach) / cell),
+            math.ceil((hi_y - lo_y + 2.0 * reach) / cell),
+        )
+        gx = self._grid_lo[0] + cell * np.arange(self._grid_n[0])
+        gy = self._grid_lo[1] + cell * np.arange(self._grid_n[1])
+        x0, y0 = np.meshgrid(gx, gy, indexing="ij")
+        eps = self._box_slack_m
+        cells = shapely.box(x0 - eps, y0 - eps, x0 + cell + eps, y0 + cell + eps)
+        dist = np.maximum(shapely.distance(cells, self._region) - self._box_slack_m, 0.0)
+        inside = shapely.covered_by(cells, self._surely_watched)
+        self._grid: list[list[float]] = np.where(inside, -1.0, dist).tolist()
         self._edges_m = np.asarray(GAP_HIST_EDGES_M, dtype=float)
         self._hist_max_m = float(self._edges_m[-1])
         self._steps = 0
@@ -121,8 +160,10 @@ class SafetyMonitor:
         self._overlap_pairs: list[tuple[float, str, str]] = []
         self._min_gap_m = math.inf
         self._min_gap_pair: tuple[float, str, str] | None = None
-        self._hist = np.zeros(len(self._edges_m) - 1, dtype=np.int64)
+        self._inner_edges = self._edges_m[1:].tolist()
+        self._hist = [0] * (len(self._edges_m) - 1)
         self._upper_cache: dict[int, np.ndarray] = {}
+        self._ring_offsets: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def _upper(self, m: int) -> np.ndarray:
         """(m, m) mask of pairs i < j, cached: building it costs more than using it."""
@@ -148,50 +189,132 @@ class SafetyMonitor:
         xy = np.asarray(front_xy, dtype=float)
         if n == 0 and xy.size == 0:
             xy = xy.reshape(0, 2)
-        if xy.shape != (n, 2):
-            raise ValueError(f"front_xy must have shape ({n}, 2) to match vins, got {xy.shape}")
-        if not np.isfinite(xy).all():
-            bad = np.flatnonzero(~np.isfinite(xy).all(axis=1)).tolist()
-            raise ValueError(f"front_xy has non-finite positions at indices {bad}")
-        ang = _as_column("angle_deg", angle_deg, n)
-        length = _as_column("length_m", length_m, n)
-        width = _as_column("width_m", width_m, n)
-        if (length <= 0.0).any() or (width <= 0.0).any():
+        ang = np.asarray(angle_deg, dtype=float)
+        length = np.asarray(length_m, dtype=float)
+        width = np.asarray(width_m, dtype=float)
+        # One finiteness check for the usual good input; anything odd gets the full checks
+        # (in their order, for the same message). A finite sum can only be finite inputs.
+        ok = xy.shape == (n, 2) and ang.shape == length.shape == width.shape == (n,)
+        if ok:
+            flat_xy, ang_l = xy.ravel().tolist(), ang.tolist()
+            len_l, wid_l = length.tolist(), width.tolist()
+            ok = math.isfinite(sum(flat_xy) + sum(ang_l) + sum(len_l) + sum(wid_l))
+        if not ok:
+            xy, ang, length, width = self._checked(n, xy, angle_deg, length_m, width_m)
+            flat_xy, ang_l = xy.ravel().tolist(), ang.tolist()
+            len_l, wid_l = length.tolist(), width.tolist()
+        if n and (min(len_l) <= 0.0 or min(wid_l) <= 0.0):
             raise ValueError("length_m and width_m must be > 0")
         self._steps += 1
         if n < 2:
             return 0
 
-        # Per-call cost is dominated by the number of numpy/GEOS calls, not by n: keep few.
+        # Per-call cost is dominated by the number of numpy/GEOS calls, not by n (tens of
+        # vehicles): numpy only for the trigonometry, plain floats for the rest. Every
+        # corner is the same float expression as ``centre + l * along + w * across`` over
+        # arrays (l, w = +-1 are exact), so the rectangles GEOS sees are bit for bit the same.
         rad = np.deg2rad(ang)
-        head = np.column_stack((np.sin(rad), np.cos(rad)))  # 0 deg = +y, clockwise
-        head[np.abs(head) < _AXIS_SNAP] = 0.0
-        half_l, half_w = 0.5 * length, 0.5 * width
-        radius = np.hypot(half_l, half_w)  # half-diagonal
-        along = head * half_l[:, None]  # rectangle centre -> front bumper
-        across = head[:, ::-1] * half_w[:, None] * _RIGHT_OF_HEADING  # centre -> right side
-        centre = xy - along
-        corners = centre[:, None, :] + _CORNER_L[:, None] * along[:, None, :]
-        corners += _CORNER_W[:, None] * across[:, None, :]
-        polys = shapely.polygons(corners)
-        if self._margin_m > 0.0:
-            watched = shapely.dwithin(polys, self._region, self._margin_m)
+        sin_a, cos_a = np.sin(rad).tolist(), np.cos(rad).tolist()
+        bcx, bcy = self._box_centre
+        bhx, bhy = self._box_half
+        thin = self._box_slack_m
+        gx0, gy0 = self._grid_lo
+        inv_cell, (gnx, gny), grid = self._grid_inv_cell, self._grid_n, self._grid
+        far = self._margin_m + thin
+
+        def at(x: float, y: float) -> float:
+            """Grid value at a point: -1 (surely watched) or a lower bound on its distance."""
+            u, v = (x - gx0) * inv_cell, (y - gy0) * inv_cell
+            return grid[int(u)][int(v)] if 0.0 <= u < gnx and 0.0 <= v < gny else 0.0
+
+        cand: list[int] = []
+        rings: list[float] = []
+        cxs: list[float] = []
+        cys: list[float] = []
+        radius: list[float] = []
+        sure: list[bool] = []
+        zipped = zip(flat_xy[::2], flat_xy[1::2], sin_a, cos_a, len_l, wid_l, strict=True)
+        for i, (fx, fy, hx, hy, ln, wd) in enumerate(zipped):
+            if abs(hx) < _AXIS_SNAP:
+                hx = 0.0
+            if abs(hy) < _AXIS_SNAP:
+                hy = 0.0
+            hl, hw = 0.5 * ln, 0.5 * wd
+            r = math.hypot(hl, hw)  # half-diagonal
+            ax, ay = hx * hl, hy * hl  # rectangle centre -> front bumper
+            cx, cy = fx - ax, fy - ay
+            u, v = (cx - gx0) * inv_cell, (cy - gy0) * inv_cell
+            if 0.0 <= u < gnx and 0.0 <= v < gny:
+                d = grid[int(u)][int(v)]
+                if d > far + r:
+                    continue  # the bounding circle is beyond the margin
+                if d >= 0.0:
+                    # Each half of the rectangle lies in a disc around its middle point.
+                    qx, qy = 0.5 * ax, 0.5 * ay
+                    d = min(at(cx + qx, cy + qy), at(cx - qx, cy - qy))
+                    if d > far + math.hypot(0.5 * hl, hw):
+                        continue
+                    if d >= 0.0:  # the bumpers' middle points are in the rectangle too
+                        d = min(at(fx, fy), at(cx - ax, cy - ay))
+                sure.append(d < 0.0 and hl > thin and hw > thin)
+            elif abs(cx - bcx) > bhx + r or abs(cy - bcy) > bhy + r:
+                continue  # the bounding circle is beyond the region's box grown by the margin
+            else:
+                sure.append(False)
+            bx, by = hy * hw, -(hx * hw)  # centre -> right side
+            px, mx, py, my = cx + ax, cx - ax, cy + ay, cy - ay
+            x0, y0 = px + bx, py + by
+            rings += (x0, y0, px - bx, py - by, mx - bx, my - by, mx + bx, my + by, x0, y0)
+            cand.append(i)
+            cxs.append(cx)
+            cys.append(cy)
+            radius.append(r)
+        if len(cand) < 2:
+            return 0
+        polys = self._rectangles(rings, len(cand))
+        # GEOS decides only the vehicles the grid left unsure.
+        if all(sure):
+            sub = list(range(len(cand)))
         else:
-            watched = shapely.intersects(polys, self._region)
-        idx = np.flatnonzero(watched)
-        m = len(idx)
+            unsure = [k for k, s in enumerate(sure) if not s]
+            if self._margin_m > 0.0:
+                near = shapely.dwithin(polys[unsure], self._region, self._margin_m)
+            else:
+                near = shapely.intersects(polys[unsure], self._region)
+            for k, w in zip(unsure, near.tolist(), strict=True):
+                sure[k] = w
+            sub = [k for k, s in enumerate(sure) if s]
+        m = len(sub)
         if m < 2:
             return 0
-        if m < n:
-            polys, centre, radius = polys[idx], centre[idx], radius[idx]
+        idx = [cand[s] for s in sub]
+        cxs = [cxs[s] for s in sub]
+        cys = [cys[s] for s in sub]
+        radius = [radius[s] for s in sub]
+        if m < len(cand):
+            polys = polys[sub]
 
         # Candidate pairs i < j: the centre distance minus both half-diagonals is a lower
         # bound on the gap, so pairs beyond the histogram range are dropped before GEOS
         # (while no pair has come that close, nothing is dropped: min_gap_m stays exact).
+        # Rounding in this bound only moves pairs whose gap exceeds ``within``, which
+        # count nowhere, so the pairs that matter, and their order, are always the same.
         within = max(self._hist_max_m, self._min_gap_m) + _SLACK_M
-        reach = radius[:, None] + radius + within
-        z = np.ascontiguousarray(centre).view(np.complex128)[:, 0]  # x + iy, no copy
-        ia, ib = np.nonzero((np.abs(z[:, None] - z) <= reach) & self._upper(m))
+        if m <= _PY_PAIRS_MAX:
+            ia: Any = []
+            ib: Any = []
+            for i in range(m - 1):
+                xi, yi, ri = cxs[i], cys[i], radius[i] + within
+                for j in range(i + 1, m):
+                    if math.hypot(cxs[j] - xi, cys[j] - yi) <= ri + radius[j]:
+                        ia.append(i)
+                        ib.append(j)
+            ia, ib = np.array(ia, dtype=np.intp), np.array(ib, dtype=np.intp)
+        else:
+            rad_a = np.array(radius)
+            reach = rad_a[:, None] + rad_a + within
+            z = np.array(cxs) + 1j * np.array(cys)
+            ia, ib = np.nonzero((np.abs(z[:, None] - z) <= reach) & self._upper(m))
         names = None
         if len(vins) != len(set(vins)):  # never in SUMO; tolerated rather than trusted
             names = np.asarray(vins, dtype=object)[idx]
@@ -201,24 +324,34 @@ class SafetyMonitor:
             return 0
         gap = shapely.distance(polys[ia], polys[ib])
         # The exact GEOS predicate, not the float distance, decides touching pairs.
-        maybe = np.flatnonzero(gap <= _SLACK_M)
-        overlap = np.zeros(len(ia), dtype=bool)
-        if len(maybe):
+        if min(gap.tolist()) <= _SLACK_M:
+            maybe = np.flatnonzero(gap <= _SLACK_M)
+            overlap = np.zeros(len(ia), dtype=bool)
             overlap[maybe] = shapely.intersects(polys[ia[maybe]], polys[ib[maybe]])
             gap[maybe[overlap[maybe]]] = 0.0
+        else:
+            overlap = None
         if names is not None:
             keep = _closest_per_vin_pair(names[ia], names[ib], gap)
-            ia, ib, gap, overlap = ia[keep], ib[keep], gap[keep], overlap[keep]
+            ia, ib, gap = ia[keep], ib[keep], gap[keep]
+            overlap = None if overlap is None else overlap[keep]
 
-        # Bin k holds edges[k] <= gap < edges[k + 1]; the extra last bin (>= 10 m) is dropped.
-        counts = np.bincount(np.searchsorted(self._edges_m[1:], gap, side="right"))
-        self._hist[: len(counts)] += counts[: len(self._hist)]
+        # Bin k holds edges[k] <= gap < edges[k + 1]; gaps >= the last edge are dropped.
+        gaps = gap.tolist()
+        hist, inner_edges, n_bins = self._hist, self._inner_edges, len(self._hist)
+        best = 0
+        for k, g in enumerate(gaps):
+            b = bisect.bisect_right(inner_edges, g)
+            if b < n_bins:
+                hist[b] += 1
+            if g < gaps[best]:
+                best = k
+        if gaps[best] < self._min_gap_m:
+            self._min_gap_m = float(gaps[best])
+            self._min_gap_pair = (t, *self._ordered(vins, idx[ia[best]], idx[ib[best]]))
 
-        k = int(np.argmin(gap))
-        if gap[k] < self._min_gap_m:
-            self._min_gap_m = float(gap[k])
-            self._min_gap_pair = (t, *self._ordered(vins, idx[ia[k]], idx[ib[k]]))
-
+        if overlap is None:
+            return 0
         found = int(overlap.sum())
         if found:
             self._overlaps += found
@@ -226,10 +359,33 @@ class SafetyMonitor:
             if room > 0:
                 listed = sorted(
                     self._ordered(vins, idx[a], idx[b])
-                    for a, b in zip(ia[overlap], ib[overlap], strict=True)
+                    for a, b in zip(ia[overlap].tolist(), ib[overlap].tolist(), strict=True)
                 )
                 self._overlap_pairs.extend((t, a, b) for a, b in listed[:room])
         return found
+
+    def _rectangles(self, rings: list[float], k: int) -> np.ndarray:
+        """k polygons from their closed 5-corner rings, flat as x0, y0, x1, y1, ..."""
+        offsets = self._ring_offsets.get(k)
+        if offsets is None:
+            offsets = self._ring_offsets[k] = (np.arange(0, 5 * k + 1, 5), np.arange(k + 1))
+        coords = np.array(rings).reshape(5 * k, 2)
+        return shapely.from_ragged_array(shapely.GeometryType.POLYGON, coords, offsets)
+
+    @staticmethod
+    def _checked(
+        n: int, xy: np.ndarray, angle_deg: np.ndarray, length_m: np.ndarray, width_m: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Full input checks, each with its own message; returns the arrays if all pass."""
+        if xy.shape != (n, 2):
+            raise ValueError(f"front_xy must have shape ({n}, 2) to match vins, got {xy.shape}")
+        if not np.isfinite(xy).all():
+            bad = np.flatnonzero(~np.isfinite(xy).all(axis=1)).tolist()
+            raise ValueError(f"front_xy has non-finite positions at indices {bad}")
+        ang = _as_column("angle_deg", angle_deg, n)
+        length = _as_column("length_m", length_m, n)
+        width = _as_column("width_m", width_m, n)
+        return xy, ang, length, width
 
     @staticmethod
     def _ordered(vins: Sequence[str], i: int, j: int) -> tuple[str, str]:
@@ -246,5 +402,5 @@ class SafetyMonitor:
             min_gap_m=self._min_gap_m,
             min_gap_pair=self._min_gap_pair,
             gap_hist_edges_m=[float(e) for e in self._edges_m],
-            gap_hist_counts=[int(c) for c in self._hist],
+            gap_hist_counts=list(self._hist),
         )

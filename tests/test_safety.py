@@ -379,3 +379,87 @@ def test_checker_imports_nothing_from_the_controller():
     )
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == "ok"
+
+
+# --- against the frozen pre-optimisation implementation ------------------------------------
+
+from tests._safety_reference import SafetyMonitor as _ReferenceMonitor  # noqa: E402
+
+_R = 13.5
+_JUNCTION = np.column_stack(
+    [
+        _R * np.cos(np.arange(8) * np.pi / 4 + np.pi / 8),
+        _R * np.sin(np.arange(8) * np.pi / 4 + np.pi / 8),
+    ]
+)
+_LANE = st.sampled_from([0.0, 90.0, 180.0, 270.0, -90.0, 45.0])
+
+
+@st.composite
+def _step_cars(draw):
+    """Vehicles near and far from the junction, many in queues with exact and near touches."""
+    n = draw(st.integers(0, 40))
+    cars = []
+    for k in range(n):
+        kind = draw(st.integers(0, 4))
+        length = (
+            draw(st.sampled_from([5.0, 12.0]))
+            if draw(st.booleans())
+            else draw(st.floats(2.0, 12.0))
+        )
+        width = (
+            draw(st.sampled_from([1.8, 2.5])) if draw(st.booleans()) else draw(st.floats(1.0, 3.0))
+        )
+        if kind == 3 and cars:  # queue behind a previous car, gap 0, +-1e-7, or a bit more
+            _, px, py, pa, plen, _ = cars[draw(st.integers(0, len(cars) - 1))]
+            gap = draw(st.sampled_from([0.0, 1e-7, -1e-7, 0.25, 0.5, 1.0, 10.0]))
+            gap = gap if draw(st.booleans()) else draw(st.floats(-1.0, 12.0))
+            a = math.radians(pa)
+            x, y = px - math.sin(a) * (plen + gap), py - math.cos(a) * (plen + gap)
+            lat = draw(st.sampled_from([0.0, 0.0, 1.8, 1.8 + 1e-7, 3.2]))
+            cars.append((f"v{k}", x + math.cos(a) * lat, y - math.sin(a) * lat, pa, length, width))
+            continue
+        if kind == 4:  # beside or head-on to a junction edge, just touching or near it
+            k0 = draw(st.integers(0, 7))
+            p0, p1 = _JUNCTION[k0], _JUNCTION[(k0 + 1) % 8]
+            e = (p1 - p0) / np.hypot(*(p1 - p0))
+            out = np.array([e[1], -e[0]])  # the ring is counter-clockwise
+            gap = draw(st.sampled_from([0.0, 1e-7, -1e-7, 2.0, 2.0 + 1e-7, 10.0, 10.0 - 1e-7]))
+            base = p0 + (p1 - p0) * draw(st.floats(-0.2, 1.2))
+            if draw(st.booleans()):  # parallel to the edge, one side at the gap
+                head = e if draw(st.booleans()) else -e
+                centre = base + out * (width / 2 + gap)
+            else:  # pointing into the junction, front bumper at the gap
+                head = -out
+                centre = base + out * (length / 2 + gap)
+            front = centre + head * length / 2
+            ang = math.degrees(math.atan2(head[0], head[1]))
+            cars.append((f"v{k}", float(front[0]), float(front[1]), ang, length, width))
+            continue
+        span = [20.0, 35.0, 80.0, 300.0][kind]
+        x, y = draw(st.floats(-span, span)), draw(st.floats(-span, span))
+        ang = draw(_LANE) if draw(st.booleans()) else draw(st.floats(-360.0, 720.0))
+        cars.append((f"v{k}", x, y, ang, length, width))
+    if cars and draw(st.booleans()):  # occasionally a repeated vin
+        cars.append((cars[0][0], *cars[-1][1:]))
+    return cars
+
+
+@settings(derandomize=True, max_examples=200, deadline=None)
+@given(st.lists(_step_cars(), min_size=1, max_size=5), st.sampled_from([0.0, 2.0, 10.0]))
+def test_same_report_as_the_reference_implementation(steps, margin):
+    mon, ref = SafetyMonitor(_JUNCTION, margin), _ReferenceMonitor(_JUNCTION, margin)
+    for k, cars in enumerate(steps):
+        arr = np.array([c[1:] for c in cars], dtype=float).reshape(len(cars), 5)
+        args = (0.05 * k, [c[0] for c in cars], arr[:, :2], arr[:, 2], arr[:, 3], arr[:, 4])
+        assert mon.observe(*args) == ref.observe(*args)
+    got, want = mon.report(), ref.report()
+    assert got.min_gap_m == pytest.approx(want.min_gap_m, abs=1e-9, rel=0)
+    assert (got.steps, got.overlaps, got.overlap_pairs) == (
+        want.steps,
+        want.overlaps,
+        want.overlap_pairs,
+    )
+    assert got.min_gap_pair == want.min_gap_pair
+    assert got.gap_hist_counts == want.gap_hist_counts
+    assert got.gap_hist_edges_m == want.gap_hist_edges_m
