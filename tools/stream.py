@@ -58,8 +58,6 @@ class Vehicle:
     length_m: float
     width_m: float
     seq: int = 0
-    head_s: float | None = None
-    request_state: tuple[float, float, float] | None = None  # t0, d, v of the confirmed request
     earliest_entry_s: float = math.nan
     stop_entry_s: float = math.nan
     busy_until_s: float = -math.inf  # latest end of the confirmed set at its request
@@ -250,14 +248,10 @@ def run_stream(
                 lead = lane_tail.get(v.route.in_lane)
                 at = free_at(lead) if lead is not None else now
                 if at <= now:
-                    v.head_s = now
                     ask(v, queued=False)
                 else:
                     heapq.heappush(events, (at, v.arrival_s, "head", v.vin))
-        elif kind == "head":
-            v.head_s = now
-            ask(v, queued=True)
-        elif v.confirmation is None:  # retry after a rejection
+        elif kind == "head" or v.confirmation is None:  # newly head, or a retry after a rejection
             ask(v, queued=True)
 
     return StreamResult(vehicles, request_times, rejections, now)
@@ -304,7 +298,6 @@ def _request(
             v.earliest_entry_s = now + planner.earliest_entry_s()
             v.stop_entry_s = now + planner.stop_entry_s()
             v.busy_until_s = busy
-            v.request_state = (now, d, speed)
     v.seq += 1
     if isinstance(out, Confirmation):
         v.confirmation = out

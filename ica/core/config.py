@@ -29,15 +29,6 @@ class Techniques:
     estimated_oti: bool = True
     bisection: bool = True
 
-    @property
-    def name(self) -> str:
-        on = [str(i + 1) for i, f in enumerate(fields(self)) if getattr(self, f.name)]
-        if len(on) == 4:
-            return "enhanced"
-        if not on:
-            return "basic"
-        return "t" + "+".join(on)
-
     @staticmethod
     def parse(name: str) -> Techniques:
         """'basic', 'enhanced', or 't' plus technique numbers joined by '+' ('t2+4')."""
