@@ -194,7 +194,8 @@ def cmd_run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from sim_gateway.embedded import RunConfig, RunError, run, write_outputs
+    from sim_gateway.embedded import RunConfig, RunError, run
+    from sim_gateway.outputs import write_outputs
 
     if args.net:
         if not args.junction:

@@ -1,0 +1,73 @@
+"""What one run is: the scenario inputs, checked, and what a run returns."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ica.core.baselines import BASELINES
+from ica.core.config import Techniques
+from sim_gateway.metrics import TripLog
+
+LIGHTS = ("fixed", "actuated")  # SUMO drives; the junction is signalised
+
+
+class RunError(Exception):
+    """A run that cannot start or cannot go on (bad input, SUMO refused, a peer died)."""
+
+
+@dataclass(frozen=True, slots=True)
+class RunConfig:
+    """One run, as given on the command line (written beside the outputs)."""
+
+    net_path: str
+    junction_id: str
+    algorithm: str = "enhanced"
+    volume_per_10min: float = 300.0
+    seed: int = 12
+    duration_s: float = 600.0
+    until_left: int | None = None
+    margin_m: float = 0.25
+    retry_s: float = 0.5
+    length_m: float = 5.0
+    width_m: float = 1.8
+    sumo_args: tuple[str, ...] = ()
+    tile_m: float = 1.0
+    approach_weights: tuple[tuple[str, float], ...] = ()
+    volume_end_per_10min: float | None = None
+    ramp_s: float = 1200.0
+
+    def __post_init__(self) -> None:
+        if not 1.0 <= self.volume_per_10min <= 2000.0:
+            raise RunError(
+                f"volume {self.volume_per_10min:g} is out of range: 1 to 2000 vehicles per 10 min"
+            )
+        if self.duration_s <= 0:
+            raise RunError("duration must be positive")
+        if self.until_left is not None and self.until_left < 1:
+            raise RunError("--until-left must be at least 1")
+        if self.algorithm not in BASELINES + LIGHTS:
+            try:
+                Techniques.parse(self.algorithm)
+            except ValueError:
+                raise RunError(
+                    f"unknown algorithm {self.algorithm!r}: use basic, enhanced, t1..t4 (t2+4), "
+                    + ", ".join(BASELINES + LIGHTS)
+                ) from None
+        if self.volume_end_per_10min is not None and not 1.0 <= self.volume_end_per_10min <= 2000:
+            raise RunError("--volume-end is out of range: 1 to 2000 vehicles per 10 min")
+        if not 0.1 <= self.tile_m <= 10.0:
+            raise RunError("--tile-size must be between 0.1 and 10 m")
+
+
+@dataclass(slots=True)
+class RunResult:
+    metrics: dict
+    trips: TripLog
+    safety: dict
+    requests: dict
+    sumo_collisions: int
+    sim_time_s: float
+    wall_s: float
+    sumo_command: list[str] = field(default_factory=list)
+    signal: dict | None = None
+    extra: dict = field(default_factory=dict)  # mode-specific facts (clock, agents, ...)
