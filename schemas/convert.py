@@ -1,0 +1,84 @@
+"""Between wire messages and the ICA core's own types (both directions)."""
+
+from __future__ import annotations
+
+from ica.core import request as core
+from schemas import messages as m
+from schemas.codec import now_ns
+
+
+def request_to_core(msg: m.Request) -> core.Request:
+    tss = core.Tss(msg.t_s, msg.x_m, msg.y_m, msg.heading_rad)
+    return core.Request(
+        vin=msg.vin,
+        seq=msg.seq,
+        in_lane=msg.in_lane,
+        out_lane=msg.out_lane,
+        length_m=msg.length_m,
+        width_m=msg.width_m,
+        t0_s=msg.t0_s,
+        dist_to_entry_m=msg.dist_to_entry_m,
+        speed_mps=msg.speed_mps,
+        tss=tss,
+    )
+
+
+def request_from_core(req: core.Request) -> m.Request:
+    return m.Request(
+        vin=req.vin,
+        seq=req.seq,
+        in_lane=req.in_lane,
+        out_lane=req.out_lane,
+        length_m=float(req.length_m),
+        width_m=float(req.width_m),
+        t0_s=float(req.t0_s),
+        dist_to_entry_m=float(req.dist_to_entry_m),
+        speed_mps=float(req.speed_mps),
+        t_s=req.tss.t_s,
+        x_m=req.tss.x_m,
+        y_m=req.tss.y_m,
+        heading_rad=req.tss.heading_rad,
+        sent_ns=now_ns(),
+    )
+
+
+def response_from_core(conf: core.Confirmation) -> m.Response:
+    return m.Response(
+        vin=conf.vin,
+        seq=conf.seq,
+        route_id=conf.route_id,
+        t_s=conf.tss.t_s,
+        x_m=conf.tss.x_m,
+        y_m=conf.tss.y_m,
+        heading_rad=conf.tss.heading_rad,
+        entry_time_s=float(conf.entry_time_s),
+        exit_time_s=float(conf.exit_time_s),
+        delay_s=float(conf.delay_s),
+        iterations=int(conf.iterations),
+        sent_ns=now_ns(),
+    )
+
+
+def response_to_core(msg: m.Response) -> core.Confirmation:
+    return core.Confirmation(
+        vin=msg.vin,
+        seq=msg.seq,
+        route_id=msg.route_id,
+        tss=core.Tss(msg.t_s, msg.x_m, msg.y_m, msg.heading_rad),
+        entry_time_s=msg.entry_time_s,
+        exit_time_s=msg.exit_time_s,
+        delay_s=msg.delay_s,
+        iterations=msg.iterations,
+    )
+
+
+def reject_from_core(rej: core.Rejection) -> m.Reject:
+    return m.Reject(rej.vin[:128], rej.seq, rej.reason.value, rej.detail[:512], now_ns())
+
+
+def reject_to_core(msg: m.Reject) -> core.Rejection:
+    try:
+        reason = core.Reason(msg.reason)
+    except ValueError:
+        reason = core.Reason.BAD_STATE
+    return core.Rejection(msg.vin, msg.seq, reason, msg.detail)

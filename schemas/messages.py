@@ -1,0 +1,196 @@
+"""Every message the processes exchange, as typed, versioned definitions.
+
+One dataclass per message kind. Fields carry their wire limits in their
+metadata (``lim``): numbers their closed range, strings, lists and arrays their
+maximum length. :mod:`schemas.codec` enforces them when bytes become objects,
+so code that receives a message can rely on its types and ranges.
+
+Every message that crosses a link carries ``sent_ns`` (the sender's wall
+clock, ns since the epoch) and, where it matters, the sim time it refers to,
+so delay and loss can be measured and injected on exactly these links.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import ClassVar
+
+import numpy as np
+
+VERSION = 1
+MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
+MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
+MAX_TEXT = 128  # VINs, lane and route ids, agent names
+MAX_DETAIL = 512  # human-readable reasons
+BIG = 1e9  # [s] or [m]: the outer bound of every time and distance on the wire
+
+
+def lim(lo: float | None = None, hi: float | None = None, *, n: int | None = None):
+    """A field with wire limits: ``lo..hi`` for numbers, ``n`` items for text and arrays."""
+    return field(metadata={"lim": (lo, hi, n)})
+
+
+TIME = (-BIG, BIG)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Request:
+    """A head vehicle asks to cross: its size, the state it planned from, its TSS."""
+
+    KIND: ClassVar[str] = "request"
+    vin: str = lim(n=MAX_TEXT)
+    seq: int = lim(0, 2**31 - 1)
+    in_lane: str = lim(n=MAX_TEXT)
+    out_lane: str = lim(n=MAX_TEXT)
+    length_m: float = lim(0.0, 100.0)
+    width_m: float = lim(0.0, 20.0)
+    t0_s: float = lim(*TIME)  # sim time of the state below; the TSS starts here
+    dist_to_entry_m: float = lim(-BIG, BIG)
+    speed_mps: float = lim(0.0, 200.0)
+    t_s: np.ndarray = lim(n=MAX_SAMPLES)
+    x_m: np.ndarray = lim(n=MAX_SAMPLES)
+    y_m: np.ndarray = lim(n=MAX_SAMPLES)
+    heading_rad: np.ndarray = lim(n=MAX_SAMPLES)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Response:
+    """The ICA's confirmation: a conflict-free TSS the vehicle can fly from its state."""
+
+    KIND: ClassVar[str] = "response"
+    vin: str = lim(n=MAX_TEXT)
+    seq: int = lim(0, 2**31 - 1)
+    route_id: str = lim(n=MAX_TEXT)
+    t_s: np.ndarray = lim(n=MAX_SAMPLES)
+    x_m: np.ndarray = lim(n=MAX_SAMPLES)
+    y_m: np.ndarray = lim(n=MAX_SAMPLES)
+    heading_rad: np.ndarray = lim(n=MAX_SAMPLES)
+    entry_time_s: float = lim(*TIME)
+    exit_time_s: float = lim(*TIME)
+    delay_s: float = lim(0.0, BIG)
+    iterations: int = lim(0, 2**31 - 1)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class Reject:
+    """The ICA will not confirm this request; ``reason`` is a stable code."""
+
+    KIND: ClassVar[str] = "reject"
+    vin: str = lim(n=MAX_TEXT)
+    seq: int = lim(-1, 2**31 - 1)  # -1 when the request was too broken to read one
+    reason: str = lim(n=64)
+    detail: str = lim(n=MAX_DETAIL)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class Ack:
+    """Delivery receipt: the ICA for a DETECT, a vehicle for a RESPONSE."""
+
+    KIND: ClassVar[str] = "ack"
+    vin: str = lim(n=MAX_TEXT)
+    seq: int = lim(-1, 2**31 - 1)
+    of: str = lim(n=32)  # the kind acknowledged
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class Detect:
+    """A vehicle entered the communication region on ``lane`` at sim time ``t_s``."""
+
+    KIND: ClassVar[str] = "detect"
+    vin: str = lim(n=MAX_TEXT)
+    lane: str = lim(n=MAX_TEXT)
+    t_s: float = lim(*TIME)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class VehicleState:
+    """One vehicle as SUMO holds it this step, and the facts its agent needs.
+
+    ``x_m, y_m`` is the front-bumper centre, ``angle_deg`` SUMO's heading
+    (0 = north, clockwise). ``dist_to_entry_m`` is measured along the incoming
+    lane (meaningful while ``lane`` is that lane). ``head``: no vehicle is ahead
+    on the incoming lane. ``detected_s`` is when it crossed the communication
+    region's entry line (NaN before). ``exited``: its rear has left the junction.
+    The first STATE that names a vehicle hands it to the agent it is sent to.
+    """
+
+    vin: str = lim(n=MAX_TEXT)
+    route_id: str = lim(n=MAX_TEXT)
+    lane: str = lim(n=MAX_TEXT)
+    dist_to_entry_m: float = lim(-BIG, BIG)
+    speed_mps: float = lim(-1.0, 200.0)
+    x_m: float = lim(-BIG, BIG)
+    y_m: float = lim(-BIG, BIG)
+    angle_deg: float = lim(-720.0, 720.0)
+    length_m: float = lim(0.0, 100.0)
+    width_m: float = lim(0.0, 20.0)
+    max_speed_mps: float = lim(0.0, 200.0)  # the speed it wants when free
+    head: bool = lim()
+    detected_s: float = lim(*TIME, n=-1)  # n=-1: NaN allowed (not yet detected)
+    exited: bool = lim()
+
+
+@dataclass(frozen=True, slots=True)
+class State:
+    """This step's states of the vehicles one agent hosts (gateway -> agent, observers)."""
+
+    KIND: ClassVar[str] = "state"
+    agent: str = lim(n=MAX_TEXT)
+    step: int = lim(0, 2**62)
+    t_s: float = lim(*TIME)
+    vehicles: tuple[VehicleState, ...] = lim(n=MAX_VEHICLES)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Setpoint:
+    """Speeds for one vehicle, one per step from ``t0_s`` (the last one holds).
+
+    A speed of -1 hands the vehicle back to SUMO's own driver. ``speed_mode``
+    is SUMO's speed-mode bit set to switch to first, or -1 to keep the current.
+    """
+
+    vin: str = lim(n=MAX_TEXT)
+    t0_s: float = lim(*TIME)
+    speeds: np.ndarray = lim(n=MAX_SAMPLES)
+    speed_mode: int = lim(-1, 63)
+
+
+@dataclass(frozen=True, slots=True)
+class Command:
+    """An agent's answer to one STATE: setpoints for the vehicles that need new ones."""
+
+    KIND: ClassVar[str] = "command"
+    agent: str = lim(n=MAX_TEXT)
+    step: int = lim(0, 2**62)
+    setpoints: tuple[Setpoint, ...] = lim(n=MAX_VEHICLES)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class Clock:
+    """The sim clock (gateway -> everyone). ``end`` says the run is over."""
+
+    KIND: ClassVar[str] = "clock"
+    step: int = lim(0, 2**62)
+    t_s: float = lim(*TIME)
+    mode: str = lim(n=16)  # "lockstep" or "realtime"
+    end: bool = lim()
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+MESSAGES: tuple[type, ...] = (
+    Request,
+    Response,
+    Reject,
+    Ack,
+    Detect,
+    State,
+    Command,
+    Clock,
+)

@@ -1,0 +1,183 @@
+"""Wire messages: every kind round-trips, and untrusted bytes only ever give DecodeError."""
+
+from __future__ import annotations
+
+import contextlib
+import math
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from schemas import keys
+from schemas.codec import MAX_PAYLOAD, DecodeError, Why, decode, encode
+from schemas.messages import (
+    MAX_SAMPLES,
+    MESSAGES,
+    Ack,
+    Clock,
+    Command,
+    Detect,
+    Reject,
+    Request,
+    Response,
+    Setpoint,
+    State,
+    VehicleState,
+)
+
+T = np.arange(0.0, 2.0, 0.05)
+
+
+def _vs(vin: str = "v00001", detected: float = math.nan) -> VehicleState:
+    return VehicleState(vin, "r1", "W_in_0", 42.5, 13.9, -50.2, 1.6, 90.0, 5.0, 1.8, 19.4, True,
+                        detected, False)  # fmt: skip
+
+
+SAMPLES = {
+    Request: Request(
+        "v00001",
+        3,
+        "W_in_0",
+        "E_out_0",
+        5.0,
+        1.8,
+        12.35,
+        41.2,
+        13.9,
+        T,
+        T * 10,
+        T * 0,
+        T * 0 + 0.1,
+        17,
+    ),
+    Response: Response("v00001", 3, "W_in_0->E_out_0", T, T * 3, T, T * 0, 14.1, 16.0, 0.4, 2, 5),
+    Reject: Reject("v00001", 3, "not_head", "v00000 is ahead", 1),
+    Ack: Ack("v00001", 3, "response", 2),
+    Detect: Detect("v00001", "W_in_0", 10.05, 3),
+    State: State("agent-1", 247, 12.35, (_vs(), _vs("v00002", 3.2)), 4),
+    Command: Command(
+        "agent-1", 247, (Setpoint("v00001", 12.35, T, 32), Setpoint("v2", 12.35, T[:1], -1)), 5
+    ),
+    Clock: Clock(247, 12.35, "lockstep", False, 6),
+}
+
+
+def _same(a, b) -> None:
+    assert type(a) is type(b)
+    for name in a.__dataclass_fields__:
+        x, y = getattr(a, name), getattr(b, name)
+        if isinstance(x, np.ndarray):
+            assert np.array_equal(x, y)
+        elif isinstance(x, tuple):
+            assert len(x) == len(y)
+            for p, q in zip(x, y, strict=True):
+                _same(p, q)
+        elif isinstance(x, float) and math.isnan(x):
+            assert math.isnan(y)
+        else:
+            assert x == y, name
+
+
+def test_every_message_kind_has_a_sample() -> None:
+    assert set(SAMPLES) == set(MESSAGES)
+
+
+@pytest.mark.parametrize("cls", MESSAGES, ids=lambda c: c.KIND)
+def test_round_trip(cls) -> None:
+    msg = SAMPLES[cls]
+    back = decode(encode(msg), cls)
+    _same(msg, back)
+
+
+def _raw(msg) -> dict:
+    return msgpack.unpackb(encode(msg), raw=False)
+
+
+def _pack(body: dict) -> bytes:
+    return msgpack.packb(body, use_bin_type=True)
+
+
+def _why(data: bytes, *kinds) -> Why:
+    with pytest.raises(DecodeError) as e:
+        decode(data, *kinds)
+    assert e.value.detail
+    return e.value.why
+
+
+def test_garbage_and_truncated_payloads() -> None:
+    assert _why(b"") is Why.NOT_MSGPACK
+    assert _why(b"\xc1\xff\x00") is Why.NOT_MSGPACK
+    good = encode(SAMPLES[Request])
+    for cut in (1, 7, len(good) // 2, len(good) - 1):
+        assert _why(good[:cut]) is Why.NOT_MSGPACK
+    assert _why(_pack([1, 2, 3])) is Why.NOT_A_MAP
+    assert _why(b"\x00" * (MAX_PAYLOAD + 1)) is Why.TOO_BIG
+
+
+def test_version_kind_and_fields() -> None:
+    body = _raw(SAMPLES[Detect])
+    assert _why(_pack({**body, "v": 2})) is Why.UNKNOWN_VERSION
+    assert _why(_pack({k: v for k, v in body.items() if k != "v"})) is Why.UNKNOWN_VERSION
+    assert _why(_pack({**body, "k": "teleport"})) is Why.UNKNOWN_KIND
+    assert _why(_pack(body), Request) is Why.UNEXPECTED_KIND
+    assert _why(_pack({k: v for k, v in body.items() if k != "lane"})) is Why.MISSING_FIELD
+    assert _why(_pack({**body, "colour": "red"})) is Why.UNKNOWN_FIELD
+
+
+def test_wrong_types_and_ranges() -> None:
+    body = _raw(SAMPLES[Request])
+    assert _why(_pack({**body, "vin": 7})) is Why.BAD_TYPE
+    assert _why(_pack({**body, "seq": "3"})) is Why.BAD_TYPE
+    assert _why(_pack({**body, "seq": True})) is Why.BAD_TYPE
+    assert _why(_pack({**body, "seq": -1})) is Why.OUT_OF_RANGE
+    assert _why(_pack({**body, "speed_mps": float("nan")})) is Why.OUT_OF_RANGE
+    assert _why(_pack({**body, "length_m": 1e6})) is Why.OUT_OF_RANGE
+    assert _why(_pack({**body, "t_s": [0.0, 0.05]})) is Why.BAD_TYPE
+    assert _why(_pack({**body, "t_s": b"\x00" * 12})) is Why.BAD_TYPE
+    assert _why(_pack({**body, "x_m": np.array([np.inf]).tobytes()})) is Why.OUT_OF_RANGE
+    assert _why(_pack({**body, "vin": "v" * 200})) is Why.TOO_LARGE
+    # NaN is allowed exactly where a field says so (not yet detected)
+    state = _raw(SAMPLES[State])
+    state["vehicles"][0]["speed_mps"] = float("nan")
+    assert _why(_pack(state)) is Why.OUT_OF_RANGE
+    state["vehicles"][0] = "not a map"
+    assert _why(_pack(state)) is Why.BAD_TYPE
+
+
+def test_oversize_arrays_are_refused() -> None:
+    big = np.zeros(MAX_SAMPLES + 1)
+    body = _raw(SAMPLES[Response])
+    why = _why(_pack({**body, "t_s": big.tobytes()}))
+    assert why in (Why.TOO_LARGE, Why.NOT_MSGPACK)  # msgpack's own bin limit may fire first
+    many = _raw(SAMPLES[State])
+    many["vehicles"] = many["vehicles"] * 1500
+    assert _why(_pack(many)) in (Why.TOO_LARGE, Why.NOT_MSGPACK)
+
+
+@settings(max_examples=400, derandomize=True, deadline=None)
+@given(st.binary(max_size=512))
+def test_random_bytes_never_crash(data: bytes) -> None:
+    with contextlib.suppress(DecodeError):
+        decode(data)
+
+
+@settings(max_examples=300, derandomize=True, deadline=None)
+@given(st.integers(0, 10_000), st.integers(0, 255))
+def test_corrupted_messages_never_crash(pos: int, byte: int) -> None:
+    for msg in SAMPLES.values():
+        data = bytearray(encode(msg))
+        data[pos % len(data)] = byte
+        with contextlib.suppress(DecodeError):
+            decode(bytes(data))
+
+
+def test_keys_refuse_special_characters() -> None:
+    assert keys.request("C") == "dica/C/request"
+    assert keys.state("C", "agent-1") == "sim/C/state/agent-1"
+    assert keys.confirmed("C") == "dica/C/confirmed/*"
+    for bad in ("a/b", "x?y", "", "$z", "**"):
+        with pytest.raises(keys.KeyChunkError):
+            keys.command("C", bad)
