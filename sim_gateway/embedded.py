@@ -14,8 +14,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from ica.core.baselines import BASELINES, make_controller
-from ica.core.config import ENHANCED, IcaConfig, Techniques
+from ica.core.baselines import controller_config, make_controller
+from ica.core.config import IcaConfig
 from ica.core.dica import Dica
 from ica.core.intersection import Intersection
 from ica.core.request import Confirmation, Rejection, Request, RequestError
@@ -118,9 +118,7 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
 
 
 def ica_config(cfg: RunConfig) -> IcaConfig:
-    named = cfg.algorithm in BASELINES or cfg.algorithm in LIGHTS
-    tech = ENHANCED if named else Techniques.parse(cfg.algorithm)
-    return IcaConfig(techniques=tech, margin_m=cfg.margin_m)
+    return controller_config(cfg.algorithm, cfg.margin_m)
 
 
 def run(

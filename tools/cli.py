@@ -189,20 +189,17 @@ def _jsonable(x):
 
 
 # -- run -------------------------------------------------------------------------
-def cmd_run(args: argparse.Namespace) -> int:
+def run_config(args: argparse.Namespace):
+    """The RunConfig and intersection the run options name (shared with `dica gateway`)."""
     import shlex
 
-    from tqdm import tqdm
-
-    from sim_gateway.embedded import RunConfig, RunError, run
-    from sim_gateway.outputs import write_outputs
+    from sim_gateway.runconfig import LIGHTS, RunConfig, RunError
 
     if args.net:
         if not args.junction:
             raise UsageError("--net needs --junction (the junction id in that network)")
         net, junction = str(args.net), args.junction
     else:
-        from sim_gateway.embedded import LIGHTS
         from sim_gateway.scenario import ScenarioError, default_scenario
 
         tls = None
@@ -232,6 +229,16 @@ def cmd_run(args: argparse.Namespace) -> int:
         )
     except RunError as e:
         raise UsageError(str(e)) from None
+    return cfg, inter
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from sim_gateway.embedded import RunError, run
+    from sim_gateway.outputs import write_outputs
+
+    cfg, inter = run_config(args)
     out = args.out or Path("runs") / time.strftime(f"run-{cfg.algorithm}-%Y%m%d-%H%M%S")
     total = None if cfg.until_left else cfg.duration_s
     with tqdm(total=total, desc="sim time", unit="s", disable=args.quiet) as bar:
@@ -248,6 +255,11 @@ def cmd_run(args: argparse.Namespace) -> int:
         except RunError as e:
             raise UsageError(str(e)) from None
     write_outputs(out, cfg, result)
+    return report_run(out, result)
+
+
+def report_run(out: Path, result) -> int:
+    """Print a run's headline figures; exit status 1 if anything collided."""
     m = result.metrics
     print(
         f"{m['generated']} generated, {m['crossed']} crossed (rho {m['throughput']:.3f}), "
@@ -287,6 +299,39 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
         return bench_ica.main(args.rest)
     raise UsageError(f"unknown benchmark {args.what!r}")
+
+
+def add_run_args(r: argparse.ArgumentParser) -> None:
+    """Scenario and traffic options of a run (shared with `dica gateway`)."""
+    _add_net_args(r)
+    r.add_argument(
+        "--algorithm",
+        default="enhanced",
+        help="DICA: basic, enhanced, t1..t4 (t2+4); baselines: fifo, concurrent, tiles, "
+        "fixed (optimised fixed-cycle light), actuated (SUMO's actuated light)",
+    )
+    r.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
+    r.add_argument(
+        "--approach-weights",
+        help="relative demand per approach, e.g. N_in=1,S_in=1,E_in=0.3,W_in=0.3 (default equal)",
+    )
+    r.add_argument("--volume-end", type=float, help="volume reached by --ramp seconds (linear)")
+    r.add_argument(
+        "--ramp", type=float, help="seconds over which the volume ramps (default: duration)"
+    )
+    r.add_argument(
+        "--volume",
+        type=float,
+        default=300.0,
+        help="vehicles per 10 min (100-500 in the dissertation)",
+    )
+    r.add_argument("--seed", type=int, default=12)
+    r.add_argument("--duration", type=float, default=600.0, help="simulated seconds (default 600)")
+    r.add_argument(
+        "--until-left", type=int, help="instead: generate N vehicles and run until all have left"
+    )
+    r.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
+    r.add_argument("--sumo-args", help="extra SUMO options, verbatim, e.g. '--fcd-output f.xml'")
 
 
 def parser() -> argparse.ArgumentParser:
@@ -342,38 +387,14 @@ def parser() -> argparse.ArgumentParser:
         "metrics.json, vehicles.csv, timeseries.csv and config.json. Exit status 1 if any "
         "collision was seen.",
     )
-    _add_net_args(r)
-    r.add_argument(
-        "--algorithm",
-        default="enhanced",
-        help="DICA: basic, enhanced, t1..t4 (t2+4); baselines: fifo, concurrent, tiles, "
-        "fixed (optimised fixed-cycle light), actuated (SUMO's actuated light)",
-    )
-    r.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
-    r.add_argument(
-        "--approach-weights",
-        help="relative demand per approach, e.g. N_in=1,S_in=1,E_in=0.3,W_in=0.3 (default equal)",
-    )
-    r.add_argument("--volume-end", type=float, help="volume reached by --ramp seconds (linear)")
-    r.add_argument(
-        "--ramp", type=float, help="seconds over which the volume ramps (default: duration)"
-    )
-    r.add_argument(
-        "--volume",
-        type=float,
-        default=300.0,
-        help="vehicles per 10 min (100-500 in the dissertation)",
-    )
-    r.add_argument("--seed", type=int, default=12)
-    r.add_argument("--duration", type=float, default=600.0, help="simulated seconds (default 600)")
-    r.add_argument(
-        "--until-left", type=int, help="instead: generate N vehicles and run until all have left"
-    )
-    r.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
-    r.add_argument("--sumo-args", help="extra SUMO options, verbatim, e.g. '--fcd-output f.xml'")
+    add_run_args(r)
     r.add_argument("--out", type=Path, help="output directory (default runs/run-ALG-TIMESTAMP)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.set_defaults(func=cmd_run)
+
+    from tools.roles import add_role_parsers
+
+    add_role_parsers(sub)
 
     sub.add_parser("experiment", help="a grid of runs in parallel, resumable (see its --help)")
     sub.add_parser("report", help="markdown tables and PNG plots from runs (see its --help)")

@@ -132,7 +132,8 @@ class Vehicle:
             answer = link.request(req, obs.t_s)
         except RequestError as e:  # cannot even make a plan: stop and ask later
             answer = Rejection(self.vin, self.seq, e.reason, e.detail)
-        self.seq += 1
+        if not (isinstance(answer, Rejection) and answer.reason is Reason.NO_ANSWER):
+            self.seq += 1  # unanswered: ask again under the same number (never two reservations)
         if isinstance(answer, Confirmation):
             self.confirmation = answer
             self.phase = Phase.CONFIRMED

@@ -23,7 +23,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from ica.core.config import IcaConfig
+from ica.core.config import ENHANCED, IcaConfig, Techniques
 from ica.core.conflict import Conflict
 from ica.core.dica import Dica
 from ica.core.dtot import Dtot
@@ -139,3 +139,12 @@ def make_controller(
     if name == "tiles":
         return Tiles(intersection, config, tile_m)
     return Dica(intersection, config)
+
+
+def controller_config(algorithm: str, margin_m: float) -> IcaConfig:
+    """The ICA settings for a controller name: a DICA variant's techniques, else enhanced."""
+    try:
+        techniques = Techniques.parse(algorithm)
+    except ValueError:
+        techniques = ENHANCED  # baselines and lights keep the enhanced machinery underneath
+    return IcaConfig(techniques=techniques, margin_m=margin_m)

@@ -59,6 +59,8 @@ class Reason(StrEnum):
     ALREADY_CONFIRMED = "already_confirmed"
     STALE = "stale"
     INFEASIBLE = "infeasible"
+    BAD_MESSAGE = "bad_message"  # the bytes were not a valid REQUEST (see schemas.codec)
+    NO_ANSWER = "no_answer"  # no reply within the timeout: the link or the ICA is down
 
 
 class RequestError(Exception):

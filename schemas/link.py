@@ -1,0 +1,119 @@
+"""How messages travel: Zenoh sessions, one inbox per process, clean stops.
+
+Every role opens a client session from a JSON5 config (``deploy/zenoh/``),
+optionally pointed at another router with ``--connect``. Zenoh callbacks only
+put what arrived into one FIFO :class:`Inbox` (no Zenoh calls, no blocking
+inside callbacks); the role's own loop takes items in arrival order. A
+SIGTERM or SIGINT sets :attr:`Inbox.stopping`, so each role closes its
+session and flushes its files before it exits.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import queue
+import signal
+import sys
+import threading
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+DEFAULT_CLIENT_CONFIG = Path(__file__).resolve().parent.parent / "deploy" / "zenoh" / "client.json5"
+
+
+class LinkError(Exception):
+    """A session that cannot be opened, or a config that cannot be read."""
+
+
+def open_session(config_path: str | Path | None = None, connect: str | None = None, mode=None):
+    """A Zenoh session from a JSON5 config file; ``connect`` replaces its endpoints."""
+    import zenoh
+
+    path = Path(config_path) if config_path else DEFAULT_CLIENT_CONFIG
+    try:
+        conf = zenoh.Config.from_file(str(path))
+        if connect:
+            conf.insert_json5("connect/endpoints", json.dumps([e for e in connect.split(",") if e]))
+        if mode:
+            conf.insert_json5("mode", json.dumps(mode))
+        return zenoh.open(conf)
+    except FileNotFoundError:
+        raise LinkError(f"no Zenoh config at {path}") from None
+    except Exception as e:  # zenoh.ZError and friends carry a readable message
+        raise LinkError(f"cannot open a Zenoh session ({path}): {e}") from None
+
+
+@dataclass(frozen=True, slots=True)
+class Item:
+    what: str  # which declaration it came from
+    payload: bytes
+    key: str
+    query: Any = None  # a zenoh.Query to reply to, for queryables
+
+
+class Inbox:
+    """One FIFO for everything a role receives, fed by Zenoh callbacks."""
+
+    def __init__(self) -> None:
+        self._q: queue.Queue[Item] = queue.Queue()
+        self.stopping = threading.Event()
+
+    def sample_cb(self, what: str):
+        def cb(sample) -> None:
+            self._q.put(Item(what, sample.payload.to_bytes(), str(sample.key_expr)))
+
+        return cb
+
+    def query_cb(self, what: str):
+        def cb(query) -> None:
+            payload = query.payload.to_bytes() if query.payload is not None else b""
+            self._q.put(Item(what, payload, str(query.key_expr), query))
+
+        return cb
+
+    def liveliness_cb(self, what: str):
+        def cb(sample) -> None:
+            import zenoh
+
+            kind = b"+" if sample.kind == zenoh.SampleKind.PUT else b"-"
+            self._q.put(Item(what, kind, str(sample.key_expr)))
+
+        return cb
+
+    def get(self, timeout: float | None = None) -> Item | None:
+        try:
+            return self._q.get(timeout=timeout)
+        except queue.Empty:
+            return None
+
+    def backlog(self) -> int:
+        return self._q.qsize()
+
+    def stop_on_signals(self) -> None:
+        """SIGTERM / SIGINT end the role's loop instead of killing it mid-write."""
+
+        def handler(signum, _frame) -> None:
+            logging.getLogger("dica").info("signal %d: stopping", signum)
+            self.stopping.set()
+
+        signal.signal(signal.SIGTERM, handler)
+        signal.signal(signal.SIGINT, handler)
+
+
+def reply(query, key: str, payload: bytes) -> None:
+    """Answer a query once and finish it (the querier then stops waiting at once)."""
+    try:
+        query.reply(key, payload)
+    finally:
+        query.drop()
+
+
+def setup_logging(role: str, verbose: bool = False) -> logging.Logger:
+    logging.basicConfig(
+        stream=sys.stderr,
+        level=logging.DEBUG if verbose else logging.INFO,
+        format=f"%(asctime)s {role} %(levelname)s %(message)s",
+    )
+    return logging.getLogger("dica")

@@ -1,0 +1,295 @@
+"""The gateway process: SUMO's side of the cluster, keyed to Zenoh.
+
+The only process that imports libsumo. It steps the same world as the
+embedded runner (:mod:`sim_gateway.world`), publishes the sim CLOCK on
+``sim/<j>/clock`` and each agent's vehicles' states on ``sim/<j>/state/<agent>``
+(the first STATE naming a vehicle hands it to that agent), and applies the
+COMMANDs agents send on ``sim/<j>/command/<agent>``.
+
+Two clocks:
+
+* ``lockstep``: each step waits until every agent that got a STATE has
+  answered it. Deterministic, and as fast as the slowest participant.
+* ``realtime``: steps are paced to the wall clock times ``--speed``; whatever
+  commands have arrived are applied, late ones at the next step. A confirmed
+  vehicle's command holds its whole speed profile, so it is flown on time.
+
+Agents announce themselves with liveliness tokens; a token that disappears
+mid-run (a killed process) stops the run with an error naming the agent.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import Counter
+
+import numpy as np
+
+from schemas import keys
+from schemas.codec import DecodeError, decode, encode, now_ns
+from schemas.link import Inbox, Item
+from schemas.messages import Clock, Command, State, VehicleState
+from sim_gateway.embedded import ica_config, schedule_for
+from sim_gateway.runconfig import RunConfig, RunError, RunResult
+from sim_gateway.world import Seen, World
+from vehicle_agent.machine import Command as Actuation
+
+CLOCKS = ("lockstep", "realtime")
+
+
+class ZenohDrivers:
+    """The vehicles' decisions, made by agent processes reached over Zenoh."""
+
+    def __init__(
+        self,
+        session,
+        junction: str,
+        cfg: RunConfig,
+        *,
+        agents: int,
+        per_agent: int = 0,
+        clock: str = "lockstep",
+        speed: float = 1.0,
+        step_timeout_s: float = 30.0,
+        log: logging.Logger,
+    ) -> None:
+        if clock not in CLOCKS:
+            raise RunError(f"unknown clock {clock!r}: use lockstep or realtime")
+        if agents < 1:
+            raise RunError("at least one vehicle agent is needed")
+        self.session = session
+        self.junction = junction
+        self.cfg = cfg
+        self.n_agents = agents
+        self.per_agent = per_agent
+        self.clock = clock
+        self.speed = speed
+        self.step_timeout_s = step_timeout_s
+        self.log = log
+        self.inbox = Inbox()
+        self.alive: set[str] = set()
+        self.ica_alive = False
+        self.owner: dict[str, str] = {}
+        self.load: Counter[str] = Counter()
+        self.hosted: Counter[str] = Counter()
+        self.late_commands = 0
+        self.dropped_setpoints = 0
+        self.wait_s: list[float] = []
+        self.step_s = ica_config(cfg).step_s
+        self._k = 0
+        self._t0_wall = 0.0
+        j = junction
+        self._clock_pub = session.declare_publisher(keys.clock(j))
+        self._state_pubs: dict[str, object] = {}
+        lv = session.liveliness()
+        self._decls = [
+            session.declare_subscriber(keys.command(j), self.inbox.sample_cb("command")),
+            lv.declare_subscriber(
+                keys.agent_alive(j), self.inbox.liveliness_cb("agent"), history=True
+            ),
+            lv.declare_subscriber(keys.ica_alive(j), self.inbox.liveliness_cb("ica"), history=True),
+        ]
+
+    # -- start and end ---------------------------------------------------------
+    def wait_for_peers(self, timeout_s: float) -> None:
+        """Block until the ICA and every agent are up (liveliness), or fail."""
+        deadline = time.monotonic() + timeout_s
+        while len(self.alive) < self.n_agents or not self.ica_alive:
+            if self.inbox.stopping.is_set():
+                raise RunError("stopped while waiting for the ICA and the agents")
+            if time.monotonic() > deadline:
+                raise RunError(
+                    f"after {timeout_s:.0f} s: ICA {'up' if self.ica_alive else 'not up'}, "
+                    f"{len(self.alive)} of {self.n_agents} vehicle agents up"
+                )
+            item = self.inbox.get(timeout=0.1)
+            if item is not None:
+                self._note(item)
+        self.log.info("ICA and %d agents up: %s", len(self.alive), ", ".join(sorted(self.alive)))
+        self._t0_wall = time.monotonic()
+
+    def end(self, t: float) -> None:
+        self._clock_pub.put(encode(Clock(self._k, t, self.clock, True, now_ns())))
+
+    def close(self) -> None:
+        self._clock_pub.undeclare()
+        for p in self._state_pubs.values():
+            p.undeclare()
+        for d in self._decls:
+            d.undeclare()
+
+    # -- one step ----------------------------------------------------------------
+    def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
+        self._k += 1
+        k = self._k
+        self._clock_pub.put(encode(Clock(k, t, self.clock, False, now_ns())))
+        batches: dict[str, list[VehicleState]] = {}
+        for s in seen:
+            agent = self.owner.get(s.car.vin) or self._assign(s.car.vin)
+            batches.setdefault(agent, []).append(_vehicle_state(s, self.cfg))
+        stamp = now_ns()
+        for agent, vehicles in batches.items():
+            pub = self._state_pubs.get(agent)
+            if pub is None:
+                pub = self._state_pubs[agent] = self.session.declare_publisher(
+                    keys.state(self.junction, agent)
+                )
+            pub.put(encode(State(agent, k, t, tuple(vehicles), stamp)))
+        for s in seen:
+            if s.obs.exited:
+                self.load[self.owner[s.car.vin]] -= 1
+        out: list[Actuation] = []
+        if self.clock == "lockstep":
+            self._wait_commands(k, set(batches), out, t)
+        else:
+            self._drain(k, out, t)
+            pace = self._t0_wall + k * self.step_s / self.speed - time.monotonic()
+            if pace > 0:
+                time.sleep(pace)
+        return out
+
+    def _assign(self, vin: str) -> str:
+        free = [
+            a for a in sorted(self.alive) if not self.per_agent or self.load[a] < self.per_agent
+        ]
+        if not free:
+            raise RunError(
+                f"no vehicle agent has room for {vin}: {len(self.alive)} agents x "
+                f"{self.per_agent} vehicles are all in use; start more agents or raise --per-agent"
+            )
+        agent = min(free, key=lambda a: (self.load[a], a))
+        self.owner[vin] = agent
+        self.load[agent] += 1
+        self.hosted[agent] += 1
+        return agent
+
+    def _wait_commands(self, k: int, expected: set[str], out: list[Actuation], t: float) -> None:
+        start = time.perf_counter()
+        deadline = time.monotonic() + self.step_timeout_s
+        while expected:
+            dead = expected - self.alive
+            if dead:
+                raise RunError(f"vehicle agent {', '.join(sorted(dead))} died at t={t:.2f} s")
+            if self.inbox.stopping.is_set():
+                raise RunError(f"stopped by a signal at t={t:.2f} s")
+            item = self.inbox.get(timeout=min(0.5, max(deadline - time.monotonic(), 0.01)))
+            if item is None:
+                if time.monotonic() > deadline:
+                    raise RunError(
+                        f"no command for step {k} (t={t:.2f} s) from "
+                        f"{', '.join(sorted(expected))} within {self.step_timeout_s:.0f} s"
+                    )
+                continue
+            agent = self._take(item, k, out)
+            if agent is not None:
+                expected.discard(agent)
+        self.wait_s.append(time.perf_counter() - start)
+
+    def _drain(self, k: int, out: list[Actuation], t: float) -> None:
+        while (item := self.inbox.get(timeout=0)) is not None:
+            self._take(item, k, out)
+        gone = set(self.owner.values()) - self.alive
+        if gone & {a for a, n in self.load.items() if n > 0}:
+            raise RunError(f"vehicle agent {', '.join(sorted(gone))} died at t={t:.2f} s")
+
+    def _take(self, item: Item, k: int, out: list[Actuation]) -> str | None:
+        """Handle one inbox item; the agent whose command for step ``k`` it was, if any."""
+        if item.what != "command":
+            self._note(item)
+            return None
+        try:
+            cmd = decode(item.payload, Command)
+        except DecodeError as e:
+            self.log.warning("dropped a bad command on %s: %s", item.key, e)
+            return None
+        if cmd.step != k:
+            self.late_commands += 1
+        for sp in cmd.setpoints:
+            if self.owner.get(sp.vin) != cmd.agent:
+                self.dropped_setpoints += 1  # not this agent's vehicle
+                continue
+            out.append(Actuation(sp.vin, sp.t0_s, sp.speeds, sp.speed_mode))
+        return cmd.agent if cmd.step == k else None
+
+    def _note(self, item: Item) -> None:
+        name = item.key.rsplit("/", 1)[-1]
+        up = item.payload == b"+"
+        if item.what == "agent":
+            if up:
+                self.alive.add(name)
+            else:
+                self.alive.discard(name)
+                self.log.error("vehicle agent %s is gone", name)
+        elif item.what == "ica":
+            self.ica_alive = up
+            if not up:
+                self.log.error("the ICA is gone")
+
+    def facts(self) -> dict:
+        w = np.array(self.wait_s) if self.wait_s else np.full(1, math.nan)
+        return {
+            "clock": self.clock,
+            "speed": self.speed if self.clock == "realtime" else None,
+            "agents": dict(sorted(self.hosted.items())),
+            "late_commands": self.late_commands,
+            "dropped_setpoints": self.dropped_setpoints,
+            "step_wait_median_ms": float(np.median(w) * 1e3),
+            "step_wait_p99_ms": float(np.percentile(w, 99) * 1e3),
+        }
+
+
+def _vehicle_state(s: Seen, cfg: RunConfig) -> VehicleState:
+    c, o = s.car, s.obs
+    return VehicleState(
+        vin=c.vin,
+        route_id=c.route.id,
+        lane=o.lane,
+        dist_to_entry_m=float(o.dist_to_entry_m),
+        speed_mps=float(o.speed_mps),
+        x_m=float(s.xy[0]),
+        y_m=float(s.xy[1]),
+        angle_deg=float(s.angle_deg),
+        length_m=cfg.length_m,
+        width_m=cfg.width_m,
+        max_speed_mps=float(c.entry_speed_mps),
+        head=o.head,
+        detected_s=float(o.detected_s),
+        exited=o.exited,
+    )
+
+
+def run_gateway(
+    session,
+    cfg: RunConfig,
+    inter,
+    drivers: ZenohDrivers,
+    *,
+    peers_timeout_s: float = 60.0,
+    progress=None,
+) -> RunResult:
+    """Run the world with the agents' decisions; the same result as an embedded run."""
+    from sim_gateway.world import import_libsumo, start_sumo
+
+    ls = import_libsumo()
+    ica_cfg = ica_config(cfg)
+    schedule, _spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
+    drivers.wait_for_peers(peers_timeout_s)
+    cmd = start_sumo(ls, cfg, ica_cfg.step_s)
+    try:
+        world = World(ls, cfg, inter, ica_cfg, schedule, horizon, want_xy=True)
+        try:
+            while True:
+                seen = world.step()
+                world.apply(drivers.step(world.t, seen))
+                world.end_step(progress)
+                if world.done():
+                    break
+        finally:
+            drivers.end(world.t)
+        result = world.result({}, cmd)
+        result.extra = drivers.facts()
+        return result
+    finally:
+        ls.close()

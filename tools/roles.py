@@ -1,0 +1,242 @@
+"""The cluster's processes as `dica` subcommands: router, ica, agent, gateway, observer.
+
+Each role is one process talking only through Zenoh; `tools/run_cluster.sh`
+starts them together on one host, `docs/deploy.md` says how to run each on
+its own host. Every role stops cleanly on SIGTERM or Ctrl-C (closing its
+Zenoh session and flushing its files) and exits 0 at the end of the run
+announced on the sim clock.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from tools.cli import UsageError, _add_net_args, _intersection, add_run_args, report_run, run_config
+
+ROLE_NAMES = ("router", "ica", "agent", "gateway", "observer")
+
+
+def _add_link_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument(
+        "--zenoh-config",
+        type=Path,
+        help="Zenoh JSON5 config (default deploy/zenoh/client.json5)",
+    )
+    p.add_argument(
+        "--connect",
+        help="router endpoint(s), comma-separated, e.g. tcp/10.0.0.2:7447 (replaces the config's)",
+    )
+    p.add_argument("--verbose", action="store_true", help="debug logging")
+
+
+def _session(args: argparse.Namespace, role: str):
+    from schemas.link import LinkError, open_session, setup_logging
+
+    log = setup_logging(role, args.verbose)
+    try:
+        return open_session(args.zenoh_config, args.connect), log
+    except LinkError as e:
+        raise UsageError(str(e)) from None
+
+
+# -- router --------------------------------------------------------------------
+def cmd_router(args: argparse.Namespace) -> int:
+    import zenoh
+
+    from schemas.link import Inbox, setup_logging
+
+    log = setup_logging("router", args.verbose)
+    path = args.config or Path(__file__).resolve().parent.parent / "deploy/zenoh/router.json5"
+    try:
+        conf = zenoh.Config.from_file(str(path))
+        if args.listen:
+            conf.insert_json5("listen/endpoints", json.dumps(args.listen.split(",")))
+        session = zenoh.open(conf)
+    except Exception as e:
+        raise UsageError(f"the Zenoh router would not start ({path}): {e}") from None
+    inbox = Inbox()
+    inbox.stop_on_signals()
+    log.info("router %s listening on %s", session.info.zid(), args.listen or f"(from {path})")
+    print("ready", flush=True)
+    while not inbox.stopping.wait(0.5):
+        pass
+    session.close()
+    log.info("router stopped")
+    return 0
+
+
+# -- ica -----------------------------------------------------------------------
+def cmd_ica(args: argparse.Namespace) -> int:
+    from ica.core.baselines import controller_config, make_controller
+    from ica.service import IcaService, write_stats
+
+    inter = _intersection(args)
+    try:
+        config = controller_config(args.algorithm, args.margin)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
+    ica = make_controller(args.algorithm, inter, config, args.tile_size)
+    session, log = _session(args, "ica")
+    service = IcaService(session, ica, inter.junction_id, log)
+    service.inbox.stop_on_signals()
+    log.info("ICA for junction %s (%s) serving", inter.junction_id, args.algorithm)
+    try:
+        service.run(idle_exit_s=args.idle_exit)
+    finally:
+        service.close()
+        session.close()
+        stats = service.stats.as_dict()
+        log.info("stopped: %s", json.dumps(stats))
+        if args.out:
+            write_stats(args.out / "ica.json", service.stats)
+    return 0
+
+
+# -- agent ---------------------------------------------------------------------
+def cmd_agent(args: argparse.Namespace) -> int:
+    from ica.core.baselines import controller_config
+    from schemas.keys import KeyChunkError
+    from vehicle_agent.agent import Agent
+
+    inter = _intersection(args)
+    session, log = _session(args, f"agent {args.id}")
+    try:
+        agent = Agent(
+            session,
+            args.id,
+            inter,
+            controller_config("enhanced", args.margin),
+            retry_s=args.retry,
+            timeout_s=args.timeout,
+            log=log,
+        )
+    except KeyChunkError as e:
+        session.close()
+        raise UsageError(f"--id: {e}") from None
+    agent.inbox.stop_on_signals()
+    log.info("vehicle agent %s up for junction %s", args.id, inter.junction_id)
+    try:
+        agent.run()
+    finally:
+        agent.close()
+        session.close()
+        log.info("stopped: %s", json.dumps(agent.summary()))
+    return 0
+
+
+# -- gateway -------------------------------------------------------------------
+def cmd_gateway(args: argparse.Namespace) -> int:
+    from sim_gateway.gateway import ZenohDrivers, run_gateway
+    from sim_gateway.outputs import write_outputs
+    from sim_gateway.runconfig import LIGHTS, RunError
+
+    if args.algorithm in LIGHTS:
+        raise UsageError("the cluster runs ICA controllers; run the light baselines with dica run")
+    if args.speed <= 0:
+        raise UsageError("--speed must be positive")
+    cfg, inter = run_config(args)
+    out = args.out or Path("runs") / time.strftime("cluster-%Y%m%d-%H%M%S")
+    session, log = _session(args, "gateway")
+    try:
+        drivers = ZenohDrivers(
+            session,
+            inter.junction_id,
+            cfg,
+            agents=args.agents,
+            per_agent=args.per_agent,
+            clock=args.clock,
+            speed=args.speed,
+            step_timeout_s=args.step_timeout,
+            log=log,
+        )
+    except RunError as e:
+        session.close()
+        raise UsageError(str(e)) from None
+    drivers.inbox.stop_on_signals()
+    last = [0.0]
+
+    def tick(t: float, waiting: int, crossed: int) -> None:
+        if t - last[0] >= args.progress_every:
+            log.info("t=%.0f s  waiting=%d  crossed=%d", t, waiting, crossed)
+            last[0] = t
+
+    try:
+        result = run_gateway(session, cfg, inter, drivers, peers_timeout_s=args.peers_timeout,
+                             progress=tick)  # fmt: skip
+    except RunError as e:
+        log.error("%s", e)
+        raise UsageError(str(e)) from None
+    finally:
+        drivers.close()
+        session.close()
+    write_outputs(out, cfg, result, mode="cluster")
+    log.info("wrote %s", out / "metrics.json")
+    return report_run(out, result)
+
+
+def add_role_parsers(sub) -> None:
+    r = sub.add_parser(
+        "router",
+        help="a Zenoh router (every other role connects to it)",
+        description="Runs a Zenoh router in this process until SIGTERM or Ctrl-C.",
+    )
+    r.add_argument("--config", type=Path, help="router JSON5 (default deploy/zenoh/router.json5)")
+    r.add_argument("--listen", help="endpoint(s) to listen on, e.g. tcp/127.0.0.1:7447")
+    r.add_argument("--verbose", action="store_true")
+    r.set_defaults(func=cmd_router)
+
+    i = sub.add_parser(
+        "ica",
+        help="the intersection control agent: a Zenoh queryable answering REQUESTs",
+        description="Serves dica/<junction>/request and dica/<junction>/detect, publishes "
+        "confirmations on dica/<junction>/confirmed/<vin>, follows the sim clock. Stops on "
+        "SIGTERM or when the clock announces the end of the run.",
+    )
+    _add_net_args(i)
+    i.add_argument("--algorithm", default="enhanced", help="basic, enhanced, t1..t4, fifo, ...")
+    i.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
+    i.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
+    i.add_argument("--out", type=Path, help="directory for ica.json (request statistics)")
+    i.add_argument("--idle-exit", type=float, help="stop after this many seconds without traffic")
+    _add_link_args(i)
+    i.set_defaults(func=cmd_ica)
+
+    a = sub.add_parser(
+        "agent",
+        help="a vehicle-agent process hosting the vehicles the gateway hands it",
+        description="Each hosted vehicle is a state machine (approaching, requesting, "
+        "confirmed, crossing, exited) that requests when head of its lane and flies its "
+        "confirmed trajectory. How many vehicles one process hosts is set on the gateway "
+        "(--per-agent).",
+    )
+    a.add_argument("--id", required=True, help="this agent's name (letters, digits, _.:-+)")
+    _add_net_args(a)
+    a.add_argument("--margin", type=float, default=0.25, help="the ICA's margin [m]")
+    a.add_argument("--retry", type=float, default=0.5, help="seconds before asking again")
+    a.add_argument("--timeout", type=float, default=1.0, help="query timeout [s wall]")
+    _add_link_args(a)
+    a.set_defaults(func=cmd_agent)
+
+    g = sub.add_parser(
+        "gateway",
+        help="SUMO through libsumo, keyed to Zenoh: states out, commands in",
+        description="Steps SUMO, publishes the clock and each agent's vehicle states, applies "
+        "the agents' commands, and writes the same metrics.json, vehicles.csv and "
+        "timeseries.csv as dica run. Waits for the ICA and --agents agents first.",
+    )
+    add_run_args(g)
+    g.add_argument("--agents", type=int, default=1, help="vehicle-agent processes to wait for")
+    g.add_argument(
+        "--per-agent", type=int, default=0, help="most vehicles one agent hosts (0: no limit)"
+    )
+    g.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
+    g.add_argument("--speed", type=float, default=1.0, help="realtime clock: x wall-clock speed")
+    g.add_argument("--step-timeout", type=float, default=30.0, help="lockstep: wait per step [s]")
+    g.add_argument("--peers-timeout", type=float, default=60.0, help="wait for peers at start [s]")
+    g.add_argument("--progress-every", type=float, default=30.0, help="log a line every N sim s")
+    g.add_argument("--out", type=Path, help="output directory (default runs/cluster-TIMESTAMP)")
+    _add_link_args(g)
+    g.set_defaults(func=cmd_gateway)
