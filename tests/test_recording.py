@@ -1,4 +1,4 @@
-"""The Rerun recording, read back with Rerun's own reader.
+"""The Rerun recording, read back with Rerun's own reader, and ``dica view``.
 
 Confirmations come from the real DICA core on the real chapter 4-5 junction;
 the "actual" vehicles fly exactly their confirmed TSS, so what the recording
@@ -8,6 +8,13 @@ holds can be checked against numbers computed here independently.
 from __future__ import annotations
 
 import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
 from collections import defaultdict
 from pathlib import Path
 
@@ -27,6 +34,7 @@ from sim_gateway.recording import (
     rectangles,
     sumo_heading_rad,
 )
+from tools.cli import main as dica
 
 LENGTH_M, WIDTH_M = 5.0, 1.8
 N_STEPS = 40  # actual steps recorded, then one step with no vehicles
@@ -253,3 +261,55 @@ def test_caller_bugs_are_value_errors(ch45, tmp_path):
             rec.footprints(0.0, ["a", "b"], z, z, z, 5.0, 1.8)
         with pytest.raises(ValueError, match="unknown route"):
             rec.progress(0.0, ["a"], ["nowhere"], np.zeros(1))
+
+
+# -- dica view ---------------------------------------------------------------------
+@pytest.mark.parametrize("case", ["missing", "empty", "not_rrd"])
+def test_view_without_a_recording_is_one_line_and_status_2(case, tmp_path, capsys):
+    target = {"missing": tmp_path / "nope", "empty": tmp_path, "not_rrd": tmp_path / "a.txt"}[case]
+    if case == "not_rrd":
+        target.write_text("x")
+    assert dica(["view", str(target)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("dica: ") and err.count("\n") == 1, err
+    assert "Traceback" not in err
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _port_open(port: int) -> bool:
+    with socket.socket() as s:
+        s.settimeout(0.2)
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def test_view_web_serves_on_loopback_and_stops_its_viewer(recorded):
+    path, _ = recorded
+    port, grpc = _free_port(), _free_port()
+    cmd = [sys.executable, "-m", "tools.cli", "view", "--web", "--port", str(port)]
+    cmd += ["--grpc-port", str(grpc), str(path.parent)]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True
+    )
+    try:
+        line = proc.stdout.readline()  # printed once the web port accepts connections
+        assert line.startswith(f"web viewer: http://127.0.0.1:{port}/"), line
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10) as resp:
+            assert resp.status == 200
+        assert _port_open(grpc)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            rc = proc.wait(timeout=15)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+    assert rc == 130
+    deadline = time.monotonic() + 5
+    while (_port_open(port) or _port_open(grpc)) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _port_open(port) and not _port_open(grpc), "the viewer outlived dica view"
