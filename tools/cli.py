@@ -22,6 +22,7 @@ EXAMPLES = """examples:
   dica experiment --layout ch45 --algorithms enhanced,fixed,actuated --out runs/ch4
   dica report runs/ch4
   dica bench ica --json
+  dica view runs/run-enhanced-20250101-120000 --web --port 9090
 """
 
 
@@ -292,6 +293,19 @@ def _num(x: float | None) -> str:
     return "n/a" if x is None else f"{x:.2f}"
 
 
+# -- view ------------------------------------------------------------------------
+def cmd_view(args: argparse.Namespace) -> int:
+    from tools import view
+
+    try:
+        return view.main(args)
+    except view.ViewError as e:
+        raise UsageError(str(e)) from None
+    except view.ViewerFailed as e:
+        print(f"dica: {e}", file=sys.stderr)
+        return 1
+
+
 # -- bench -----------------------------------------------------------------------
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "ica":
@@ -343,6 +357,8 @@ def parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    from tools.view import DESCRIPTION as VIEW_DESCRIPTION
+    from tools.view import add_arguments as view_arguments
 
     sc = sub.add_parser("scenario", help="build a dissertation intersection with netconvert")
     sc.add_argument("action", choices=["build"])
@@ -395,6 +411,15 @@ def parser() -> argparse.ArgumentParser:
     from tools.roles import add_role_parsers
 
     add_role_parsers(sub)
+
+    v = sub.add_parser(
+        "view",
+        help="open a run's Rerun recording (desktop viewer, or --web on 127.0.0.1)",
+        description=VIEW_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    view_arguments(v)
+    v.set_defaults(func=cmd_view)
 
     sub.add_parser("experiment", help="a grid of runs in parallel, resumable (see its --help)")
     sub.add_parser("report", help="markdown tables and PNG plots from runs (see its --help)")

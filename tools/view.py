@@ -1,0 +1,161 @@
+"""``dica view RUN_DIR``: open a run's Rerun recording in the desktop or the web viewer.
+
+The ``rerun`` console script is a wrapper that starts the real viewer as a
+child process, so the viewer is started in a process group of its own and
+stopped as a group: a Ctrl-C or SIGTERM here never leaves a viewer (and its
+web and gRPC ports) behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from types import FrameType
+from urllib.parse import quote
+
+DESCRIPTION = """Open the Rerun recording (.rrd) of a run directory.
+
+Without --web, starts Rerun's desktop viewer on the recording. With --web,
+serves the web viewer on 127.0.0.1 only (for a headless host: forward the
+ports, e.g. ssh -L 9090:127.0.0.1:9090 -L 9876:127.0.0.1:9876 HOST) and prints
+the URL to open; Ctrl-C stops the viewer. Every .rrd directly in RUN_DIR is
+opened (RUN_DIR may also be an .rrd file). Exit status 2 when there is no
+recording to open."""
+
+READY_TIMEOUT_S = 20.0  # [s] until the web viewer's port must accept connections
+STOP_GRACE_S = 3.0  # [s] between SIGTERM and SIGKILL of the viewer's group
+
+
+class ViewError(Exception):
+    """Nothing to view, or no viewer to view it with; one line for a person (exit 2)."""
+
+
+class ViewerFailed(Exception):
+    """The viewer itself did not come up; one line for a person (exit 1)."""
+
+
+def find_recordings(run_dir: Path) -> list[Path]:
+    """The .rrd files of a run: RUN_DIR itself if it is one, else those directly in it."""
+    if run_dir.is_file():
+        if run_dir.suffix != ".rrd":
+            raise ViewError(f"{run_dir} is not a .rrd recording")
+        return [run_dir]
+    if not run_dir.is_dir():
+        raise ViewError(f"no run directory {run_dir}")
+    found = sorted(p for p in run_dir.glob("*.rrd") if p.is_file())
+    if not found:
+        raise ViewError(f"no .rrd recording in {run_dir} (was the run recorded?)")
+    return found
+
+
+def rerun_binary() -> str:
+    """The ``rerun`` next to this Python first, so the viewer matches the SDK that wrote."""
+    here = Path(sys.executable).parent / "rerun"
+    if here.is_file() and os.access(here, os.X_OK):
+        return str(here)
+    found = shutil.which("rerun")
+    if found is None:
+        raise ViewError("the rerun viewer was not found; install rerun-sdk (bash tools/setup.sh)")
+    return found
+
+
+def viewer_command(files: list[Path], web: bool, port: int, grpc_port: int) -> list[str]:
+    cmd = [rerun_binary()]
+    if web:
+        cmd += [
+            "--serve-web",
+            "--bind",
+            "127.0.0.1",
+            "--web-viewer-port",
+            str(port),
+            "--port",
+            str(grpc_port),
+        ]
+    return cmd + [str(f) for f in files]
+
+
+def web_url(port: int, grpc_port: int) -> str:
+    proxy = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+    return f"http://127.0.0.1:{port}/?url={quote(proxy, safe='')}"
+
+
+def _port_open(port: int) -> bool:
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.settimeout(0.2)
+        return s.connect_ex(("127.0.0.1", port)) == 0
+
+
+def stop_group(proc: subprocess.Popen[bytes]) -> None:
+    """SIGTERM the viewer's whole process group, SIGKILL it if it lingers."""
+    if proc.poll() is not None:
+        return
+    try:
+        os.killpg(proc.pid, signal.SIGTERM)
+        proc.wait(timeout=STOP_GRACE_S)
+    except ProcessLookupError:
+        return
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+
+
+def run(files: list[Path], web: bool, port: int, grpc_port: int) -> int:
+    """Start the viewer, wait for it to end or for Ctrl-C/SIGTERM, and stop its group."""
+    if web:
+        busy = [p for p in (port, grpc_port) if _port_open(p)]
+        if busy:
+            raise ViewError(f"port {busy[0]} on 127.0.0.1 is in use; choose another with --port")
+    proc = subprocess.Popen(viewer_command(files, web, port, grpc_port), start_new_session=True)
+
+    def on_term(signum: int, frame: FrameType | None) -> None:
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        if web:
+            deadline = time.monotonic() + READY_TIMEOUT_S
+            while not _port_open(port):
+                if proc.poll() is not None:
+                    raise ViewerFailed(f"the web viewer exited with status {proc.returncode}")
+                if time.monotonic() > deadline:
+                    raise ViewerFailed(f"the web viewer did not open port {port} in time")
+                time.sleep(0.1)
+            print(f"web viewer: {web_url(port, grpc_port)}  (Ctrl-C to stop)", flush=True)
+        return proc.wait()
+    except KeyboardInterrupt:
+        return 130
+    finally:
+        stop_group(proc)
+        signal.signal(signal.SIGTERM, previous)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="run directory (or an .rrd)")
+    p.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1")
+    p.add_argument(
+        "--port", type=int, default=9090, help="web viewer HTTP port (with --web; default 9090)"
+    )
+    p.add_argument(
+        "--grpc-port",
+        type=int,
+        default=9876,
+        help="port the web viewer streams the recording from (with --web; default 9876)",
+    )
+
+
+def main(args: argparse.Namespace) -> int:
+    """Entry point for ``dica view``; raises ViewError (exit 2) or ViewerFailed (exit 1)."""
+    for name in ("port", "grpc_port"):
+        if not 1 <= getattr(args, name) <= 65535:
+            raise ViewError(f"--{name.replace('_', '-')} must be between 1 and 65535")
+    if args.web and args.port == args.grpc_port:
+        raise ViewError("--port and --grpc-port must differ")
+    files = find_recordings(args.run_dir)
+    return run(files, args.web, args.port, args.grpc_port)
