@@ -153,15 +153,15 @@ class IcaService:
         answer = self.ica.handle(request_to_core(msg), self.now_s)
         self.stats.compute_s.append(time.perf_counter() - t_c)
         if isinstance(answer, Confirmation):
-            out = response_from_core(answer)
-            payload = encode(out)
-            reply(item.query, item.key, payload)
+            payload = encode(response_from_core(answer))
             if (answer.vin, answer.seq) in self._published:
                 self.stats.repeated += 1
-                return
-            self._published.add((answer.vin, answer.seq))
-            self.stats.confirmed += 1
-            self.session.put(keys.confirmed(self.junction, keys.chunk(answer.vin)), payload)
+            else:
+                # published before the reply: observers have it before the vehicle acts on it
+                self._published.add((answer.vin, answer.seq))
+                self.stats.confirmed += 1
+                self.session.put(keys.confirmed(self.junction, keys.chunk(answer.vin)), payload)
+            reply(item.query, item.key, payload)
             return
         self._count(answer)
         reply(item.query, item.key, encode(reject_from_core(answer)))

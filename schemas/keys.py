@@ -56,3 +56,7 @@ def command(junction: str, agent: str = "*") -> str:
 
 def agent_alive(junction: str, agent: str = "*") -> str:
     return f"sim/{chunk(junction)}/alive/{agent if agent == '*' else chunk(agent)}"
+
+
+def observer_alive(junction: str, name: str = "*") -> str:
+    return f"sim/{chunk(junction)}/observer/{name if name == '*' else chunk(name)}"

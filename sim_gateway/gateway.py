@@ -49,6 +49,7 @@ class ZenohDrivers:
         cfg: RunConfig,
         *,
         agents: int,
+        observers: int = 0,
         per_agent: int = 0,
         clock: str = "lockstep",
         speed: float = 1.0,
@@ -63,6 +64,8 @@ class ZenohDrivers:
         self.junction = junction
         self.cfg = cfg
         self.n_agents = agents
+        self.n_observers = observers
+        self.observers: set[str] = set()
         self.per_agent = per_agent
         self.clock = clock
         self.speed = speed
@@ -90,19 +93,27 @@ class ZenohDrivers:
                 keys.agent_alive(j), self.inbox.liveliness_cb("agent"), history=True
             ),
             lv.declare_subscriber(keys.ica_alive(j), self.inbox.liveliness_cb("ica"), history=True),
+            lv.declare_subscriber(
+                keys.observer_alive(j), self.inbox.liveliness_cb("observer"), history=True
+            ),
         ]
 
     # -- start and end ---------------------------------------------------------
     def wait_for_peers(self, timeout_s: float) -> None:
-        """Block until the ICA and every agent are up (liveliness), or fail."""
+        """Block until the ICA, every agent and every observer are up (liveliness), or fail."""
         deadline = time.monotonic() + timeout_s
-        while len(self.alive) < self.n_agents or not self.ica_alive:
+        while (
+            len(self.alive) < self.n_agents
+            or not self.ica_alive
+            or len(self.observers) < self.n_observers
+        ):
             if self.inbox.stopping.is_set():
                 raise RunError("stopped while waiting for the ICA and the agents")
             if time.monotonic() > deadline:
                 raise RunError(
                     f"after {timeout_s:.0f} s: ICA {'up' if self.ica_alive else 'not up'}, "
-                    f"{len(self.alive)} of {self.n_agents} vehicle agents up"
+                    f"{len(self.alive)} of {self.n_agents} vehicle agents and "
+                    f"{len(self.observers)} of {self.n_observers} observers up"
                 )
             item = self.inbox.get(timeout=0.1)
             if item is not None:
@@ -122,6 +133,11 @@ class ZenohDrivers:
 
     # -- one step ----------------------------------------------------------------
     def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
+        out: list[Actuation] = []
+        while (item := self.inbox.get(timeout=0)) is not None:
+            self._take(item, self._k, out)  # liveliness news, and realtime's late commands
+        if not self.ica_alive:
+            raise RunError(f"the ICA is gone (t={t:.2f} s)")
         self._k += 1
         k = self._k
         self._clock_pub.put(encode(Clock(k, t, self.clock, False, now_ns())))
@@ -140,7 +156,6 @@ class ZenohDrivers:
         for s in seen:
             if s.obs.exited:
                 self.load[self.owner[s.car.vin]] -= 1
-        out: list[Actuation] = []
         if self.clock == "lockstep":
             self._wait_commands(k, set(batches), out, t)
         else:
@@ -222,6 +237,8 @@ class ZenohDrivers:
             else:
                 self.alive.discard(name)
                 self.log.error("vehicle agent %s is gone", name)
+        elif item.what == "observer":
+            (self.observers.add if up else self.observers.discard)(name)
         elif item.what == "ica":
             self.ica_alive = up
             if not up:

@@ -426,9 +426,10 @@ def parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser(
         "bench",
-        help="benchmarks: ica (seconds per REQUEST per DICA variant), run (real-time factor)",
+        help="benchmarks: ica (seconds per REQUEST per DICA variant), run (real-time factor), "
+        "cluster (Zenoh round trip, lockstep real-time factor)",
     )
-    b.add_argument("what", choices=["ica", "run"])
+    b.add_argument("what", choices=["ica", "run", "cluster"])
     b.add_argument(
         "rest",
         nargs=argparse.REMAINDER,
@@ -448,11 +449,12 @@ def main(argv: list[str] | None = None) -> int:
             return (experiment if argv[0] == "experiment" else report).main(argv[1:])
         except KeyboardInterrupt:
             return 130
-    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in ("ica", "run"):
-        from tools import bench_ica, bench_run
+    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in ("ica", "run", "cluster"):
+        from tools import bench_cluster, bench_ica, bench_run
 
+        bench = {"ica": bench_ica, "run": bench_run, "cluster": bench_cluster}[argv[1]]
         try:
-            return (bench_ica if argv[1] == "ica" else bench_run).main(argv[2:])
+            return bench.main(argv[2:])
         except KeyboardInterrupt:
             return 130
     args = parser().parse_args(argv)

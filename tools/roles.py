@@ -16,8 +16,6 @@ from pathlib import Path
 
 from tools.cli import UsageError, _add_net_args, _intersection, add_run_args, report_run, run_config
 
-ROLE_NAMES = ("router", "ica", "agent", "gateway", "observer")
-
 
 def _add_link_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
@@ -146,6 +144,7 @@ def cmd_gateway(args: argparse.Namespace) -> int:
             inter.junction_id,
             cfg,
             agents=args.agents,
+            observers=args.observers,
             per_agent=args.per_agent,
             clock=args.clock,
             speed=args.speed,
@@ -175,6 +174,28 @@ def cmd_gateway(args: argparse.Namespace) -> int:
     write_outputs(out, cfg, result, mode="cluster")
     log.info("wrote %s", out / "metrics.json")
     return report_run(out, result)
+
+
+# -- observer ------------------------------------------------------------------
+def cmd_observer(args: argparse.Namespace) -> int:
+    inter = _intersection(args)
+    session, log = _session(args, "observer")
+    from sim_gateway.observer import Observer
+
+    try:
+        obs = Observer(session, inter, args.rrd, log)
+    except OSError as e:
+        session.close()
+        raise UsageError(f"cannot write {args.rrd}: {e}") from None
+    obs.inbox.stop_on_signals()
+    log.info("recording junction %s into %s", inter.junction_id, args.rrd)
+    try:
+        obs.run()
+    finally:
+        obs.close()
+        session.close()
+        log.info("wrote %s: %d steps, %d confirmations", args.rrd, obs.steps, obs.confirmations)
+    return 0
 
 
 def add_role_parsers(sub) -> None:
@@ -220,6 +241,17 @@ def add_role_parsers(sub) -> None:
     _add_link_args(a)
     a.set_defaults(func=cmd_agent)
 
+    o = sub.add_parser(
+        "observer",
+        help="record vehicle footprints and confirmed DTOTs into a Rerun .rrd",
+        description="Listens to the vehicle states and the ICA's confirmations and writes a "
+        "space-time recording (open it with dica view). Stops at the run's end or on SIGTERM.",
+    )
+    _add_net_args(o)
+    o.add_argument("--rrd", type=Path, required=True, help="the .rrd file to write")
+    _add_link_args(o)
+    o.set_defaults(func=cmd_observer)
+
     g = sub.add_parser(
         "gateway",
         help="SUMO through libsumo, keyed to Zenoh: states out, commands in",
@@ -229,6 +261,9 @@ def add_role_parsers(sub) -> None:
     )
     add_run_args(g)
     g.add_argument("--agents", type=int, default=1, help="vehicle-agent processes to wait for")
+    g.add_argument(
+        "--observers", type=int, default=0, help="observer processes to wait for (default 0)"
+    )
     g.add_argument(
         "--per-agent", type=int, default=0, help="most vehicles one agent hosts (0: no limit)"
     )

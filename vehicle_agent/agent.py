@@ -25,6 +25,8 @@ from schemas.link import Inbox
 from schemas.messages import Ack, Clock, Command, Detect, Reject, Response, Setpoint, State
 from vehicle_agent.machine import Observation, Vehicle
 
+REALTIME_BRAKE_STEPS = 200  # 10 s at 0.05 s: beyond any stop from the road's speed
+
 
 class ZenohLink:
     """A vehicle's link to the ICA: Zenoh queries with a timeout.
@@ -103,6 +105,7 @@ class Agent:
         self.vehicles: dict[str, Vehicle] = {}
         self.hosted = 0
         self.ended = False
+        self.realtime = False  # then braking profiles reach to the stop (late messages)
         self._decls = [
             session.declare_subscriber(keys.state(j, self.agent_id), self.inbox.sample_cb("state")),
             session.declare_subscriber(keys.clock(j), self.inbox.sample_cb("clock")),
@@ -119,7 +122,9 @@ class Agent:
                 if item.what == "state":
                     self._on_state(decode(item.payload, State))
                 elif item.what == "clock":
-                    self.ended = decode(item.payload, Clock).end
+                    clock = decode(item.payload, Clock)
+                    self.ended = clock.end
+                    self.realtime = clock.mode == "realtime"
             except DecodeError as e:
                 self.log.warning("dropped a bad %s message: %s", item.what, e)
 
@@ -168,6 +173,7 @@ class Agent:
             self.config,
             self.retry_s,
         )
+        v.brake_steps = REALTIME_BRAKE_STEPS if self.realtime else 1
         self.vehicles[vs.vin] = v
         self.hosted += 1
         return v

@@ -91,6 +91,7 @@ class Vehicle:
     next_request_s: float = 0.0
     confirmation: Confirmation | None = None
     rejections: dict[str, int] = field(default_factory=dict)
+    brake_steps: int = 1  # length of an unconfirmed vehicle's braking profile (see _brake)
 
     def step(self, obs: Observation, link: IcaLink) -> Command | None:
         """Advance one step; the command for the actuator, or None to keep the last."""
@@ -148,14 +149,27 @@ class Vehicle:
         return None
 
     def _brake(self, obs: Observation) -> Command:
-        """The speed that keeps the front short of the entry line (SUMO's discrete stop rule)."""
+        """Speeds that keep the front short of the entry line (SUMO's discrete stop rule).
+
+        The first is for the coming step; with ``brake_steps`` > 1 the profile
+        goes on as if each speed were flown, so an actuator that hears nothing
+        new (a late message) keeps braking instead of holding its speed.
+        """
         cfg = self.config
         room = max(obs.dist_to_entry_m - cfg.kinematics.stop_gap_m, 0.0)
         b = STOP_DECEL_MPS2
         h = cfg.step_s
-        v_stop = math.sqrt(2 * b * room + (b * h / 2) ** 2) - b * h / 2
-        v = max(0.0, min(self.max_speed_mps, v_stop, room / h))
-        return Command(self.vin, obs.t_s, np.array([v]))
+        cap = self.max_speed_mps
+        speeds = []
+        for _ in range(self.brake_steps):
+            v_stop = math.sqrt(2 * b * room + (b * h / 2) ** 2) - b * h / 2
+            v = max(0.0, min(cap, v_stop, room / h))
+            speeds.append(v)
+            if v == 0.0:
+                break
+            room = max(room - v * h, 0.0)
+            cap = v
+        return Command(self.vin, obs.t_s, np.array(speeds))
 
     def _count(self, reason: str) -> None:
         self.rejections[reason] = self.rejections.get(reason, 0) + 1

@@ -1,0 +1,283 @@
+"""The cluster end to end: real Zenoh on loopback, real SUMO, separate processes.
+
+* lockstep with one agent makes exactly the embedded run's decisions;
+* with two agents the run is still collision-free and close to it;
+* a killed vehicle agent stops the whole cluster, naming the agent;
+* garbage sent to the ICA's keys is refused or dropped and the ICA keeps serving.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+DICA = [sys.executable, "-m", "tools.cli"]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _cluster(out: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        ["bash", "tools/run_cluster.sh", "--out", str(out), *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=timeout,
+    )
+
+
+def _rows(path: Path) -> dict[str, dict[str, str]]:
+    with path.open() as fh:
+        return {r["vin"]: r for r in csv.DictReader(fh)}
+
+
+def _no_leftovers(port: int) -> None:
+    time.sleep(0.5)
+    left = subprocess.run(["pgrep", "-f", f"127.0.0.1:{port}"], capture_output=True, text=True)
+    assert left.stdout.strip() == "", f"processes left running: {left.stdout}"
+
+
+def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
+    port = _free_port()
+    common = ["--volume", "500", "--duration", "90", "--seed", "12"]
+    p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "metrics" in p.stdout and "spacetime.rrd" in p.stdout
+    _no_leftovers(port)
+    e = subprocess.run(
+        [*DICA, "run", *common, "--out", str(tmp_path / "emb"), "--quiet"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
+    assert e.returncode == 0, e.stderr
+
+    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
+    assert m["mode"] == "cluster" and m["clock"] == "lockstep"
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    assert m["crossed"] > 40
+    ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
+    assert ica["confirmed"] >= m["crossed"]
+    assert ica["bad_messages"] == 0
+
+    cl, emb = _rows(tmp_path / "cl" / "vehicles.csv"), _rows(tmp_path / "emb" / "vehicles.csv")
+    assert cl.keys() == emb.keys()
+    for vin, row in emb.items():
+        for col in ("entered_s", "confirmed_s", "exited_s", "stopped"):
+            assert cl[vin][col] == row[col], (vin, col)
+    me = json.loads((tmp_path / "emb" / "metrics.json").read_text())
+    for k in ("generated", "crossed", "mean_trip_time_s", "stopped_rate", "min_gap_m"):
+        assert m[k] == me[k], k
+
+
+def test_two_agents_are_safe_and_the_recording_holds_the_run(tmp_path):
+    port = _free_port()
+    out = tmp_path / "cl"
+    p = _cluster(
+        out,
+        *("--agents", "2", "--per-agent", "40", "--port", str(port)),
+        *("--volume", "400", "--duration", "60", "--seed", "21"),
+    )
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    assert set(m["agents"]) == {"agent-1", "agent-2"}
+    assert min(m["agents"].values()) > 5  # both agents really hosted vehicles
+    for name in ("router", "ica", "observer", "agent-1", "agent-2", "gateway"):
+        assert (out / "logs" / f"{name}.log").exists(), name
+
+    from rerun.chunk import RrdReader
+
+    rrd = out / "spacetime.rrd"
+    steps: set[int] = set()
+    occupancies: set[str] = set()
+    for chunk in RrdReader(rrd).stream():
+        path = str(chunk.entity_path)
+        batch = chunk.to_record_batch()
+        if path == "/junction/vehicles" and "sim_time" in batch.schema.names:
+            steps.update(batch.column("sim_time").cast("int64").to_pylist())
+        if "/occupancy/" in path:
+            occupancies.add(path)
+    ica = json.loads((out / "ica.json").read_text())
+    assert len(occupancies) == ica["confirmed"] > 20  # every confirmation drawn once
+    assert len(steps) > 0.9 * 60 / 0.05  # actual footprints on (almost) every step
+
+
+def test_a_killed_agent_stops_the_cluster_and_is_named(tmp_path):
+    port = _free_port()
+    out = tmp_path / "cl"
+    cmd = ["bash", "tools/run_cluster.sh", "--out", str(out), "--agents", "2", "--no-record"]
+    cmd += ["--port", str(port), "--duration", "600", "--volume", "500"]
+    proc = subprocess.Popen(
+        cmd,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+        start_new_session=True,
+    )
+    try:
+        log = out / "logs" / "gateway.log"
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            if log.exists() and "t=30 s" in log.read_text():
+                break
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.2)
+        else:
+            pytest.fail("the cluster never got going")
+        victim = subprocess.run(
+            ["pgrep", "-f", f"agent --id agent-2 .*127.0.0.1:{port}"],
+            capture_output=True,
+            text=True,
+        ).stdout.split()
+        assert len(victim) == 1, victim
+        os.kill(int(victim[0]), signal.SIGKILL)
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode != 0
+    assert "agent-2" in stderr, stderr
+    _no_leftovers(port)
+
+
+# -- the ICA under bad input -------------------------------------------------------
+@pytest.fixture
+def ica_on_loopback(tmp_path):
+    port = _free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    procs = []
+    try:
+        router = subprocess.Popen(
+            [*DICA, "router", "--listen", endpoint],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+            cwd=ROOT,
+            start_new_session=True,
+        )
+        procs.append(router)
+        assert router.stdout.readline().strip() == "ready"
+        ica_log = (tmp_path / "ica.log").open("w")
+        ica = subprocess.Popen(
+            [*DICA, "ica", "--connect", endpoint, "--out", str(tmp_path)],
+            stdout=ica_log,
+            stderr=subprocess.STDOUT,
+            cwd=ROOT,
+            start_new_session=True,
+        )
+        procs.append(ica)
+        from schemas.link import open_session
+
+        session = open_session(connect=endpoint)
+        yield session, ica, tmp_path
+        session.close()
+    finally:
+        for p in reversed(procs):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGTERM)
+                try:
+                    p.wait(10)
+                except subprocess.TimeoutExpired:
+                    os.killpg(p.pid, signal.SIGKILL)
+
+
+def _ask(session, key: str, payload: bytes, timeout: float = 5.0):
+    from schemas.codec import decode
+
+    replies = [r for r in session.get(key, payload=payload, timeout=timeout) if r.ok is not None]
+    return [decode(r.ok.payload.to_bytes()) for r in replies]
+
+
+def _wait_for_ica(session) -> None:
+    from schemas import keys
+
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if list(session.liveliness().get(keys.ica_alive("C"), timeout=1.0)):
+            return
+        time.sleep(0.2)
+    pytest.fail("the ICA never came up")
+
+
+def test_ica_refuses_garbage_and_keeps_serving(ica_on_loopback):
+    from ica.core.proposal import propose
+    from ica.netfile import load_intersection
+    from schemas import keys
+    from schemas.codec import encode, now_ns
+    from schemas.convert import request_from_core
+    from schemas.messages import Ack, Clock, Detect, Reject, Response
+    from sim_gateway.scenario import default_scenario
+
+    session, ica, tmp_path = ica_on_loopback
+    _wait_for_ica(session)
+    good_detect = encode(Detect("v1", "W_in_0", 0.0, now_ns()))
+    for bad in (b"", b"\x00\xff garbage", good_detect[:-3], b"\x93\x01\x02\x03", good_detect):
+        (answer,) = _ask(session, keys.request("C"), bad)
+        assert isinstance(answer, Reject) and answer.reason == "bad_message", answer
+    # oversize: refused by the decoder (a REJECT) or dropped by the transport; never a crash
+    answers = _ask(session, keys.request("C"), b"\x00" * (3 << 20), timeout=3.0)
+    assert all(isinstance(a, Reject) for a in answers)
+    session.put(keys.clock("C"), b"not a clock")
+    assert ica.poll() is None
+
+    # ...and it still serves a real vehicle, once
+    sc = default_scenario("ch45")
+    inter = load_intersection(sc.net_path, sc.junction_id)
+    route = inter.routes_from(inter.in_lanes[0])[0]
+    session.put(keys.clock("C"), encode(Clock(1, 0.05, "lockstep", False, now_ns())))
+    (ack,) = _ask(session, keys.detect("C"), encode(Detect("v1", route.in_lane, 0.0, now_ns())))
+    assert isinstance(ack, Ack)
+    confirmed = []
+    sub = session.declare_subscriber(keys.confirmed("C"), lambda s: confirmed.append(s))
+    req = propose(route, vin="v1", seq=0, t0_s=0.05, dist_to_entry_m=30.0, speed_mps=10.0)
+    payload = encode(request_from_core(req))
+    (first,) = _ask(session, keys.request("C"), payload)
+    (again,) = _ask(session, keys.request("C"), payload)
+    assert isinstance(first, Response) and isinstance(again, Response)
+    assert np.array_equal(first.t_s, again.t_s) and np.array_equal(first.x_m, again.x_m)
+    time.sleep(0.5)
+    assert len(confirmed) == 1  # one reservation, published once
+    sub.undeclare()
+
+    session.put(keys.clock("C"), encode(Clock(2, 0.1, "lockstep", True, now_ns())))
+    assert ica.wait(15) == 0
+    stats = json.loads((tmp_path / "ica.json").read_text())
+    assert stats["confirmed"] == 1 and stats["repeated"] == 1
+    assert stats["bad_messages"] >= 6
+    assert "dropped a bad request message" in (tmp_path / "ica.log").read_text()
+
+
+def test_realtime_clock_is_paced_and_safe(tmp_path):
+    port = _free_port()
+    out = tmp_path / "rt"
+    p = _cluster(
+        out,
+        *("--agents", "1", "--no-record", "--port", str(port), "--clock", "realtime"),
+        *("--speed", "4", "--volume", "500", "--duration", "20", "--seed", "66"),
+    )
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["clock"] == "realtime" and m["speed"] == 4
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    assert m["wall_s"] >= 0.95 * 20 / 4  # paced: never faster than 4x the wall clock
+    assert m["crossed"] > 5

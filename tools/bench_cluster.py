@@ -1,0 +1,214 @@
+"""Benchmark: the cluster's transport and its lockstep speed.
+
+1. REQUEST -> RESPONSE round trip over Zenoh on loopback (client -> router ->
+   ICA process and back), measured by a client in this process:
+   * ``repeat``: the same REQUEST again (same VIN and sequence number), which
+     the ICA answers from the confirmation it stored: wire, codec and
+     dispatch only;
+   * ``fresh``: a new vehicle's first REQUEST (after its DETECT) on an empty
+     junction: the above plus one confirmation by the enhanced core.
+   Target: p99 <= 5 ms.
+2. The lockstep real-time factor of a 10-minute run at volume 500 through
+   ``tools/run_cluster.sh`` (router, ICA, observer, agents, gateway), next to
+   the embedded run of the same seed. Target: >= 10x real time.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+DICA = [sys.executable, "-m", "tools.cli"]
+
+
+def _port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def round_trips(n: int) -> dict:
+    from ica.core.proposal import propose
+    from ica.netfile import load_intersection
+    from schemas import keys
+    from schemas.codec import decode, encode, now_ns
+    from schemas.convert import request_from_core
+    from schemas.link import open_session
+    from schemas.messages import Clock, Detect, Response
+    from sim_gateway.scenario import default_scenario
+
+    sc = default_scenario("ch45")
+    inter = load_intersection(sc.net_path, sc.junction_id)
+    route = next(r for r in inter.routes if r.turn.value == "through")
+    endpoint = f"tcp/127.0.0.1:{_port()}"
+    procs = []
+    try:
+        router = subprocess.Popen(
+            [*DICA, "router", "--listen", endpoint],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+            cwd=ROOT,
+            start_new_session=True,
+        )
+        procs.append(router)
+        router.stdout.readline()
+        procs.append(
+            subprocess.Popen(
+                [*DICA, "ica", "--connect", endpoint],
+                stdout=subprocess.DEVNULL,
+                stderr=subprocess.DEVNULL,
+                cwd=ROOT,
+                start_new_session=True,
+            )
+        )
+        session = open_session(connect=endpoint)
+        while not list(session.liveliness().get(keys.ica_alive(sc.junction_id), timeout=1.0)):
+            time.sleep(0.2)
+        j = sc.junction_id
+
+        def ask(key: str, payload: bytes):
+            (r,) = list(session.get(key, payload=payload, timeout=5.0))
+            return decode(r.ok.payload.to_bytes())
+
+        t = 0.0
+        step = 0
+
+        def tick(dt: float) -> None:
+            nonlocal t, step
+            t += dt
+            step += 1
+            session.put(keys.clock(j), encode(Clock(step, t, "lockstep", False, now_ns())))
+
+        out: dict[str, list[float]] = {"repeat": [], "fresh": []}
+        tick(0.05)
+        time.sleep(0.2)
+        for k in range(n + 20):  # the first 20 of each warm up
+            tick(60.0)  # everyone confirmed before has left: an empty junction
+            time.sleep(0.002)
+            vin = f"b{k:05d}"
+            detect = encode(Detect(vin, route.in_lane, t, now_ns()))
+            req = propose(route, vin=vin, seq=0, t0_s=t, dist_to_entry_m=40.0, speed_mps=12.0)
+            payload = encode(request_from_core(req))
+            ask(keys.detect(j), detect)
+            t0 = time.perf_counter()
+            answer = ask(keys.request(j), payload)
+            t1 = time.perf_counter()
+            assert isinstance(answer, Response), answer
+            again = ask(keys.request(j), payload)
+            t2 = time.perf_counter()
+            assert isinstance(again, Response)
+            if k >= 20:
+                out["fresh"].append(t1 - t0)
+                out["repeat"].append(t2 - t1)
+        session.close()
+    finally:
+        for p in reversed(procs):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGTERM)
+                p.wait(10)
+    return {
+        name: {
+            "n": len(v),
+            "median_ms": float(np.median(v) * 1e3),
+            "p99_ms": float(np.percentile(v, 99) * 1e3),
+        }
+        for name, v in out.items()
+    }
+
+
+def lockstep(volume: float, duration: float, seed: int, agents: int) -> dict:
+    with tempfile.TemporaryDirectory() as tmp:
+        common = ["--volume", f"{volume:g}", "--duration", f"{duration:g}", "--seed", str(seed)]
+        t0 = time.perf_counter()
+        p = subprocess.run(
+            [
+                "bash",
+                "tools/run_cluster.sh",
+                "--out",
+                f"{tmp}/cl",
+                "--agents",
+                str(agents),
+                *common,
+            ],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+        )
+        whole = time.perf_counter() - t0
+        if p.returncode != 0:
+            raise SystemExit(f"bench cluster: the cluster run failed:\n{p.stderr[-2000:]}")
+        m = json.loads(Path(f"{tmp}/cl/metrics.json").read_text())
+        e = subprocess.run(
+            [*DICA, "run", *common, "--out", f"{tmp}/emb", "--quiet"],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+        )
+        if e.returncode != 0:
+            raise SystemExit(f"bench cluster: the embedded run failed:\n{e.stderr[-2000:]}")
+        me = json.loads(Path(f"{tmp}/emb/metrics.json").read_text())
+    return {
+        "agents": agents,
+        "cluster_wall_s": m["wall_s"],
+        "cluster_real_time_factor": m["real_time_factor"],
+        "cluster_whole_script_s": whole,
+        "step_wait_median_ms": m["step_wait_median_ms"],
+        "step_wait_p99_ms": m["step_wait_p99_ms"],
+        "embedded_wall_s": me["wall_s"],
+        "embedded_real_time_factor": me["real_time_factor"],
+        "wall_ratio_cluster_to_embedded": m["wall_s"] / me["wall_s"],
+        "same_crossed": m["crossed"] == me["crossed"],
+        "collisions": m["collisions"],
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        prog="dica bench cluster",
+        description="REQUEST round trip over Zenoh on loopback, and the lockstep real-time "
+        "factor of a cluster run next to the embedded run of the same seed.",
+    )
+    ap.add_argument("--requests", type=int, default=500, help="round trips per kind (500)")
+    ap.add_argument("--volume", type=float, default=500.0)
+    ap.add_argument("--duration", type=float, default=600.0)
+    ap.add_argument("--seed", type=int, default=12)
+    ap.add_argument("--agents", type=int, default=2)
+    ap.add_argument("--skip-run", action="store_true", help="only the round trips")
+    ap.add_argument("--json", action="store_true")
+    args = ap.parse_args(argv)
+    if args.requests < 1:
+        ap.error("--requests must be at least 1")
+    res = {"round_trip": round_trips(args.requests)}
+    if not args.skip_run:
+        res["lockstep"] = lockstep(args.volume, args.duration, args.seed, args.agents)
+    if args.json:
+        print(json.dumps(res, indent=2))
+        return 0
+    for name, r in res["round_trip"].items():
+        print(f"round trip {name:6s}: median {r['median_ms']:.2f} ms, p99 {r['p99_ms']:.2f} ms")
+    if "lockstep" in res:
+        r = res["lockstep"]
+        print(
+            f"lockstep, {r['agents']} agents: {r['cluster_wall_s']:.1f} s "
+            f"({r['cluster_real_time_factor']:.1f}x real time); embedded "
+            f"{r['embedded_wall_s']:.1f} s ({r['embedded_real_time_factor']:.1f}x); "
+            f"ratio {r['wall_ratio_cluster_to_embedded']:.2f}; step wait median "
+            f"{r['step_wait_median_ms']:.2f} ms, p99 {r['step_wait_p99_ms']:.2f} ms"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
