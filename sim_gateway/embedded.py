@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -58,6 +59,7 @@ class LocalDrivers:
         self.link = LocalLink(ica)
         self.vehicles: dict[str, Vehicle] = {}
         self.rejections: dict[str, int] = {}
+        self.recorded: set[str] = set()  # VINs whose confirmation is in the recording
 
     def step(self, t: float, seen: list[Seen]) -> list[Command]:
         self.ica.advance(t)
@@ -125,8 +127,13 @@ def run(
     cfg: RunConfig,
     inter: Intersection,
     progress: Callable[[float, int, int], None] | None = None,
+    rrd_path: Path | None = None,
 ) -> RunResult:
-    """Run one simulation to the end and return its metrics and safety report."""
+    """Run one simulation to the end and return its metrics and safety report.
+
+    With ``rrd_path`` the run is also recorded as Rerun space-time visuals
+    (the same recorder the cluster's observer uses).
+    """
     ls = import_libsumo()
     light = cfg.algorithm in LIGHTS
     ica_cfg = ica_config(cfg)
@@ -135,20 +142,75 @@ def run(
     cmd = start_sumo(ls, cfg, ica_cfg.step_s)
     try:
         signal = _setup_signal(ls, cfg, inter, spec) if light else None
-        world = World(ls, cfg, inter, ica_cfg, schedule, horizon, signalised=light)
+        recorder = _recorder(inter, rrd_path)
+        world = World(
+            ls, cfg, inter, ica_cfg, schedule, horizon, signalised=light, want_xy=bool(recorder)
+        )
         drivers = LocalDrivers(ica, cfg)
-        while True:
-            seen = world.step()
-            if not light:
-                world.apply(drivers.step(world.t, seen))
-            world.end_step(progress)
-            if world.done():
-                break
+        try:
+            while True:
+                seen = world.step()
+                if not light:
+                    world.apply(drivers.step(world.t, seen))
+                if recorder is not None:
+                    _record(recorder, drivers, seen, cfg, world.t)
+                world.end_step(progress)
+                if world.done():
+                    break
+        finally:
+            if recorder is not None:
+                recorder.close()
         result = world.result(drivers.requests(), cmd)
         result.signal = signal
         return result
     finally:
         ls.close()
+
+
+def _recorder(inter: Intersection, rrd_path: Path | None):
+    if rrd_path is None:
+        return None
+    from sim_gateway.recording import SpaceTimeRecorder
+
+    try:
+        rec = SpaceTimeRecorder(inter, rrd_path)
+    except OSError as e:
+        raise RunError(f"cannot write {rrd_path}: {e}") from None
+    rec.geometry()
+    return rec
+
+
+def _record(rec, drivers: LocalDrivers, seen: list[Seen], cfg: RunConfig, t: float) -> None:
+    """This step's new confirmations and every observed vehicle's footprint."""
+    for s in seen:
+        v = drivers.vehicles.get(s.car.vin)
+        conf = v.confirmation if v is not None else None
+        if conf is not None and s.car.vin not in drivers.recorded:
+            drivers.recorded.add(s.car.vin)
+            tss = conf.tss
+            rec.confirmed(
+                conf.vin,
+                conf.route_id,
+                tss.t_s,
+                tss.x_m,
+                tss.y_m,
+                tss.heading_rad,
+                cfg.length_m,
+                cfg.width_m,
+                conf.entry_time_s,
+                conf.exit_time_s,
+                now_s=s.obs.t_s,
+            )
+    rec.footprints(
+        t,
+        [s.car.vin for s in seen],
+        np.array([s.xy[0] for s in seen]),
+        np.array([s.xy[1] for s in seen]),
+        np.array([s.angle_deg for s in seen]),
+        cfg.length_m,
+        cfg.width_m,
+        route_ids=[s.car.route.id for s in seen],
+    )
 
 
 def _setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: StreamSpec) -> dict:

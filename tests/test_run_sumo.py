@@ -185,3 +185,26 @@ def test_rising_volume_keeps_arriving_until_the_end(tmp_path):
     assert departs[-1] > 225  # still arriving at the end
     first, last = sum(d < 120 for d in departs), sum(d >= 120 for d in departs)
     assert last > 1.5 * first  # and faster in the second half
+
+
+def test_run_records_every_confirmation_and_footprint(tmp_path):
+    import csv
+
+    from rerun.chunk import RrdReader
+
+    out = tmp_path / "run"
+    p = dica(*("run", "--volume", "500", "--duration", "40", "--seed", "21"),
+             *("--out", str(out), "--quiet", "--record"))  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    with (out / "vehicles.csv").open() as fh:
+        confirmed = {r["vin"] for r in csv.DictReader(fh) if r["confirmed_s"]}
+    drawn, steps = set(), set()
+    for chunk in RrdReader(out / "spacetime.rrd").stream():
+        path = str(chunk.entity_path)
+        if "/occupancy/" in path:
+            drawn.add(path.rsplit("/", 1)[-1])
+        batch = chunk.to_record_batch()
+        if path == "/junction/vehicles" and "sim_time" in batch.schema.names:
+            steps.update(batch.column("sim_time").cast("int64").to_pylist())
+    assert drawn == confirmed and len(confirmed) > 10
+    assert len(steps) == round(40 / 0.05)

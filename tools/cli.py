@@ -252,7 +252,8 @@ def cmd_run(args: argparse.Namespace) -> int:
                 last[0] = t
 
         try:
-            result = run(cfg, inter, progress=tick)
+            rrd = out / "spacetime.rrd" if args.record else None
+            result = run(cfg, inter, progress=tick, rrd_path=rrd)
         except RunError as e:
             raise UsageError(str(e)) from None
     write_outputs(out, cfg, result)
@@ -406,6 +407,11 @@ def parser() -> argparse.ArgumentParser:
     add_run_args(r)
     r.add_argument("--out", type=Path, help="output directory (default runs/run-ALG-TIMESTAMP)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
+    r.add_argument(
+        "--record",
+        action="store_true",
+        help="also write OUT/spacetime.rrd (Rerun space-time visuals; open with dica view OUT)",
+    )
     r.set_defaults(func=cmd_run)
 
     from tools.roles import add_role_parsers
