@@ -306,7 +306,7 @@ def run_gateway(
         finally:
             drivers.end(world.t)
         result = world.result({}, cmd)
-        result.extra = drivers.facts()
+        result.extra.update(drivers.facts())
         return result
     finally:
         ls.close()

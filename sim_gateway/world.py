@@ -88,6 +88,7 @@ class Car:
     entry_speed_mps: float
     detected_s: float = math.nan
     exited: bool = False
+    entered: bool = False
     command: Command | None = None
     speed_mode: int = -1
 
@@ -133,6 +134,7 @@ class World:
         self.crossed = 0
         self.waiting = 0
         self.sumo_collisions = 0
+        self.unconfirmed_entries: list[str] = []
         self._next = 0
         self._present: set[str] = set()
         self._last_sample = -1.0
@@ -222,6 +224,10 @@ class World:
                     self._detect(c, d, vw.getSpeed(c.vin), t)
                 else:
                     continue
+            if not c.entered and lane != c.route.in_lane:
+                c.entered = True  # the front is past the entry line
+                if not self.signalised and c.speed_mode != MODE_CONFIRMED:
+                    self.unconfirmed_entries.append(c.vin)  # never: the vehicles must stop
             speed = vw.getSpeed(c.vin)
             if speed < 0.1:
                 self.log.trips[c.vin].stopped = True  # stopped in the region before leaving
@@ -307,6 +313,7 @@ class World:
             sim_time_s=self.t,
             wall_s=time.perf_counter() - self._t_wall,
             sumo_command=cmd,
+            extra={"unconfirmed_entries": len(self.unconfirmed_entries)},
         )
 
     # -- bookkeeping -----------------------------------------------------------

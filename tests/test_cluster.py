@@ -70,7 +70,7 @@ def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
 
     m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
     assert m["mode"] == "cluster" and m["clock"] == "lockstep"
-    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
     assert m["crossed"] > 40
     ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
     assert ica["confirmed"] >= m["crossed"]
@@ -97,7 +97,7 @@ def test_two_agents_are_safe_and_the_recording_holds_the_run(tmp_path):
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)
     m = json.loads((out / "metrics.json").read_text())
-    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
     assert set(m["agents"]) == {"agent-1", "agent-2"}
     assert min(m["agents"].values()) > 5  # both agents really hosted vehicles
     for name in ("router", "ica", "observer", "agent-1", "agent-2", "gateway"):
@@ -278,6 +278,6 @@ def test_realtime_clock_is_paced_and_safe(tmp_path):
     _no_leftovers(port)
     m = json.loads((out / "metrics.json").read_text())
     assert m["clock"] == "realtime" and m["speed"] == 4
-    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
     assert m["wall_s"] >= 0.95 * 20 / 4  # paced: never faster than 4x the wall clock
     assert m["crossed"] > 5

@@ -71,6 +71,7 @@ def test_run_is_collision_free_and_writes_metrics(tmp_path, layout, algorithm, v
     assert m.keys() >= KEYS
     assert m["collisions"] == 0
     assert m["sumo_collisions"] == 0
+    assert m["unconfirmed_entries"] == 0
     if algorithm not in ("fixed", "actuated"):  # SUMO's own car following under lights
         assert m["min_gap_m"] > 2 * 0.25 - 1e-6  # never closer than the ICA's two margins
     assert m["crossed"] > (0.2 if algorithm == "fifo" else 0.7) * m["generated"] > 0
@@ -208,3 +209,36 @@ def test_run_records_every_confirmation_and_footprint(tmp_path):
             steps.update(batch.column("sim_time").cast("int64").to_pylist())
     assert drawn == confirmed and len(confirmed) > 10
     assert len(steps) == round(40 / 0.05)
+
+
+UNCHECKED = """
+from sim_gateway.embedded import ica_config, schedule_for
+from sim_gateway.runconfig import RunConfig
+from sim_gateway.scenario import default_scenario
+from sim_gateway.world import World, import_libsumo, start_sumo
+from ica.netfile import load_intersection
+
+sc = default_scenario("ch45")
+inter = load_intersection(sc.net_path, sc.junction_id)
+cfg = RunConfig(str(sc.net_path), sc.junction_id, volume_per_10min=300, duration_s=60)
+ica_cfg = ica_config(cfg)
+schedule, _, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
+ls = import_libsumo()
+start_sumo(ls, cfg, ica_cfg.step_s)
+world = World(ls, cfg, inter, ica_cfg, schedule, horizon)
+while True:
+    world.step()  # nobody commands: vehicles drive in unconfirmed
+    world.end_step()
+    if world.done():
+        break
+print(len(world.unconfirmed_entries))
+"""
+
+
+def test_unconfirmed_entries_are_counted(tmp_path):
+    """The check the runs assert zero on does see vehicles that enter unconfirmed."""
+    p = subprocess.run(
+        [sys.executable, "-c", UNCHECKED], capture_output=True, text=True, cwd=ROOT, timeout=300
+    )
+    assert p.returncode == 0, p.stderr
+    assert int(p.stdout.split()[-1]) > 10

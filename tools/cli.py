@@ -269,12 +269,14 @@ def report_run(out: Path, result) -> int:
         f"tau_e {_num(m['effective_mean_trip_time_s'])} s, "
         f"stopped {_num(m['stopped_rate'])}"
     )
+    unconfirmed = result.extra.get("unconfirmed_entries", 0)
     print(
         f"safety: {result.safety['overlaps']} overlaps (independent check), "
-        f"{result.sumo_collisions} SUMO collisions, min gap {_num(result.safety['min_gap_m'])} m"
+        f"{result.sumo_collisions} SUMO collisions, min gap {_num(result.safety['min_gap_m'])} m, "
+        f"{unconfirmed} unconfirmed entries"
     )
     print(f"{result.sim_time_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json")
-    return 1 if result.safety["overlaps"] or result.sumo_collisions else 0
+    return 1 if result.safety["overlaps"] or result.sumo_collisions or unconfirmed else 0
 
 
 def _weights(text: str | None) -> tuple[tuple[str, float], ...]:
