@@ -27,7 +27,7 @@ from ica.core.request import Confirmation, Reason, Rejection, RequestError
 from schemas import keys
 from schemas.codec import DecodeError, decode, encode, now_ns
 from schemas.convert import reject_from_core, request_to_core, response_from_core
-from schemas.link import Inbox, Item, reply
+from schemas.link import Inbox, Item, put, reply
 from schemas.messages import Ack, Clock, Detect, Reject, Request
 
 HOLD_S = 2.0  # [s wall] longest a request may wait for the clock to reach its time
@@ -160,7 +160,7 @@ class IcaService:
                 # published before the reply: observers have it before the vehicle acts on it
                 self._published.add((answer.vin, answer.seq))
                 self.stats.confirmed += 1
-                self.session.put(keys.confirmed(self.junction, keys.chunk(answer.vin)), payload)
+                put(self.session, keys.confirmed(self.junction, keys.chunk(answer.vin)), payload)
             reply(item.query, item.key, payload)
             return
         self._count(answer)

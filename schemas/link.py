@@ -102,6 +102,23 @@ class Inbox:
         signal.signal(signal.SIGINT, handler)
 
 
+def publisher(session, key: str):
+    """A publisher that never drops (Zenoh's default for puts is to drop under
+    congestion, which would stall a lockstep step) and sends without batching."""
+    import zenoh
+
+    return session.declare_publisher(
+        key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
+    )
+
+
+def put(session, key: str, payload: bytes) -> None:
+    """A one-off publication that is never dropped under congestion."""
+    import zenoh
+
+    session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+
+
 def reply(query, key: str, payload: bytes) -> None:
     """Answer a query once and finish it (the querier then stops waiting at once)."""
     try:

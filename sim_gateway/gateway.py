@@ -29,7 +29,7 @@ import numpy as np
 
 from schemas import keys
 from schemas.codec import DecodeError, decode, encode, now_ns
-from schemas.link import Inbox, Item
+from schemas.link import Inbox, Item, publisher
 from schemas.messages import Clock, Command, State, VehicleState
 from sim_gateway.embedded import ica_config, schedule_for
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
@@ -84,7 +84,7 @@ class ZenohDrivers:
         self._k = 0
         self._t0_wall = 0.0
         j = junction
-        self._clock_pub = session.declare_publisher(keys.clock(j))
+        self._clock_pub = publisher(session, keys.clock(j))
         self._state_pubs: dict[str, object] = {}
         lv = session.liveliness()
         self._decls = [
@@ -149,8 +149,8 @@ class ZenohDrivers:
         for agent, vehicles in batches.items():
             pub = self._state_pubs.get(agent)
             if pub is None:
-                pub = self._state_pubs[agent] = self.session.declare_publisher(
-                    keys.state(self.junction, agent)
+                pub = self._state_pubs[agent] = publisher(
+                    self.session, keys.state(self.junction, agent)
                 )
             pub.put(encode(State(agent, k, t, tuple(vehicles), stamp)))
         for s in seen:

@@ -21,7 +21,7 @@ from ica.core.request import Confirmation, Reason, Rejection, Request
 from schemas import keys
 from schemas.codec import DecodeError, decode, encode, now_ns
 from schemas.convert import reject_to_core, request_from_core, response_to_core
-from schemas.link import Inbox
+from schemas.link import Inbox, publisher, put
 from schemas.messages import Ack, Clock, Command, Detect, Reject, Response, Setpoint, State
 from vehicle_agent.machine import Observation, Vehicle
 
@@ -75,7 +75,7 @@ class ZenohLink:
         if answer.vin != req.vin or answer.seq != req.seq:
             return Rejection(req.vin, req.seq, Reason.BAD_MESSAGE, "a RESPONSE for someone else")
         ack = Ack(answer.vin, answer.seq, Response.KIND, now_ns())
-        self.session.put(keys.ack(self.junction, answer.vin), encode(ack))
+        put(self.session, keys.ack(self.junction, answer.vin), encode(ack))
         return response_to_core(answer)
 
 
@@ -110,7 +110,7 @@ class Agent:
             session.declare_subscriber(keys.state(j, self.agent_id), self.inbox.sample_cb("state")),
             session.declare_subscriber(keys.clock(j), self.inbox.sample_cb("clock")),
         ]
-        self._pub = session.declare_publisher(keys.command(j, self.agent_id))
+        self._pub = publisher(session, keys.command(j, self.agent_id))
         self._token = session.liveliness().declare_token(keys.agent_alive(j, self.agent_id))
 
     def run(self) -> None:
