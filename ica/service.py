@@ -145,7 +145,9 @@ class IcaService:
         if not _is_chunk(msg.vin):
             self._reject(item.query, "?", msg.seq, Reason.BAD_STATE, "VIN has key characters")
             return
-        if msg.t0_s > self.now_s + self.ica.config.step_s + 1e-9:
+        if msg.t0_s > self.now_s + 1e-9:
+            # planned at a time the ICA's clock has not reached: the CLOCK for it
+            # may still be on its way (another path through the router); wait for it
             self._held.append((since if since is not None else time.monotonic(), item))
             return
         self.stats.requests += 1

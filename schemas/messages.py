@@ -22,7 +22,7 @@ MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA a
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
 MAX_DETAIL = 512  # human-readable reasons
-BIG = 1e9  # [s] or [m]: the outer bound of every time and distance on the wire
+BIG = 1e9 + 1  # [s] or [m]: the outer bound of every time and distance on the wire
 
 
 def lim(lo: float | None = None, hi: float | None = None, *, n: int | None = None):
@@ -142,6 +142,7 @@ class State:
     KIND: ClassVar[str] = "state"
     agent: str = lim(n=MAX_TEXT)
     step: int = lim(0, 2**62)
+    part: int = lim(0, MAX_VEHICLES)  # lockstep: which wave of this step (see gateway)
     t_s: float = lim(*TIME)
     vehicles: tuple[VehicleState, ...] = lim(n=MAX_VEHICLES)
     sent_ns: int = lim(0, 2**63 - 1)
@@ -159,6 +160,7 @@ class Setpoint:
     t0_s: float = lim(*TIME)
     speeds: np.ndarray = lim(n=MAX_SAMPLES)
     speed_mode: int = lim(-1, 63)
+    wake_s: float = lim(*TIME)  # next sim time it may DETECT or REQUEST (-1e9: now, 1e9: never)
 
 
 @dataclass(frozen=True, slots=True)
@@ -168,6 +170,7 @@ class Command:
     KIND: ClassVar[str] = "command"
     agent: str = lim(n=MAX_TEXT)
     step: int = lim(0, 2**62)
+    part: int = lim(0, MAX_VEHICLES)  # echoes the STATE's part
     setpoints: tuple[Setpoint, ...] = lim(n=MAX_VEHICLES)
     sent_ns: int = lim(0, 2**63 - 1)
 

@@ -9,7 +9,9 @@ COMMANDs agents send on ``sim/<j>/command/<agent>``.
 Two clocks:
 
 * ``lockstep``: each step waits until every agent that got a STATE has
-  answered it. Deterministic, and as fast as the slowest participant.
+  answered it, in waves that keep the ICA's order of contacts (see
+  :meth:`ZenohDrivers._waves`). Deterministic, the same decisions as the
+  embedded runner, and as fast as the slowest participant.
 * ``realtime``: steps are paced to the wall clock times ``--speed``; whatever
   commands have arrived are applied, late ones at the next step. A confirmed
   vehicle's command holds its whole speed profile, so it is flown on time.
@@ -34,6 +36,7 @@ from schemas.messages import Clock, Command, State, VehicleState
 from sim_gateway.embedded import ica_config, schedule_for
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
 from sim_gateway.world import Seen, World
+from vehicle_agent.machine import BIG
 from vehicle_agent.machine import Command as Actuation
 
 CLOCKS = ("lockstep", "realtime")
@@ -78,6 +81,9 @@ class ZenohDrivers:
         self.load: Counter[str] = Counter()
         self.hosted: Counter[str] = Counter()
         self.late_commands = 0
+        self.multi_wave_steps = 0
+        self.known: set[str] = set()  # vehicles their agent has seen (it has DETECTed them)
+        self.wake: dict[str, float] = {}  # per vehicle: when it may next talk to the ICA
         self.dropped_setpoints = 0
         self.wait_s: list[float] = []
         self.step_s = ica_config(cfg).step_s
@@ -135,35 +141,78 @@ class ZenohDrivers:
     def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
         out: list[Actuation] = []
         while (item := self.inbox.get(timeout=0)) is not None:
-            self._take(item, self._k, out)  # liveliness news, and realtime's late commands
+            self._take(item, None, out)  # liveliness news, and realtime's late commands
         if not self.ica_alive:
             raise RunError(f"the ICA is gone (t={t:.2f} s)")
         self._k += 1
         k = self._k
         self._clock_pub.put(encode(Clock(k, t, self.clock, False, now_ns())))
-        batches: dict[str, list[VehicleState]] = {}
-        for s in seen:
-            agent = self.owner.get(s.car.vin) or self._assign(s.car.vin)
-            batches.setdefault(agent, []).append(_vehicle_state(s, self.cfg))
         stamp = now_ns()
-        for agent, vehicles in batches.items():
-            pub = self._state_pubs.get(agent)
-            if pub is None:
-                pub = self._state_pubs[agent] = publisher(
-                    self.session, keys.state(self.junction, agent)
-                )
-            pub.put(encode(State(agent, k, t, tuple(vehicles), stamp)))
+        waves = self._waves(t, seen) if self.clock == "lockstep" else [self._batches(seen)]
+        for part, batches in enumerate(waves):
+            for agent, vehicles in batches.items():
+                pub = self._state_pubs.get(agent)
+                if pub is None:
+                    pub = self._state_pubs[agent] = publisher(
+                        self.session, keys.state(self.junction, agent)
+                    )
+                pub.put(encode(State(agent, k, part, t, tuple(vehicles), stamp)))
+            if self.clock == "lockstep":
+                self._wait_commands(k, part, set(batches), out, t)
+        if len(waves) > 1:
+            self.multi_wave_steps += 1
         for s in seen:
+            self.known.add(s.car.vin)
             if s.obs.exited:
                 self.load[self.owner[s.car.vin]] -= 1
-        if self.clock == "lockstep":
-            self._wait_commands(k, set(batches), out, t)
-        else:
+                self.known.discard(s.car.vin)
+                self.wake.pop(s.car.vin, None)
+        if self.clock == "realtime":
             self._drain(k, out, t)
             pace = self._t0_wall + k * self.step_s / self.speed - time.monotonic()
             if pace > 0:
                 time.sleep(pace)
         return out
+
+    def _batches(self, seen: list[Seen]) -> dict[str, list[VehicleState]]:
+        batches: dict[str, list[VehicleState]] = {}
+        for s in seen:
+            agent = self.owner.get(s.car.vin) or self._assign(s.car.vin)
+            batches.setdefault(agent, []).append(_vehicle_state(s, self.cfg))
+        return batches
+
+    def _waves(self, t: float, seen: list[Seen]) -> list[dict[str, list[VehicleState]]]:
+        """This step's STATEs, in waves that keep the order of ICA contacts across agents.
+
+        A vehicle talks to the ICA this step if it is new to its agent (it
+        will DETECT) or its agent said it may (``wake_s``) and it is head of
+        its lane. When such vehicles belong to more than one agent, the step
+        is split: each run of consecutive contacts (in the world's order, the
+        embedded runner's order) of one agent is a wave, and a wave is sent
+        only after the previous one is answered. The ICA then sees DETECTs
+        and REQUESTs in exactly the embedded runner's order, whatever the
+        number of agents: lockstep runs are deterministic and equal to it.
+        """
+        runs: list[tuple[str, list[Seen]]] = []
+        quiet: list[Seen] = []
+        for s in seen:
+            agent = self.owner.get(s.car.vin) or self._assign(s.car.vin)
+            wake = self.wake.get(s.car.vin, -BIG)
+            contact = s.car.vin not in self.known or (t >= wake and (s.obs.head or wake <= -BIG))
+            if not contact:
+                quiet.append(s)
+            elif runs and runs[-1][0] == agent:
+                runs[-1][1].append(s)
+            else:
+                runs.append((agent, [s]))
+        if len(runs) <= 1:
+            return [self._batches(seen)]
+        waves: list[dict[str, list[VehicleState]]] = [
+            {agent: [_vehicle_state(s, self.cfg) for s in run]} for agent, run in runs
+        ]
+        for s in quiet:  # no ICA contact: order does not matter, send them first
+            waves[0].setdefault(self.owner[s.car.vin], []).append(_vehicle_state(s, self.cfg))
+        return waves
 
     def _assign(self, vin: str) -> str:
         free = [
@@ -180,7 +229,9 @@ class ZenohDrivers:
         self.hosted[agent] += 1
         return agent
 
-    def _wait_commands(self, k: int, expected: set[str], out: list[Actuation], t: float) -> None:
+    def _wait_commands(
+        self, k: int, part: int, expected: set[str], out: list[Actuation], t: float
+    ) -> None:
         start = time.perf_counter()
         deadline = time.monotonic() + self.step_timeout_s
         while expected:
@@ -197,20 +248,20 @@ class ZenohDrivers:
                         f"{', '.join(sorted(expected))} within {self.step_timeout_s:.0f} s"
                     )
                 continue
-            agent = self._take(item, k, out)
-            if agent is not None:
-                expected.discard(agent)
+            answered = self._take(item, (k, part), out)
+            if answered is not None:
+                expected.discard(answered)
         self.wait_s.append(time.perf_counter() - start)
 
     def _drain(self, k: int, out: list[Actuation], t: float) -> None:
         while (item := self.inbox.get(timeout=0)) is not None:
-            self._take(item, k, out)
+            self._take(item, (k, 0), out)
         gone = set(self.owner.values()) - self.alive
         if gone & {a for a, n in self.load.items() if n > 0}:
             raise RunError(f"vehicle agent {', '.join(sorted(gone))} died at t={t:.2f} s")
 
-    def _take(self, item: Item, k: int, out: list[Actuation]) -> str | None:
-        """Handle one inbox item; the agent whose command for step ``k`` it was, if any."""
+    def _take(self, item: Item, wanted: tuple[int, int] | None, out: list[Actuation]) -> str | None:
+        """Handle one inbox item; the agent, if it was its command for (step, part) ``wanted``."""
         if item.what != "command":
             self._note(item)
             return None
@@ -219,14 +270,16 @@ class ZenohDrivers:
         except DecodeError as e:
             self.log.warning("dropped a bad command on %s: %s", item.key, e)
             return None
-        if cmd.step != k:
+        on_time = wanted is not None and (cmd.step, cmd.part) == wanted
+        if not on_time:
             self.late_commands += 1
         for sp in cmd.setpoints:
             if self.owner.get(sp.vin) != cmd.agent:
                 self.dropped_setpoints += 1  # not this agent's vehicle
                 continue
-            out.append(Actuation(sp.vin, sp.t0_s, sp.speeds, sp.speed_mode))
-        return cmd.agent if cmd.step == k else None
+            self.wake[sp.vin] = sp.wake_s
+            out.append(Actuation(sp.vin, sp.t0_s, sp.speeds, sp.speed_mode, sp.wake_s))
+        return cmd.agent if on_time else None
 
     def _note(self, item: Item) -> None:
         name = item.key.rsplit("/", 1)[-1]
@@ -251,6 +304,7 @@ class ZenohDrivers:
             "speed": self.speed if self.clock == "realtime" else None,
             "agents": dict(sorted(self.hosted.items())),
             "late_commands": self.late_commands,
+            "multi_wave_steps": self.multi_wave_steps,
             "dropped_setpoints": self.dropped_setpoints,
             "step_wait_median_ms": float(np.median(w) * 1e3),
             "step_wait_p99_ms": float(np.percentile(w, 99) * 1e3),

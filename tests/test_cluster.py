@@ -1,7 +1,7 @@
 """The cluster end to end: real Zenoh on loopback, real SUMO, separate processes.
 
 * lockstep with one agent makes exactly the embedded run's decisions;
-* with two agents the run is still collision-free and close to it;
+* with three agents too (the lockstep gateway keeps the order of ICA contacts);
 * a killed vehicle agent stops the whole cluster, naming the agent;
 * garbage sent to the ICA's keys is refused or dropped and the ICA keeps serving.
 """
@@ -52,6 +52,29 @@ def _no_leftovers(port: int) -> None:
     assert left.stdout.strip() == "", f"processes left running: {left.stdout}"
 
 
+def _embedded(out: Path, common: list[str]) -> None:
+    e = subprocess.run(
+        [*DICA, "run", *common, "--out", str(out), "--quiet"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
+    assert e.returncode == 0, e.stderr
+
+
+def _same_decisions(cl_dir: Path, emb_dir: Path) -> None:
+    cl, emb = _rows(cl_dir / "vehicles.csv"), _rows(emb_dir / "vehicles.csv")
+    assert cl.keys() == emb.keys()
+    for vin, row in emb.items():
+        for col in ("entered_s", "confirmed_s", "exited_s", "stopped"):
+            assert cl[vin][col] == row[col], (vin, col)
+    m = json.loads((cl_dir / "metrics.json").read_text())
+    me = json.loads((emb_dir / "metrics.json").read_text())
+    for k in ("generated", "crossed", "mean_trip_time_s", "stopped_rate", "min_gap_m"):
+        assert m[k] == me[k], k
+
+
 def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
     port = _free_port()
     common = ["--volume", "500", "--duration", "90", "--seed", "12"]
@@ -59,14 +82,7 @@ def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
     assert p.returncode == 0, p.stdout + p.stderr
     assert "metrics" in p.stdout and "spacetime.rrd" in p.stdout
     _no_leftovers(port)
-    e = subprocess.run(
-        [*DICA, "run", *common, "--out", str(tmp_path / "emb"), "--quiet"],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=300,
-    )
-    assert e.returncode == 0, e.stderr
+    _embedded(tmp_path / "emb", common)
 
     m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
     assert m["mode"] == "cluster" and m["clock"] == "lockstep"
@@ -75,32 +91,25 @@ def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
     ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
     assert ica["confirmed"] >= m["crossed"]
     assert ica["bad_messages"] == 0
-
-    cl, emb = _rows(tmp_path / "cl" / "vehicles.csv"), _rows(tmp_path / "emb" / "vehicles.csv")
-    assert cl.keys() == emb.keys()
-    for vin, row in emb.items():
-        for col in ("entered_s", "confirmed_s", "exited_s", "stopped"):
-            assert cl[vin][col] == row[col], (vin, col)
-    me = json.loads((tmp_path / "emb" / "metrics.json").read_text())
-    for k in ("generated", "crossed", "mean_trip_time_s", "stopped_rate", "min_gap_m"):
-        assert m[k] == me[k], k
+    _same_decisions(tmp_path / "cl", tmp_path / "emb")
 
 
-def test_two_agents_are_safe_and_the_recording_holds_the_run(tmp_path):
+def test_three_agents_make_the_same_decisions_and_the_recording_holds_them(tmp_path):
     port = _free_port()
     out = tmp_path / "cl"
-    p = _cluster(
-        out,
-        *("--agents", "2", "--per-agent", "40", "--port", str(port)),
-        *("--volume", "400", "--duration", "60", "--seed", "21"),
-    )
+    common = ["--volume", "500", "--duration", "60", "--seed", "21"]
+    p = _cluster(out, *("--agents", "3", "--per-agent", "40", "--port", str(port)), *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)
+    # several agents: still exactly the embedded decisions (waves keep the ICA's order)
+    _embedded(tmp_path / "emb", common)
+    _same_decisions(out, tmp_path / "emb")
     m = json.loads((out / "metrics.json").read_text())
+    assert m["multi_wave_steps"] > 0  # the case the waves exist for did happen
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
-    assert set(m["agents"]) == {"agent-1", "agent-2"}
-    assert min(m["agents"].values()) > 5  # both agents really hosted vehicles
-    for name in ("router", "ica", "observer", "agent-1", "agent-2", "gateway"):
+    assert set(m["agents"]) == {"agent-1", "agent-2", "agent-3"}
+    assert min(m["agents"].values()) > 5  # every agent really hosted vehicles
+    for name in ("router", "ica", "observer", "agent-1", "agent-2", "agent-3", "gateway"):
         assert (out / "logs" / f"{name}.log").exists(), name
 
     from rerun.chunk import RrdReader

@@ -57,9 +57,13 @@ SAMPLES = {
     Reject: Reject("v00001", 3, "not_head", "v00000 is ahead", 1),
     Ack: Ack("v00001", 3, "response", 2),
     Detect: Detect("v00001", "W_in_0", 10.05, 3),
-    State: State("agent-1", 247, 12.35, (_vs(), _vs("v00002", 3.2)), 4),
+    State: State("agent-1", 247, 1, 12.35, (_vs(), _vs("v00002", 3.2)), 4),
     Command: Command(
-        "agent-1", 247, (Setpoint("v00001", 12.35, T, 32), Setpoint("v2", 12.35, T[:1], -1)), 5
+        "agent-1",
+        247,
+        0,
+        (Setpoint("v00001", 12.35, T, 32, 1e9), Setpoint("v2", 12.35, T[:1], -1, -1e9)),
+        5,
     ),
     Clock: Clock(247, 12.35, "lockstep", False, 6),
 }

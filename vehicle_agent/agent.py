@@ -153,10 +153,12 @@ class Agent:
             )
             cmd = v.step(obs, self.link)
             if cmd is not None:
-                setpoints.append(Setpoint(cmd.vin, cmd.t0_s, cmd.speeds, cmd.speed_mode))
+                setpoints.append(
+                    Setpoint(cmd.vin, cmd.t0_s, cmd.speeds, cmd.speed_mode, cmd.wake_s)
+                )
             if vs.exited:
                 del self.vehicles[vs.vin]
-        out = Command(self.agent_id, state.step, tuple(setpoints), now_ns())
+        out = Command(self.agent_id, state.step, state.part, tuple(setpoints), now_ns())
         self._pub.put(encode(out))
 
     def _adopt(self, vs) -> Vehicle | None:

@@ -36,6 +36,7 @@ STOP_DECEL_MPS2 = 4.0  # [m/s^2] braking an unconfirmed vehicle plans with (belo
 MODE_CONFIRMED = 32  # SUMO speed mode: obey the commanded speed, no own checks
 MODE_DEFAULT = 31  # SUMO's default checks
 RELEASE = -1.0  # a commanded speed of -1 gives the vehicle back to SUMO
+BIG = 1e9  # [s] "never" for wake_s
 
 
 class Phase(StrEnum):
@@ -75,6 +76,9 @@ class Command:
     t0_s: float
     speeds: np.ndarray
     speed_mode: int = -1  # SUMO speed mode to switch to first; -1 keeps the current
+    # when the vehicle may next talk to the ICA (DETECT or REQUEST): -BIG at once,
+    # BIG never; lets a lockstep gateway keep the order of ICA contacts across agents
+    wake_s: float = BIG
 
 
 @dataclass(slots=True)
@@ -101,14 +105,14 @@ class Vehicle:
             rej = link.detect(self.vin, self.route.in_lane, obs.detected_s)
             if rej is not None:
                 self._count(rej.reason.value)
-                return self._brake(obs)  # announce again next step; never enter meanwhile
+                return self._brake(obs, wake_s=-BIG)  # announce again next step; never enter
             self.phase = Phase.REQUESTING
         if self.phase is Phase.REQUESTING:
             if obs.t_s >= self.next_request_s and obs.head:
                 command = self._request(obs, link)
                 if command is not None:
                     return command
-            return self._brake(obs)
+            return self._brake(obs, wake_s=self.next_request_s)
         if obs.exited:
             self.phase = Phase.EXITED
             return Command(self.vin, obs.t_s, np.array([RELEASE]), MODE_DEFAULT)
@@ -148,7 +152,7 @@ class Vehicle:
         self.next_request_s = obs.t_s + wait
         return None
 
-    def _brake(self, obs: Observation) -> Command:
+    def _brake(self, obs: Observation, wake_s: float) -> Command:
         """Speeds that keep the front short of the entry line (SUMO's discrete stop rule).
 
         The first is for the coming step; with ``brake_steps`` > 1 the profile
@@ -169,7 +173,7 @@ class Vehicle:
                 break
             room = max(room - v * h, 0.0)
             cap = v
-        return Command(self.vin, obs.t_s, np.array(speeds))
+        return Command(self.vin, obs.t_s, np.array(speeds), wake_s=wake_s)
 
     def _count(self, reason: str) -> None:
         self.rejections[reason] = self.rejections.get(reason, 0) + 1
