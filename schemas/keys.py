@@ -50,6 +50,10 @@ def state(junction: str, agent: str = "*") -> str:
     return f"sim/{chunk(junction)}/state/{agent if agent == '*' else chunk(agent)}"
 
 
+def vehicles(junction: str) -> str:
+    return f"sim/{chunk(junction)}/vehicles"  # every vehicle in the region, each step (observers)
+
+
 def command(junction: str, agent: str = "*") -> str:
     return f"sim/{chunk(junction)}/command/{agent if agent == '*' else chunk(agent)}"
 

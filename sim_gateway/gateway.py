@@ -36,7 +36,7 @@ from schemas.messages import Clock, Command, State, VehicleState
 from sim_gateway.embedded import ica_config, schedule_for
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
 from sim_gateway.world import Seen, World
-from vehicle_agent.machine import BIG
+from vehicle_agent.machine import BIG, MODE_CONFIRMED
 from vehicle_agent.machine import Command as Actuation
 
 CLOCKS = ("lockstep", "realtime")
@@ -91,6 +91,8 @@ class ZenohDrivers:
         self._t0_wall = 0.0
         j = junction
         self._clock_pub = publisher(session, keys.clock(j))
+        self._vehicles_pub = publisher(session, keys.vehicles(j))
+        self.told_entered: set[str] = set()
         self._state_pubs: dict[str, object] = {}
         lv = session.liveliness()
         self._decls = [
@@ -132,6 +134,7 @@ class ZenohDrivers:
 
     def close(self) -> None:
         self._clock_pub.undeclare()
+        self._vehicles_pub.undeclare()
         for p in self._state_pubs.values():
             p.undeclare()
         for d in self._decls:
@@ -148,7 +151,12 @@ class ZenohDrivers:
         k = self._k
         self._clock_pub.put(encode(Clock(k, t, self.clock, False, now_ns())))
         stamp = now_ns()
-        waves = self._waves(t, seen) if self.clock == "lockstep" else [self._batches(seen)]
+        everyone = tuple(_vehicle_state(s, self.cfg) for s in seen)
+        self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
+        # a vehicle flying its confirmed plan needs its agent again only when it
+        # enters the junction (crossing) and when it has left (hand back to SUMO)
+        feed = [s for s in seen if self._needs_agent(s)]
+        waves = self._waves(t, feed) if self.clock == "lockstep" else [self._batches(feed)]
         for part, batches in enumerate(waves):
             for agent, vehicles in batches.items():
                 pub = self._state_pubs.get(agent)
@@ -161,18 +169,28 @@ class ZenohDrivers:
                 self._wait_commands(k, part, set(batches), out, t)
         if len(waves) > 1:
             self.multi_wave_steps += 1
-        for s in seen:
+        for s in feed:
             self.known.add(s.car.vin)
             if s.obs.exited:
                 self.load[self.owner[s.car.vin]] -= 1
                 self.known.discard(s.car.vin)
                 self.wake.pop(s.car.vin, None)
+                self.told_entered.discard(s.car.vin)
         if self.clock == "realtime":
             self._drain(k, out, t)
             pace = self._t0_wall + k * self.step_s / self.speed - time.monotonic()
             if pace > 0:
                 time.sleep(pace)
         return out
+
+    def _needs_agent(self, s: Seen) -> bool:
+        c = s.car
+        if c.speed_mode != MODE_CONFIRMED or s.obs.exited:
+            return True
+        if c.entered and c.vin not in self.told_entered:
+            self.told_entered.add(c.vin)
+            return True
+        return False
 
     def _batches(self, seen: list[Seen]) -> dict[str, list[VehicleState]]:
         batches: dict[str, list[VehicleState]] = {}

@@ -1,6 +1,6 @@
 """The observer process: records the run as Rerun space-time visuals.
 
-It only listens: vehicle STATEs (``sim/<j>/state/*``, every agent's), the
+It only listens: the STATE of every vehicle in the region (``sim/<j>/vehicles``), the
 confirmations the ICA publishes (``dica/<j>/confirmed/*``) and the CLOCK. It
 is not a lockstep participant, so recording never slows the run; at the
 run's end on the clock it drains what is queued, closes the ``.rrd`` and
@@ -45,7 +45,7 @@ class Observer:
         self._cur = _Step()
         j = inter.junction_id
         self._decls = [
-            session.declare_subscriber(keys.state(j), self.inbox.sample_cb("state")),
+            session.declare_subscriber(keys.vehicles(j), self.inbox.sample_cb("state")),
             session.declare_subscriber(keys.confirmed(j), self.inbox.sample_cb("confirmed")),
             session.declare_subscriber(keys.clock(j), self.inbox.sample_cb("clock")),
         ]
