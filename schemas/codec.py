@@ -67,16 +67,21 @@ def encode(msg) -> bytes:
 
 def _pack_record(rec) -> dict:
     out = {}
-    for f in dataclasses.fields(rec):
-        value = getattr(rec, f.name)
+    for name in _names(type(rec)):
+        value = getattr(rec, name)
         if isinstance(value, np.ndarray):
             value = np.ascontiguousarray(value, dtype="<f8").tobytes()
         elif isinstance(value, tuple):
             value = [_pack_record(x) for x in value]
         elif isinstance(value, np.generic):
             value = value.item()
-        out[f.name] = value
+        out[name] = value
     return out
+
+
+@cache
+def _names(cls: type) -> tuple[str, ...]:
+    return tuple(f.name for f in dataclasses.fields(cls))
 
 
 # -- decoding -------------------------------------------------------------------

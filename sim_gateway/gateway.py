@@ -151,8 +151,9 @@ class ZenohDrivers:
         k = self._k
         self._clock_pub.put(encode(Clock(k, t, self.clock, False, now_ns())))
         stamp = now_ns()
-        everyone = tuple(_vehicle_state(s, self.cfg) for s in seen)
-        self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
+        if self._vehicles_pub.matching_status.matching:  # an observer listens
+            everyone = tuple(_vehicle_state(s, self.cfg) for s in seen)
+            self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
         # a vehicle flying its confirmed plan needs its agent again only when it
         # enters the junction (crossing) and when it has left (hand back to SUMO)
         feed = [s for s in seen if self._needs_agent(s)]
