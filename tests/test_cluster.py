@@ -290,3 +290,18 @@ def test_realtime_clock_is_paced_and_safe(tmp_path):
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
     assert m["wall_s"] >= 0.95 * 20 / 4  # paced: never faster than 4x the wall clock
     assert m["crossed"] > 5
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--agents", "0"], "--agents wants a positive integer"),
+        (["--layout", "ch9"], "unknown layout"),
+        (["--bogus"], "unknown option --bogus"),
+        (["--volume", "5000", "--duration", "5"], "volume 5000 is out of range"),
+    ],
+)
+def test_bad_input_to_run_cluster_is_one_clear_line(tmp_path, args, says):
+    p = _cluster(tmp_path / "bad", *args, timeout=120)
+    assert p.returncode == 2
+    assert says in p.stderr and "Traceback" not in p.stderr + p.stdout

@@ -158,9 +158,10 @@ while :; do
   running=("${rest[@]}")
 done
 kill "$tail_pid" 2>/dev/null || true
-if [ "$status" != 0 ]; then
+if [ ! -f "$out/metrics.json" ]; then
   echo "run_cluster: the gateway failed (exit status $status):" >&2
   grep -E 'ERROR|dica:' "$out/logs/gateway.log" | tail -n 5 >&2 || true
+  exit "$status"
 fi
 # the run is over: the ICA, the agents and the observer stop on the clock's end
 deadline=$((SECONDS + 120))
