@@ -19,12 +19,20 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ica.core.config import IcaConfig
-from ica.core.conflict import Conflict, follow_conflict, get_cv
+from ica.core.conflict import (
+    ConfirmedBatch,
+    Conflict,
+    ZoneView,
+    follow_conflict,
+    get_cv,
+    get_cv_batch,
+    zone_view,
+)
 from ica.core.dtot import Dtot, build_dtot
 from ica.core.intersection import Intersection
 from ica.core.planner import Planner
@@ -40,6 +48,8 @@ class Confirmed:
     vin: str
     dtot: Dtot
     confirmation: Confirmation
+    # this vehicle seen from each requester (route id, shape): fixed once confirmed
+    views: dict[tuple[str, Shape], ZoneView | None] = field(default_factory=dict)
 
 
 class Dica:
@@ -64,6 +74,10 @@ class Dica:
         self._lane_of: dict[str, str] = {}
         self._entered: set[str] = set()
         self._lane_tail: dict[str, str] = {}  # last vehicle confirmed from each lane
+        # the confirmed set gathered for one requester route and shape; any change
+        # to the confirmed set bumps the version and so drops it
+        self._version = 0
+        self._batch: tuple[tuple[int, str, Shape], ConfirmedBatch] | None = None
 
     # -- state -------------------------------------------------------------
     @property
@@ -98,6 +112,8 @@ class Dica:
         for vin in gone:
             del self._confirmed[vin]
             self._entered.discard(vin)
+        if gone:
+            self._version += 1
         return gone
 
     def adopt(
@@ -122,6 +138,7 @@ class Dica:
             route, shape, traj, self.config.margin_m, grid, self.config.techniques.estimated_oti
         )
         self._confirmed[confirmation.vin] = Confirmed(confirmation.vin, dtot, confirmation)
+        self._version += 1
         self._lane_tail[in_lane] = confirmation.vin
 
     def is_head(self, vin: str, now_s: float) -> bool:
@@ -185,6 +202,7 @@ class Dica:
             iterations=iterations,
         )
         self._confirmed[req.vin] = Confirmed(req.vin, dtot, conf)
+        self._version += 1
         self._lane_tail[lane] = req.vin
         return conf
 
@@ -261,7 +279,28 @@ class Dica:
         a conflict and keep everything else (validation, flyable plans,
         checkFV, the lane leader).
         """
-        return get_cv(dtot, self.confirmed_dtots(), self.config.techniques, self.tables)
+        tech = self.config.techniques
+        if tech.reduced_set and tech.conflict_zones and tech.bisection:
+            return get_cv_batch(dtot, self._confirmed_batch(dtot.route, dtot.shape))
+        return get_cv(dtot, self.confirmed_dtots(), tech, self.tables)
+
+    def _confirmed_batch(self, route: Route, shape: Shape) -> ConfirmedBatch:
+        """The confirmed set as seen from ``route``, gathered once per confirmed set."""
+        key = (self._version, route.id, shape)
+        if self._batch is not None and self._batch[0] == key:
+            return self._batch[1]
+        views: list[tuple[str, ZoneView]] = []
+        vkey = (route.id, shape)
+        for vin, c in self._confirmed.items():
+            if vkey in c.views:
+                v = c.views[vkey]
+            else:
+                v = c.views[vkey] = zone_view(c.dtot, route, shape, self.tables)
+            if v is not None:
+                views.append((vin, v))
+        batch = ConfirmedBatch.of(route, shape, views, self.tables)
+        self._batch = (key, batch)
+        return batch
 
     def _plan(self, planner: Planner, t0_s: float, entry_rel_s: float, s_end: float) -> Trajectory:
         profile = planner.at_or_after(entry_rel_s)
