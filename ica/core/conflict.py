@@ -27,7 +27,8 @@ import numpy as np
 
 from ica.core.config import Techniques
 from ica.core.dtot import Dtot
-from ica.core.occupancy import overlap_matrix, overlap_pairs, separated
+from ica.core.kernels import batch_conflicts
+from ica.core.occupancy import overlap_matrix, overlap_pairs
 from ica.core.route import Route
 from ica.core.trajectory import Trajectory
 from ica.core.zones import MAYBE, TOUCH, ConflictTables, Shape
@@ -224,64 +225,44 @@ def get_cv_batch(i: Dtot, batch: ConfirmedBatch) -> list[Conflict]:
     either range cannot conflict, so the conflicting pairs, and with them
     firstTimeAtCollision and the delay, are exactly those of
     :func:`pair_conflict`; vehicles come out in the same order as from
-    :func:`get_cv`.
+    :func:`get_cv`. The loop is compiled (:func:`ica.core.kernels.batch_conflicts`).
     """
     if len(batch) == 0:
         return []
     if i.grid_idx is None:
         raise ValueError("conflict zones need DTOTs built with their offline grid")
-    g = i.grid_idx
-    lb_i, ub_i = i.lb_s, i.ub_s
-    ub_hull = np.maximum.accumulate(ub_i)
-    lb_hull = np.minimum.accumulate(lb_i[::-1])[::-1]
-    g_hi = np.maximum.accumulate(g)
-    g_lo = np.minimum.accumulate(g[::-1])[::-1]
-    lo = np.maximum(
-        np.searchsorted(ub_hull, batch.lb_s, side="left"),
-        np.searchsorted(g_hi, batch.row_lo, side="left"),
+    nv = len(batch.vins)
+    hit = np.zeros(nv, dtype=bool)
+    first, delay = np.empty(nv), np.empty(nv)
+    c = np.ascontiguousarray
+    found = batch_conflicts(
+        c(i.lb_s),
+        c(i.ub_s),
+        c(i.grid_idx),
+        c(i.rects.centre),
+        c(i.rects.heading),
+        i.rects.half_length,
+        i.rects.half_width,
+        batch.lb_s,
+        batch.ub_s,
+        batch.centre,
+        batch.heading,
+        batch.half_length,
+        batch.half_width,
+        batch.vid,
+        batch.row,
+        batch.row_lo,
+        batch.row_hi,
+        batch.codes,
+        batch.width,
+        hit,
+        first,
+        delay,
     )
-    hi = np.minimum(
-        np.searchsorted(lb_hull, batch.ub_s, side="right"),
-        np.searchsorted(g_lo, batch.row_hi, side="right"),
-    )
-    count = np.maximum(hi - lo, 0)
-    ends = np.cumsum(count)
-    total = int(ends[-1])
-    if total == 0:
+    if not found:
         return []
-    m = np.nonzero(count)[0]
-    count = count[m]
-    pj = np.repeat(m, count)
-    pi = np.arange(total) + np.repeat(lo[m] - (ends[m] - count), count)
-    keep = (lb_i[pi] <= batch.ub_s[pj]) & (batch.lb_s[pj] <= ub_i[pi])
-    code = batch.codes[batch.row[pj] * batch.width + g[pi]]
-    hit = keep & (code == TOUCH)
-    unsure = np.nonzero(keep & (code == MAYBE))[0]
-    if len(unsure):
-        ui, uj = pi[unsure], pj[unsure]
-        d = batch.centre[uj] - i.rects.centre[ui]
-        hit[unsure] = ~separated(
-            d[:, 0],
-            d[:, 1],
-            i.rects.heading[ui],
-            batch.heading[uj],
-            i.rects.half_length,
-            i.rects.half_width,
-            batch.half_length[uj],
-            batch.half_width[uj],
-        )
-    h = np.nonzero(hit)[0]
-    if len(h) == 0:
-        return []
-    pi, pj = pi[h], pj[h]
-    vid = batch.vid[pj]  # non-decreasing: pairs come in the order of the batch
-    starts = np.nonzero(np.concatenate([[True], vid[1:] != vid[:-1]]))[0]
-    first = np.minimum.reduceat(batch.lb_s[pj], starts)
-    delay = np.maximum.reduceat(batch.ub_s[pj] - lb_i[pi], starts)
-    out = [
-        Conflict(batch.vins[v], f, d)
-        for v, f, d in zip(vid[starts].tolist(), first.tolist(), delay.tolist(), strict=True)
-    ]
+    fs, ds = first.tolist(), delay.tolist()
+    out = [Conflict(batch.vins[v], fs[v], ds[v]) for v in np.nonzero(hit)[0].tolist()]
     out.sort(key=lambda c: c.first_time_s)
     return out
 
