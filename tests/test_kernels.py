@@ -5,12 +5,17 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+import ica.core.dica
+from ica.core.config import IcaConfig
+from ica.core.conflict import follow_conflict, follow_conflict_reference
 from ica.core.dtot import build_dtot, estimated_intervals
 from ica.core.kernels import _searchsorted
 from ica.core.occupancy import footprints
-from ica.core.trajectory import Trajectory
+from ica.core.planner import Kinematics, Planner
+from ica.core.trajectory import Trajectory, sample
 from ica.core.zones import ConflictTables
 from tests.test_dtot import SHAPES, trajectories
+from tools.stream import StreamSpec, run_stream
 
 
 @pytest.mark.parametrize("right", [False, True])
@@ -55,3 +60,72 @@ def test_estimated_dtot_is_the_numpy_one(request, junction):
                 assert np.array_equal(fast.lb_s, lb)
                 assert np.array_equal(fast.ub_s, ub)
                 assert np.array_equal(fast.grid_idx, grid.index(fast.s_m))
+
+
+def test_sampled_plans_are_numpys_positions():
+    rng = np.random.default_rng(5)
+    checked = 0
+    for _ in range(400):
+        pl = Planner(
+            float(rng.uniform(0.0, 60)),
+            float(rng.uniform(0, 19)),
+            70 / 3.6,
+            float(rng.uniform(4, 18)),
+            float(rng.uniform(15, 45)),
+            Kinematics(),
+        )
+        if not pl.feasible():
+            continue
+        p = pl.at_or_after(pl.earliest_entry_s() + float(rng.choice([0.0, rng.uniform(0, 30)])))
+        if p is None:
+            continue
+        traj = sample(p, 3.0, 0.05, pl.s_end_m)
+        assert np.array_equal(traj.s_m, p.position(0.05 * np.arange(len(traj))))
+        checked += 1
+    assert checked > 300
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed"])
+def test_follow_conflict_is_the_numpy_one(request, monkeypatch, junction):
+    """Every lane-leader check of a congested stream, against the numpy version."""
+    inter = request.getfixturevalue(junction)
+    calls = {"all": 0, "violations": 0}
+
+    def checked(follower, leader, length_m, gap_m):
+        fast = follow_conflict(follower, leader, length_m, gap_m)
+        assert fast == follow_conflict_reference(follower, leader, length_m, gap_m)
+        calls["all"] += 1
+        calls["violations"] += fast is not None
+        return fast
+
+    monkeypatch.setattr(ica.core.dica, "follow_conflict", checked)
+    spec = StreamSpec(volume_per_10min=2400.0, n_vehicles=40, seed=9)
+    res = run_stream(inter, IcaConfig(), spec)
+    assert len(res.confirmed) == len(res.vehicles)
+    assert calls["all"] > 50
+
+
+def test_follow_conflict_is_the_numpy_one_close_behind():
+    """Random leader and follower plans in one lane, many of them too close."""
+    rng = np.random.default_rng(21)
+    kin = Kinematics()
+    violations = 0
+    for _ in range(500):
+        d_l = float(rng.uniform(0.0, 30))
+        lead = Planner(d_l, float(rng.uniform(0, 15)), 70 / 3.6, 10.0, 30.0, kin)
+        d_f = d_l + float(rng.uniform(3.0, 15))
+        follow = Planner(d_f, float(rng.uniform(0, 15)), 70 / 3.6, 10.0, 30.0, kin)
+        if not (lead.feasible() and follow.feasible()):
+            continue
+        pl = lead.at_or_after(lead.earliest_entry_s() + float(rng.uniform(0, 6)))
+        pf = follow.at_or_after(follow.earliest_entry_s() + float(rng.uniform(0, 6)))
+        if pl is None or pf is None:
+            continue
+        t0_l = float(rng.uniform(-1.0, 0.0))
+        lt = sample(pl, t0_l, 0.05, 30.0)
+        ft = sample(pf, 0.0, 0.05, 30.0)
+        for length in (4.0, 5.0, 7.5):
+            fast = follow_conflict(ft, lt, length, 0.5)
+            assert fast == follow_conflict_reference(ft, lt, length, 0.5)
+            violations += fast is not None
+    assert violations > 100

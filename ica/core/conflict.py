@@ -27,7 +27,7 @@ import numpy as np
 
 from ica.core.config import Techniques
 from ica.core.dtot import Dtot
-from ica.core.kernels import batch_conflicts
+from ica.core.kernels import batch_conflicts, follow_check
 from ica.core.occupancy import overlap_matrix, overlap_pairs
 from ica.core.route import Route
 from ica.core.trajectory import Trajectory
@@ -292,6 +292,24 @@ def _candidate_pairs(
 
 
 def follow_conflict(
+    follower: Trajectory, leader: Trajectory, leader_length_m: float, gap_m: float
+) -> tuple[float, float] | None:
+    """checkFV in the approach, compiled (:func:`ica.core.kernels.follow_check`):
+    exactly the answer of :func:`follow_conflict_reference`."""
+    found, first, delay = follow_check(
+        follower.t0_s,
+        follower.step_s,
+        np.ascontiguousarray(follower.s_m, dtype=float),
+        leader.t0_s,
+        leader.step_s,
+        np.ascontiguousarray(leader.s_m, dtype=float),
+        leader_length_m,
+        gap_m,
+    )
+    return (first, max(delay, 0.0)) if found else None
+
+
+def follow_conflict_reference(
     follower: Trajectory, leader: Trajectory, leader_length_m: float, gap_m: float
 ) -> tuple[float, float] | None:
     """checkFV in the approach: keep ``gap_m`` behind the lane leader's rear.

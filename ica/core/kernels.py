@@ -75,39 +75,61 @@ def _searchsorted(a: np.ndarray, keys: np.ndarray, right: bool, out: np.ndarray)
         out[q] = lo
 
 
+@njit("UniTuple(int64, 2)(float64[::1], float64)", cache=True, nogil=True)
+def dtot_span(s: np.ndarray, s_end_m: float) -> tuple[int, int]:
+    """(entry_index, exit_index) of :class:`ica.core.trajectory.Trajectory`."""
+    n = len(s)
+    k0 = n - 1
+    for k in range(n):
+        if s[k] > 0.0:
+            k0 = max(k - 1, 0)
+            break
+    k1 = n - 1
+    for k in range(n):
+        if s[k] >= s_end_m - 1e-9:
+            k1 = k
+            break
+    return k0, k1
+
+
 @njit(
-    "void(float64[::1], float64[::1], float64[::1], float64[::1], float64, float64[::1],"
-    " float64[::1], float64, float64, float64[::1], float64[::1],"
-    " float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], int64[::1])",
+    "void(float64[::1], float64[::1], float64[::1], float64, float64[::1], float64,"
+    " float64, float64[::1], float64[::1],"
+    " float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], float64[::1], int64[::1])",
     cache=True,
     nogil=True,
 )
 def estimated_dtot(
-    fx: np.ndarray,
-    fy: np.ndarray,
-    rx: np.ndarray,
-    ry: np.ndarray,
+    route_s: np.ndarray,
+    route_x: np.ndarray,
+    route_y: np.ndarray,
     length_m: float,
     s: np.ndarray,
-    t: np.ndarray,
     s0_m: float,
     ds_m: float,
     fwd_m: np.ndarray,
     back_m: np.ndarray,
     centre: np.ndarray,
     heading: np.ndarray,
+    t: np.ndarray,
     lb: np.ndarray,
     ub: np.ndarray,
     g: np.ndarray,
 ) -> None:
-    """Footprints, grid index and estimated intervals of one DTOT, into the out arrays.
+    """Footprints, grid index and estimated intervals of occupancies at ``s``, times ``t``.
 
-    ``fx, fy`` / ``rx, ry`` are the route points at the front and at the rear
-    (``np.interp`` results), ``s, t`` the occupancies' positions and times.
+    :func:`ica.core.occupancy.footprints` (front and rear points by
+    ``np.interp`` on the route polyline), ``RouteGrid.index`` and
+    :func:`ica.core.dtot.estimated_intervals`, into the out arrays.
     """
     n = len(s)
     last = len(fwd_m) - 1
     half = length_m / 2.0
+    rear = s - length_m
+    fx = np.interp(s, route_s, route_x)
+    fy = np.interp(s, route_s, route_y)
+    rx = np.interp(rear, route_s, route_x)
+    ry = np.interp(rear, route_s, route_y)
     behind = np.empty(n)
     ahead = np.empty(n)
     for k in range(n):
@@ -135,6 +157,102 @@ def estimated_dtot(
         lb[k] = t[min(max(b, 0), n - 1)] if b >= 0 else t[0]
         a = ka[k]
         ub[k] = t[min(max(a, 0), n - 1)] if a < n else t[n - 1]
+
+
+@njit(
+    "Tuple((boolean, float64, float64))(float64, float64, float64[::1], float64, float64,"
+    " float64[::1], float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def follow_check(
+    t0_f: float,
+    step_f: float,
+    s_f: np.ndarray,
+    t0_l: float,
+    step_l: float,
+    s_l: np.ndarray,
+    leader_length_m: float,
+    gap_m: float,
+) -> tuple[bool, float, float]:
+    """:func:`ica.core.conflict.follow_conflict`: (violated, first time, raw delay)."""
+    nf, nl = len(s_f), len(s_l)
+    tf = np.empty(nf)
+    for k in range(nf):
+        tf[k] = t0_f + step_f * k
+    tl = np.empty(nl)
+    for k in range(nl):
+        tl[k] = t0_l + step_l * k
+    m = 0
+    last = -1
+    for k in range(nf):
+        if s_f[k] < 0.0:
+            m += 1
+            last = k
+    if m == 0:
+        return False, 0.0, 0.0
+    t_end = tf[last] + step_f
+    extra = 0
+    for k in range(nl):
+        if tl[k] >= tf[0] and tl[k] <= t_end:
+            extra += 1
+    t = np.empty(m + extra)
+    q = 0
+    for k in range(nf):
+        if s_f[k] < 0.0:
+            t[q] = tf[k]
+            q += 1
+    for k in range(nl):
+        if tl[k] >= tf[0] and tl[k] <= t_end:
+            t[q] = tl[k]
+            q += 1
+    sf_t = np.interp(t, tf, s_f)
+    sl_t = np.interp(t, tl, s_l)
+    nbad = 0
+    for q in range(len(t)):
+        if sf_t[q] < 0.0 and sf_t[q] > sl_t[q] - leader_length_m - gap_m:
+            nbad += 1
+    if nbad == 0:
+        return False, 0.0, 0.0
+    need = np.empty(nbad)
+    tb = np.empty(nbad)
+    r = 0
+    for q in range(len(t)):
+        if sf_t[q] < 0.0 and sf_t[q] > sl_t[q] - leader_length_m - gap_m:
+            need[r] = sf_t[q] + leader_length_m + gap_m
+            tb[r] = t[q]
+            r += 1
+    idx = np.empty(nbad, np.int64)
+    _searchsorted(s_l, need, False, idx)
+    first = tb[0]
+    delay = tl[min(idx[0], nl - 1)] - tb[0]
+    for r in range(1, nbad):
+        first = min(first, tb[r])
+        delay = max(delay, tl[min(idx[r], nl - 1)] - tb[r])
+    return True, first, delay
+
+
+@njit(
+    "void(float64[::1], float64[::1], float64[::1], float64[::1], float64, float64[::1])",
+    cache=True,
+    nogil=True,
+)
+def profile_position(
+    t_s: np.ndarray,
+    s_m: np.ndarray,
+    v_mps: np.ndarray,
+    a_mps2: np.ndarray,
+    step_s: float,
+    out: np.ndarray,
+) -> None:
+    """:meth:`ica.core.planner.Profile.position` at ``step_s * k`` for every k of ``out``."""
+    last = len(t_s) - 1
+    k = 0
+    for q in range(len(out)):
+        t = step_s * q
+        k = min(max(_search(t_s, t, True) - 1, 0), last)
+        tau = max(t - t_s[k], 0.0)
+        out[q] = s_m[k] + v_mps[k] * tau + 0.5 * a_mps2[k] * tau * tau
 
 
 @njit(

@@ -61,19 +61,26 @@ class Profile:
 
     def time_at(self, s: float) -> float:
         """First time the front reaches arc length ``s`` (inf if never)."""
-        for k in range(len(self.t_s)):
-            s0, v0, a = self.s_m[k], self.v_mps[k], self.a_mps2[k]
-            end = self.t_s[k + 1] - self.t_s[k] if k + 1 < len(self.t_s) else math.inf
+        # plain floats: the same IEEE arithmetic as numpy scalars, without their overhead
+        ts, ss, vs, accs = (
+            self.t_s.tolist(),
+            self.s_m.tolist(),
+            self.v_mps.tolist(),
+            self.a_mps2.tolist(),
+        )
+        for k in range(len(ts)):
+            s0, v0, a = ss[k], vs[k], accs[k]
+            end = ts[k + 1] - ts[k] if k + 1 < len(ts) else math.inf
             ds = s - s0
             if ds <= 0.0:
-                return float(self.t_s[k])
+                return float(ts[k])
             if abs(a) < _EPS:
                 tau = ds / v0 if v0 > _EPS else math.inf
             else:
                 disc = v0 * v0 + 2.0 * a * ds
                 tau = math.inf if disc < 0.0 else (math.sqrt(disc) - v0) / a
             if tau <= end + 1e-9:
-                return float(self.t_s[k] + tau)
+                return float(ts[k] + tau)
         return math.inf
 
 
@@ -107,8 +114,8 @@ class _Builder:
 
     def profile(self, entry_time: float, entry_speed: float) -> Profile:
         self.segs.append((self.t, self.s, self.v, 0.0))  # hold speed afterwards
-        arr = np.array(self.segs, dtype=float)
-        return Profile(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], entry_time, entry_speed)
+        cols = np.array(list(zip(*self.segs, strict=True)), dtype=float)  # contiguous rows
+        return Profile(cols[0], cols[1], cols[2], cols[3], entry_time, entry_speed)
 
 
 @dataclass(frozen=True, slots=True)

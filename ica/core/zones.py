@@ -57,6 +57,8 @@ class RouteGrid:
     inner: Rects  # shrunk footprints: inside the real one at any nearest position
     fwd_m: np.ndarray  # distance ahead beyond which the footprint is clear of itself
     back_m: np.ndarray  # distance behind beyond which it is clear of itself
+    route_x: np.ndarray  # the route's vertices, x and y as contiguous arrays
+    route_y: np.ndarray
 
     def index(self, s: np.ndarray) -> np.ndarray:
         """Nearest grid index per position (clipped to the grid)."""
@@ -93,7 +95,8 @@ def _route_grid(
     )
     fwd = (ahead - idx + 1) * ds_m
     back = (idx - behind + 1) * ds_m
-    return RouteGrid(route, shape, s0, ds_m, rects, inner, fwd, back)
+    x, y = np.ascontiguousarray(route.xy[:, 0]), np.ascontiguousarray(route.xy[:, 1])
+    return RouteGrid(route, shape, s0, ds_m, rects, inner, fwd, back, x, y)
 
 
 APART, MAYBE, TOUCH = 0, 1, 2
