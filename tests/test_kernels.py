@@ -129,3 +129,17 @@ def test_follow_conflict_is_the_numpy_one_close_behind():
             assert fast == follow_conflict_reference(ft, lt, length, 0.5)
             violations += fast is not None
     assert violations > 100
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])
+def test_project_is_the_numpy_one(request, junction):
+    inter = request.getfixturevalue(junction)
+    rng = np.random.default_rng(4)
+    for route in inter.routes:
+        for noise in (0.0, 0.01, 0.3, 3.0):
+            s = np.sort(rng.uniform(route.s[0] - 2, route.s[-1] + 2, 200))
+            p = route.points(s) + rng.normal(0, noise, (len(s), 2))
+            for xy in (p, route.xy):  # vertices exactly: ties between segments
+                fast, slow = route.project(xy), route.project_reference(xy)
+                assert np.array_equal(fast[0], slow[0])
+                assert np.array_equal(fast[1], slow[1])

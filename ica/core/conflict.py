@@ -11,16 +11,17 @@ return exactly what the exhaustive search returns; technique 3 changes the
 intervals themselves (never to narrower ones).
 
 With techniques 1, 2 and 4 all on, :func:`get_cv_batch` does the same work for
-every confirmed vehicle at once: each confirmed vehicle's occupancies inside
-its conflict zone with the requester's route are gathered once per request
-(:class:`ConfirmedBatch`), and one round of getCV is a fixed number of array
-operations however many vehicles are confirmed. It finds exactly the
+every confirmed vehicle at once: the confirmed occupancies are gathered end
+to end once per confirmed set (:class:`Gathered`), those inside a conflict
+zone with the requester's route picked once per request
+(:class:`ConfirmedBatch`), and one round of getCV is one compiled loop
+however many vehicles are confirmed. It finds exactly the
 conflicting pairs :func:`pair_conflict` finds, so the answer is identical.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -116,51 +117,59 @@ def pair_conflict(
 
 
 @dataclass(frozen=True, slots=True, eq=False)
-class ZoneView:
-    """A confirmed vehicle's occupancies inside its conflict zone with one route.
+class Gathered:
+    """Every occupancy of a confirmed set, end to end, in the set's order.
 
-    Fixed once the vehicle is confirmed, so it is built once per requester
-    route and shape and kept. ``row`` is each occupancy's row in the
-    requester route's :class:`~ica.core.zones.PairStack`.
+    Built once per confirmed set; ``vid[m]`` says whose occupancy ``m`` is (an
+    index into ``vins`` and ``keys``, the vehicle's route id and shape).
     """
 
+    vins: list[str]
+    keys: list[tuple[str, Shape]]
+    vid: np.ndarray
     lb_s: np.ndarray
     ub_s: np.ndarray
-    centre: np.ndarray  # (K, 2)
-    heading: np.ndarray  # (K, 2)
-    half_length: float
-    half_width: float
-    row: np.ndarray
+    centre: np.ndarray  # (M, 2)
+    heading: np.ndarray  # (M, 2)
+    half_length: np.ndarray
+    half_width: np.ndarray
+    grid_idx: np.ndarray
 
-
-def zone_view(j: Dtot, route: Route, shape: Shape, tables: ConflictTables) -> ZoneView | None:
-    """Confirmed ``j`` as seen by requesters on ``route`` (None: nothing can touch)."""
-    if j.grid_idx is None:
-        raise ValueError("conflict zones need DTOTs built with their offline grid")
-    if tables.compatible(j.route, j.shape, route, shape):
-        return None
-    kj = np.flatnonzero(tables.zone(j.route, j.shape, route, shape)[j.grid_idx])
-    if len(kj) == 0:
-        return None
-    off = tables.stack_offset(route, shape, j.route, j.shape)
-    return ZoneView(
-        j.lb_s[kj],
-        j.ub_s[kj],
-        j.rects.centre[kj],
-        j.rects.heading[kj],
-        j.rects.half_length,
-        j.rects.half_width,
-        off + j.grid_idx[kj],
-    )
+    @staticmethod
+    def of(confirmed: Iterable[tuple[str, Dtot]]) -> Gathered:
+        items = list(confirmed)
+        ds = [d for _, d in items]
+        for d in ds:
+            if d.grid_idx is None:
+                raise ValueError("conflict zones need DTOTs built with their offline grid")
+        if not ds:
+            f, i = np.zeros(0), np.zeros(0, np.int64)
+            return Gathered([], [], i, f, f, np.zeros((0, 2)), np.zeros((0, 2)), f, f, i)
+        sizes = [len(d) for d in ds]
+        return Gathered(
+            vins=[vin for vin, _ in items],
+            keys=[(d.route.id, d.shape) for d in ds],
+            vid=np.repeat(np.arange(len(ds)), sizes),
+            lb_s=np.concatenate([d.lb_s for d in ds]),
+            ub_s=np.concatenate([d.ub_s for d in ds]),
+            centre=np.concatenate([d.rects.centre for d in ds]),
+            heading=np.concatenate([d.rects.heading for d in ds]),
+            half_length=np.repeat([d.rects.half_length for d in ds], sizes),
+            half_width=np.repeat([d.rects.half_width for d in ds], sizes),
+            grid_idx=np.concatenate([d.grid_idx for d in ds]),  # type: ignore[misc]
+        )
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class ConfirmedBatch:
-    """The zone views of every confirmed vehicle against one route, end to end.
+    """The confirmed occupancies that can touch one route (techniques 1 and 2).
 
-    ``vid[m]`` says whose occupancy row ``m`` is (an index into ``vins``, in
-    the confirmed set's order); ``codes`` is the route's flat pair stack,
-    ``width`` its row length.
+    Those of :class:`Gathered` on routes compatible with it (technique 1) or
+    outside the conflict zone (technique 2) are left out: no grid point of the
+    route is other than APART from them. ``row`` is each occupancy's row in the
+    route's :class:`~ica.core.zones.PairStack`, ``row_lo`` and ``row_hi`` the
+    first and last grid point of the route not APART from it; ``codes`` is the
+    flat stack, ``width`` its row length.
     """
 
     vins: list[str]
@@ -172,8 +181,8 @@ class ConfirmedBatch:
     half_length: np.ndarray
     half_width: np.ndarray
     row: np.ndarray
-    row_lo: np.ndarray  # first requester grid point not APART from occupancy m
-    row_hi: np.ndarray  # last one
+    row_lo: np.ndarray
+    row_hi: np.ndarray
     codes: np.ndarray
     width: int
 
@@ -182,31 +191,39 @@ class ConfirmedBatch:
 
     @staticmethod
     def of(
-        route: Route, shape: Shape, views: Sequence[tuple[str, ZoneView]], tables: ConflictTables
+        route: Route, shape: Shape, gathered: Gathered, tables: ConflictTables
     ) -> ConfirmedBatch:
-        stack = tables.stack(route, shape)  # after the views: they may have grown it
-        vs = [v for _, v in views]
-        if not vs:
-            empty = np.zeros(0)
-            none = np.zeros(0, np.int64)
-            return ConfirmedBatch(
-                [], none, empty, empty, np.zeros((0, 2)), np.zeros((0, 2)), empty, empty,
-                none, none, none, stack.codes, stack.width,
-            )  # fmt: skip
-        sizes = [len(v.lb_s) for v in vs]
-        row = np.concatenate([v.row for v in vs])
+        offset: dict[tuple[str, Shape], int] = {}
+        for rid, sh in set(gathered.keys):
+            other = tables.intersection.route_by_id(rid)
+            if other is None or tables.compatible(other, sh, route, shape):
+                offset[(rid, sh)] = -1
+            else:
+                offset[(rid, sh)] = tables.stack_offset(route, shape, other, sh)
+        stack = tables.stack(route, shape)  # after the offsets: they may have grown it
+        g = gathered
+        if len(g.vins):
+            first_row = np.array([offset[k] for k in g.keys], dtype=np.int64)[g.vid]
+        else:
+            first_row = np.zeros(0, np.int64)
+        near = np.nonzero(first_row >= 0)[0]  # not on a compatible route
+        row = first_row[near] + g.grid_idx[near]
+        lo, hi = stack.row_lo[row], stack.row_hi[row]
+        inside = np.nonzero(lo <= hi)[0]  # inside the conflict zone
+        m = near[inside]
+        row, lo, hi = row[inside], lo[inside], hi[inside]
         return ConfirmedBatch(
-            vins=[vin for vin, _ in views],
-            vid=np.repeat(np.arange(len(vs)), sizes),
-            lb_s=np.concatenate([v.lb_s for v in vs]),
-            ub_s=np.concatenate([v.ub_s for v in vs]),
-            centre=np.concatenate([v.centre for v in vs]),
-            heading=np.concatenate([v.heading for v in vs]),
-            half_length=np.repeat([v.half_length for v in vs], sizes),
-            half_width=np.repeat([v.half_width for v in vs], sizes),
+            vins=g.vins,
+            vid=g.vid[m],
+            lb_s=g.lb_s[m],
+            ub_s=g.ub_s[m],
+            centre=g.centre[m],
+            heading=g.heading[m],
+            half_length=g.half_length[m],
+            half_width=g.half_width[m],
             row=row,
-            row_lo=stack.row_lo[row],
-            row_hi=stack.row_hi[row],
+            row_lo=lo,
+            row_hi=hi,
             codes=stack.codes,
             width=stack.width,
         )

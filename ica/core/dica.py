@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -27,11 +27,10 @@ from ica.core.config import IcaConfig
 from ica.core.conflict import (
     ConfirmedBatch,
     Conflict,
-    ZoneView,
+    Gathered,
     follow_conflict,
     get_cv,
     get_cv_batch,
-    zone_view,
 )
 from ica.core.dtot import Dtot, build_dtot
 from ica.core.intersection import Intersection
@@ -48,8 +47,6 @@ class Confirmed:
     vin: str
     dtot: Dtot
     confirmation: Confirmation
-    # this vehicle seen from each requester (route id, shape): fixed once confirmed
-    views: dict[tuple[str, Shape], ZoneView | None] = field(default_factory=dict)
 
 
 class Dica:
@@ -74,9 +71,10 @@ class Dica:
         self._lane_of: dict[str, str] = {}
         self._entered: set[str] = set()
         self._lane_tail: dict[str, str] = {}  # last vehicle confirmed from each lane
-        # the confirmed set gathered for one requester route and shape; any change
-        # to the confirmed set bumps the version and so drops it
+        # the confirmed set gathered end to end, and as seen from one requester
+        # route and shape; any change to the confirmed set bumps the version
         self._version = 0
+        self._gathered: tuple[int, Gathered] | None = None
         self._batch: tuple[tuple[int, str, Shape], ConfirmedBatch] | None = None
 
     # -- state -------------------------------------------------------------
@@ -289,16 +287,9 @@ class Dica:
         key = (self._version, route.id, shape)
         if self._batch is not None and self._batch[0] == key:
             return self._batch[1]
-        views: list[tuple[str, ZoneView]] = []
-        vkey = (route.id, shape)
-        for vin, c in self._confirmed.items():
-            if vkey in c.views:
-                v = c.views[vkey]
-            else:
-                v = c.views[vkey] = zone_view(c.dtot, route, shape, self.tables)
-            if v is not None:
-                views.append((vin, v))
-        batch = ConfirmedBatch.of(route, shape, views, self.tables)
+        if self._gathered is None or self._gathered[0] != self._version:
+            self._gathered = (self._version, Gathered.of(self.confirmed_dtots()))
+        batch = ConfirmedBatch.of(route, shape, self._gathered[1], self.tables)
         self._batch = (key, batch)
         return batch
 

@@ -348,3 +348,44 @@ def batch_conflicts(
                 delay[v] = d
             found = True
     return found
+
+
+@njit(
+    "Tuple((float64[::1], float64[::1]))(float64[:, ::1], float64[::1], float64[:, ::1])",
+    cache=True,
+    nogil=True,
+)
+def project(xy: np.ndarray, route_s: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`ica.core.route.Route.project`: arc length of the nearest polyline
+    point and the distance to it, per point of ``p`` (N, 2); first nearest wins."""
+    m = len(xy) - 1
+    n = len(p)
+    s = np.empty(n)
+    dist = np.empty(n)
+    seg = np.empty(m)
+    for j in range(m):
+        dx = xy[j + 1, 0] - xy[j, 0]
+        dy = xy[j + 1, 1] - xy[j, 1]
+        seg[j] = dx * dx + dy * dy
+    for q in range(n):
+        best = np.inf
+        bk = 0
+        bu = 0.0
+        for j in range(m):
+            dx = xy[j + 1, 0] - xy[j, 0]
+            dy = xy[j + 1, 1] - xy[j, 1]
+            wx = p[q, 0] - xy[j, 0]
+            wy = p[q, 1] - xy[j, 1]
+            u = (wx * dx + wy * dy) / seg[j]
+            u = u if u > 0.0 else 0.0  # np.clip's order and signs
+            u = u if u < 1.0 else 1.0
+            ex = p[q, 0] - (xy[j, 0] + u * dx)
+            ey = p[q, 1] - (xy[j, 1] + u * dy)
+            d2 = ex * ex + ey * ey
+            if d2 < best:
+                best = d2
+                bk = j
+                bu = u
+        s[q] = route_s[bk] + bu * math.sqrt(seg[bk])
+        dist[q] = math.sqrt(best)
+    return s, dist
