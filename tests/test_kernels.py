@@ -143,3 +143,40 @@ def test_project_is_the_numpy_one(request, junction):
                 fast, slow = route.project(xy), route.project_reference(xy)
                 assert np.array_equal(fast[0], slow[0])
                 assert np.array_equal(fast[1], slow[1])
+
+
+def test_plan_phases_and_bisection_are_the_python_ones():
+    rng = np.random.default_rng(8)
+    kin = Kinematics()
+    bisected = 0
+    for _ in range(300):
+        pl = Planner(
+            float(rng.uniform(0.0, 60)),
+            float(rng.choice([0.0, rng.uniform(0, 19)])),
+            70 / 3.6,
+            float(rng.uniform(4, 18)),
+            30.0,
+            kin,
+        )
+        for v_m in [*rng.uniform(0, 20, 20), 0.0, pl.v0_mps, pl.cap_mps]:
+            assert pl._a_phases(float(v_m)) == pl._a_phases_reference(float(v_m))
+        if not pl.feasible():
+            continue
+        v_hi, v_lo = pl._v_max(), pl._v_min_a()
+        lo = pl._a_phases_reference(v_lo) if v_lo < v_hi else None
+        if lo is None or lo[3] <= pl.earliest_entry_s() + 1e-6:
+            continue
+        t = float(rng.uniform(pl.earliest_entry_s() + 1e-6, lo[3]))
+        lo_v, hi_v = v_lo, v_hi  # the loop as it was written in Python
+        for _ in range(60):
+            mid = 0.5 * (lo_v + hi_v)
+            ph = pl._a_phases_reference(mid)
+            if ph is None or ph[3] > t:
+                lo_v = mid
+            else:
+                hi_v = mid
+            if hi_v - lo_v < 1e-7:
+                break
+        assert pl.at_or_after(t).s_m.tolist() == pl._build_a(hi_v).s_m.tolist()
+        bisected += 1
+    assert bisected > 100

@@ -389,3 +389,71 @@ def project(xy: np.ndarray, route_s: np.ndarray, p: np.ndarray) -> tuple[np.ndar
         s[q] = route_s[bk] + bu * math.sqrt(seg[bk])
         dist[q] = math.sqrt(best)
     return s, dist
+
+
+@njit("float64(float64, float64)", cache=True, nogil=True)
+def _py_min(a: float, b: float) -> float:
+    """Python's ``min(a, b)``: the first unless the second is smaller (signed zeros too)."""
+    return b if b < a else a
+
+
+@njit("float64(float64, float64)", cache=True, nogil=True)
+def _py_max(a: float, b: float) -> float:
+    return b if b > a else a
+
+
+@njit(
+    "Tuple((boolean, float64, float64, float64, float64))"
+    "(float64, float64, float64, float64, float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def a_phases(
+    a: float, br: float, v0: float, d: float, cap: float, v_m: float
+) -> tuple[bool, float, float, float, float]:
+    """(fits, D1, D3, v_e, T) of the slow-down plan A(v_m); see ``Planner._a_phases``."""
+    if v_m >= v0:
+        d1 = (v_m * v_m - v0 * v0) / (2 * a)
+        t1 = abs(v_m - v0) / a
+    else:
+        d1 = (v0 * v0 - v_m * v_m) / (2 * br)
+        t1 = abs(v_m - v0) / br
+    if d1 > d + 1e-7:
+        return False, 0.0, 0.0, 0.0, 0.0
+    if v_m > cap:
+        v_e = cap
+        d3 = (v_m * v_m - cap * cap) / (2 * br)
+        t3 = (v_m - cap) / br
+    else:
+        v_e = _py_min(cap, math.sqrt(_py_max(v_m * v_m + 2 * a * (d - d1), 0.0)))
+        d3 = (v_e * v_e - v_m * v_m) / (2 * a)
+        t3 = (v_e - v_m) / a
+    d2 = d - d1 - d3
+    if d2 < -1e-7:
+        return False, 0.0, 0.0, 0.0, 0.0
+    if d2 > 1e-9 and v_m <= 1e-9:
+        return False, 0.0, 0.0, 0.0, 0.0
+    t2 = d2 / v_m if d2 > 1e-9 else 0.0
+    return True, d1, d3, v_e, t1 + t2 + t3
+
+
+@njit(
+    "float64(float64, float64, float64, float64, float64, float64, float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def bisect_cruise(
+    a: float, br: float, v0: float, d: float, cap: float, v_lo: float, v_hi: float, t_entry: float
+) -> float:
+    """The bisection of ``Planner.at_or_after``: the cruise speed arriving at ``t_entry``."""
+    lo_v, hi_v = v_lo, v_hi
+    for _ in range(60):
+        mid = 0.5 * (lo_v + hi_v)
+        fits, _d1, _d3, _ve, t = a_phases(a, br, v0, d, cap, mid)
+        if not fits or t > t_entry:
+            lo_v = mid
+        else:
+            hi_v = mid
+        if hi_v - lo_v < 1e-7:
+            break
+    return hi_v
