@@ -2,18 +2,24 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 import ica.core.dica
+from ica.core import validate
 from ica.core.config import IcaConfig
 from ica.core.conflict import follow_conflict, follow_conflict_reference
 from ica.core.dtot import build_dtot, estimated_intervals
 from ica.core.kernels import _searchsorted
 from ica.core.occupancy import footprints
 from ica.core.planner import Kinematics, Planner
+from ica.core.proposal import propose
+from ica.core.request import Reason, RequestError
 from ica.core.trajectory import Trajectory, sample
 from ica.core.zones import ConflictTables
+from tests.test_bad_input import cases, tss_with
 from tests.test_dtot import SHAPES, trajectories
 from tools.stream import StreamSpec, run_stream
 
@@ -180,3 +186,46 @@ def test_plan_phases_and_bisection_are_the_python_ones():
         assert pl.at_or_after(t).s_m.tolist() == pl._build_a(hi_v).s_m.tolist()
         bisected += 1
     assert bisected > 100
+
+
+def _outcome(check, req, route, cfg):
+    try:
+        return ("ok", check(req, route, cfg).s_m.tolist())
+    except RequestError as e:
+        return (e.reason, e.detail)
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed"])
+def test_tss_checks_are_the_numpy_ones(request, junction):
+    """Every TSS check passes or fails, with the same message, as the numpy version."""
+    inter = request.getfixturevalue(junction)
+    cfg = IcaConfig()
+    rng = np.random.default_rng(14)
+    outcomes: set[object] = set()
+    for k, route in enumerate(inter.routes):
+        for d, v in ((40.0, 12.0), (3.0, 0.0), (30.0, 14.0)):
+            req = propose(route, vin=f"v{k}", seq=0, t0_s=2.0, dist_to_entry_m=d, speed_mps=v)
+            bad = [r for rs in cases(req).values() for r in rs]
+            t = req.tss
+            n = len(t.t_s)
+            for _ in range(12):  # small disturbances around every threshold
+                j = int(rng.integers(n))
+                which = rng.choice(["x_m", "y_m", "t_s", "heading_rad"])
+                a = getattr(t, which).copy()
+                a[j:] += rng.choice([-1, 1]) * rng.choice([1e-7, 1e-3, 0.05, 0.3, 2.0])
+                bad.append(tss_with(req, **{which: a}))
+                bad.append(dataclasses.replace(req, speed_mps=v + float(rng.uniform(-2, 2))))
+            for r in [req, *bad]:
+                if not isinstance(r.length_m, float) or not np.isfinite(r.length_m):
+                    continue
+                if r.length_m <= 0 or r.length_m > cfg.max_length_m or r.in_lane != req.in_lane:
+                    continue
+                if r.out_lane != req.out_lane:
+                    continue
+                fast = _outcome(validate._check_tss, r, route, cfg)
+                assert fast == _outcome(validate._check_tss_reference, r, route, cfg)
+                outcomes.add(fast[0])
+    assert {"ok", Reason.BAD_TIME, Reason.NOT_FINITE, Reason.OFF_ROUTE, Reason.BAD_STATE} <= (
+        outcomes
+    )
+    assert Reason.LIMITS in outcomes

@@ -457,3 +457,117 @@ def bisect_cruise(
         if hi_v - lo_v < 1e-7:
             break
     return hi_v
+
+
+@njit(
+    "Tuple((int64, float64, float64[::1]))(float64[::1], float64[::1], float64[::1], float64[::1],"
+    " float64, float64, float64[:, ::1], float64[::1], float64, float64, float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def tss_checks(
+    t: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    h: np.ndarray,
+    step_s: float,
+    t0_s: float,
+    route_xy: np.ndarray,
+    route_s: np.ndarray,
+    off_tol_m: float,
+    dist_to_entry_m: float,
+    start_tol_m: float,
+    s_end_m: float,
+) -> tuple[int, float, np.ndarray]:
+    """The numeric checks of a TSS up to its arc length, in ``validate._check_tss``'s order.
+
+    Returns (failed check, a value for its message, monotone arc length);
+    check 0 means all passed. 1 not finite, 2 times not increasing, 3 not
+    sampled every step, 4 not starting at t0, 5 off the route (value: worst
+    offset), 6 start not matching the state (value: s[0]), 7 moving
+    backwards, 8 ending before the vehicle is out.
+    """
+    n = len(t)
+    empty = np.empty(0)
+    for k in range(n):
+        if not (np.isfinite(t[k]) and np.isfinite(x[k]) and np.isfinite(y[k])):
+            return 1, 0.0, empty
+        if not np.isfinite(h[k]):
+            return 1, 0.0, empty
+    for k in range(n - 1):
+        if t[k + 1] - t[k] <= 0:
+            return 2, 0.0, empty
+    for k in range(n - 1):
+        if abs((t[k + 1] - t[k]) - step_s) > 1e-6:
+            return 3, 0.0, empty
+    if abs(t[0] - t0_s) > 1e-6:
+        return 4, 0.0, empty
+    p = np.empty((n, 2))
+    for k in range(n):
+        p[k, 0] = x[k]
+        p[k, 1] = y[k]
+    s, off = project(route_xy, route_s, p)
+    worst = off[0]
+    for k in range(1, n):
+        worst = max(worst, off[k])
+    if worst > off_tol_m:
+        return 5, worst, empty
+    if abs(s[0] + dist_to_entry_m) > start_tol_m:
+        return 6, s[0], empty
+    for k in range(n - 1):
+        if s[k + 1] - s[k] < -1e-6:
+            return 7, 0.0, empty
+    for k in range(1, n):  # np.maximum.accumulate: the earlier one unless smaller
+        if s[k - 1] >= s[k]:
+            s[k] = s[k - 1]
+    if s[n - 1] < s_end_m - 1e-6:
+        return 8, 0.0, empty
+    return 0, 0.0, s
+
+
+@njit(
+    "Tuple((int64, float64))(float64[::1], float64, float64, float64, float64, float64,"
+    " float64, float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def limit_checks(
+    s: np.ndarray,
+    step_s: float,
+    v0_mps: float,
+    road_lim_mps: float,
+    cap_lim_mps: float,
+    accel_mps2: float,
+    decel_mps2: float,
+    accel_tol_mps2: float,
+    first_slack_mps2: float,
+) -> tuple[int, float]:
+    """``validate.check_limits`` with a reported speed: (failed check, value).
+
+    1 above the road limit (value: top speed), 2 above the turn cap inside,
+    3 beyond the acceleration or deceleration limit; 0 passed.
+    """
+    n = len(s) - 1
+    v = np.empty(n)
+    for k in range(n):
+        v[k] = (s[k + 1] - s[k]) / step_s
+    for k in range(n):
+        if v[k] > road_lim_mps:
+            top = v[0]
+            for q in range(1, n):
+                top = max(top, v[q])
+            return 1, top
+    for k in range(n):
+        if s[k] >= 0.0 and v[k] > cap_lim_mps:
+            return 2, 0.0
+    for k in range(n):
+        acc = ((v[k] - v0_mps) if k == 0 else (v[k] - v[k - 1])) / step_s
+        slack = accel_tol_mps2 + first_slack_mps2 if k == 0 else accel_tol_mps2
+        if acc > accel_mps2 + slack:
+            return 3, 0.0
+    for k in range(n):
+        acc = ((v[k] - v0_mps) if k == 0 else (v[k] - v[k - 1])) / step_s
+        slack = accel_tol_mps2 + first_slack_mps2 if k == 0 else accel_tol_mps2
+        if acc < -decel_mps2 - slack:
+            return 3, 0.0
+    return 0, 0.0
