@@ -28,7 +28,7 @@ import numpy as np
 
 from ica.core.config import Techniques
 from ica.core.dtot import Dtot
-from ica.core.kernels import batch_conflicts, follow_check
+from ica.core.kernels import batch_conflicts, follow_check, select_rows
 from ica.core.occupancy import overlap_matrix, overlap_pairs
 from ica.core.route import Route
 from ica.core.trajectory import Trajectory
@@ -116,47 +116,53 @@ def pair_conflict(
     return first, delay
 
 
+PACKED = ("lb_s", "ub_s", "centre_x", "centre_y", "heading_x", "heading_y", "half_length_m",
+          "half_width_m", "grid_idx")  # fmt: skip
+
+
+def pack(d: Dtot) -> np.ndarray:
+    """A DTOT's occupancies as rows of :data:`PACKED` columns, for the batched getCV.
+
+    Made once when a vehicle is confirmed; a confirmed set is then gathered by
+    one concatenation. The grid index is held as a float (exact).
+    """
+    if d.grid_idx is None:
+        raise ValueError("conflict zones need DTOTs built with their offline grid")
+    out = np.empty((len(d), len(PACKED)))
+    out[:, 0] = d.lb_s
+    out[:, 1] = d.ub_s
+    out[:, 2:4] = d.rects.centre
+    out[:, 4:6] = d.rects.heading
+    out[:, 6] = d.rects.half_length
+    out[:, 7] = d.rects.half_width
+    out[:, 8] = d.grid_idx
+    return out
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class Gathered:
     """Every occupancy of a confirmed set, end to end, in the set's order.
 
-    Built once per confirmed set; ``vid[m]`` says whose occupancy ``m`` is (an
-    index into ``vins`` and ``keys``, the vehicle's route id and shape).
+    Built once per confirmed set: ``packed`` rows (:func:`pack`), ``vid[m]``
+    whose occupancy row ``m`` is (an index into ``vins`` and ``routes``, the
+    vehicle's route and shape).
     """
 
     vins: list[str]
-    keys: list[tuple[str, Shape]]
+    routes: list[tuple[Route, Shape]]
     vid: np.ndarray
-    lb_s: np.ndarray
-    ub_s: np.ndarray
-    centre: np.ndarray  # (M, 2)
-    heading: np.ndarray  # (M, 2)
-    half_length: np.ndarray
-    half_width: np.ndarray
-    grid_idx: np.ndarray
+    packed: np.ndarray
 
     @staticmethod
-    def of(confirmed: Iterable[tuple[str, Dtot]]) -> Gathered:
+    def of(confirmed: Iterable[tuple[str, Dtot, np.ndarray]]) -> Gathered:
         items = list(confirmed)
-        ds = [d for _, d in items]
-        for d in ds:
-            if d.grid_idx is None:
-                raise ValueError("conflict zones need DTOTs built with their offline grid")
-        if not ds:
-            f, i = np.zeros(0), np.zeros(0, np.int64)
-            return Gathered([], [], i, f, f, np.zeros((0, 2)), np.zeros((0, 2)), f, f, i)
-        sizes = [len(d) for d in ds]
+        if not items:
+            return Gathered([], [], np.zeros(0, np.int64), np.zeros((0, len(PACKED))))
         return Gathered(
-            vins=[vin for vin, _ in items],
-            keys=[(d.route.id, d.shape) for d in ds],
-            vid=np.repeat(np.arange(len(ds)), sizes),
-            lb_s=np.concatenate([d.lb_s for d in ds]),
-            ub_s=np.concatenate([d.ub_s for d in ds]),
-            centre=np.concatenate([d.rects.centre for d in ds]),
-            heading=np.concatenate([d.rects.heading for d in ds]),
-            half_length=np.repeat([d.rects.half_length for d in ds], sizes),
-            half_width=np.repeat([d.rects.half_width for d in ds], sizes),
-            grid_idx=np.concatenate([d.grid_idx for d in ds]),  # type: ignore[misc]
+            vins=[vin for vin, _, _ in items],
+            routes=[(d.route, d.shape) for _, d, _ in items],
+            vid=np.repeat(np.arange(len(items)), [len(p) for _, _, p in items]),
+            packed=np.concatenate([p for _, _, p in items]),
         )
 
 
@@ -164,22 +170,16 @@ class Gathered:
 class ConfirmedBatch:
     """The confirmed occupancies that can touch one route (techniques 1 and 2).
 
-    Those of :class:`Gathered` on routes compatible with it (technique 1) or
-    outside the conflict zone (technique 2) are left out: no grid point of the
-    route is other than APART from them. ``row`` is each occupancy's row in the
-    route's :class:`~ica.core.zones.PairStack`, ``row_lo`` and ``row_hi`` the
-    first and last grid point of the route not APART from it; ``codes`` is the
-    flat stack, ``width`` its row length.
+    Rows ``m`` of :class:`Gathered` not on a route compatible with it
+    (technique 1) and inside the conflict zone (technique 2): some grid point
+    of the route is other than APART from them. ``row`` is each one's row in
+    the route's :class:`~ica.core.zones.PairStack`, ``row_lo`` and ``row_hi``
+    the first and last grid point of the route not APART from it; ``codes``
+    is the flat stack, ``width`` its row length.
     """
 
-    vins: list[str]
-    vid: np.ndarray
-    lb_s: np.ndarray
-    ub_s: np.ndarray
-    centre: np.ndarray
-    heading: np.ndarray
-    half_length: np.ndarray
-    half_width: np.ndarray
+    gathered: Gathered
+    m: np.ndarray
     row: np.ndarray
     row_lo: np.ndarray
     row_hi: np.ndarray
@@ -187,46 +187,29 @@ class ConfirmedBatch:
     width: int
 
     def __len__(self) -> int:
-        return len(self.lb_s)
+        return len(self.m)
 
     @staticmethod
     def of(
         route: Route, shape: Shape, gathered: Gathered, tables: ConflictTables
     ) -> ConfirmedBatch:
-        offset: dict[tuple[str, Shape], int] = {}
-        for rid, sh in set(gathered.keys):
-            other = tables.intersection.route_by_id(rid)
-            if other is None or tables.compatible(other, sh, route, shape):
-                offset[(rid, sh)] = -1
-            else:
-                offset[(rid, sh)] = tables.stack_offset(route, shape, other, sh)
+        offset: dict[tuple[str, float, float], int] = {}
+        first_row = np.empty(len(gathered.vins), np.int64)
+        for v, (other, sh) in enumerate(gathered.routes):
+            key = (other.id, sh.length_m, sh.width_m)
+            off = offset.get(key)
+            if off is None:
+                if tables.compatible(other, sh, route, shape):
+                    off = -1
+                else:
+                    off = tables.stack_offset(route, shape, other, sh)
+                offset[key] = off
+            first_row[v] = off
         stack = tables.stack(route, shape)  # after the offsets: they may have grown it
-        g = gathered
-        if len(g.vins):
-            first_row = np.array([offset[k] for k in g.keys], dtype=np.int64)[g.vid]
-        else:
-            first_row = np.zeros(0, np.int64)
-        near = np.nonzero(first_row >= 0)[0]  # not on a compatible route
-        row = first_row[near] + g.grid_idx[near]
-        lo, hi = stack.row_lo[row], stack.row_hi[row]
-        inside = np.nonzero(lo <= hi)[0]  # inside the conflict zone
-        m = near[inside]
-        row, lo, hi = row[inside], lo[inside], hi[inside]
-        return ConfirmedBatch(
-            vins=g.vins,
-            vid=g.vid[m],
-            lb_s=g.lb_s[m],
-            ub_s=g.ub_s[m],
-            centre=g.centre[m],
-            heading=g.heading[m],
-            half_length=g.half_length[m],
-            half_width=g.half_width[m],
-            row=row,
-            row_lo=lo,
-            row_hi=hi,
-            codes=stack.codes,
-            width=stack.width,
+        m, row, lo, hi = select_rows(
+            gathered.packed, gathered.vid, first_row, stack.row_lo, stack.row_hi
         )
+        return ConfirmedBatch(gathered, m, row, lo, hi, stack.codes, stack.width)
 
 
 def get_cv_batch(i: Dtot, batch: ConfirmedBatch) -> list[Conflict]:
@@ -248,7 +231,8 @@ def get_cv_batch(i: Dtot, batch: ConfirmedBatch) -> list[Conflict]:
         return []
     if i.grid_idx is None:
         raise ValueError("conflict zones need DTOTs built with their offline grid")
-    nv = len(batch.vins)
+    g = batch.gathered
+    nv = len(g.vins)
     hit = np.zeros(nv, dtype=bool)
     first, delay = np.empty(nv), np.empty(nv)
     c = np.ascontiguousarray
@@ -260,13 +244,9 @@ def get_cv_batch(i: Dtot, batch: ConfirmedBatch) -> list[Conflict]:
         c(i.rects.heading),
         i.rects.half_length,
         i.rects.half_width,
-        batch.lb_s,
-        batch.ub_s,
-        batch.centre,
-        batch.heading,
-        batch.half_length,
-        batch.half_width,
-        batch.vid,
+        g.packed,
+        g.vid,
+        batch.m,
         batch.row,
         batch.row_lo,
         batch.row_hi,
@@ -279,7 +259,7 @@ def get_cv_batch(i: Dtot, batch: ConfirmedBatch) -> list[Conflict]:
     if not found:
         return []
     fs, ds = first.tolist(), delay.tolist()
-    out = [Conflict(batch.vins[v], fs[v], ds[v]) for v in np.nonzero(hit)[0].tolist()]
+    out = [Conflict(g.vins[v], fs[v], ds[v]) for v in np.nonzero(hit)[0].tolist()]
     out.sort(key=lambda c: c.first_time_s)
     return out
 

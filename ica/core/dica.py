@@ -31,6 +31,7 @@ from ica.core.conflict import (
     follow_conflict,
     get_cv,
     get_cv_batch,
+    pack,
 )
 from ica.core.dtot import Dtot, build_dtot
 from ica.core.intersection import Intersection
@@ -47,6 +48,7 @@ class Confirmed:
     vin: str
     dtot: Dtot
     confirmation: Confirmation
+    packed: np.ndarray  # the DTOT's occupancies as rows for the batched getCV (pack)
 
 
 class Dica:
@@ -135,7 +137,9 @@ class Dica:
         dtot = build_dtot(
             route, shape, traj, self.config.margin_m, grid, self.config.techniques.estimated_oti
         )
-        self._confirmed[confirmation.vin] = Confirmed(confirmation.vin, dtot, confirmation)
+        self._confirmed[confirmation.vin] = Confirmed(
+            confirmation.vin, dtot, confirmation, pack(dtot)
+        )
         self._version += 1
         self._lane_tail[in_lane] = confirmation.vin
 
@@ -199,7 +203,7 @@ class Dica:
             delay_s=max(0.0, entry - earliest),
             iterations=iterations,
         )
-        self._confirmed[req.vin] = Confirmed(req.vin, dtot, conf)
+        self._confirmed[req.vin] = Confirmed(req.vin, dtot, conf, pack(dtot))
         self._version += 1
         self._lane_tail[lane] = req.vin
         return conf
@@ -288,7 +292,8 @@ class Dica:
         if self._batch is not None and self._batch[0] == key:
             return self._batch[1]
         if self._gathered is None or self._gathered[0] != self._version:
-            self._gathered = (self._version, Gathered.of(self.confirmed_dtots()))
+            confirmed = ((vin, c.dtot, c.packed) for vin, c in self._confirmed.items())
+            self._gathered = (self._version, Gathered.of(confirmed))
         batch = ConfirmedBatch.of(route, shape, self._gathered[1], self.tables)
         self._batch = (key, batch)
         return batch

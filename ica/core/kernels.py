@@ -257,9 +257,8 @@ def profile_position(
 
 @njit(
     "boolean(float64[::1], float64[::1], int64[::1], float64[:, ::1], float64[:, ::1], float64,"
-    " float64, float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], float64[::1],"
-    " float64[::1], int64[::1], int64[::1], int64[::1], int64[::1], int8[::1], int64,"
-    " boolean[::1], float64[::1], float64[::1])",
+    " float64, float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1],"
+    " int8[::1], int64, boolean[::1], float64[::1], float64[::1])",
     cache=True,
     nogil=True,
 )
@@ -271,13 +270,9 @@ def batch_conflicts(
     heading_i: np.ndarray,
     la: float,
     wa: float,
-    lb_j: np.ndarray,
-    ub_j: np.ndarray,
-    centre_j: np.ndarray,
-    heading_j: np.ndarray,
-    lh_j: np.ndarray,
-    wh_j: np.ndarray,
+    packed: np.ndarray,
     vid: np.ndarray,
+    m_idx: np.ndarray,
     row: np.ndarray,
     row_lo: np.ndarray,
     row_hi: np.ndarray,
@@ -287,13 +282,17 @@ def batch_conflicts(
     first: np.ndarray,
     delay: np.ndarray,
 ) -> bool:
-    """getCV of requester i against every confirmed occupancy m of the batch.
+    """getCV of requester i against the confirmed occupancies ``packed[m_idx]``.
 
-    Per vehicle v: ``hit[v]``, and over its conflicting pairs the least
-    ``lb_j`` (firstTimeAtCollision) and the greatest ``ub_j - lb_i`` (delay).
-    Returns whether any vehicle conflicts.
+    ``packed`` rows are ``ica.core.conflict.PACKED`` (interval, centre,
+    heading, half extents, grid index). Per vehicle v: ``hit[v]``, and over
+    its conflicting pairs the least ``lb_j`` (firstTimeAtCollision) and the
+    greatest ``ub_j - lb_i`` (delay). Returns whether any vehicle conflicts.
     """
     n = len(lb_i)
+    found = False
+    if n == 0:
+        return found
     ub_hull = np.empty(n)
     lb_hull = np.empty(n)
     g_hi = np.empty(n)
@@ -304,18 +303,17 @@ def batch_conflicts(
     for k in range(n - 1, -1, -1):
         lb_hull[k] = lb_i[k] if k == n - 1 else min(lb_hull[k + 1], lb_i[k])
         g_lo[k] = g_i[k] if k == n - 1 else min(g_lo[k + 1], g_i[k])
-    found = False
-    if n == 0:
-        return found
     t_lo, t_hi = lb_hull[0], ub_hull[n - 1]  # the requester's whole crossing
-    for m in range(len(lb_j)):
-        if ub_j[m] < t_lo or lb_j[m] > t_hi:
+    for c in range(len(m_idx)):
+        q = m_idx[c]
+        lb_j, ub_j = packed[q, 0], packed[q, 1]
+        if ub_j < t_lo or lb_j > t_hi:
             continue  # no interval of the requester can overlap
-        lo = max(_search(ub_hull, lb_j[m], False), _search(g_hi, float(row_lo[m]), False))
-        hi = min(_search(lb_hull, ub_j[m], True), _search(g_lo, float(row_hi[m]), True))
-        base = row[m] * width
+        lo = max(_search(ub_hull, lb_j, False), _search(g_hi, float(row_lo[c]), False))
+        hi = min(_search(lb_hull, ub_j, True), _search(g_lo, float(row_hi[c]), True))
+        base = row[c] * width
         for k in range(lo, hi):
-            if not (lb_i[k] <= ub_j[m] and lb_j[m] <= ub_i[k]):
+            if not (lb_i[k] <= ub_j and lb_j <= ub_i[k]):
                 continue
             code = codes[base + g_i[k]]
             if code == APART:
@@ -323,28 +321,28 @@ def batch_conflicts(
             if code == MAYBE:
                 # ica.core.occupancy.separated, a = requester, b = confirmed
                 ax, ay = heading_i[k, 0], heading_i[k, 1]
-                bx, by = heading_j[m, 0], heading_j[m, 1]
-                dx = centre_j[m, 0] - centre_i[k, 0]
-                dy = centre_j[m, 1] - centre_i[k, 1]
-                c = abs(ax * bx + ay * by)
-                s = abs(ax * by - ay * bx)
-                lb, wb = lh_j[m], wh_j[m]
-                if abs(dx * ax + dy * ay) > la + lb * c + wb * s + _EPS_SAT:
+                bx, by = packed[q, 4], packed[q, 5]
+                dx = packed[q, 2] - centre_i[k, 0]
+                dy = packed[q, 3] - centre_i[k, 1]
+                cs = abs(ax * bx + ay * by)
+                sn = abs(ax * by - ay * bx)
+                lb, wb = packed[q, 6], packed[q, 7]
+                if abs(dx * ax + dy * ay) > la + lb * cs + wb * sn + _EPS_SAT:
                     continue
-                if abs(dy * ax - dx * ay) > wa + lb * s + wb * c + _EPS_SAT:
+                if abs(dy * ax - dx * ay) > wa + lb * sn + wb * cs + _EPS_SAT:
                     continue
-                if abs(dx * bx + dy * by) > lb + la * c + wa * s + _EPS_SAT:
+                if abs(dx * bx + dy * by) > lb + la * cs + wa * sn + _EPS_SAT:
                     continue
-                if abs(dy * bx - dx * by) > wb + la * s + wa * c + _EPS_SAT:
+                if abs(dy * bx - dx * by) > wb + la * sn + wa * cs + _EPS_SAT:
                     continue
-            v = vid[m]
-            d = ub_j[m] - lb_i[k]
+            v = vid[q]
+            d = ub_j - lb_i[k]
             if hit[v]:
-                first[v] = min(first[v], lb_j[m])
+                first[v] = min(first[v], lb_j)
                 delay[v] = max(delay[v], d)
             else:
                 hit[v] = True
-                first[v] = lb_j[m]
+                first[v] = lb_j
                 delay[v] = d
             found = True
     return found
@@ -571,3 +569,48 @@ def limit_checks(
         if acc < -decel_mps2 - slack:
             return 3, 0.0
     return 0, 0.0
+
+
+@njit(
+    "UniTuple(int64[::1], 4)(float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1])",
+    cache=True,
+    nogil=True,
+)
+def select_rows(
+    packed: np.ndarray,
+    vid: np.ndarray,
+    first_row: np.ndarray,
+    stack_lo: np.ndarray,
+    stack_hi: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Occupancies of a gathered confirmed set that a route's grid can touch.
+
+    ``first_row[v]`` is vehicle v's block in the route's pair stack (-1: a
+    compatible route). Returns the occupancies kept, their stack rows and the
+    first and last grid point of the route not APART from each.
+    """
+    total = len(vid)
+    keep = np.zeros(total, np.bool_)
+    count = 0
+    for q in range(total):
+        fr = first_row[vid[q]]
+        if fr < 0:
+            continue
+        r = fr + np.int64(packed[q, 8])
+        if stack_lo[r] <= stack_hi[r]:
+            keep[q] = True
+            count += 1
+    m = np.empty(count, np.int64)
+    row = np.empty(count, np.int64)
+    lo = np.empty(count, np.int64)
+    hi = np.empty(count, np.int64)
+    c = 0
+    for q in range(total):
+        if keep[q]:
+            r = first_row[vid[q]] + np.int64(packed[q, 8])
+            m[c] = q
+            row[c] = r
+            lo[c] = stack_lo[r]
+            hi[c] = stack_hi[r]
+            c += 1
+    return m, row, lo, hi
