@@ -9,6 +9,14 @@ and the delay that would clear every conflicting pair under a pure shift.
 Techniques 1, 2 and 4 only skip work that cannot find a conflict, so they
 return exactly what the exhaustive search returns; technique 3 changes the
 intervals themselves (never to narrower ones).
+
+With techniques 1, 2 and 4 all on, :func:`get_cv_batch` does the same work for
+every confirmed vehicle at once: the confirmed occupancies are gathered end
+to end once per confirmed set (:class:`Gathered`), those inside a conflict
+zone with the requester's route picked once per request
+(:class:`ConfirmedBatch`), and one round of getCV is one compiled loop
+however many vehicles are confirmed. It finds exactly the
+conflicting pairs :func:`pair_conflict` finds, so the answer is identical.
 """
 
 from __future__ import annotations
@@ -20,9 +28,11 @@ import numpy as np
 
 from ica.core.config import Techniques
 from ica.core.dtot import Dtot
+from ica.core.kernels import batch_conflicts, follow_check, select_rows
 from ica.core.occupancy import overlap_matrix, overlap_pairs
+from ica.core.route import Route
 from ica.core.trajectory import Trajectory
-from ica.core.zones import MAYBE, TOUCH, ConflictTables
+from ica.core.zones import MAYBE, TOUCH, ConflictTables, Shape
 
 
 @dataclass(frozen=True, slots=True)
@@ -106,6 +116,154 @@ def pair_conflict(
     return first, delay
 
 
+PACKED = ("lb_s", "ub_s", "centre_x", "centre_y", "heading_x", "heading_y", "half_length_m",
+          "half_width_m", "grid_idx")  # fmt: skip
+
+
+def pack(d: Dtot) -> np.ndarray:
+    """A DTOT's occupancies as rows of :data:`PACKED` columns, for the batched getCV.
+
+    Made once when a vehicle is confirmed; a confirmed set is then gathered by
+    one concatenation. The grid index is held as a float (exact).
+    """
+    if d.grid_idx is None:
+        raise ValueError("conflict zones need DTOTs built with their offline grid")
+    out = np.empty((len(d), len(PACKED)))
+    out[:, 0] = d.lb_s
+    out[:, 1] = d.ub_s
+    out[:, 2:4] = d.rects.centre
+    out[:, 4:6] = d.rects.heading
+    out[:, 6] = d.rects.half_length
+    out[:, 7] = d.rects.half_width
+    out[:, 8] = d.grid_idx
+    return out
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Gathered:
+    """Every occupancy of a confirmed set, end to end, in the set's order.
+
+    Built once per confirmed set: ``packed`` rows (:func:`pack`), ``vid[m]``
+    whose occupancy row ``m`` is (an index into ``vins`` and ``routes``, the
+    vehicle's route and shape).
+    """
+
+    vins: list[str]
+    routes: list[tuple[Route, Shape]]
+    vid: np.ndarray
+    packed: np.ndarray
+
+    @staticmethod
+    def of(confirmed: Iterable[tuple[str, Dtot, np.ndarray]]) -> Gathered:
+        items = list(confirmed)
+        if not items:
+            return Gathered([], [], np.zeros(0, np.int64), np.zeros((0, len(PACKED))))
+        return Gathered(
+            vins=[vin for vin, _, _ in items],
+            routes=[(d.route, d.shape) for _, d, _ in items],
+            vid=np.repeat(np.arange(len(items)), [len(p) for _, _, p in items]),
+            packed=np.concatenate([p for _, _, p in items]),
+        )
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class ConfirmedBatch:
+    """The confirmed occupancies that can touch one route (techniques 1 and 2).
+
+    Rows ``m`` of :class:`Gathered` not on a route compatible with it
+    (technique 1) and inside the conflict zone (technique 2): some grid point
+    of the route is other than APART from them. ``row`` is each one's row in
+    the route's :class:`~ica.core.zones.PairStack`, ``row_lo`` and ``row_hi``
+    the first and last grid point of the route not APART from it; ``codes``
+    is the flat stack, ``width`` its row length.
+    """
+
+    gathered: Gathered
+    m: np.ndarray
+    row: np.ndarray
+    row_lo: np.ndarray
+    row_hi: np.ndarray
+    codes: np.ndarray
+    width: int
+
+    def __len__(self) -> int:
+        return len(self.m)
+
+    @staticmethod
+    def of(
+        route: Route, shape: Shape, gathered: Gathered, tables: ConflictTables
+    ) -> ConfirmedBatch:
+        offset: dict[tuple[str, float, float], int] = {}
+        first_row = np.empty(len(gathered.vins), np.int64)
+        for v, (other, sh) in enumerate(gathered.routes):
+            key = (other.id, sh.length_m, sh.width_m)
+            off = offset.get(key)
+            if off is None:
+                if tables.compatible(other, sh, route, shape):
+                    off = -1
+                else:
+                    off = tables.stack_offset(route, shape, other, sh)
+                offset[key] = off
+            first_row[v] = off
+        stack = tables.stack(route, shape)  # after the offsets: they may have grown it
+        m, row, lo, hi = select_rows(
+            gathered.packed, gathered.vid, first_row, stack.row_lo, stack.row_hi
+        )
+        return ConfirmedBatch(gathered, m, row, lo, hi, stack.codes, stack.width)
+
+
+def get_cv_batch(i: Dtot, batch: ConfirmedBatch) -> list[Conflict]:
+    """getCV with techniques 1, 2 and 4 over all confirmed vehicles at once.
+
+    For each confirmed occupancy m, the requester's candidates are found by
+    binary search twice: on time, as in technique 4 (monotone hulls of the
+    interval bounds), and on space, between the first and last of the
+    requester's grid points that the offline table does not call APART for
+    m (monotone hulls of the grid index). Only the intersection of the two
+    ranges is tested, exactly as :func:`pair_conflict` tests: intervals, then
+    the offline code, then the exact rectangle test for MAYBE. A pair outside
+    either range cannot conflict, so the conflicting pairs, and with them
+    firstTimeAtCollision and the delay, are exactly those of
+    :func:`pair_conflict`; vehicles come out in the same order as from
+    :func:`get_cv`. The loop is compiled (:func:`ica.core.kernels.batch_conflicts`).
+    """
+    if len(batch) == 0:
+        return []
+    if i.grid_idx is None:
+        raise ValueError("conflict zones need DTOTs built with their offline grid")
+    g = batch.gathered
+    nv = len(g.vins)
+    hit = np.zeros(nv, dtype=bool)
+    first, delay = np.empty(nv), np.empty(nv)
+    c = np.ascontiguousarray
+    found = batch_conflicts(
+        c(i.lb_s),
+        c(i.ub_s),
+        c(i.grid_idx),
+        c(i.rects.centre),
+        c(i.rects.heading),
+        i.rects.half_length,
+        i.rects.half_width,
+        g.packed,
+        g.vid,
+        batch.m,
+        batch.row,
+        batch.row_lo,
+        batch.row_hi,
+        batch.codes,
+        batch.width,
+        hit,
+        first,
+        delay,
+    )
+    if not found:
+        return []
+    fs, ds = first.tolist(), delay.tolist()
+    out = [Conflict(g.vins[v], fs[v], ds[v]) for v in np.nonzero(hit)[0].tolist()]
+    out.sort(key=lambda c: c.first_time_s)
+    return out
+
+
 def _candidate_pairs(
     i: Dtot, ki: np.ndarray, j: Dtot, kj: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -131,6 +289,24 @@ def _candidate_pairs(
 
 
 def follow_conflict(
+    follower: Trajectory, leader: Trajectory, leader_length_m: float, gap_m: float
+) -> tuple[float, float] | None:
+    """checkFV in the approach, compiled (:func:`ica.core.kernels.follow_check`):
+    exactly the answer of :func:`follow_conflict_reference`."""
+    found, first, delay = follow_check(
+        follower.t0_s,
+        follower.step_s,
+        np.ascontiguousarray(follower.s_m, dtype=float),
+        leader.t0_s,
+        leader.step_s,
+        np.ascontiguousarray(leader.s_m, dtype=float),
+        leader_length_m,
+        gap_m,
+    )
+    return (first, max(delay, 0.0)) if found else None
+
+
+def follow_conflict_reference(
     follower: Trajectory, leader: Trajectory, leader_length_m: float, gap_m: float
 ) -> tuple[float, float] | None:
     """checkFV in the approach: keep ``gap_m`` behind the lane leader's rear.

@@ -24,7 +24,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ica.core.config import IcaConfig
-from ica.core.conflict import Conflict, follow_conflict, get_cv
+from ica.core.conflict import (
+    ConfirmedBatch,
+    Conflict,
+    Gathered,
+    follow_conflict,
+    get_cv,
+    get_cv_batch,
+    pack,
+)
 from ica.core.dtot import Dtot, build_dtot
 from ica.core.intersection import Intersection
 from ica.core.planner import Planner
@@ -40,6 +48,7 @@ class Confirmed:
     vin: str
     dtot: Dtot
     confirmation: Confirmation
+    packed: np.ndarray  # the DTOT's occupancies as rows for the batched getCV (pack)
 
 
 class Dica:
@@ -64,6 +73,11 @@ class Dica:
         self._lane_of: dict[str, str] = {}
         self._entered: set[str] = set()
         self._lane_tail: dict[str, str] = {}  # last vehicle confirmed from each lane
+        # the confirmed set gathered end to end, and as seen from one requester
+        # route and shape; any change to the confirmed set bumps the version
+        self._version = 0
+        self._gathered: tuple[int, Gathered] | None = None
+        self._batch: tuple[tuple[int, str, Shape], ConfirmedBatch] | None = None
 
     # -- state -------------------------------------------------------------
     @property
@@ -98,6 +112,8 @@ class Dica:
         for vin in gone:
             del self._confirmed[vin]
             self._entered.discard(vin)
+        if gone:
+            self._version += 1
         return gone
 
     def adopt(
@@ -121,7 +137,10 @@ class Dica:
         dtot = build_dtot(
             route, shape, traj, self.config.margin_m, grid, self.config.techniques.estimated_oti
         )
-        self._confirmed[confirmation.vin] = Confirmed(confirmation.vin, dtot, confirmation)
+        self._confirmed[confirmation.vin] = Confirmed(
+            confirmation.vin, dtot, confirmation, pack(dtot)
+        )
+        self._version += 1
         self._lane_tail[in_lane] = confirmation.vin
 
     def is_head(self, vin: str, now_s: float) -> bool:
@@ -184,7 +203,8 @@ class Dica:
             delay_s=max(0.0, entry - earliest),
             iterations=iterations,
         )
-        self._confirmed[req.vin] = Confirmed(req.vin, dtot, conf)
+        self._confirmed[req.vin] = Confirmed(req.vin, dtot, conf, pack(dtot))
+        self._version += 1
         self._lane_tail[lane] = req.vin
         return conf
 
@@ -261,7 +281,22 @@ class Dica:
         a conflict and keep everything else (validation, flyable plans,
         checkFV, the lane leader).
         """
-        return get_cv(dtot, self.confirmed_dtots(), self.config.techniques, self.tables)
+        tech = self.config.techniques
+        if tech.reduced_set and tech.conflict_zones and tech.bisection:
+            return get_cv_batch(dtot, self._confirmed_batch(dtot.route, dtot.shape))
+        return get_cv(dtot, self.confirmed_dtots(), tech, self.tables)
+
+    def _confirmed_batch(self, route: Route, shape: Shape) -> ConfirmedBatch:
+        """The confirmed set as seen from ``route``, gathered once per confirmed set."""
+        key = (self._version, route.id, shape)
+        if self._batch is not None and self._batch[0] == key:
+            return self._batch[1]
+        if self._gathered is None or self._gathered[0] != self._version:
+            confirmed = ((vin, c.dtot, c.packed) for vin, c in self._confirmed.items())
+            self._gathered = (self._version, Gathered.of(confirmed))
+        batch = ConfirmedBatch.of(route, shape, self._gathered[1], self.tables)
+        self._batch = (key, batch)
+        return batch
 
     def _plan(self, planner: Planner, t0_s: float, entry_rel_s: float, s_end: float) -> Trajectory:
         profile = planner.at_or_after(entry_rel_s)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ica.core.kernels import dtot_span, estimated_dtot
 from ica.core.occupancy import Rects, footprints, overlap_matrix
 from ica.core.route import Route
 from ica.core.trajectory import Trajectory
@@ -74,19 +75,47 @@ def build_dtot(
 
     The exhaustive intervals follow the dissertation's getOTI; the grid ones
     (enhanced DICA, technique 3) are never narrower than the exhaustive ones.
+    The estimated path is one compiled call (:func:`ica.core.kernels.estimated_dtot`)
+    with exactly the results of :func:`footprints`, :func:`estimated_intervals`
+    and ``grid.index``.
     """
     s_end = route.cross_length_m + shape.length_m
+    if estimated:
+        if grid is None:
+            raise ValueError("estimated intervals need the route's offline grid")
+        s_all = np.ascontiguousarray(traj.s_m, dtype=float)
+        k0, k1 = dtot_span(s_all, s_end)
+        s = s_all[k0 : k1 + 1]
+        n = len(s)
+        t = traj.t0_s + traj.step_s * np.arange(k0, k1 + 1)
+        centre, heading = np.empty((n, 2)), np.empty((n, 2))
+        lb, ub, g = np.empty(n), np.empty(n), np.empty(n, np.int64)
+        estimated_dtot(
+            route.s,
+            grid.route_x,
+            grid.route_y,
+            shape.length_m,
+            s,
+            grid.s0_m,
+            grid.ds_m,
+            grid.fwd_m,
+            grid.back_m,
+            centre,
+            heading,
+            t,
+            lb,
+            ub,
+            g,
+        )
+        half_l, half_w = shape.length_m / 2.0 + margin_m, shape.width_m / 2.0 + margin_m
+        rects = Rects(centre, heading, half_l, half_w)
+        return Dtot(route, shape, traj, k0, t, s, rects, lb, ub, g)
     k0 = traj.entry_index()
     k1 = traj.exit_index(s_end)
     s = traj.s_m[k0 : k1 + 1]
     t = traj.t0_s + traj.step_s * np.arange(k0, k1 + 1)
     rects = footprints(route, s, shape.length_m, shape.width_m, margin_m)
-    if estimated:
-        if grid is None:
-            raise ValueError("estimated intervals need the route's offline grid")
-        lb, ub = estimated_intervals(t, s, grid)
-    else:
-        lb, ub = exhaustive_intervals(t, rects)
+    lb, ub = exhaustive_intervals(t, rects)
     g = grid.index(s) if grid is not None else None
     return Dtot(route, shape, traj, k0, t, s, rects, lb, ub, g)
 
@@ -107,6 +136,9 @@ def estimated_intervals(
     t: np.ndarray, s: np.ndarray, grid: RouteGrid
 ) -> tuple[np.ndarray, np.ndarray]:
     """Intervals from the route's overlap distances and a search of the own samples.
+
+    The reference version: :func:`build_dtot` computes the same in one
+    compiled call.
 
     For occupancy k the earlier clear sample is the last one at least
     ``clear_behind(s_k)`` behind; every sample that far back is clear of it, so

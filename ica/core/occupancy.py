@@ -61,20 +61,27 @@ def footprints(
     return Rects(centre, heading, length_m / 2.0 + margin_m, width_m / 2.0 + margin_m)
 
 
-def _separated(
-    dx: np.ndarray, dy: np.ndarray, ha: np.ndarray, hb: np.ndarray, a: Rects, b: Rects
+def separated(
+    dx: np.ndarray,
+    dy: np.ndarray,
+    ha: np.ndarray,
+    hb: np.ndarray,
+    la: float | np.ndarray,
+    wa: float | np.ndarray,
+    lb: float | np.ndarray,
+    wb: float | np.ndarray,
 ) -> np.ndarray:
     """Separating-axis test on the four edge normals, in closed form.
 
     ``dx, dy`` is centre b minus centre a, ``ha, hb`` the unit headings (..., 2),
-    all broadcast together. With c and s the cosine and sine between the
+    ``la, wa`` and ``lb, wb`` the half length and half width of a and b, all
+    broadcast together. With c and s the cosine and sine between the
     headings, each rectangle's half-extent on the other's axes is a sum of
     |c| and |s| terms, so no projections of corners are needed.
     """
     ax, ay, bx, by = ha[..., 0], ha[..., 1], hb[..., 0], hb[..., 1]
     c = np.abs(ax * bx + ay * by)
     s = np.abs(ax * by - ay * bx)
-    la, wa, lb, wb = a.half_length, a.half_width, b.half_length, b.half_width
     eps = 1e-9
     sep = np.abs(dx * ax + dy * ay) > la + lb * c + wb * s + eps
     sep |= np.abs(dy * ax - dx * ay) > wa + lb * s + wb * c + eps
@@ -87,10 +94,28 @@ def overlap_matrix(a: Rects, b: Rects) -> np.ndarray:
     """Boolean (len(a), len(b)): which pairs of rectangles intersect (touching included)."""
     dx = b.centre[None, :, 0] - a.centre[:, None, 0]
     dy = b.centre[None, :, 1] - a.centre[:, None, 1]
-    return ~_separated(dx, dy, a.heading[:, None, :], b.heading[None, :, :], a, b)
+    return ~separated(
+        dx,
+        dy,
+        a.heading[:, None, :],
+        b.heading[None, :, :],
+        a.half_length,
+        a.half_width,
+        b.half_length,
+        b.half_width,
+    )
 
 
 def overlap_pairs(a: Rects, ia: np.ndarray, b: Rects, ib: np.ndarray) -> np.ndarray:
     """Overlap of the listed pairs (a[ia[k]], b[ib[k]]), boolean (K,)."""
     d = b.centre[ib] - a.centre[ia]
-    return ~_separated(d[:, 0], d[:, 1], a.heading[ia], b.heading[ib], a, b)
+    return ~separated(
+        d[:, 0],
+        d[:, 1],
+        a.heading[ia],
+        b.heading[ib],
+        a.half_length,
+        a.half_width,
+        b.half_length,
+        b.half_width,
+    )

@@ -23,9 +23,12 @@ relative to the request (``t = 0`` at the state the vehicle reported).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
+
+from ica.core.kernels import a_phases, bisect_cruise
 
 _EPS = 1e-9
 
@@ -61,19 +64,26 @@ class Profile:
 
     def time_at(self, s: float) -> float:
         """First time the front reaches arc length ``s`` (inf if never)."""
-        for k in range(len(self.t_s)):
-            s0, v0, a = self.s_m[k], self.v_mps[k], self.a_mps2[k]
-            end = self.t_s[k + 1] - self.t_s[k] if k + 1 < len(self.t_s) else math.inf
+        # plain floats: the same IEEE arithmetic as numpy scalars, without their overhead
+        ts, ss, vs, accs = (
+            self.t_s.tolist(),
+            self.s_m.tolist(),
+            self.v_mps.tolist(),
+            self.a_mps2.tolist(),
+        )
+        for k in range(len(ts)):
+            s0, v0, a = ss[k], vs[k], accs[k]
+            end = ts[k + 1] - ts[k] if k + 1 < len(ts) else math.inf
             ds = s - s0
             if ds <= 0.0:
-                return float(self.t_s[k])
+                return float(ts[k])
             if abs(a) < _EPS:
                 tau = ds / v0 if v0 > _EPS else math.inf
             else:
                 disc = v0 * v0 + 2.0 * a * ds
                 tau = math.inf if disc < 0.0 else (math.sqrt(disc) - v0) / a
             if tau <= end + 1e-9:
-                return float(self.t_s[k] + tau)
+                return float(ts[k] + tau)
         return math.inf
 
 
@@ -107,8 +117,8 @@ class _Builder:
 
     def profile(self, entry_time: float, entry_speed: float) -> Profile:
         self.segs.append((self.t, self.s, self.v, 0.0))  # hold speed afterwards
-        arr = np.array(self.segs, dtype=float)
-        return Profile(arr[:, 0], arr[:, 1], arr[:, 2], arr[:, 3], entry_time, entry_speed)
+        cols = np.array(list(zip(*self.segs, strict=True)), dtype=float)  # contiguous rows
+        return Profile(cols[0], cols[1], cols[2], cols[3], entry_time, entry_speed)
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,6 +136,10 @@ class Planner:
     cap_mps: float
     s_end_m: float
     kin: Kinematics = Kinematics()
+    # what does not depend on the entry time asked for, computed once per planner
+    _memo: dict[str, Any] = field(
+        default_factory=dict, init=False, repr=False, compare=False, hash=False
+    )
 
     # -- the two families -------------------------------------------------
     def _crossing(self, b: _Builder) -> None:
@@ -136,7 +150,18 @@ class Planner:
         b.cruise_to(self.s_end_m)
 
     def _a_phases(self, v_m: float) -> tuple[float, float, float, float] | None:
-        """(D1, D3, v_e, T) of A(v_m), or None if it does not fit in d."""
+        """(D1, D3, v_e, T) of A(v_m), or None if it does not fit in d.
+
+        Compiled (:func:`ica.core.kernels.a_phases`, the arithmetic of
+        :meth:`_a_phases_reference` in the same order).
+        """
+        fits, d1, d3, v_e, t = a_phases(
+            self.kin.accel_mps2, self.kin.decel_mps2, self.v0_mps, self.d_m, self.cap_mps, v_m
+        )
+        return (d1, d3, v_e, t) if fits else None
+
+    def _a_phases_reference(self, v_m: float) -> tuple[float, float, float, float] | None:
+        """:meth:`_a_phases` in Python."""
         a, br, v0, d, cap = (
             self.kin.accel_mps2,
             self.kin.decel_mps2,
@@ -205,7 +230,20 @@ class Planner:
         return self.v0_mps**2 <= 2 * self.kin.decel_mps2 * d_stop + 1e-7
 
     def _b_base(self) -> tuple[_Builder, float]:
-        """Time-optimal stop ``stop_gap`` before the line; returns builder and stop time."""
+        """Time-optimal stop ``stop_gap`` before the line; returns builder and stop time.
+
+        Built once per planner; each call gets its own copy to extend.
+        """
+        base = self._memo.get("b_base")
+        if base is None:
+            b, _ = self._b_base_build()
+            base = self._memo["b_base"] = (tuple(b.segs), b.t, b.s, b.v)
+        segs, t, s, v = base
+        b = _Builder(s, v)
+        b.segs, b.t = list(segs), t
+        return b, t
+
+    def _b_base_build(self) -> tuple[_Builder, float]:
         a, br, v0 = self.kin.accel_mps2, self.kin.decel_mps2, self.v0_mps
         d_stop = self.d_m - self._stop_gap()
         b = _Builder(-self.d_m, v0)
@@ -262,28 +300,30 @@ class Planner:
         Prefers slowing down (higher entry speed) and stops at the line when
         that would mean creeping.
         """
-        v_hi = self._v_max()
-        hi = self._a_phases(v_hi)
+        m = self._memo
+        if "v_hi" not in m:
+            v_hi = m["v_hi"] = self._v_max()
+            m["hi"] = self._a_phases(v_hi)
+            v_lo = m["v_lo"] = self._v_min_a()
+            m["lo"] = self._a_phases(v_lo) if v_lo < v_hi else None
+        v_hi, v_lo = m["v_hi"], m["v_lo"]
+        hi, lo = m["hi"], m["lo"]
         if hi is None:
             return None
         if t_entry_s <= hi[3] + 1e-9:
             return self._build_a(v_hi)
-        v_lo = self._v_min_a()
-        lo = self._a_phases(v_lo) if v_lo < v_hi else None
         if lo is not None and t_entry_s <= lo[3]:
-            # T(v_m) decreases with v_m: bisect for the cruise speed that arrives on time.
-            lo_v, hi_v = v_lo, v_hi
-            for _ in range(60):
-                mid = 0.5 * (lo_v + hi_v)
-                ph = self._a_phases(mid)
-                if ph is None or ph[3] > t_entry_s:
-                    lo_v = mid
-                else:
-                    hi_v = mid
-                if hi_v - lo_v < 1e-7:
-                    break
-            return self._build_a(hi_v)
-        t_b0 = self.stop_entry_s()
+            # T(v_m) decreases with v_m: bisect for the cruise speed that arrives on time
+            # (compiled: 60 halvings of [v_lo, v_hi] at most, see bisect_cruise)
+            kin = self.kin
+            v = bisect_cruise(
+                kin.accel_mps2, kin.decel_mps2, self.v0_mps, self.d_m, self.cap_mps,
+                v_lo, v_hi, t_entry_s,
+            )  # fmt: skip
+            return self._build_a(v)
+        if "t_b0" not in m:
+            m["t_b0"] = self.stop_entry_s()
+        t_b0 = m["t_b0"]
         if not math.isfinite(t_b0):
             return None
         return self._build_b(max(0.0, t_entry_s - t_b0))

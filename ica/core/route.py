@@ -17,6 +17,8 @@ from enum import StrEnum
 
 import numpy as np
 
+from ica.core.kernels import project
+
 KMH = 1.0 / 3.6  # [m/s per km/h]
 
 
@@ -83,8 +85,15 @@ class Route:
     def project(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Arc length of the nearest polyline point and the distance to it, per point.
 
-        Used to check that a requested TSS really lies on this route.
+        Used to check that a requested TSS really lies on this route. Compiled
+        (:func:`ica.core.kernels.project`), with exactly the results of
+        :meth:`project_reference`.
         """
+        p = np.ascontiguousarray(np.asarray(xy, dtype=float).reshape(-1, 2))
+        return project(np.ascontiguousarray(self.xy, dtype=float), self.s, p)
+
+    def project_reference(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`project` in numpy: every point against every segment."""
         p = np.asarray(xy, dtype=float).reshape(-1, 2)
         a = self.xy[:-1]  # (M-1, 2)
         d = self.xy[1:] - a

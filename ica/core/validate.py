@@ -12,6 +12,7 @@ import numpy as np
 
 from ica.core.config import IcaConfig
 from ica.core.intersection import Intersection
+from ica.core.kernels import limit_checks, tss_checks
 from ica.core.request import Reason, Request, RequestError
 from ica.core.route import Route
 from ica.core.trajectory import Trajectory
@@ -74,6 +75,55 @@ def check_request(
 
 
 def _check_tss(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
+    t, x, y, h = _tss_arrays(req, cfg)
+    tol = min(cfg.on_route_tol_m, cfg.margin_m) + 1e-3
+    s_end = route.cross_length_m + req.length_m
+    failed, value, s = tss_checks(
+        np.ascontiguousarray(t),
+        np.ascontiguousarray(x),
+        np.ascontiguousarray(y),
+        np.ascontiguousarray(h),
+        cfg.step_s,
+        float(req.t0_s),
+        np.ascontiguousarray(route.xy, dtype=float),
+        route.s,
+        tol,
+        float(req.dist_to_entry_m),
+        cfg.on_route_tol_m,
+        s_end,
+    )
+    if failed:
+        raise _tss_error(failed, value, req, route, cfg, tol)
+    front = route.points(s)
+    rear = route.points(s - req.length_m)
+    d = front - rear
+    expect = np.arctan2(d[:, 1], d[:, 0])
+    dh = np.abs((h - expect + np.pi) % (2 * np.pi) - np.pi)
+    if float(dh.max()) > cfg.heading_tol_rad:
+        raise RequestError(
+            Reason.OFF_ROUTE, f"TSS heading deviates from the route by {float(dh.max()):.2f} rad"
+        )
+
+    traj = Trajectory(float(t[0]), cfg.step_s, s)
+    kin = cfg.kinematics
+    failed, value = limit_checks(
+        s,
+        cfg.step_s,
+        float(req.speed_mps),
+        cfg.caps.road_mps + cfg.speed_tol_mps,
+        route.speed_cap_mps + cfg.speed_tol_mps,
+        kin.accel_mps2,
+        kin.decel_mps2,
+        cfg.accel_tol_mps2,
+        max(kin.accel_mps2, kin.decel_mps2),
+    )
+    if failed:
+        raise _limit_error(failed, value, route)
+    return traj
+
+
+def _tss_arrays(req: Request, cfg: IcaConfig) -> tuple[np.ndarray, ...]:
+    """The TSS as four float arrays of one length, 2 to ``max_tss_samples``."""
     tss = req.tss
     arrays = [np.asarray(a) for a in (tss.t_s, tss.x_m, tss.y_m, tss.heading_rad)]
     n = len(arrays[0])
@@ -86,9 +136,55 @@ def _check_tss(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
             Reason.BAD_STATE, f"TSS must have 2..{cfg.max_tss_samples} samples, has {n}"
         )
     try:
-        t, x, y, h = (a.astype(float) for a in arrays)
+        return tuple(a.astype(float) for a in arrays)
     except (TypeError, ValueError):
         raise RequestError(Reason.NOT_FINITE, "TSS holds values that are not numbers") from None
+
+
+def _tss_error(
+    failed: int, value: float, req: Request, route: Route, cfg: IcaConfig, tol: float
+) -> RequestError:
+    """The rejection for a failed :func:`ica.core.kernels.tss_checks` check."""
+    if failed == 1:
+        return RequestError(Reason.NOT_FINITE, "TSS holds NaN or infinite values")
+    if failed == 2:
+        return RequestError(Reason.BAD_TIME, "TSS times must increase strictly")
+    if failed == 3:
+        return RequestError(Reason.BAD_TIME, f"TSS must be sampled every {cfg.step_s} s")
+    if failed == 4:
+        return RequestError(Reason.BAD_TIME, "TSS must start at the request's state time t0")
+    if failed == 5:
+        return RequestError(
+            Reason.OFF_ROUTE,
+            f"TSS leaves route {route.id} by {value:.2f} m (tolerance {tol:.3f} m)",
+        )
+    if failed == 6:
+        return RequestError(
+            Reason.BAD_STATE,
+            f"TSS starts {-value:.2f} m before the line, state says {req.dist_to_entry_m:.2f} m",
+        )
+    if failed == 7:
+        return RequestError(Reason.BAD_STATE, "TSS moves backwards along the route")
+    return RequestError(
+        Reason.BAD_STATE, "TSS ends before the vehicle is fully out of the junction"
+    )
+
+
+def _limit_error(failed: int, value: float, route: Route) -> RequestError:
+    """The rejection for a failed :func:`ica.core.kernels.limit_checks` check."""
+    if failed == 1:
+        return RequestError(Reason.LIMITS, f"TSS exceeds the road limit ({value:.2f} m/s)")
+    if failed == 2:
+        return RequestError(
+            Reason.LIMITS,
+            f"TSS exceeds the {route.turn.value} cap of {route.speed_cap_mps:.2f} m/s inside",
+        )
+    return RequestError(Reason.LIMITS, "TSS exceeds the acceleration or deceleration limit")
+
+
+def _check_tss_reference(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
+    """:func:`_check_tss` in numpy, check for check: the tests' reference."""
+    t, x, y, h = _tss_arrays(req, cfg)
     if not all(np.isfinite(a).all() for a in (t, x, y, h)):
         raise RequestError(Reason.NOT_FINITE, "TSS holds NaN or infinite values")
     dt = np.diff(t)
@@ -99,7 +195,7 @@ def _check_tss(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
     if abs(t[0] - req.t0_s) > 1e-6:
         raise RequestError(Reason.BAD_TIME, "TSS must start at the request's state time t0")
 
-    s, off = route.project(np.stack([x, y], -1))
+    s, off = route.project_reference(np.stack([x, y], -1))
     worst = float(off.max())
     # a footprint is drawn on the route itself, so an offset is only safe while the
     # margin around the footprint covers it

@@ -57,6 +57,8 @@ class RouteGrid:
     inner: Rects  # shrunk footprints: inside the real one at any nearest position
     fwd_m: np.ndarray  # distance ahead beyond which the footprint is clear of itself
     back_m: np.ndarray  # distance behind beyond which it is clear of itself
+    route_x: np.ndarray  # the route's vertices, x and y as contiguous arrays
+    route_y: np.ndarray
 
     def index(self, s: np.ndarray) -> np.ndarray:
         """Nearest grid index per position (clipped to the grid)."""
@@ -93,10 +95,42 @@ def _route_grid(
     )
     fwd = (ahead - idx + 1) * ds_m
     back = (idx - behind + 1) * ds_m
-    return RouteGrid(route, shape, s0, ds_m, rects, inner, fwd, back)
+    x, y = np.ascontiguousarray(route.xy[:, 0]), np.ascontiguousarray(route.xy[:, 1])
+    return RouteGrid(route, shape, s0, ds_m, rects, inner, fwd, back, x, y)
 
 
 APART, MAYBE, TOUCH = 0, 1, 2
+
+
+@dataclass(eq=False)
+class PairStack:
+    """Route a's pair tables against other routes, one block of rows per route b.
+
+    Row ``offset[b] + j`` holds the codes of b's grid point j against every
+    grid point of a, followed by the first and last grid point of a that are
+    not APART (``lo > hi`` when all are). With it, one gather answers pairs
+    of a against occupancies of many routes at once. Blocks are only ever
+    appended, so an offset stays valid while the stack grows.
+    """
+
+    width: int  # grid points of route a
+    offset: dict[tuple[str, Shape], int] = field(default_factory=dict)
+    codes: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int8))  # flat (rows * width)
+    row_lo: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    row_hi: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+    def append(self, key: tuple[str, Shape], table: np.ndarray) -> int:
+        """Add ``table`` (grid a, grid b) as a block; returns its offset."""
+        block = np.ascontiguousarray(table.T)  # (grid b, grid a)
+        near = block != APART
+        lo = np.where(near.any(axis=1), near.argmax(axis=1), self.width)
+        hi = np.where(near.any(axis=1), self.width - 1 - near[:, ::-1].argmax(axis=1), -1)
+        off = len(self.row_lo)
+        self.codes = np.concatenate([self.codes, block.ravel()])
+        self.row_lo = np.concatenate([self.row_lo, lo])
+        self.row_hi = np.concatenate([self.row_hi, hi])
+        self.offset[key] = off
+        return off
 
 
 @dataclass(eq=False)
@@ -111,6 +145,7 @@ class ConflictTables:
     _pairs: dict[tuple[str, Shape, str, Shape], np.ndarray] = field(default_factory=dict)
     _zones: dict[tuple[str, Shape, str, Shape], np.ndarray] = field(default_factory=dict)
     _compatible: dict[tuple[str, Shape, str, Shape], bool] = field(default_factory=dict)
+    _stacks: dict[tuple[str, Shape], PairStack] = field(default_factory=dict)
 
     def grid(self, route: Route, shape: Shape) -> RouteGrid:
         key = (route.id, shape)
@@ -157,12 +192,33 @@ class ConflictTables:
             self._compatible[key] = c
         return c
 
+    def stack(self, ra: Route, sa: Shape) -> PairStack:
+        """Every pair table of route a, transposed and stacked (see :class:`PairStack`)."""
+        key = (ra.id, sa)
+        st = self._stacks.get(key)
+        if st is None:
+            st = PairStack(len(self.grid(ra, sa).rects))
+            self._stacks[key] = st
+        return st
+
+    def stack_offset(self, ra: Route, sa: Shape, rb: Route, sb: Shape) -> int:
+        """Row of grid point 0 of route b in route a's :class:`PairStack`."""
+        st = self.stack(ra, sa)
+        off = st.offset.get((rb.id, sb))
+        if off is None:
+            off = st.append((rb.id, sb), self.pairs(ra, sa, rb, sb))
+        return off
+
     def precompute(self, shape: Shape) -> None:
         """Build every table for one shape now (the offline step, done at start-up)."""
         routes = self.intersection.routes
         for i, ra in enumerate(routes):
             for rb in routes[i:]:
                 self.zone(ra, shape, rb, shape)
+        for ra in routes:
+            for rb in routes:
+                if not self.compatible(ra, shape, rb, shape):
+                    self.stack_offset(ra, shape, rb, shape)
 
 
 def _overlap_bbox_filtered(a: Rects, b: Rects) -> np.ndarray:

@@ -1,0 +1,616 @@
+"""Compiled inner loops of enhanced DICA (numba), bit for bit the numpy versions.
+
+One round of Algorithm 1 on arrays of a hundred or so occupancies costs
+almost nothing in arithmetic; with numpy it is dozens of calls, each paying
+its own overhead. These loops do the same arithmetic, in the same order, in
+one call each:
+
+* :func:`estimated_dtot`: footprint centres and headings from the front and
+  rear points, the grid index and technique 3's intervals
+  (:func:`ica.core.dtot.estimated_intervals`, :func:`ica.core.occupancy.footprints`);
+* :func:`batch_conflicts`: getCV with techniques 1, 2 and 4 over every
+  confirmed vehicle (:func:`ica.core.conflict.get_cv_batch`).
+
+Floating-point results equal numpy's exactly: the expressions are written
+in numpy's order, numba does not fuse multiply-adds without ``fastmath``,
+and the binary search is numpy's own, so it gives numpy's answer even on
+unsorted input. ``tests/test_batch.py`` and ``tests/test_dtot.py`` hold the
+numpy versions beside these as oracles.
+
+The functions are compiled when this module is first imported (explicit
+signatures) and cached on disk by numba next to the module, like byte code;
+deciding a request does no I/O and no compilation. A fresh cache costs a few
+seconds once; a warm one well under a second per process.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+APART, MAYBE, TOUCH = 0, 1, 2  # as in ica.core.zones
+_EPS_SAT = 1e-9  # as in ica.core.occupancy.separated
+
+
+@njit("int64(float64[::1], float64, boolean)", cache=True, nogil=True)
+def _search(a: np.ndarray, key: float, right: bool) -> int:
+    """np.searchsorted for one key (a plain binary search: a is sorted here)."""
+    lo, hi = 0, len(a)
+    while lo < hi:
+        mid = lo + ((hi - lo) >> 1)
+        if a[mid] <= key if right else a[mid] < key:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit("void(float64[::1], float64[::1], boolean, int64[::1])", cache=True, nogil=True)
+def _searchsorted(a: np.ndarray, keys: np.ndarray, right: bool, out: np.ndarray) -> None:
+    """np.searchsorted(a, keys), numpy's own algorithm step for step.
+
+    numpy narrows the search with the previous key, so on input that is not
+    sorted its answer depends on that; copying it keeps the answer identical
+    wherever a trajectory is not monotone by a rounding error.
+    """
+    n = len(a)
+    lo, hi = 0, n
+    last = keys[0] if len(keys) else 0.0
+    for q in range(len(keys)):
+        key = keys[q]
+        if (last <= key) if right else (last < key):
+            hi = n
+        else:
+            lo = 0
+            hi = hi + 1 if hi < n else n
+        last = key
+        while lo < hi:
+            mid = lo + ((hi - lo) >> 1)
+            if (a[mid] <= key) if right else (a[mid] < key):
+                lo = mid + 1
+            else:
+                hi = mid
+        out[q] = lo
+
+
+@njit("UniTuple(int64, 2)(float64[::1], float64)", cache=True, nogil=True)
+def dtot_span(s: np.ndarray, s_end_m: float) -> tuple[int, int]:
+    """(entry_index, exit_index) of :class:`ica.core.trajectory.Trajectory`."""
+    n = len(s)
+    k0 = n - 1
+    for k in range(n):
+        if s[k] > 0.0:
+            k0 = max(k - 1, 0)
+            break
+    k1 = n - 1
+    for k in range(n):
+        if s[k] >= s_end_m - 1e-9:
+            k1 = k
+            break
+    return k0, k1
+
+
+@njit(
+    "void(float64[::1], float64[::1], float64[::1], float64, float64[::1], float64,"
+    " float64, float64[::1], float64[::1],"
+    " float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], float64[::1], int64[::1])",
+    cache=True,
+    nogil=True,
+)
+def estimated_dtot(
+    route_s: np.ndarray,
+    route_x: np.ndarray,
+    route_y: np.ndarray,
+    length_m: float,
+    s: np.ndarray,
+    s0_m: float,
+    ds_m: float,
+    fwd_m: np.ndarray,
+    back_m: np.ndarray,
+    centre: np.ndarray,
+    heading: np.ndarray,
+    t: np.ndarray,
+    lb: np.ndarray,
+    ub: np.ndarray,
+    g: np.ndarray,
+) -> None:
+    """Footprints, grid index and estimated intervals of occupancies at ``s``, times ``t``.
+
+    :func:`ica.core.occupancy.footprints` (front and rear points by
+    ``np.interp`` on the route polyline), ``RouteGrid.index`` and
+    :func:`ica.core.dtot.estimated_intervals`, into the out arrays.
+    """
+    n = len(s)
+    last = len(fwd_m) - 1
+    half = length_m / 2.0
+    rear = s - length_m
+    fx = np.interp(s, route_s, route_x)
+    fy = np.interp(s, route_s, route_y)
+    rx = np.interp(rear, route_s, route_x)
+    ry = np.interp(rear, route_s, route_y)
+    behind = np.empty(n)
+    ahead = np.empty(n)
+    for k in range(n):
+        ax = fx[k] - rx[k]
+        ay = fy[k] - ry[k]
+        norm = math.sqrt(ax * ax + ay * ay)
+        d = max(norm, 1e-12)
+        hx = ax / d
+        hy = ay / d
+        heading[k, 0] = hx
+        heading[k, 1] = hy
+        centre[k, 0] = fx[k] - hx * half
+        centre[k, 1] = fy[k] - hy * half
+        i = np.int64(np.rint((s[k] - s0_m) / ds_m))
+        i = min(max(i, 0), last)
+        g[k] = i
+        behind[k] = s[k] - (back_m[i] + ds_m)
+        ahead[k] = s[k] + (fwd_m[i] + ds_m)
+    kb = np.empty(n, np.int64)
+    ka = np.empty(n, np.int64)
+    _searchsorted(s, behind, True, kb)
+    _searchsorted(s, ahead, False, ka)
+    for k in range(n):
+        b = kb[k] - 1
+        lb[k] = t[min(max(b, 0), n - 1)] if b >= 0 else t[0]
+        a = ka[k]
+        ub[k] = t[min(max(a, 0), n - 1)] if a < n else t[n - 1]
+
+
+@njit(
+    "Tuple((boolean, float64, float64))(float64, float64, float64[::1], float64, float64,"
+    " float64[::1], float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def follow_check(
+    t0_f: float,
+    step_f: float,
+    s_f: np.ndarray,
+    t0_l: float,
+    step_l: float,
+    s_l: np.ndarray,
+    leader_length_m: float,
+    gap_m: float,
+) -> tuple[bool, float, float]:
+    """:func:`ica.core.conflict.follow_conflict`: (violated, first time, raw delay)."""
+    nf, nl = len(s_f), len(s_l)
+    tf = np.empty(nf)
+    for k in range(nf):
+        tf[k] = t0_f + step_f * k
+    tl = np.empty(nl)
+    for k in range(nl):
+        tl[k] = t0_l + step_l * k
+    m = 0
+    last = -1
+    for k in range(nf):
+        if s_f[k] < 0.0:
+            m += 1
+            last = k
+    if m == 0:
+        return False, 0.0, 0.0
+    t_end = tf[last] + step_f
+    extra = 0
+    for k in range(nl):
+        if tl[k] >= tf[0] and tl[k] <= t_end:
+            extra += 1
+    t = np.empty(m + extra)
+    q = 0
+    for k in range(nf):
+        if s_f[k] < 0.0:
+            t[q] = tf[k]
+            q += 1
+    for k in range(nl):
+        if tl[k] >= tf[0] and tl[k] <= t_end:
+            t[q] = tl[k]
+            q += 1
+    sf_t = np.interp(t, tf, s_f)
+    sl_t = np.interp(t, tl, s_l)
+    nbad = 0
+    for q in range(len(t)):
+        if sf_t[q] < 0.0 and sf_t[q] > sl_t[q] - leader_length_m - gap_m:
+            nbad += 1
+    if nbad == 0:
+        return False, 0.0, 0.0
+    need = np.empty(nbad)
+    tb = np.empty(nbad)
+    r = 0
+    for q in range(len(t)):
+        if sf_t[q] < 0.0 and sf_t[q] > sl_t[q] - leader_length_m - gap_m:
+            need[r] = sf_t[q] + leader_length_m + gap_m
+            tb[r] = t[q]
+            r += 1
+    idx = np.empty(nbad, np.int64)
+    _searchsorted(s_l, need, False, idx)
+    first = tb[0]
+    delay = tl[min(idx[0], nl - 1)] - tb[0]
+    for r in range(1, nbad):
+        first = min(first, tb[r])
+        delay = max(delay, tl[min(idx[r], nl - 1)] - tb[r])
+    return True, first, delay
+
+
+@njit(
+    "void(float64[::1], float64[::1], float64[::1], float64[::1], float64, float64[::1])",
+    cache=True,
+    nogil=True,
+)
+def profile_position(
+    t_s: np.ndarray,
+    s_m: np.ndarray,
+    v_mps: np.ndarray,
+    a_mps2: np.ndarray,
+    step_s: float,
+    out: np.ndarray,
+) -> None:
+    """:meth:`ica.core.planner.Profile.position` at ``step_s * k`` for every k of ``out``."""
+    last = len(t_s) - 1
+    k = 0
+    for q in range(len(out)):
+        t = step_s * q
+        k = min(max(_search(t_s, t, True) - 1, 0), last)
+        tau = max(t - t_s[k], 0.0)
+        out[q] = s_m[k] + v_mps[k] * tau + 0.5 * a_mps2[k] * tau * tau
+
+
+@njit(
+    "boolean(float64[::1], float64[::1], int64[::1], float64[:, ::1], float64[:, ::1], float64,"
+    " float64, float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1],"
+    " int8[::1], int64, boolean[::1], float64[::1], float64[::1])",
+    cache=True,
+    nogil=True,
+)
+def batch_conflicts(
+    lb_i: np.ndarray,
+    ub_i: np.ndarray,
+    g_i: np.ndarray,
+    centre_i: np.ndarray,
+    heading_i: np.ndarray,
+    la: float,
+    wa: float,
+    packed: np.ndarray,
+    vid: np.ndarray,
+    m_idx: np.ndarray,
+    row: np.ndarray,
+    row_lo: np.ndarray,
+    row_hi: np.ndarray,
+    codes: np.ndarray,
+    width: int,
+    hit: np.ndarray,
+    first: np.ndarray,
+    delay: np.ndarray,
+) -> bool:
+    """getCV of requester i against the confirmed occupancies ``packed[m_idx]``.
+
+    ``packed`` rows are ``ica.core.conflict.PACKED`` (interval, centre,
+    heading, half extents, grid index). Per vehicle v: ``hit[v]``, and over
+    its conflicting pairs the least ``lb_j`` (firstTimeAtCollision) and the
+    greatest ``ub_j - lb_i`` (delay). Returns whether any vehicle conflicts.
+    """
+    n = len(lb_i)
+    found = False
+    if n == 0:
+        return found
+    ub_hull = np.empty(n)
+    lb_hull = np.empty(n)
+    g_hi = np.empty(n)
+    g_lo = np.empty(n)
+    for k in range(n):
+        ub_hull[k] = ub_i[k] if k == 0 else max(ub_hull[k - 1], ub_i[k])
+        g_hi[k] = g_i[k] if k == 0 else max(g_hi[k - 1], g_i[k])
+    for k in range(n - 1, -1, -1):
+        lb_hull[k] = lb_i[k] if k == n - 1 else min(lb_hull[k + 1], lb_i[k])
+        g_lo[k] = g_i[k] if k == n - 1 else min(g_lo[k + 1], g_i[k])
+    t_lo, t_hi = lb_hull[0], ub_hull[n - 1]  # the requester's whole crossing
+    for c in range(len(m_idx)):
+        q = m_idx[c]
+        lb_j, ub_j = packed[q, 0], packed[q, 1]
+        if ub_j < t_lo or lb_j > t_hi:
+            continue  # no interval of the requester can overlap
+        lo = max(_search(ub_hull, lb_j, False), _search(g_hi, float(row_lo[c]), False))
+        hi = min(_search(lb_hull, ub_j, True), _search(g_lo, float(row_hi[c]), True))
+        base = row[c] * width
+        for k in range(lo, hi):
+            if not (lb_i[k] <= ub_j and lb_j <= ub_i[k]):
+                continue
+            code = codes[base + g_i[k]]
+            if code == APART:
+                continue
+            if code == MAYBE:
+                # ica.core.occupancy.separated, a = requester, b = confirmed
+                ax, ay = heading_i[k, 0], heading_i[k, 1]
+                bx, by = packed[q, 4], packed[q, 5]
+                dx = packed[q, 2] - centre_i[k, 0]
+                dy = packed[q, 3] - centre_i[k, 1]
+                cs = abs(ax * bx + ay * by)
+                sn = abs(ax * by - ay * bx)
+                lb, wb = packed[q, 6], packed[q, 7]
+                if abs(dx * ax + dy * ay) > la + lb * cs + wb * sn + _EPS_SAT:
+                    continue
+                if abs(dy * ax - dx * ay) > wa + lb * sn + wb * cs + _EPS_SAT:
+                    continue
+                if abs(dx * bx + dy * by) > lb + la * cs + wa * sn + _EPS_SAT:
+                    continue
+                if abs(dy * bx - dx * by) > wb + la * sn + wa * cs + _EPS_SAT:
+                    continue
+            v = vid[q]
+            d = ub_j - lb_i[k]
+            if hit[v]:
+                first[v] = min(first[v], lb_j)
+                delay[v] = max(delay[v], d)
+            else:
+                hit[v] = True
+                first[v] = lb_j
+                delay[v] = d
+            found = True
+    return found
+
+
+@njit(
+    "Tuple((float64[::1], float64[::1]))(float64[:, ::1], float64[::1], float64[:, ::1])",
+    cache=True,
+    nogil=True,
+)
+def project(xy: np.ndarray, route_s: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:meth:`ica.core.route.Route.project`: arc length of the nearest polyline
+    point and the distance to it, per point of ``p`` (N, 2); first nearest wins."""
+    m = len(xy) - 1
+    n = len(p)
+    s = np.empty(n)
+    dist = np.empty(n)
+    seg = np.empty(m)
+    for j in range(m):
+        dx = xy[j + 1, 0] - xy[j, 0]
+        dy = xy[j + 1, 1] - xy[j, 1]
+        seg[j] = dx * dx + dy * dy
+    for q in range(n):
+        best = np.inf
+        bk = 0
+        bu = 0.0
+        for j in range(m):
+            dx = xy[j + 1, 0] - xy[j, 0]
+            dy = xy[j + 1, 1] - xy[j, 1]
+            wx = p[q, 0] - xy[j, 0]
+            wy = p[q, 1] - xy[j, 1]
+            u = (wx * dx + wy * dy) / seg[j]
+            u = u if u > 0.0 else 0.0  # np.clip's order and signs
+            u = u if u < 1.0 else 1.0
+            ex = p[q, 0] - (xy[j, 0] + u * dx)
+            ey = p[q, 1] - (xy[j, 1] + u * dy)
+            d2 = ex * ex + ey * ey
+            if d2 < best:
+                best = d2
+                bk = j
+                bu = u
+        s[q] = route_s[bk] + bu * math.sqrt(seg[bk])
+        dist[q] = math.sqrt(best)
+    return s, dist
+
+
+@njit("float64(float64, float64)", cache=True, nogil=True)
+def _py_min(a: float, b: float) -> float:
+    """Python's ``min(a, b)``: the first unless the second is smaller (signed zeros too)."""
+    return b if b < a else a
+
+
+@njit("float64(float64, float64)", cache=True, nogil=True)
+def _py_max(a: float, b: float) -> float:
+    return b if b > a else a
+
+
+@njit(
+    "Tuple((boolean, float64, float64, float64, float64))"
+    "(float64, float64, float64, float64, float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def a_phases(
+    a: float, br: float, v0: float, d: float, cap: float, v_m: float
+) -> tuple[bool, float, float, float, float]:
+    """(fits, D1, D3, v_e, T) of the slow-down plan A(v_m); see ``Planner._a_phases``."""
+    if v_m >= v0:
+        d1 = (v_m * v_m - v0 * v0) / (2 * a)
+        t1 = abs(v_m - v0) / a
+    else:
+        d1 = (v0 * v0 - v_m * v_m) / (2 * br)
+        t1 = abs(v_m - v0) / br
+    if d1 > d + 1e-7:
+        return False, 0.0, 0.0, 0.0, 0.0
+    if v_m > cap:
+        v_e = cap
+        d3 = (v_m * v_m - cap * cap) / (2 * br)
+        t3 = (v_m - cap) / br
+    else:
+        v_e = _py_min(cap, math.sqrt(_py_max(v_m * v_m + 2 * a * (d - d1), 0.0)))
+        d3 = (v_e * v_e - v_m * v_m) / (2 * a)
+        t3 = (v_e - v_m) / a
+    d2 = d - d1 - d3
+    if d2 < -1e-7:
+        return False, 0.0, 0.0, 0.0, 0.0
+    if d2 > 1e-9 and v_m <= 1e-9:
+        return False, 0.0, 0.0, 0.0, 0.0
+    t2 = d2 / v_m if d2 > 1e-9 else 0.0
+    return True, d1, d3, v_e, t1 + t2 + t3
+
+
+@njit(
+    "float64(float64, float64, float64, float64, float64, float64, float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def bisect_cruise(
+    a: float, br: float, v0: float, d: float, cap: float, v_lo: float, v_hi: float, t_entry: float
+) -> float:
+    """The bisection of ``Planner.at_or_after``: the cruise speed arriving at ``t_entry``."""
+    lo_v, hi_v = v_lo, v_hi
+    for _ in range(60):
+        mid = 0.5 * (lo_v + hi_v)
+        fits, _d1, _d3, _ve, t = a_phases(a, br, v0, d, cap, mid)
+        if not fits or t > t_entry:
+            lo_v = mid
+        else:
+            hi_v = mid
+        if hi_v - lo_v < 1e-7:
+            break
+    return hi_v
+
+
+@njit(
+    "Tuple((int64, float64, float64[::1]))(float64[::1], float64[::1], float64[::1], float64[::1],"
+    " float64, float64, float64[:, ::1], float64[::1], float64, float64, float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def tss_checks(
+    t: np.ndarray,
+    x: np.ndarray,
+    y: np.ndarray,
+    h: np.ndarray,
+    step_s: float,
+    t0_s: float,
+    route_xy: np.ndarray,
+    route_s: np.ndarray,
+    off_tol_m: float,
+    dist_to_entry_m: float,
+    start_tol_m: float,
+    s_end_m: float,
+) -> tuple[int, float, np.ndarray]:
+    """The numeric checks of a TSS up to its arc length, in ``validate._check_tss``'s order.
+
+    Returns (failed check, a value for its message, monotone arc length);
+    check 0 means all passed. 1 not finite, 2 times not increasing, 3 not
+    sampled every step, 4 not starting at t0, 5 off the route (value: worst
+    offset), 6 start not matching the state (value: s[0]), 7 moving
+    backwards, 8 ending before the vehicle is out.
+    """
+    n = len(t)
+    empty = np.empty(0)
+    for k in range(n):
+        if not (np.isfinite(t[k]) and np.isfinite(x[k]) and np.isfinite(y[k])):
+            return 1, 0.0, empty
+        if not np.isfinite(h[k]):
+            return 1, 0.0, empty
+    for k in range(n - 1):
+        if t[k + 1] - t[k] <= 0:
+            return 2, 0.0, empty
+    for k in range(n - 1):
+        if abs((t[k + 1] - t[k]) - step_s) > 1e-6:
+            return 3, 0.0, empty
+    if abs(t[0] - t0_s) > 1e-6:
+        return 4, 0.0, empty
+    p = np.empty((n, 2))
+    for k in range(n):
+        p[k, 0] = x[k]
+        p[k, 1] = y[k]
+    s, off = project(route_xy, route_s, p)
+    worst = off[0]
+    for k in range(1, n):
+        worst = max(worst, off[k])
+    if worst > off_tol_m:
+        return 5, worst, empty
+    if abs(s[0] + dist_to_entry_m) > start_tol_m:
+        return 6, s[0], empty
+    for k in range(n - 1):
+        if s[k + 1] - s[k] < -1e-6:
+            return 7, 0.0, empty
+    for k in range(1, n):  # np.maximum.accumulate: the earlier one unless smaller
+        if s[k - 1] >= s[k]:
+            s[k] = s[k - 1]
+    if s[n - 1] < s_end_m - 1e-6:
+        return 8, 0.0, empty
+    return 0, 0.0, s
+
+
+@njit(
+    "Tuple((int64, float64))(float64[::1], float64, float64, float64, float64, float64,"
+    " float64, float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def limit_checks(
+    s: np.ndarray,
+    step_s: float,
+    v0_mps: float,
+    road_lim_mps: float,
+    cap_lim_mps: float,
+    accel_mps2: float,
+    decel_mps2: float,
+    accel_tol_mps2: float,
+    first_slack_mps2: float,
+) -> tuple[int, float]:
+    """``validate.check_limits`` with a reported speed: (failed check, value).
+
+    1 above the road limit (value: top speed), 2 above the turn cap inside,
+    3 beyond the acceleration or deceleration limit; 0 passed.
+    """
+    n = len(s) - 1
+    v = np.empty(n)
+    for k in range(n):
+        v[k] = (s[k + 1] - s[k]) / step_s
+    for k in range(n):
+        if v[k] > road_lim_mps:
+            top = v[0]
+            for q in range(1, n):
+                top = max(top, v[q])
+            return 1, top
+    for k in range(n):
+        if s[k] >= 0.0 and v[k] > cap_lim_mps:
+            return 2, 0.0
+    for k in range(n):
+        acc = ((v[k] - v0_mps) if k == 0 else (v[k] - v[k - 1])) / step_s
+        slack = accel_tol_mps2 + first_slack_mps2 if k == 0 else accel_tol_mps2
+        if acc > accel_mps2 + slack:
+            return 3, 0.0
+    for k in range(n):
+        acc = ((v[k] - v0_mps) if k == 0 else (v[k] - v[k - 1])) / step_s
+        slack = accel_tol_mps2 + first_slack_mps2 if k == 0 else accel_tol_mps2
+        if acc < -decel_mps2 - slack:
+            return 3, 0.0
+    return 0, 0.0
+
+
+@njit(
+    "UniTuple(int64[::1], 4)(float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1])",
+    cache=True,
+    nogil=True,
+)
+def select_rows(
+    packed: np.ndarray,
+    vid: np.ndarray,
+    first_row: np.ndarray,
+    stack_lo: np.ndarray,
+    stack_hi: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Occupancies of a gathered confirmed set that a route's grid can touch.
+
+    ``first_row[v]`` is vehicle v's block in the route's pair stack (-1: a
+    compatible route). Returns the occupancies kept, their stack rows and the
+    first and last grid point of the route not APART from each.
+    """
+    total = len(vid)
+    keep = np.zeros(total, np.bool_)
+    count = 0
+    for q in range(total):
+        fr = first_row[vid[q]]
+        if fr < 0:
+            continue
+        r = fr + np.int64(packed[q, 8])
+        if stack_lo[r] <= stack_hi[r]:
+            keep[q] = True
+            count += 1
+    m = np.empty(count, np.int64)
+    row = np.empty(count, np.int64)
+    lo = np.empty(count, np.int64)
+    hi = np.empty(count, np.int64)
+    c = 0
+    for q in range(total):
+        if keep[q]:
+            r = first_row[vid[q]] + np.int64(packed[q, 8])
+            m[c] = q
+            row[c] = r
+            lo[c] = stack_lo[r]
+            hi[c] = stack_hi[r]
+            c += 1
+    return m, row, lo, hi

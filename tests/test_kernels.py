@@ -1,0 +1,231 @@
+"""The compiled loops give numpy's results bit for bit."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+import ica.core.dica
+from ica.core import validate
+from ica.core.config import IcaConfig
+from ica.core.conflict import follow_conflict, follow_conflict_reference
+from ica.core.dtot import build_dtot, estimated_intervals
+from ica.core.kernels import _searchsorted
+from ica.core.occupancy import footprints
+from ica.core.planner import Kinematics, Planner
+from ica.core.proposal import propose
+from ica.core.request import Reason, RequestError
+from ica.core.trajectory import Trajectory, sample
+from ica.core.zones import ConflictTables
+from tests.test_bad_input import cases, tss_with
+from tests.test_dtot import SHAPES, trajectories
+from tools.stream import StreamSpec, run_stream
+
+
+@pytest.mark.parametrize("right", [False, True])
+def test_searchsorted_is_numpys_even_on_unsorted_input(right):
+    rng = np.random.default_rng(3)
+    side = "right" if right else "left"
+    for _ in range(300):
+        a = np.sort(rng.integers(0, 30, rng.integers(1, 40)).astype(float))
+        if rng.random() < 0.5:  # not quite sorted, as a trajectory off by a rounding error
+            k = rng.integers(len(a))
+            a[k] += rng.choice([-1.0, 1.0]) * rng.random() * 3
+        keys = rng.integers(-3, 33, rng.integers(1, 60)).astype(float)
+        if rng.random() < 0.5:
+            keys = np.sort(keys)
+        out = np.empty(len(keys), np.int64)
+        _searchsorted(a, keys, right, out)
+        assert np.array_equal(out, np.searchsorted(a, keys, side=side))
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])
+def test_estimated_dtot_is_the_numpy_one(request, junction):
+    inter = request.getfixturevalue(junction)
+    tables = ConflictTables(inter, margin_m=0.25)
+    rng = np.random.default_rng(11)
+    for k, route in enumerate(inter.routes):
+        for shape in SHAPES:
+            grid = tables.grid(route, shape)
+            trajs = list(trajectories(route, shape, k))
+            if trajs:  # one trajectory a rounding error off monotone
+                s = trajs[0].s_m.copy()
+                j = int(rng.integers(1, len(s) - 1))
+                s[j] = np.nextafter(s[j - 1], -np.inf)
+                trajs.append(Trajectory(trajs[0].t0_s, trajs[0].step_s, s))
+            for traj in trajs:
+                fast = build_dtot(route, shape, traj, 0.25, grid, estimated=True)
+                rects = footprints(route, fast.s_m, shape.length_m, shape.width_m, 0.25)
+                lb, ub = estimated_intervals(fast.t_s, fast.s_m, grid)
+                assert np.array_equal(fast.rects.centre, rects.centre)
+                assert np.array_equal(fast.rects.heading, rects.heading)
+                assert fast.rects.half_length == rects.half_length
+                assert fast.rects.half_width == rects.half_width
+                assert np.array_equal(fast.lb_s, lb)
+                assert np.array_equal(fast.ub_s, ub)
+                assert np.array_equal(fast.grid_idx, grid.index(fast.s_m))
+
+
+def test_sampled_plans_are_numpys_positions():
+    rng = np.random.default_rng(5)
+    checked = 0
+    for _ in range(400):
+        pl = Planner(
+            float(rng.uniform(0.0, 60)),
+            float(rng.uniform(0, 19)),
+            70 / 3.6,
+            float(rng.uniform(4, 18)),
+            float(rng.uniform(15, 45)),
+            Kinematics(),
+        )
+        if not pl.feasible():
+            continue
+        p = pl.at_or_after(pl.earliest_entry_s() + float(rng.choice([0.0, rng.uniform(0, 30)])))
+        if p is None:
+            continue
+        traj = sample(p, 3.0, 0.05, pl.s_end_m)
+        assert np.array_equal(traj.s_m, p.position(0.05 * np.arange(len(traj))))
+        checked += 1
+    assert checked > 300
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed"])
+def test_follow_conflict_is_the_numpy_one(request, monkeypatch, junction):
+    """Every lane-leader check of a congested stream, against the numpy version."""
+    inter = request.getfixturevalue(junction)
+    calls = {"all": 0, "violations": 0}
+
+    def checked(follower, leader, length_m, gap_m):
+        fast = follow_conflict(follower, leader, length_m, gap_m)
+        assert fast == follow_conflict_reference(follower, leader, length_m, gap_m)
+        calls["all"] += 1
+        calls["violations"] += fast is not None
+        return fast
+
+    monkeypatch.setattr(ica.core.dica, "follow_conflict", checked)
+    spec = StreamSpec(volume_per_10min=2400.0, n_vehicles=40, seed=9)
+    res = run_stream(inter, IcaConfig(), spec)
+    assert len(res.confirmed) == len(res.vehicles)
+    assert calls["all"] > 50
+
+
+def test_follow_conflict_is_the_numpy_one_close_behind():
+    """Random leader and follower plans in one lane, many of them too close."""
+    rng = np.random.default_rng(21)
+    kin = Kinematics()
+    violations = 0
+    for _ in range(500):
+        d_l = float(rng.uniform(0.0, 30))
+        lead = Planner(d_l, float(rng.uniform(0, 15)), 70 / 3.6, 10.0, 30.0, kin)
+        d_f = d_l + float(rng.uniform(3.0, 15))
+        follow = Planner(d_f, float(rng.uniform(0, 15)), 70 / 3.6, 10.0, 30.0, kin)
+        if not (lead.feasible() and follow.feasible()):
+            continue
+        pl = lead.at_or_after(lead.earliest_entry_s() + float(rng.uniform(0, 6)))
+        pf = follow.at_or_after(follow.earliest_entry_s() + float(rng.uniform(0, 6)))
+        if pl is None or pf is None:
+            continue
+        t0_l = float(rng.uniform(-1.0, 0.0))
+        lt = sample(pl, t0_l, 0.05, 30.0)
+        ft = sample(pf, 0.0, 0.05, 30.0)
+        for length in (4.0, 5.0, 7.5):
+            fast = follow_conflict(ft, lt, length, 0.5)
+            assert fast == follow_conflict_reference(ft, lt, length, 0.5)
+            violations += fast is not None
+    assert violations > 100
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])
+def test_project_is_the_numpy_one(request, junction):
+    inter = request.getfixturevalue(junction)
+    rng = np.random.default_rng(4)
+    for route in inter.routes:
+        for noise in (0.0, 0.01, 0.3, 3.0):
+            s = np.sort(rng.uniform(route.s[0] - 2, route.s[-1] + 2, 200))
+            p = route.points(s) + rng.normal(0, noise, (len(s), 2))
+            for xy in (p, route.xy):  # vertices exactly: ties between segments
+                fast, slow = route.project(xy), route.project_reference(xy)
+                assert np.array_equal(fast[0], slow[0])
+                assert np.array_equal(fast[1], slow[1])
+
+
+def test_plan_phases_and_bisection_are_the_python_ones():
+    rng = np.random.default_rng(8)
+    kin = Kinematics()
+    bisected = 0
+    for _ in range(300):
+        pl = Planner(
+            float(rng.uniform(0.0, 60)),
+            float(rng.choice([0.0, rng.uniform(0, 19)])),
+            70 / 3.6,
+            float(rng.uniform(4, 18)),
+            30.0,
+            kin,
+        )
+        for v_m in [*rng.uniform(0, 20, 20), 0.0, pl.v0_mps, pl.cap_mps]:
+            assert pl._a_phases(float(v_m)) == pl._a_phases_reference(float(v_m))
+        if not pl.feasible():
+            continue
+        v_hi, v_lo = pl._v_max(), pl._v_min_a()
+        lo = pl._a_phases_reference(v_lo) if v_lo < v_hi else None
+        if lo is None or lo[3] <= pl.earliest_entry_s() + 1e-6:
+            continue
+        t = float(rng.uniform(pl.earliest_entry_s() + 1e-6, lo[3]))
+        lo_v, hi_v = v_lo, v_hi  # the loop as it was written in Python
+        for _ in range(60):
+            mid = 0.5 * (lo_v + hi_v)
+            ph = pl._a_phases_reference(mid)
+            if ph is None or ph[3] > t:
+                lo_v = mid
+            else:
+                hi_v = mid
+            if hi_v - lo_v < 1e-7:
+                break
+        assert pl.at_or_after(t).s_m.tolist() == pl._build_a(hi_v).s_m.tolist()
+        bisected += 1
+    assert bisected > 100
+
+
+def _outcome(check, req, route, cfg):
+    try:
+        return ("ok", check(req, route, cfg).s_m.tolist())
+    except RequestError as e:
+        return (e.reason, e.detail)
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed"])
+def test_tss_checks_are_the_numpy_ones(request, junction):
+    """Every TSS check passes or fails, with the same message, as the numpy version."""
+    inter = request.getfixturevalue(junction)
+    cfg = IcaConfig()
+    rng = np.random.default_rng(14)
+    outcomes: set[object] = set()
+    for k, route in enumerate(inter.routes):
+        for d, v in ((40.0, 12.0), (3.0, 0.0), (30.0, 14.0)):
+            req = propose(route, vin=f"v{k}", seq=0, t0_s=2.0, dist_to_entry_m=d, speed_mps=v)
+            bad = [r for rs in cases(req).values() for r in rs]
+            t = req.tss
+            n = len(t.t_s)
+            for _ in range(12):  # small disturbances around every threshold
+                j = int(rng.integers(n))
+                which = rng.choice(["x_m", "y_m", "t_s", "heading_rad"])
+                a = getattr(t, which).copy()
+                a[j:] += rng.choice([-1, 1]) * rng.choice([1e-7, 1e-3, 0.05, 0.3, 2.0])
+                bad.append(tss_with(req, **{which: a}))
+                bad.append(dataclasses.replace(req, speed_mps=v + float(rng.uniform(-2, 2))))
+            for r in [req, *bad]:
+                if not isinstance(r.length_m, float) or not np.isfinite(r.length_m):
+                    continue
+                if r.length_m <= 0 or r.length_m > cfg.max_length_m or r.in_lane != req.in_lane:
+                    continue
+                if r.out_lane != req.out_lane:
+                    continue
+                fast = _outcome(validate._check_tss, r, route, cfg)
+                assert fast == _outcome(validate._check_tss_reference, r, route, cfg)
+                outcomes.add(fast[0])
+    assert {"ok", Reason.BAD_TIME, Reason.NOT_FINITE, Reason.OFF_ROUTE, Reason.BAD_STATE} <= (
+        outcomes
+    )
+    assert Reason.LIMITS in outcomes
