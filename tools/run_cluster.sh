@@ -68,10 +68,12 @@ bash tools/setup.sh
 dica=.venv/bin/dica
 py=.venv/bin/python
 
-# one scenario for every role: build (or find) it once, before anyone races to
+# one scenario for every role: build (or find) it once, before anyone races to;
+# importing the core also compiles its kernels into numba's cache once (cold: ~20 s)
 if [ -z "$net" ]; then
   read -r net junction < <("$py" -c "
 import sys
+import ica.core.dica
 from sim_gateway.scenario import ScenarioError, default_scenario
 try:
     sc = default_scenario(sys.argv[1])
@@ -80,6 +82,8 @@ except ScenarioError as e:
 print(sc.net_path, sc.junction_id)" "$layout") || exit 2
 fi
 [ -n "$junction" ] || { echo "run_cluster: --net needs --junction" >&2; exit 2; }
+[ -f "$net" ] || { echo "run_cluster: no net file $net" >&2; exit 2; }
+"$py" -c "import ica.core.dica"
 scen=(--net "$net" --junction "$junction")
 
 out="${out:-runs/cluster-$(date +%Y%m%d-%H%M%S)}"
