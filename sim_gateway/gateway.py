@@ -86,6 +86,7 @@ class ZenohDrivers:
         self.wake: dict[str, float] = {}  # per vehicle: when it may next talk to the ICA
         self.dropped_setpoints = 0
         self.wait_s: list[float] = []
+        self._pending: tuple[int, int, set[str], list[Actuation]] = (0, 0, set(), [])
         self.step_s = ica_config(cfg).step_s
         self._k = 0
         self._t0_wall = 0.0
@@ -141,7 +142,9 @@ class ZenohDrivers:
             d.undeclare()
 
     # -- one step ----------------------------------------------------------------
-    def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
+    def send(self, t: float, seen: list[Seen]) -> None:
+        """Publish this step's CLOCK and STATEs; in lockstep, every wave but the
+        last is also answered here. :meth:`collect` gets the last answers."""
         out: list[Actuation] = []
         while (item := self.inbox.get(timeout=0)) is not None:
             self._take(item, None, out)  # liveliness news, and realtime's late commands
@@ -159,6 +162,8 @@ class ZenohDrivers:
         feed = [s for s in seen if self._needs_agent(s)]
         waves = self._waves(t, feed) if self.clock == "lockstep" else [self._batches(feed)]
         for part, batches in enumerate(waves):
+            if part > 0:
+                self._wait_commands(k, part - 1, set(waves[part - 1]), out, t)
             for agent, vehicles in batches.items():
                 pub = self._state_pubs.get(agent)
                 if pub is None:
@@ -166,8 +171,6 @@ class ZenohDrivers:
                         self.session, keys.state(self.junction, agent)
                     )
                 pub.put(encode(State(agent, k, part, t, tuple(vehicles), stamp)))
-            if self.clock == "lockstep":
-                self._wait_commands(k, part, set(batches), out, t)
         if len(waves) > 1:
             self.multi_wave_steps += 1
         for s in feed:
@@ -177,7 +180,14 @@ class ZenohDrivers:
                 self.known.discard(s.car.vin)
                 self.wake.pop(s.car.vin, None)
                 self.told_entered.discard(s.car.vin)
-        if self.clock == "realtime":
+        self._pending = (k, len(waves) - 1, set(waves[-1]), out)
+
+    def collect(self, t: float) -> list[Actuation]:
+        """The commands to apply before the next step (lockstep: waits for them)."""
+        k, part, expected, out = self._pending
+        if self.clock == "lockstep":
+            self._wait_commands(k, part, expected, out, t)
+        else:
             self._drain(k, out, t)
             pace = self._t0_wall + k * self.step_s / self.speed - time.monotonic()
             if pace > 0:
@@ -372,8 +382,9 @@ def run_gateway(
         try:
             while True:
                 seen = world.step()
-                world.apply(drivers.step(world.t, seen))
-                world.end_step(progress)
+                drivers.send(world.t, seen)
+                world.end_step(progress)  # while the agents decide
+                world.apply(drivers.collect(world.t))
                 if world.done():
                     break
         finally:

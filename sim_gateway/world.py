@@ -179,6 +179,13 @@ class World:
         """Insert who is due, step SUMO, and observe every vehicle in the region."""
         ls = self.ls
         comm = self.inter.comm_length_m
+        # forget who left last step; a car SUMO has not inserted yet (its spot is taken)
+        # stays tracked
+        self.active = [
+            c
+            for c in self.active
+            if not c.exited and (c.vin in self._present or math.isnan(c.detected_s))
+        ]
         while self._next < len(self.schedule) and self.schedule[self._next].arrival_s <= (
             self.t + 1e-9
         ):
@@ -277,12 +284,8 @@ class World:
                 c.command = None
 
     def end_step(self, progress: Callable[[float, int, int], None] | None = None) -> None:
-        # a car SUMO has not inserted yet (its spot is taken) stays tracked
-        self.active = [
-            c
-            for c in self.active
-            if not c.exited and (c.vin in self._present or math.isnan(c.detected_s))
-        ]
+        """Check and log this step. Needs nothing from the drivers, so the cluster
+        gateway runs it while the agents are deciding."""
         _observe(self.ls, self.monitor, self._watch, self.t)
         if self.t - self._last_sample >= 1.0 - 1e-9:
             self.log.sample(self.t, self.waiting, self.crossed, self._next)
