@@ -26,6 +26,7 @@ want="$(sha256sum pyproject.toml | cut -d' ' -f1)"
 if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   echo "setup: installing packages into .venv (first run takes about a minute)" >&2
   .venv/bin/python -m pip install -q --upgrade pip
-  .venv/bin/python -m pip install -q -e '.[dev]'
+  # the build backend warns about editable installs on every run; nothing to act on
+  PYTHONWARNINGS=ignore .venv/bin/python -m pip install -q -e '.[dev]'
   echo "$want" > "$stamp"
 fi
