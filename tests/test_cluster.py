@@ -305,3 +305,34 @@ def test_bad_input_to_run_cluster_is_one_clear_line(tmp_path, args, says):
     p = _cluster(tmp_path / "bad", *args, timeout=120)
     assert p.returncode == 2
     assert says in p.stderr and "Traceback" not in p.stderr + p.stdout
+
+
+def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path):
+    from rerun.chunk import RrdReader
+
+    port = _free_port()
+    out = tmp_path / "cl"
+    cmd = ["bash", "tools/run_cluster.sh", "--out", str(out), "--agents", "1"]
+    cmd += ["--port", str(port), "--duration", "600", "--volume", "300"]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        log = out / "logs" / "gateway.log"
+        deadline = time.monotonic() + 120
+        while not (log.exists() and "t=30 s" in log.read_text()):
+            assert time.monotonic() < deadline, "the cluster never got going"
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.2)
+        os.kill(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C sends the script
+        _, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130
+    assert "interrupted" in stderr
+    _no_leftovers(port)
+    # the observer closed its file on SIGTERM: it reads back
+    chunks = list(RrdReader(out / "spacetime.rrd").stream())
+    assert any(str(c.entity_path) == "/junction/vehicles" for c in chunks)

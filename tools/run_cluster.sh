@@ -108,6 +108,7 @@ name_of() {
 alive() { kill -0 "$1" 2>/dev/null; }
 stop_all() {  # reverse start order: TERM each group, then KILL what is left after a grace
   local i pid deadline
+  [ -n "${tail_pid:-}" ] && kill -TERM -- "-$tail_pid" 2>/dev/null || true
   for ((i = ${#pids[@]} - 1; i >= 0; i--)); do
     pid="${pids[$i]}"; alive "$pid" && kill -TERM -- "-$pid" 2>/dev/null || true
   done
@@ -116,7 +117,7 @@ stop_all() {  # reverse start order: TERM each group, then KILL what is left aft
     while alive "$pid" && [ "$SECONDS" -lt "$deadline" ]; do sleep 0.1; done
     alive "$pid" && kill -KILL -- "-$pid" 2>/dev/null || true
   done
-  wait 2>/dev/null || true
+  wait "${pids[@]}" 2>/dev/null || true
 }
 trap stop_all EXIT
 trap 'echo "run_cluster: interrupted, stopping all processes" >&2; exit 130' INT TERM
@@ -140,8 +141,9 @@ start gateway "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$v
 gateway_pid="${pids[-1]}"
 echo "run_cluster: router on $endpoint; ${#pids[@]} processes; logs in $out/logs/"
 
-# progress: the gateway's own lines, as they come
-tail -n +1 -F "$out/logs/gateway.log" 2>/dev/null | grep --line-buffered -E 't=|ICA and|ERROR' &
+# progress: the gateway's own lines, as they come (own process group: stopped as one)
+setsid bash -c 'tail -n +1 -F "$1" 2>/dev/null | grep --line-buffered -E "t=|ICA and|ERROR"' \
+  _ "$out/logs/gateway.log" &
 tail_pid=$!
 
 # the gateway finishing is the normal end; roles that stop cleanly on the clock's end
@@ -152,7 +154,7 @@ while :; do
   wait -n -p died "${running[@]}" || status=$?
   [ "$died" = "$gateway_pid" ] && break
   if [ "$status" != 0 ]; then
-    kill "$tail_pid" 2>/dev/null || true
+    kill -TERM -- "-$tail_pid" 2>/dev/null || true
     echo "run_cluster: process $(name_of "$died") died (exit status $status); stopping the cluster" >&2
     tail -n 5 "$out/logs/$(name_of "$died").log" >&2 || true
     exit 1
@@ -161,7 +163,7 @@ while :; do
   for pid in "${running[@]}"; do [ "$pid" != "$died" ] && rest+=("$pid"); done
   running=("${rest[@]}")
 done
-kill "$tail_pid" 2>/dev/null || true
+kill -TERM -- "-$tail_pid" 2>/dev/null || true
 if [ ! -f "$out/metrics.json" ]; then
   echo "run_cluster: the gateway failed (exit status $status):" >&2
   grep -E 'ERROR|dica:' "$out/logs/gateway.log" | tail -n 5 >&2 || true
