@@ -299,6 +299,7 @@ def test_realtime_clock_is_paced_and_safe(tmp_path):
         (["--layout", "ch9"], "unknown layout"),
         (["--bogus"], "unknown option --bogus"),
         (["--volume", "5000", "--duration", "5"], "volume 5000 is out of range"),
+        (["--agents", "1", "--per-agent", "1", "--no-record", "--duration", "120"], "has room"),
     ],
 )
 def test_bad_input_to_run_cluster_is_one_clear_line(tmp_path, args, says):
