@@ -105,6 +105,9 @@ def test_follow_conflict_is_the_numpy_one(request, monkeypatch, junction):
         return fast
 
     monkeypatch.setattr(ica.core.dica, "follow_conflict", checked)
+    # the Python round loop calls follow_conflict (the compiled one calls the
+    # kernel itself, see tests/test_resolve_compiled.py)
+    monkeypatch.setattr(ica.core.dica.Dica, "compiled_loop", False)
     spec = StreamSpec(volume_per_10min=2400.0, n_vehicles=40, seed=9)
     res = run_stream(inter, IcaConfig(), spec)
     assert len(res.confirmed) == len(res.vehicles)

@@ -614,3 +614,250 @@ def select_rows(
             hi[c] = stack_hi[r]
             c += 1
     return m, row, lo, hi
+
+
+# -- Algorithm 1's round loop, whole --------------------------------------
+#
+# The planner's plan building (:class:`ica.core.planner._Builder`,
+# ``Planner._build_a``, ``Planner._build_b``, ``Planner.at_or_after``),
+# ``Profile.time_at``, :func:`ica.core.trajectory.sample`, the estimated
+# DTOT, the batched getCV, the lane-leader check and the update rule of
+# ``Dica._resolve``, in one compiled call. Every expression is the Python
+# one in the same order (Python's ``min`` and ``max`` as :func:`_py_min`,
+# :func:`_py_max`), so each round gives the same plan bit for bit.
+
+_EPS_PLAN = 1e-9  # as in ica.core.planner._EPS
+_MAX_SEGS = 16  # a plan has at most 7 segments (stop family), 6 (slow-down family)
+
+RESOLVED, FALL_BACK = 0, 1  # resolve_rounds' status
+
+
+@njit(cache=True, nogil=True)
+def _seg(segs: np.ndarray, n: int, t: float, s: float, v: float, a: float) -> int:
+    segs[n, 0] = t
+    segs[n, 1] = s
+    segs[n, 2] = v
+    segs[n, 3] = a
+    return n + 1
+
+
+@njit(cache=True, nogil=True)
+def _accel_to(st: np.ndarray, segs: np.ndarray, n: int, v1: float, rate: float) -> int:
+    """``_Builder.accel_to``; ``st`` is the builder's (t, s, v)."""
+    if abs(v1 - st[2]) < _EPS_PLAN:
+        return n
+    a = rate if v1 > st[2] else -rate
+    dt = (v1 - st[2]) / a
+    n = _seg(segs, n, st[0], st[1], st[2], a)
+    st[1] += (st[2] + v1) / 2.0 * dt
+    st[0] += dt
+    st[2] = v1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _hold(st: np.ndarray, segs: np.ndarray, n: int, dt: float) -> int:
+    if dt <= _EPS_PLAN:
+        return n
+    n = _seg(segs, n, st[0], st[1], st[2], 0.0)
+    st[1] += st[2] * dt
+    st[0] += dt
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _cruise_to(st: np.ndarray, segs: np.ndarray, n: int, s1: float) -> int:
+    if s1 - st[1] > _EPS_PLAN and st[2] > _EPS_PLAN:
+        n = _hold(st, segs, n, (s1 - st[1]) / st[2])
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _crossing(
+    st: np.ndarray, segs: np.ndarray, n: int, cap: float, accel: float, s_end: float
+) -> int:
+    """``Planner._crossing`` and the closing segment of ``_Builder.profile``."""
+    n = _accel_to(st, segs, n, _py_max(st[2], cap), accel)
+    n = _cruise_to(st, segs, n, s_end)
+    return _seg(segs, n, st[0], st[1], st[2], 0.0)
+
+
+@njit(cache=True, nogil=True)
+def _build_a(
+    a: float, br: float, v0: float, d: float, cap: float, s_end: float, v_m: float,
+    segs: np.ndarray,
+) -> int:  # fmt: skip
+    """``Planner._build_a`` into ``segs``: the number of segments, 0 if it does not fit."""
+    fits, _d1, d3, v_e, _t = a_phases(a, br, v0, d, cap, v_m)
+    if not fits:
+        return 0
+    st = np.empty(3)
+    st[0], st[1], st[2] = 0.0, -d, v0
+    n = _accel_to(st, segs, 0, v_m, a if v_m >= v0 else br)
+    n = _cruise_to(st, segs, n, -d3)
+    n = _accel_to(st, segs, n, v_e, a if v_e >= v_m else br)
+    st[1] = 0.0
+    return _crossing(st, segs, n, cap, a, s_end)
+
+
+@njit(cache=True, nogil=True)
+def _build_b(
+    a: float, cap: float, s_end: float, wait_s: float, b_segs: np.ndarray, b_state: np.ndarray,
+    segs: np.ndarray,
+) -> int:  # fmt: skip
+    """``Planner._build_b`` from the stop-at-the-line base (its segments and (t, s, v))."""
+    n = len(b_segs)
+    segs[:n] = b_segs
+    st = b_state.copy()
+    if wait_s > 0:
+        n = _seg(segs, n, st[0], st[1], 0.0, 0.0)
+        st[0] += wait_s
+    return _crossing(st, segs, n, cap, a, s_end)
+
+
+@njit(cache=True, nogil=True)
+def _time_at(segs: np.ndarray, n: int, s: float) -> float:
+    """``Profile.time_at``."""
+    for k in range(n):
+        s0, v0, a = segs[k, 1], segs[k, 2], segs[k, 3]
+        end = segs[k + 1, 0] - segs[k, 0] if k + 1 < n else math.inf
+        ds = s - s0
+        if ds <= 0.0:
+            return segs[k, 0]
+        if abs(a) < _EPS_PLAN:
+            tau = ds / v0 if v0 > _EPS_PLAN else math.inf
+        else:
+            disc = v0 * v0 + 2.0 * a * ds
+            tau = math.inf if disc < 0.0 else (math.sqrt(disc) - v0) / a
+        if tau <= end + 1e-9:
+            return segs[k, 0] + tau
+    return math.inf
+
+
+@njit(cache=True, nogil=True)
+def _entry_time(t0: float, step: float, s: np.ndarray) -> float:
+    """``Trajectory.entry_time_s``."""
+    n = len(s)
+    k = n - 1
+    for q in range(n):
+        if s[q] > 0.0:
+            k = max(q - 1, 0)
+            break
+    if s[k] > 0.0 or k + 1 >= n:
+        return t0 + k * step
+    s0, s1 = s[k], s[k + 1]
+    return t0 + (k + (0.0 - s0) / (s1 - s0)) * step
+
+
+@njit(
+    "Tuple((int64, int64, float64[::1]))("
+    "float64, float64, float64, float64, float64, float64,"  # a, br, v0, d, cap, s_end
+    " float64, boolean, float64, float64, boolean, float64,"  # v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t
+    " float64, float64[:, ::1], float64[::1],"  # t_b0, b_segs, b_state
+    " float64, float64, float64[::1],"  # t0, step, s_init
+    " float64[::1], float64[::1], float64[::1], float64, float64, float64,"
+    " float64[::1], float64[::1], float64, float64,"  # route, grid, half extents
+    " float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1],"
+    " int8[::1], int64, int64,"  # confirmed batch
+    " boolean, float64, float64, float64[::1], float64, float64,"  # lane leader
+    " int64, float64)",
+    cache=True,
+    nogil=True,
+)
+def resolve_rounds(
+    a: float, br: float, v0: float, d: float, cap: float, s_end: float,
+    v_hi: float, hi_ok: bool, hi_t: float, v_lo: float, lo_ok: bool, lo_t: float,
+    t_b0: float, b_segs: np.ndarray, b_state: np.ndarray,
+    t0: float, step: float, s_init: np.ndarray,
+    route_s: np.ndarray, route_x: np.ndarray, route_y: np.ndarray, length_m: float,
+    grid_s0: float, grid_ds: float, fwd_m: np.ndarray, back_m: np.ndarray,
+    half_l: float, half_w: float,
+    packed: np.ndarray, vid: np.ndarray, m_idx: np.ndarray, row: np.ndarray,
+    row_lo: np.ndarray, row_hi: np.ndarray, codes: np.ndarray, width: int, nv: int,
+    has_leader: bool, lead_t0: float, lead_step: float, lead_s: np.ndarray,
+    lead_length_m: float, gap_m: float,
+    max_iterations: int, max_wait_s: float,
+) -> tuple[int, int, np.ndarray]:  # fmt: skip
+    """The rounds of ``Dica._resolve`` (enhanced DICA) from the first plan ``s_init``.
+
+    Returns (RESOLVED, rounds, the conflict-free plan's samples), or
+    FALL_BACK where the Python loop raises (no plan, the wait or the round
+    limit exceeded, the state too close to the lane leader, a plan that never
+    leaves): the caller then runs the Python loop, which raises with its
+    message. The planner's constants per request come from
+    ``Planner.plan_constants``; the confirmed set from ``ConfirmedBatch``.
+    """
+    segs = np.empty((_MAX_SEGS, 4))
+    hit = np.zeros(nv, np.bool_)
+    first = np.empty(nv)
+    delay = np.empty(nv)
+    s = s_init
+    for it in range(1, max_iterations + 1):
+        # the estimated DTOT (ica.core.dtot.build_dtot)
+        k0, k1 = dtot_span(s, s_end)
+        sd = s[k0 : k1 + 1].copy()
+        n = len(sd)
+        t = np.empty(n)
+        for q in range(n):
+            t[q] = t0 + step * np.float64(k0 + q)
+        centre = np.empty((n, 2))
+        heading = np.empty((n, 2))
+        lb = np.empty(n)
+        ub = np.empty(n)
+        g = np.empty(n, np.int64)
+        estimated_dtot(
+            route_s, route_x, route_y, length_m, sd, grid_s0, grid_ds, fwd_m, back_m,
+            centre, heading, t, lb, ub, g,
+        )  # fmt: skip
+        # getCV, then the first conflict as Dica._resolve sorts them
+        hit[:] = False
+        best = -1
+        best_first = 0.0
+        best_delay = 0.0
+        if batch_conflicts(
+            lb, ub, g, centre, heading, half_l, half_w, packed, vid, m_idx, row,
+            row_lo, row_hi, codes, width, hit, first, delay,
+        ):  # fmt: skip
+            for v in range(nv):
+                if hit[v] and (best < 0 or first[v] < best_first):
+                    best = v
+                    best_first = first[v]
+                    best_delay = delay[v]
+        if has_leader:
+            found, f_first, f_delay = follow_check(
+                t0, step, s, lead_t0, lead_step, lead_s, lead_length_m, gap_m
+            )
+            if found:
+                if f_first <= t0 + step + 1e-9:
+                    return FALL_BACK, it, s
+                if best < 0 or f_first < best_first:  # after the others on a tie
+                    best = nv
+                    best_first = f_first
+                    best_delay = _py_max(f_delay, 0.0)
+        if best < 0:
+            return RESOLVED, it, s
+        target = _entry_time(t0, step, s) - t0 + _py_max(best_delay, step)
+        if target > max_wait_s:
+            return FALL_BACK, it, s
+        # the next plan: Planner.at_or_after, then sample
+        if not hi_ok:
+            return FALL_BACK, it, s
+        if target <= hi_t + 1e-9:
+            ns = _build_a(a, br, v0, d, cap, s_end, v_hi, segs)
+        elif lo_ok and target <= lo_t:
+            v = bisect_cruise(a, br, v0, d, cap, v_lo, v_hi, target)
+            ns = _build_a(a, br, v0, d, cap, s_end, v, segs)
+        elif not math.isfinite(t_b0):
+            ns = 0
+        else:
+            ns = _build_b(a, cap, s_end, _py_max(0.0, target - t_b0), b_segs, b_state, segs)
+        if ns == 0:
+            return FALL_BACK, it, s
+        t_out = _time_at(segs, ns, s_end)
+        if not math.isfinite(t_out):
+            return FALL_BACK, it, s
+        count = math.ceil(t_out / step - 1e-9) + 1
+        s = np.empty(count)
+        p = np.ascontiguousarray(segs[:ns].T)
+        profile_position(p[0], p[1], p[2], p[3], step, s)
+    return FALL_BACK, max_iterations, s
