@@ -75,6 +75,65 @@ def _searchsorted(a: np.ndarray, keys: np.ndarray, right: bool, out: np.ndarray)
         out[q] = lo
 
 
+@njit("boolean(float64[::1])", cache=True, nogil=True)
+def _strictly_increasing(a: np.ndarray) -> bool:
+    for k in range(len(a) - 1):  # noqa: SIM110 (a plain loop compiles best)
+        if not a[k] < a[k + 1]:
+            return False
+    return True
+
+
+@njit("void(float64[::1], float64[::1], float64[::1], float64[::1])", cache=True, nogil=True)
+def _interp(x: np.ndarray, xp: np.ndarray, fp: np.ndarray, out: np.ndarray) -> None:
+    """``np.interp(x, xp, fp)`` into ``out``, for strictly increasing ``xp`` (2 points or more).
+
+    numpy's arithmetic and special cases (numba's copy of ``arr_interp``);
+    only the search differs: on strictly increasing ``xp`` the segment j is
+    the last one with ``xp[j] <= x``, which a walk from the previous query
+    finds as numpy's binary search does, in O(1) for sorted queries.
+    """
+    n = len(xp)
+    lval = fp[0]
+    rval = fp[n - 1]
+    j = 0
+    for i in range(len(x)):
+        xv = x[i]
+        if np.isnan(xv):
+            out[i] = xv
+            continue
+        if xv > xp[n - 1]:
+            out[i] = rval
+            continue
+        if xv < xp[0]:
+            out[i] = lval
+            continue
+        # the largest j with xp[j] <= xv: what numpy's search finds on strictly increasing xp
+        while j + 1 < n and xp[j + 1] <= xv:
+            j += 1
+        while xp[j] > xv:
+            j -= 1
+        if j == n - 1 or xp[j] == xv:  # numpy's two cases giving fp[j]
+            out[i] = fp[j]
+        else:
+            slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+            r = slope * (xv - xp[j]) + fp[j]
+            if np.isnan(r):
+                r = slope * (xv - xp[j + 1]) + fp[j + 1]
+                if np.isnan(r) and fp[j] == fp[j + 1]:
+                    r = fp[j]
+            out[i] = r
+
+
+@njit("float64[::1](float64[::1], float64[::1], float64[::1])", cache=True, nogil=True)
+def _interp_any(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """``np.interp``: :func:`_interp` where ``xp`` rises strictly, numba's copy otherwise."""
+    if len(xp) >= 2 and _strictly_increasing(xp):
+        out = np.empty(len(x))
+        _interp(x, xp, fp, out)
+        return out
+    return np.interp(x, xp, fp)
+
+
 @njit("UniTuple(int64, 2)(float64[::1], float64)", cache=True, nogil=True)
 def dtot_span(s: np.ndarray, s_end_m: float) -> tuple[int, int]:
     """(entry_index, exit_index) of :class:`ica.core.trajectory.Trajectory`."""
@@ -126,10 +185,10 @@ def estimated_dtot(
     last = len(fwd_m) - 1
     half = length_m / 2.0
     rear = s - length_m
-    fx = np.interp(s, route_s, route_x)
-    fy = np.interp(s, route_s, route_y)
-    rx = np.interp(rear, route_s, route_x)
-    ry = np.interp(rear, route_s, route_y)
+    fx = _interp_any(s, route_s, route_x)
+    fy = _interp_any(s, route_s, route_y)
+    rx = _interp_any(rear, route_s, route_x)
+    ry = _interp_any(rear, route_s, route_y)
     behind = np.empty(n)
     ahead = np.empty(n)
     for k in range(n):
@@ -206,8 +265,8 @@ def follow_check(
         if tl[k] >= tf[0] and tl[k] <= t_end:
             t[q] = tl[k]
             q += 1
-    sf_t = np.interp(t, tf, s_f)
-    sl_t = np.interp(t, tl, s_l)
+    sf_t = _interp_any(t, tf, s_f)
+    sl_t = _interp_any(t, tl, s_l)
     nbad = 0
     for q in range(len(t)):
         if sf_t[q] < 0.0 and sf_t[q] > sl_t[q] - leader_length_m - gap_m:
