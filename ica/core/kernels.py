@@ -407,6 +407,125 @@ def batch_conflicts(
     return found
 
 
+@njit(cache=True, nogil=True)
+def _row_conflict(
+    c: int, lb_i: np.ndarray, ub_i: np.ndarray, g_i: np.ndarray, centre_i: np.ndarray,
+    heading_i: np.ndarray, la: float, wa: float, packed: np.ndarray, m_idx: np.ndarray,
+    row: np.ndarray, row_lo: np.ndarray, row_hi: np.ndarray, codes: np.ndarray, width: int,
+    ub_hull: np.ndarray, lb_hull: np.ndarray, g_hi: np.ndarray, g_lo: np.ndarray,
+) -> tuple[bool, float]:  # fmt: skip
+    """The pairs of :func:`batch_conflicts` for confirmed occupancy ``m_idx[c]``:
+    (any conflicting, the greatest ``ub_j - lb_i`` over them)."""
+    q = m_idx[c]
+    lb_j, ub_j = packed[q, 0], packed[q, 1]
+    lo = max(_search(ub_hull, lb_j, False), _search(g_hi, float(row_lo[c]), False))
+    hi = min(_search(lb_hull, ub_j, True), _search(g_lo, float(row_hi[c]), True))
+    base = row[c] * width
+    found = False
+    worst = 0.0
+    for k in range(lo, hi):
+        if not (lb_i[k] <= ub_j and lb_j <= ub_i[k]):
+            continue
+        code = codes[base + g_i[k]]
+        if code == APART:
+            continue
+        if code == MAYBE:
+            ax, ay = heading_i[k, 0], heading_i[k, 1]
+            bx, by = packed[q, 4], packed[q, 5]
+            dx = packed[q, 2] - centre_i[k, 0]
+            dy = packed[q, 3] - centre_i[k, 1]
+            cs = abs(ax * bx + ay * by)
+            sn = abs(ax * by - ay * bx)
+            lb, wb = packed[q, 6], packed[q, 7]
+            if abs(dx * ax + dy * ay) > la + lb * cs + wb * sn + _EPS_SAT:
+                continue
+            if abs(dy * ax - dx * ay) > wa + lb * sn + wb * cs + _EPS_SAT:
+                continue
+            if abs(dx * bx + dy * by) > lb + la * cs + wa * sn + _EPS_SAT:
+                continue
+            if abs(dy * bx - dx * by) > wb + la * sn + wa * cs + _EPS_SAT:
+                continue
+        d = ub_j - lb_i[k]
+        worst = max(worst, d) if found else d
+        found = True
+    return found, worst
+
+
+@njit(cache=True, nogil=True)
+def first_conflict(
+    lb_i: np.ndarray, ub_i: np.ndarray, g_i: np.ndarray, centre_i: np.ndarray,
+    heading_i: np.ndarray, la: float, wa: float, packed: np.ndarray, vid: np.ndarray,
+    m_idx: np.ndarray, row: np.ndarray, row_lo: np.ndarray, row_hi: np.ndarray,
+    codes: np.ndarray, width: int, bound: float,
+) -> tuple[int, float, float]:  # fmt: skip
+    """The first conflicting vehicle of :func:`batch_conflicts` and its two values.
+
+    Returns (v, firstTimeAtCollision, delay) of the vehicle ``Dica._resolve``
+    takes first: the least firstTimeAtCollision, the lower index on a tie;
+    v = -1 if no vehicle conflicts at or before ``bound``. The rows must come
+    in ascending ``lb_j`` (``packed[m_idx, 0]``): the first conflicting row
+    then holds the least firstTimeAtCollision of all, rows after the
+    requester's crossing or after that time cannot change the choice, and
+    only the chosen vehicle's later rows are searched for its delay (a
+    maximum: the order does not change it).
+    """
+    n = len(lb_i)
+    if n == 0:
+        return -1, 0.0, 0.0
+    ub_hull = np.empty(n)
+    lb_hull = np.empty(n)
+    g_hi = np.empty(n)
+    g_lo = np.empty(n)
+    for k in range(n):
+        ub_hull[k] = ub_i[k] if k == 0 else max(ub_hull[k - 1], ub_i[k])
+        g_hi[k] = g_i[k] if k == 0 else max(g_hi[k - 1], g_i[k])
+    for k in range(n - 1, -1, -1):
+        lb_hull[k] = lb_i[k] if k == n - 1 else min(lb_hull[k + 1], lb_i[k])
+        g_lo[k] = g_i[k] if k == n - 1 else min(g_lo[k + 1], g_i[k])
+    t_lo, t_hi = lb_hull[0], ub_hull[n - 1]
+    best = -1
+    best_first = 0.0
+    best_delay = 0.0
+    rows = len(m_idx)
+    c = 0
+    while c < rows:
+        q = m_idx[c]
+        lb_j, ub_j = packed[q, 0], packed[q, 1]
+        if lb_j > t_hi or lb_j > bound or (best >= 0 and lb_j > best_first):
+            break
+        if ub_j >= t_lo:
+            found, worst = _row_conflict(
+                c, lb_i, ub_i, g_i, centre_i, heading_i, la, wa, packed, m_idx, row,
+                row_lo, row_hi, codes, width, ub_hull, lb_hull, g_hi, g_lo,
+            )  # fmt: skip
+            if found:
+                v = vid[q]
+                if best < 0 or v < best:
+                    best = v
+                    best_first = lb_j
+                    best_delay = worst
+                elif v == best:
+                    best_delay = max(best_delay, worst)
+        c += 1
+    if best < 0:
+        return -1, 0.0, 0.0
+    # rows of lb_j == best_first seen so far may hold delays of other vehicles: only best's count
+    while c < rows:
+        q = m_idx[c]
+        lb_j, ub_j = packed[q, 0], packed[q, 1]
+        if lb_j > t_hi:
+            break
+        if vid[q] == best and ub_j >= t_lo:
+            found, worst = _row_conflict(
+                c, lb_i, ub_i, g_i, centre_i, heading_i, la, wa, packed, m_idx, row,
+                row_lo, row_hi, codes, width, ub_hull, lb_hull, g_hi, g_lo,
+            )  # fmt: skip
+            if found:
+                best_delay = max(best_delay, worst)
+        c += 1
+    return best, best_first, best_delay
+
+
 @njit(
     "Tuple((float64[::1], float64[::1]))(float64[:, ::1], float64[::1], float64[:, ::1])",
     cache=True,
@@ -850,6 +969,17 @@ def resolve_rounds(
     hit = np.zeros(nv, np.bool_)
     first = np.empty(nv)
     delay = np.empty(nv)
+    # the confirmed rows in ascending lb_j, for first_conflict; with a NaN
+    # bound (never from a real DTOT) every round searches all rows instead
+    rows = len(m_idx)
+    lbs = np.empty(rows)
+    ordered = True
+    for c in range(rows):
+        lbs[c] = packed[m_idx[c], 0]
+        if np.isnan(lbs[c]) or np.isnan(packed[m_idx[c], 1]):
+            ordered = False
+    order = np.argsort(lbs)
+    m_s, row_s, lo_s, hi_s = m_idx[order], row[order], row_lo[order], row_hi[order]
     s = s_init
     for it in range(1, max_iterations + 1):
         # the estimated DTOT (ica.core.dtot.build_dtot)
@@ -868,31 +998,38 @@ def resolve_rounds(
             route_s, route_x, route_y, length_m, sd, grid_s0, grid_ds, fwd_m, back_m,
             centre, heading, t, lb, ub, g,
         )  # fmt: skip
-        # getCV, then the first conflict as Dica._resolve sorts them
-        hit[:] = False
-        best = -1
-        best_first = 0.0
-        best_delay = 0.0
-        if batch_conflicts(
-            lb, ub, g, centre, heading, half_l, half_w, packed, vid, m_idx, row,
-            row_lo, row_hi, codes, width, hit, first, delay,
-        ):  # fmt: skip
-            for v in range(nv):
-                if hit[v] and (best < 0 or first[v] < best_first):
-                    best = v
-                    best_first = first[v]
-                    best_delay = delay[v]
+        # the lane leader, then getCV, and the first conflict as Dica._resolve
+        # sorts them (the leader after the others on a tie)
+        found, f_first, f_delay = False, 0.0, 0.0
         if has_leader:
             found, f_first, f_delay = follow_check(
                 t0, step, s, lead_t0, lead_step, lead_s, lead_length_m, gap_m
             )
-            if found:
-                if f_first <= t0 + step + 1e-9:
-                    return FALL_BACK, it, s
-                if best < 0 or f_first < best_first:  # after the others on a tie
-                    best = nv
-                    best_first = f_first
-                    best_delay = _py_max(f_delay, 0.0)
+            if found and f_first <= t0 + step + 1e-9:
+                return FALL_BACK, it, s
+        best = -1
+        best_first = 0.0
+        best_delay = 0.0
+        if ordered:
+            best, best_first, best_delay = first_conflict(
+                lb, ub, g, centre, heading, half_l, half_w, packed, vid, m_s, row_s,
+                lo_s, hi_s, codes, width, f_first if found else math.inf,
+            )  # fmt: skip
+        else:
+            hit[:] = False
+            if batch_conflicts(
+                lb, ub, g, centre, heading, half_l, half_w, packed, vid, m_idx, row,
+                row_lo, row_hi, codes, width, hit, first, delay,
+            ):  # fmt: skip
+                for v in range(nv):
+                    if hit[v] and (best < 0 or first[v] < best_first):
+                        best = v
+                        best_first = first[v]
+                        best_delay = delay[v]
+        if found and (best < 0 or f_first < best_first):
+            best = nv
+            best_first = f_first
+            best_delay = _py_max(f_delay, 0.0)
         if best < 0:
             return RESOLVED, it, s
         target = _entry_time(t0, step, s) - t0 + _py_max(best_delay, step)
