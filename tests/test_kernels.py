@@ -154,6 +154,23 @@ def test_project_is_the_numpy_one(request, junction):
                 assert np.array_equal(fast[1], slow[1])
 
 
+@pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])
+def test_route_points_are_the_numpy_ones(request, junction):
+    inter = request.getfixturevalue(junction)
+    rng = np.random.default_rng(6)
+    for route in inter.routes:
+        lo, hi = route.s[0], route.s[-1]
+        for s in (
+            rng.uniform(lo - 5, hi + 5, 300),
+            np.sort(rng.uniform(lo - 5, hi + 5, 300)),
+            route.s.copy(),  # the vertices exactly
+            np.concatenate([route.s, [np.nan, lo, hi, lo - 1e-12, hi + 1e-12]]),
+            np.zeros(0),
+        ):
+            assert np.array_equal(route.points(s), route.points_reference(s), equal_nan=True)
+            assert route.points(s).shape == route.points_reference(s).shape
+
+
 def test_plan_phases_and_bisection_are_the_python_ones():
     rng = np.random.default_rng(8)
     kin = Kinematics()

@@ -134,6 +134,18 @@ def _interp_any(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     return np.interp(x, xp, fp)
 
 
+@njit("float64[:, ::1](float64[::1], float64[::1], float64[:, ::1])", cache=True, nogil=True)
+def route_points(s: np.ndarray, route_s: np.ndarray, route_xy: np.ndarray) -> np.ndarray:
+    """:meth:`ica.core.route.Route.points` for a 1-D ``s``: (N, 2) points on the polyline."""
+    out = np.empty((len(s), 2))
+    x = _interp_any(s, route_s, route_xy[:, 0].copy())
+    y = _interp_any(s, route_s, route_xy[:, 1].copy())
+    for k in range(len(s)):
+        out[k, 0] = x[k]
+        out[k, 1] = y[k]
+    return out
+
+
 @njit("UniTuple(int64, 2)(float64[::1], float64)", cache=True, nogil=True)
 def dtot_span(s: np.ndarray, s_end_m: float) -> tuple[int, int]:
     """(entry_index, exit_index) of :class:`ica.core.trajectory.Trajectory`."""
