@@ -105,6 +105,9 @@ def test_follow_conflict_is_the_numpy_one(request, monkeypatch, junction):
         return fast
 
     monkeypatch.setattr(ica.core.dica, "follow_conflict", checked)
+    # the Python round loop calls follow_conflict (the compiled one calls the
+    # kernel itself, see tests/test_resolve_compiled.py)
+    monkeypatch.setattr(ica.core.dica.Dica, "compiled_loop", False)
     spec = StreamSpec(volume_per_10min=2400.0, n_vehicles=40, seed=9)
     res = run_stream(inter, IcaConfig(), spec)
     assert len(res.confirmed) == len(res.vehicles)
@@ -149,6 +152,23 @@ def test_project_is_the_numpy_one(request, junction):
                 fast, slow = route.project(xy), route.project_reference(xy)
                 assert np.array_equal(fast[0], slow[0])
                 assert np.array_equal(fast[1], slow[1])
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])
+def test_route_points_are_the_numpy_ones(request, junction):
+    inter = request.getfixturevalue(junction)
+    rng = np.random.default_rng(6)
+    for route in inter.routes:
+        lo, hi = route.s[0], route.s[-1]
+        for s in (
+            rng.uniform(lo - 5, hi + 5, 300),
+            np.sort(rng.uniform(lo - 5, hi + 5, 300)),
+            route.s.copy(),  # the vertices exactly
+            np.concatenate([route.s, [np.nan, lo, hi, lo - 1e-12, hi + 1e-12]]),
+            np.zeros(0),
+        ):
+            assert np.array_equal(route.points(s), route.points_reference(s), equal_nan=True)
+            assert route.points(s).shape == route.points_reference(s).shape
 
 
 def test_plan_phases_and_bisection_are_the_python_ones():

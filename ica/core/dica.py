@@ -35,12 +35,13 @@ from ica.core.conflict import (
 )
 from ica.core.dtot import Dtot, build_dtot
 from ica.core.intersection import Intersection
+from ica.core.kernels import RESOLVED, resolve_rounds
 from ica.core.planner import Planner
 from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
 from ica.core.route import Route
 from ica.core.trajectory import Trajectory, sample
 from ica.core.validate import check_request
-from ica.core.zones import ConflictTables, Shape
+from ica.core.zones import ConflictTables, RouteGrid, Shape
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -51,8 +52,15 @@ class Confirmed:
     packed: np.ndarray  # the DTOT's occupancies as rows for the batched getCV (pack)
 
 
+_NO_SAMPLES = np.zeros(0)
+
+
 class Dica:
     """The intersection control agent's decision core for one junction."""
+
+    # enhanced DICA runs Algorithm 1's rounds compiled; False: the Python loop
+    # of _resolve, kept as the reference the compiled one is tested against
+    compiled_loop = True
 
     def __init__(
         self,
@@ -246,6 +254,11 @@ class Dica:
             traj = self._plan(planner, req.t0_s, traj.entry_time_s() - req.t0_s, s_end)
         grid = self.tables.grid(route, shape)
         gap = 2.0 * cfg.margin_m
+        if self._compiled_rounds():
+            found = self._resolve_compiled(req, route, shape, traj, leader, planner, grid, s_end)
+            if found is not None:
+                return found[0], found[1], earliest
+            # the compiled loop stops where this loop raises: let it raise, with its message
 
         for iteration in range(1, cfg.max_iterations + 1):
             dtot = build_dtot(route, shape, traj, cfg.margin_m, grid, cfg.techniques.estimated_oti)
@@ -273,6 +286,61 @@ class Dica:
         raise RequestError(
             Reason.INFEASIBLE, f"no conflict-free plan after {cfg.max_iterations} updates"
         )
+
+    def _compiled_rounds(self) -> bool:
+        """Enhanced DICA's rounds run as one compiled call (:meth:`_resolve_compiled`)."""
+        tech = self.config.techniques
+        return (
+            self.compiled_loop
+            and tech.reduced_set
+            and tech.conflict_zones
+            and tech.bisection
+            and tech.estimated_oti
+            and type(self).conflicts is _BATCHED_GET_CV  # not a baseline's, nor replaced
+        )
+
+    def _resolve_compiled(
+        self,
+        req: Request,
+        route: Route,
+        shape: Shape,
+        traj: Trajectory,
+        leader: Confirmed | None,
+        planner: Planner,
+        grid: RouteGrid,
+        s_end: float,
+    ) -> tuple[Dtot, int] | None:
+        """The loop of :meth:`_resolve` in one compiled call
+        (:func:`ica.core.kernels.resolve_rounds`): the same plans round for
+        round, so the same answer. None where the loop would raise."""
+        cfg = self.config
+        batch = self._confirmed_batch(route, shape)
+        g = batch.gathered
+        if leader is not None:
+            lead = leader.dtot.trajectory
+            lead_args = (
+                True, lead.t0_s, lead.step_s, np.ascontiguousarray(lead.s_m, dtype=float),
+                leader.dtot.shape.length_m,
+            )  # fmt: skip
+        else:
+            lead_args = (False, 0.0, 0.0, _NO_SAMPLES, 0.0)
+        status, iteration, s = resolve_rounds(
+            cfg.kinematics.accel_mps2, cfg.kinematics.decel_mps2, planner.v0_mps, planner.d_m,
+            planner.cap_mps, s_end,
+            *planner.plan_constants(),
+            req.t0_s, cfg.step_s, np.ascontiguousarray(traj.s_m, dtype=float),
+            route.s, grid.route_x, grid.route_y, shape.length_m, grid.s0_m, grid.ds_m,
+            grid.fwd_m, grid.back_m,
+            shape.length_m / 2.0 + cfg.margin_m, shape.width_m / 2.0 + cfg.margin_m,
+            g.packed, g.vid, batch.m, batch.row, batch.row_lo, batch.row_hi, batch.codes,
+            batch.width, len(g.vins),
+            *lead_args, 2.0 * cfg.margin_m,
+            cfg.max_iterations, cfg.max_wait_s,
+        )  # fmt: skip
+        if status != RESOLVED:
+            return None
+        final = Trajectory(req.t0_s, cfg.step_s, s)
+        return build_dtot(route, shape, final, cfg.margin_m, grid, True), iteration
 
     def conflicts(self, dtot: Dtot) -> list[Conflict]:
         """getCV: confirmed vehicles in space-time conflict with ``dtot``.
@@ -306,3 +374,6 @@ class Dica:
                 f"cannot delay the entry to t={t0_s + entry_rel_s:.2f} s from the state",
             )
         return sample(profile, t0_s, self.config.step_s, s_end)
+
+
+_BATCHED_GET_CV = Dica.conflicts  # the getCV the compiled round loop repeats

@@ -75,6 +75,77 @@ def _searchsorted(a: np.ndarray, keys: np.ndarray, right: bool, out: np.ndarray)
         out[q] = lo
 
 
+@njit("boolean(float64[::1])", cache=True, nogil=True)
+def _strictly_increasing(a: np.ndarray) -> bool:
+    for k in range(len(a) - 1):  # noqa: SIM110 (a plain loop compiles best)
+        if not a[k] < a[k + 1]:
+            return False
+    return True
+
+
+@njit("void(float64[::1], float64[::1], float64[::1], float64[::1])", cache=True, nogil=True)
+def _interp(x: np.ndarray, xp: np.ndarray, fp: np.ndarray, out: np.ndarray) -> None:
+    """``np.interp(x, xp, fp)`` into ``out``, for strictly increasing ``xp`` (2 points or more).
+
+    numpy's arithmetic and special cases (numba's copy of ``arr_interp``);
+    only the search differs: on strictly increasing ``xp`` the segment j is
+    the last one with ``xp[j] <= x``, which a walk from the previous query
+    finds as numpy's binary search does, in O(1) for sorted queries.
+    """
+    n = len(xp)
+    lval = fp[0]
+    rval = fp[n - 1]
+    j = 0
+    for i in range(len(x)):
+        xv = x[i]
+        if np.isnan(xv):
+            out[i] = xv
+            continue
+        if xv > xp[n - 1]:
+            out[i] = rval
+            continue
+        if xv < xp[0]:
+            out[i] = lval
+            continue
+        # the largest j with xp[j] <= xv: what numpy's search finds on strictly increasing xp
+        while j + 1 < n and xp[j + 1] <= xv:
+            j += 1
+        while xp[j] > xv:
+            j -= 1
+        if j == n - 1 or xp[j] == xv:  # numpy's two cases giving fp[j]
+            out[i] = fp[j]
+        else:
+            slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+            r = slope * (xv - xp[j]) + fp[j]
+            if np.isnan(r):
+                r = slope * (xv - xp[j + 1]) + fp[j + 1]
+                if np.isnan(r) and fp[j] == fp[j + 1]:
+                    r = fp[j]
+            out[i] = r
+
+
+@njit("float64[::1](float64[::1], float64[::1], float64[::1])", cache=True, nogil=True)
+def _interp_any(x: np.ndarray, xp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+    """``np.interp``: :func:`_interp` where ``xp`` rises strictly, numba's copy otherwise."""
+    if len(xp) >= 2 and _strictly_increasing(xp):
+        out = np.empty(len(x))
+        _interp(x, xp, fp, out)
+        return out
+    return np.interp(x, xp, fp)
+
+
+@njit("float64[:, ::1](float64[::1], float64[::1], float64[:, ::1])", cache=True, nogil=True)
+def route_points(s: np.ndarray, route_s: np.ndarray, route_xy: np.ndarray) -> np.ndarray:
+    """:meth:`ica.core.route.Route.points` for a 1-D ``s``: (N, 2) points on the polyline."""
+    out = np.empty((len(s), 2))
+    x = _interp_any(s, route_s, route_xy[:, 0].copy())
+    y = _interp_any(s, route_s, route_xy[:, 1].copy())
+    for k in range(len(s)):
+        out[k, 0] = x[k]
+        out[k, 1] = y[k]
+    return out
+
+
 @njit("UniTuple(int64, 2)(float64[::1], float64)", cache=True, nogil=True)
 def dtot_span(s: np.ndarray, s_end_m: float) -> tuple[int, int]:
     """(entry_index, exit_index) of :class:`ica.core.trajectory.Trajectory`."""
@@ -126,10 +197,10 @@ def estimated_dtot(
     last = len(fwd_m) - 1
     half = length_m / 2.0
     rear = s - length_m
-    fx = np.interp(s, route_s, route_x)
-    fy = np.interp(s, route_s, route_y)
-    rx = np.interp(rear, route_s, route_x)
-    ry = np.interp(rear, route_s, route_y)
+    fx = _interp_any(s, route_s, route_x)
+    fy = _interp_any(s, route_s, route_y)
+    rx = _interp_any(rear, route_s, route_x)
+    ry = _interp_any(rear, route_s, route_y)
     behind = np.empty(n)
     ahead = np.empty(n)
     for k in range(n):
@@ -206,8 +277,8 @@ def follow_check(
         if tl[k] >= tf[0] and tl[k] <= t_end:
             t[q] = tl[k]
             q += 1
-    sf_t = np.interp(t, tf, s_f)
-    sl_t = np.interp(t, tl, s_l)
+    sf_t = _interp_any(t, tf, s_f)
+    sl_t = _interp_any(t, tl, s_l)
     nbad = 0
     for q in range(len(t)):
         if sf_t[q] < 0.0 and sf_t[q] > sl_t[q] - leader_length_m - gap_m:
@@ -346,6 +417,125 @@ def batch_conflicts(
                 delay[v] = d
             found = True
     return found
+
+
+@njit(cache=True, nogil=True)
+def _row_conflict(
+    c: int, lb_i: np.ndarray, ub_i: np.ndarray, g_i: np.ndarray, centre_i: np.ndarray,
+    heading_i: np.ndarray, la: float, wa: float, packed: np.ndarray, m_idx: np.ndarray,
+    row: np.ndarray, row_lo: np.ndarray, row_hi: np.ndarray, codes: np.ndarray, width: int,
+    ub_hull: np.ndarray, lb_hull: np.ndarray, g_hi: np.ndarray, g_lo: np.ndarray,
+) -> tuple[bool, float]:  # fmt: skip
+    """The pairs of :func:`batch_conflicts` for confirmed occupancy ``m_idx[c]``:
+    (any conflicting, the greatest ``ub_j - lb_i`` over them)."""
+    q = m_idx[c]
+    lb_j, ub_j = packed[q, 0], packed[q, 1]
+    lo = max(_search(ub_hull, lb_j, False), _search(g_hi, float(row_lo[c]), False))
+    hi = min(_search(lb_hull, ub_j, True), _search(g_lo, float(row_hi[c]), True))
+    base = row[c] * width
+    found = False
+    worst = 0.0
+    for k in range(lo, hi):
+        if not (lb_i[k] <= ub_j and lb_j <= ub_i[k]):
+            continue
+        code = codes[base + g_i[k]]
+        if code == APART:
+            continue
+        if code == MAYBE:
+            ax, ay = heading_i[k, 0], heading_i[k, 1]
+            bx, by = packed[q, 4], packed[q, 5]
+            dx = packed[q, 2] - centre_i[k, 0]
+            dy = packed[q, 3] - centre_i[k, 1]
+            cs = abs(ax * bx + ay * by)
+            sn = abs(ax * by - ay * bx)
+            lb, wb = packed[q, 6], packed[q, 7]
+            if abs(dx * ax + dy * ay) > la + lb * cs + wb * sn + _EPS_SAT:
+                continue
+            if abs(dy * ax - dx * ay) > wa + lb * sn + wb * cs + _EPS_SAT:
+                continue
+            if abs(dx * bx + dy * by) > lb + la * cs + wa * sn + _EPS_SAT:
+                continue
+            if abs(dy * bx - dx * by) > wb + la * sn + wa * cs + _EPS_SAT:
+                continue
+        d = ub_j - lb_i[k]
+        worst = max(worst, d) if found else d
+        found = True
+    return found, worst
+
+
+@njit(cache=True, nogil=True)
+def first_conflict(
+    lb_i: np.ndarray, ub_i: np.ndarray, g_i: np.ndarray, centre_i: np.ndarray,
+    heading_i: np.ndarray, la: float, wa: float, packed: np.ndarray, vid: np.ndarray,
+    m_idx: np.ndarray, row: np.ndarray, row_lo: np.ndarray, row_hi: np.ndarray,
+    codes: np.ndarray, width: int, bound: float,
+) -> tuple[int, float, float]:  # fmt: skip
+    """The first conflicting vehicle of :func:`batch_conflicts` and its two values.
+
+    Returns (v, firstTimeAtCollision, delay) of the vehicle ``Dica._resolve``
+    takes first: the least firstTimeAtCollision, the lower index on a tie;
+    v = -1 if no vehicle conflicts at or before ``bound``. The rows must come
+    in ascending ``lb_j`` (``packed[m_idx, 0]``): the first conflicting row
+    then holds the least firstTimeAtCollision of all, rows after the
+    requester's crossing or after that time cannot change the choice, and
+    only the chosen vehicle's later rows are searched for its delay (a
+    maximum: the order does not change it).
+    """
+    n = len(lb_i)
+    if n == 0:
+        return -1, 0.0, 0.0
+    ub_hull = np.empty(n)
+    lb_hull = np.empty(n)
+    g_hi = np.empty(n)
+    g_lo = np.empty(n)
+    for k in range(n):
+        ub_hull[k] = ub_i[k] if k == 0 else max(ub_hull[k - 1], ub_i[k])
+        g_hi[k] = g_i[k] if k == 0 else max(g_hi[k - 1], g_i[k])
+    for k in range(n - 1, -1, -1):
+        lb_hull[k] = lb_i[k] if k == n - 1 else min(lb_hull[k + 1], lb_i[k])
+        g_lo[k] = g_i[k] if k == n - 1 else min(g_lo[k + 1], g_i[k])
+    t_lo, t_hi = lb_hull[0], ub_hull[n - 1]
+    best = -1
+    best_first = 0.0
+    best_delay = 0.0
+    rows = len(m_idx)
+    c = 0
+    while c < rows:
+        q = m_idx[c]
+        lb_j, ub_j = packed[q, 0], packed[q, 1]
+        if lb_j > t_hi or lb_j > bound or (best >= 0 and lb_j > best_first):
+            break
+        if ub_j >= t_lo:
+            found, worst = _row_conflict(
+                c, lb_i, ub_i, g_i, centre_i, heading_i, la, wa, packed, m_idx, row,
+                row_lo, row_hi, codes, width, ub_hull, lb_hull, g_hi, g_lo,
+            )  # fmt: skip
+            if found:
+                v = vid[q]
+                if best < 0 or v < best:
+                    best = v
+                    best_first = lb_j
+                    best_delay = worst
+                elif v == best:
+                    best_delay = max(best_delay, worst)
+        c += 1
+    if best < 0:
+        return -1, 0.0, 0.0
+    # rows of lb_j == best_first seen so far may hold delays of other vehicles: only best's count
+    while c < rows:
+        q = m_idx[c]
+        lb_j, ub_j = packed[q, 0], packed[q, 1]
+        if lb_j > t_hi:
+            break
+        if vid[q] == best and ub_j >= t_lo:
+            found, worst = _row_conflict(
+                c, lb_i, ub_i, g_i, centre_i, heading_i, la, wa, packed, m_idx, row,
+                row_lo, row_hi, codes, width, ub_hull, lb_hull, g_hi, g_lo,
+            )  # fmt: skip
+            if found:
+                best_delay = max(best_delay, worst)
+        c += 1
+    return best, best_first, best_delay
 
 
 @njit(
@@ -614,3 +804,268 @@ def select_rows(
             hi[c] = stack_hi[r]
             c += 1
     return m, row, lo, hi
+
+
+# -- Algorithm 1's round loop, whole --------------------------------------
+#
+# The planner's plan building (:class:`ica.core.planner._Builder`,
+# ``Planner._build_a``, ``Planner._build_b``, ``Planner.at_or_after``),
+# ``Profile.time_at``, :func:`ica.core.trajectory.sample`, the estimated
+# DTOT, the batched getCV, the lane-leader check and the update rule of
+# ``Dica._resolve``, in one compiled call. Every expression is the Python
+# one in the same order (Python's ``min`` and ``max`` as :func:`_py_min`,
+# :func:`_py_max`), so each round gives the same plan bit for bit.
+
+_EPS_PLAN = 1e-9  # as in ica.core.planner._EPS
+_MAX_SEGS = 16  # a plan has at most 7 segments (stop family), 6 (slow-down family)
+
+RESOLVED, FALL_BACK = 0, 1  # resolve_rounds' status
+
+
+@njit(cache=True, nogil=True)
+def _seg(segs: np.ndarray, n: int, t: float, s: float, v: float, a: float) -> int:
+    segs[n, 0] = t
+    segs[n, 1] = s
+    segs[n, 2] = v
+    segs[n, 3] = a
+    return n + 1
+
+
+@njit(cache=True, nogil=True)
+def _accel_to(st: np.ndarray, segs: np.ndarray, n: int, v1: float, rate: float) -> int:
+    """``_Builder.accel_to``; ``st`` is the builder's (t, s, v)."""
+    if abs(v1 - st[2]) < _EPS_PLAN:
+        return n
+    a = rate if v1 > st[2] else -rate
+    dt = (v1 - st[2]) / a
+    n = _seg(segs, n, st[0], st[1], st[2], a)
+    st[1] += (st[2] + v1) / 2.0 * dt
+    st[0] += dt
+    st[2] = v1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _hold(st: np.ndarray, segs: np.ndarray, n: int, dt: float) -> int:
+    if dt <= _EPS_PLAN:
+        return n
+    n = _seg(segs, n, st[0], st[1], st[2], 0.0)
+    st[1] += st[2] * dt
+    st[0] += dt
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _cruise_to(st: np.ndarray, segs: np.ndarray, n: int, s1: float) -> int:
+    if s1 - st[1] > _EPS_PLAN and st[2] > _EPS_PLAN:
+        n = _hold(st, segs, n, (s1 - st[1]) / st[2])
+    return n
+
+
+@njit(cache=True, nogil=True)
+def _crossing(
+    st: np.ndarray, segs: np.ndarray, n: int, cap: float, accel: float, s_end: float
+) -> int:
+    """``Planner._crossing`` and the closing segment of ``_Builder.profile``."""
+    n = _accel_to(st, segs, n, _py_max(st[2], cap), accel)
+    n = _cruise_to(st, segs, n, s_end)
+    return _seg(segs, n, st[0], st[1], st[2], 0.0)
+
+
+@njit(cache=True, nogil=True)
+def _build_a(
+    a: float, br: float, v0: float, d: float, cap: float, s_end: float, v_m: float,
+    segs: np.ndarray,
+) -> int:  # fmt: skip
+    """``Planner._build_a`` into ``segs``: the number of segments, 0 if it does not fit."""
+    fits, _d1, d3, v_e, _t = a_phases(a, br, v0, d, cap, v_m)
+    if not fits:
+        return 0
+    st = np.empty(3)
+    st[0], st[1], st[2] = 0.0, -d, v0
+    n = _accel_to(st, segs, 0, v_m, a if v_m >= v0 else br)
+    n = _cruise_to(st, segs, n, -d3)
+    n = _accel_to(st, segs, n, v_e, a if v_e >= v_m else br)
+    st[1] = 0.0
+    return _crossing(st, segs, n, cap, a, s_end)
+
+
+@njit(cache=True, nogil=True)
+def _build_b(
+    a: float, cap: float, s_end: float, wait_s: float, b_segs: np.ndarray, b_state: np.ndarray,
+    segs: np.ndarray,
+) -> int:  # fmt: skip
+    """``Planner._build_b`` from the stop-at-the-line base (its segments and (t, s, v))."""
+    n = len(b_segs)
+    segs[:n] = b_segs
+    st = b_state.copy()
+    if wait_s > 0:
+        n = _seg(segs, n, st[0], st[1], 0.0, 0.0)
+        st[0] += wait_s
+    return _crossing(st, segs, n, cap, a, s_end)
+
+
+@njit(cache=True, nogil=True)
+def _time_at(segs: np.ndarray, n: int, s: float) -> float:
+    """``Profile.time_at``."""
+    for k in range(n):
+        s0, v0, a = segs[k, 1], segs[k, 2], segs[k, 3]
+        end = segs[k + 1, 0] - segs[k, 0] if k + 1 < n else math.inf
+        ds = s - s0
+        if ds <= 0.0:
+            return segs[k, 0]
+        if abs(a) < _EPS_PLAN:
+            tau = ds / v0 if v0 > _EPS_PLAN else math.inf
+        else:
+            disc = v0 * v0 + 2.0 * a * ds
+            tau = math.inf if disc < 0.0 else (math.sqrt(disc) - v0) / a
+        if tau <= end + 1e-9:
+            return segs[k, 0] + tau
+    return math.inf
+
+
+@njit(cache=True, nogil=True)
+def _entry_time(t0: float, step: float, s: np.ndarray) -> float:
+    """``Trajectory.entry_time_s``."""
+    n = len(s)
+    k = n - 1
+    for q in range(n):
+        if s[q] > 0.0:
+            k = max(q - 1, 0)
+            break
+    if s[k] > 0.0 or k + 1 >= n:
+        return t0 + k * step
+    s0, s1 = s[k], s[k + 1]
+    return t0 + (k + (0.0 - s0) / (s1 - s0)) * step
+
+
+@njit(
+    "Tuple((int64, int64, float64[::1]))("
+    "float64, float64, float64, float64, float64, float64,"  # a, br, v0, d, cap, s_end
+    " float64, boolean, float64, float64, boolean, float64,"  # v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t
+    " float64, float64[:, ::1], float64[::1],"  # t_b0, b_segs, b_state
+    " float64, float64, float64[::1],"  # t0, step, s_init
+    " float64[::1], float64[::1], float64[::1], float64, float64, float64,"
+    " float64[::1], float64[::1], float64, float64,"  # route, grid, half extents
+    " float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1],"
+    " int8[::1], int64, int64,"  # confirmed batch
+    " boolean, float64, float64, float64[::1], float64, float64,"  # lane leader
+    " int64, float64)",
+    cache=True,
+    nogil=True,
+)
+def resolve_rounds(
+    a: float, br: float, v0: float, d: float, cap: float, s_end: float,
+    v_hi: float, hi_ok: bool, hi_t: float, v_lo: float, lo_ok: bool, lo_t: float,
+    t_b0: float, b_segs: np.ndarray, b_state: np.ndarray,
+    t0: float, step: float, s_init: np.ndarray,
+    route_s: np.ndarray, route_x: np.ndarray, route_y: np.ndarray, length_m: float,
+    grid_s0: float, grid_ds: float, fwd_m: np.ndarray, back_m: np.ndarray,
+    half_l: float, half_w: float,
+    packed: np.ndarray, vid: np.ndarray, m_idx: np.ndarray, row: np.ndarray,
+    row_lo: np.ndarray, row_hi: np.ndarray, codes: np.ndarray, width: int, nv: int,
+    has_leader: bool, lead_t0: float, lead_step: float, lead_s: np.ndarray,
+    lead_length_m: float, gap_m: float,
+    max_iterations: int, max_wait_s: float,
+) -> tuple[int, int, np.ndarray]:  # fmt: skip
+    """The rounds of ``Dica._resolve`` (enhanced DICA) from the first plan ``s_init``.
+
+    Returns (RESOLVED, rounds, the conflict-free plan's samples), or
+    FALL_BACK where the Python loop raises (no plan, the wait or the round
+    limit exceeded, the state too close to the lane leader, a plan that never
+    leaves): the caller then runs the Python loop, which raises with its
+    message. The planner's constants per request come from
+    ``Planner.plan_constants``; the confirmed set from ``ConfirmedBatch``.
+    """
+    segs = np.empty((_MAX_SEGS, 4))
+    hit = np.zeros(nv, np.bool_)
+    first = np.empty(nv)
+    delay = np.empty(nv)
+    # the confirmed rows in ascending lb_j, for first_conflict; with a NaN
+    # bound (never from a real DTOT) every round searches all rows instead
+    rows = len(m_idx)
+    lbs = np.empty(rows)
+    ordered = True
+    for c in range(rows):
+        lbs[c] = packed[m_idx[c], 0]
+        if np.isnan(lbs[c]) or np.isnan(packed[m_idx[c], 1]):
+            ordered = False
+    order = np.argsort(lbs)
+    m_s, row_s, lo_s, hi_s = m_idx[order], row[order], row_lo[order], row_hi[order]
+    s = s_init
+    for it in range(1, max_iterations + 1):
+        # the estimated DTOT (ica.core.dtot.build_dtot)
+        k0, k1 = dtot_span(s, s_end)
+        sd = s[k0 : k1 + 1].copy()
+        n = len(sd)
+        t = np.empty(n)
+        for q in range(n):
+            t[q] = t0 + step * np.float64(k0 + q)
+        centre = np.empty((n, 2))
+        heading = np.empty((n, 2))
+        lb = np.empty(n)
+        ub = np.empty(n)
+        g = np.empty(n, np.int64)
+        estimated_dtot(
+            route_s, route_x, route_y, length_m, sd, grid_s0, grid_ds, fwd_m, back_m,
+            centre, heading, t, lb, ub, g,
+        )  # fmt: skip
+        # the lane leader, then getCV, and the first conflict as Dica._resolve
+        # sorts them (the leader after the others on a tie)
+        found, f_first, f_delay = False, 0.0, 0.0
+        if has_leader:
+            found, f_first, f_delay = follow_check(
+                t0, step, s, lead_t0, lead_step, lead_s, lead_length_m, gap_m
+            )
+            if found and f_first <= t0 + step + 1e-9:
+                return FALL_BACK, it, s
+        best = -1
+        best_first = 0.0
+        best_delay = 0.0
+        if ordered:
+            best, best_first, best_delay = first_conflict(
+                lb, ub, g, centre, heading, half_l, half_w, packed, vid, m_s, row_s,
+                lo_s, hi_s, codes, width, f_first if found else math.inf,
+            )  # fmt: skip
+        else:
+            hit[:] = False
+            if batch_conflicts(
+                lb, ub, g, centre, heading, half_l, half_w, packed, vid, m_idx, row,
+                row_lo, row_hi, codes, width, hit, first, delay,
+            ):  # fmt: skip
+                for v in range(nv):
+                    if hit[v] and (best < 0 or first[v] < best_first):
+                        best = v
+                        best_first = first[v]
+                        best_delay = delay[v]
+        if found and (best < 0 or f_first < best_first):
+            best = nv
+            best_first = f_first
+            best_delay = _py_max(f_delay, 0.0)
+        if best < 0:
+            return RESOLVED, it, s
+        target = _entry_time(t0, step, s) - t0 + _py_max(best_delay, step)
+        if target > max_wait_s:
+            return FALL_BACK, it, s
+        # the next plan: Planner.at_or_after, then sample
+        if not hi_ok:
+            return FALL_BACK, it, s
+        if target <= hi_t + 1e-9:
+            ns = _build_a(a, br, v0, d, cap, s_end, v_hi, segs)
+        elif lo_ok and target <= lo_t:
+            v = bisect_cruise(a, br, v0, d, cap, v_lo, v_hi, target)
+            ns = _build_a(a, br, v0, d, cap, s_end, v, segs)
+        elif not math.isfinite(t_b0):
+            ns = 0
+        else:
+            ns = _build_b(a, cap, s_end, _py_max(0.0, target - t_b0), b_segs, b_state, segs)
+        if ns == 0:
+            return FALL_BACK, it, s
+        t_out = _time_at(segs, ns, s_end)
+        if not math.isfinite(t_out):
+            return FALL_BACK, it, s
+        count = math.ceil(t_out / step - 1e-9) + 1
+        s = np.empty(count)
+        p = np.ascontiguousarray(segs[:ns].T)
+        profile_position(p[0], p[1], p[2], p[3], step, s)
+    return FALL_BACK, max_iterations, s

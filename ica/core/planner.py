@@ -294,18 +294,45 @@ class Planner:
         ph = self._a_phases(self._v_max())
         return math.inf if ph is None else ph[3]
 
-    def at_or_after(self, t_entry_s: float) -> Profile | None:
-        """The plan entering soonest at or after ``t_entry_s`` (None if none exists).
-
-        Prefers slowing down (higher entry speed) and stops at the line when
-        that would mean creeping.
-        """
+    def _entry_memo(self) -> dict[str, Any]:
+        """The time-optimal plan and the slowest slow-down plan, once per planner."""
         m = self._memo
         if "v_hi" not in m:
             v_hi = m["v_hi"] = self._v_max()
             m["hi"] = self._a_phases(v_hi)
             v_lo = m["v_lo"] = self._v_min_a()
             m["lo"] = self._a_phases(v_lo) if v_lo < v_hi else None
+        return m
+
+    def plan_constants(self) -> tuple:
+        """What :meth:`at_or_after` computes once, for the compiled round loop
+        (:func:`ica.core.kernels.resolve_rounds`): (v_hi, hi fits, its entry
+        time, v_lo, lo fits, its entry time, the stop plan's earliest entry,
+        the stop-at-the-line base as segments and as the builder's (t, s, v))."""
+        m = self._entry_memo()
+        hi, lo = m["hi"], m["lo"]
+        if "t_b0" not in m:
+            m["t_b0"] = self.stop_entry_s()
+        t_b0 = m["t_b0"]
+        if math.isfinite(t_b0):
+            segs, t, s, v = self._memo["b_base"]
+            base = np.array(segs, dtype=float).reshape(-1, 4)
+            state = np.array([t, s, v], dtype=float)
+        else:
+            base, state = np.zeros((0, 4)), np.zeros(3)
+        return (
+            m["v_hi"], hi is not None, hi[3] if hi is not None else 0.0,
+            m["v_lo"], lo is not None, lo[3] if lo is not None else 0.0,
+            t_b0, base, state,
+        )  # fmt: skip
+
+    def at_or_after(self, t_entry_s: float) -> Profile | None:
+        """The plan entering soonest at or after ``t_entry_s`` (None if none exists).
+
+        Prefers slowing down (higher entry speed) and stops at the line when
+        that would mean creeping.
+        """
+        m = self._entry_memo()
         v_hi, v_lo = m["v_hi"], m["v_lo"]
         hi, lo = m["hi"], m["lo"]
         if hi is None:

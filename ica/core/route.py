@@ -17,7 +17,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from ica.core.kernels import project
+from ica.core.kernels import project, route_points
 
 KMH = 1.0 / 3.6  # [m/s per km/h]
 
@@ -76,7 +76,20 @@ class Route:
         return float(self.s[-1])
 
     def points(self, s: np.ndarray | float) -> np.ndarray:
-        """Points (..., 2) at arc lengths ``s``; clamps outside the polyline."""
+        """Points (..., 2) at arc lengths ``s``; clamps outside the polyline.
+
+        Compiled for 1-D ``s`` (:func:`ica.core.kernels.route_points`), with
+        exactly the results of :meth:`points_reference`.
+        """
+        s = np.asarray(s, dtype=float)
+        if s.ndim == 1:
+            return route_points(
+                np.ascontiguousarray(s), self.s, np.ascontiguousarray(self.xy, dtype=float)
+            )
+        return self.points_reference(s)
+
+    def points_reference(self, s: np.ndarray | float) -> np.ndarray:
+        """:meth:`points` in numpy."""
         s = np.asarray(s, dtype=float)
         return np.stack(
             [np.interp(s, self.s, self.xy[:, 0]), np.interp(s, self.s, self.xy[:, 1])], -1

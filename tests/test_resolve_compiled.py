@@ -1,0 +1,88 @@
+"""Enhanced DICA's compiled round loop (``ica.core.kernels.resolve_rounds``)
+gives every answer of the Python loop of ``Dica._resolve``, bit for bit."""
+
+from __future__ import annotations
+
+import pytest
+
+from ica.core.config import IcaConfig, Techniques
+from ica.core.dica import Dica
+from ica.core.planner import Planner
+from ica.core.request import RequestError
+from tools.stream import StreamSpec, run_stream
+
+
+def _resolve(resolve, ica: Dica, compiled: bool, args: tuple):
+    """(what to compare, the result or the exception) of one loop."""
+    ica.compiled_loop = compiled
+    try:
+        found = resolve(ica, *args)
+    except RequestError as e:
+        return ("raised", e.reason, e.detail), e
+    finally:
+        del ica.compiled_loop
+    d, iterations, earliest = found
+    key = (
+        d.trajectory.t0_s,
+        d.trajectory.step_s,
+        d.trajectory.s_m.tobytes(),
+        d.k0,
+        *(a.tobytes() for a in (d.t_s, d.s_m, d.lb_s, d.ub_s, d.grid_idx)),
+        *(a.tobytes() for a in (d.rects.centre, d.rects.heading)),
+        d.rects.half_length,
+        d.rects.half_width,
+        iterations,
+        earliest,
+    )
+    return key, found
+
+
+@pytest.mark.parametrize(
+    ("junction", "volume", "seed"),
+    [("ch45", 3000.0, 3), ("ch45", 6000.0, 12), ("skewed", 2500.0, 7), ("tee", 2500.0, 9)],
+)
+def test_compiled_rounds_equal_python_rounds(request, monkeypatch, junction, volume, seed):
+    """Every request of a heavy stream is resolved both ways, from the same
+    state: same plan, DTOT, rounds and earliest entry, or the same rejection."""
+    inter = request.getfixturevalue(junction)
+    python_loop = Dica._resolve
+    seen = {"requests": 0, "rounds": 0, "raised": 0, "stops": 0}
+
+    def both(self: Dica, *args):
+        assert self._compiled_rounds()
+        fast, out = _resolve(python_loop, self, True, args)
+        slow, _ = _resolve(python_loop, self, False, args)
+        assert fast == slow
+        seen["requests"] += 1
+        if isinstance(out, RequestError):
+            seen["raised"] += 1
+            raise out
+        seen["rounds"] += out[1]
+        return out
+
+    monkeypatch.setattr(Dica, "_resolve", both)
+    build_b = Planner._build_b
+
+    def counted(self: Planner, wait_s: float):
+        seen["stops"] += 1
+        return build_b(self, wait_s)
+
+    monkeypatch.setattr(Planner, "_build_b", counted)
+    spec = StreamSpec(
+        volume_per_10min=volume,
+        n_vehicles=60,
+        seed=seed,
+        length_range_m=(3.5, 7.5),
+        width_range_m=(1.6, 2.3),
+    )
+    res = run_stream(inter, IcaConfig(), spec)
+    assert len(res.confirmed) == len(res.vehicles)
+    assert seen["stops"] > 0  # plans of the stop family too
+    assert seen["requests"] >= 60
+    assert seen["rounds"] > 3 * seen["requests"]  # most requests took several rounds
+
+
+def test_compiled_rounds_only_for_enhanced(ch45):
+    assert Dica(ch45, IcaConfig())._compiled_rounds()
+    for variant in ("basic", "t1", "t2", "t3", "t4", "t2+4", "t1+2+4"):
+        assert not Dica(ch45, IcaConfig(techniques=Techniques.parse(variant)))._compiled_rounds()
