@@ -12,7 +12,6 @@ import csv
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -21,14 +20,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tools.loopback import free_port, router_and_ica
+
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "tools.cli"]
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
+_free_port = free_port
 
 
 def _cluster(out: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
@@ -171,42 +169,11 @@ def test_a_killed_agent_stops_the_cluster_and_is_named(tmp_path):
 # -- the ICA under bad input -------------------------------------------------------
 @pytest.fixture
 def ica_on_loopback(tmp_path):
-    port = _free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    procs = []
-    try:
-        router = subprocess.Popen(
-            [*DICA, "router", "--listen", endpoint],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,
-            text=True,
-            cwd=ROOT,
-            start_new_session=True,
-        )
-        procs.append(router)
-        assert router.stdout.readline().strip() == "ready"
-        ica_log = (tmp_path / "ica.log").open("w")
-        ica = subprocess.Popen(
-            [*DICA, "ica", "--connect", endpoint, "--out", str(tmp_path)],
-            stdout=ica_log,
-            stderr=subprocess.STDOUT,
-            cwd=ROOT,
-            start_new_session=True,
-        )
-        procs.append(ica)
-        from schemas.link import open_session
-
-        session = open_session(connect=endpoint)
+    with router_and_ica(ica_args=("--out", str(tmp_path)), ica_log=tmp_path / "ica.log") as (
+        session,
+        ica,
+    ):
         yield session, ica, tmp_path
-        session.close()
-    finally:
-        for p in reversed(procs):
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGTERM)
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    os.killpg(p.pid, signal.SIGKILL)
 
 
 def _ask(session, key: str, payload: bytes, timeout: float = 5.0):
@@ -214,17 +181,6 @@ def _ask(session, key: str, payload: bytes, timeout: float = 5.0):
 
     replies = [r for r in session.get(key, payload=payload, timeout=timeout) if r.ok is not None]
     return [decode(r.ok.payload.to_bytes()) for r in replies]
-
-
-def _wait_for_ica(session) -> None:
-    from schemas import keys
-
-    deadline = time.monotonic() + 60
-    while time.monotonic() < deadline:
-        if list(session.liveliness().get(keys.ica_alive("C"), timeout=1.0)):
-            return
-        time.sleep(0.2)
-    pytest.fail("the ICA never came up")
 
 
 def test_ica_refuses_garbage_and_keeps_serving(ica_on_loopback):
@@ -237,7 +193,6 @@ def test_ica_refuses_garbage_and_keeps_serving(ica_on_loopback):
     from sim_gateway.scenario import default_scenario
 
     session, ica, tmp_path = ica_on_loopback
-    _wait_for_ica(session)
     good_detect = encode(Detect("v1", "W_in_0", 0.0, now_ns()))
     for bad in (b"", b"\x00\xff garbage", good_detect[:-3], b"\x93\x01\x02\x03", good_detect):
         (answer,) = _ask(session, keys.request("C"), bad)

@@ -17,9 +17,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -28,14 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
+from tools.loopback import router_and_ica
+
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "tools.cli"]
-
-
-def _port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def round_trips(n: int) -> dict:
@@ -44,38 +37,13 @@ def round_trips(n: int) -> dict:
     from schemas import keys
     from schemas.codec import decode, encode, now_ns
     from schemas.convert import request_from_core
-    from schemas.link import open_session
     from schemas.messages import Clock, Detect, Response
     from sim_gateway.scenario import default_scenario
 
     sc = default_scenario("ch45")
     inter = load_intersection(sc.net_path, sc.junction_id)
     route = next(r for r in inter.routes if r.turn.value == "through")
-    endpoint = f"tcp/127.0.0.1:{_port()}"
-    procs = []
-    try:
-        router = subprocess.Popen(
-            [*DICA, "router", "--listen", endpoint],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,
-            text=True,
-            cwd=ROOT,
-            start_new_session=True,
-        )
-        procs.append(router)
-        router.stdout.readline()
-        procs.append(
-            subprocess.Popen(
-                [*DICA, "ica", "--connect", endpoint],
-                stdout=subprocess.DEVNULL,
-                stderr=subprocess.DEVNULL,
-                cwd=ROOT,
-                start_new_session=True,
-            )
-        )
-        session = open_session(connect=endpoint)
-        while not list(session.liveliness().get(keys.ica_alive(sc.junction_id), timeout=1.0)):
-            time.sleep(0.2)
+    with router_and_ica(sc.junction_id) as (session, _ica):
         j = sc.junction_id
 
         def ask(key: str, payload: bytes):
@@ -112,12 +80,6 @@ def round_trips(n: int) -> dict:
             if k >= 20:
                 out["fresh"].append(t1 - t0)
                 out["repeat"].append(t2 - t1)
-        session.close()
-    finally:
-        for p in reversed(procs):
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGTERM)
-                p.wait(10)
     return {
         name: {
             "n": len(v),
