@@ -12,7 +12,7 @@ intervals themselves (never to narrower ones).
 
 With techniques 1, 2 and 4 all on, :func:`get_cv_batch` does the same work for
 every confirmed vehicle at once: the confirmed occupancies are gathered end
-to end once per confirmed set (:class:`Gathered`), those inside a conflict
+to end as vehicles are confirmed (:class:`ConfirmedRows`), those inside a conflict
 zone with the requester's route picked once per request
 (:class:`ConfirmedBatch`), and one round of getCV is one compiled loop
 however many vehicles are confirmed. It finds exactly the
@@ -143,27 +143,109 @@ def pack(d: Dtot) -> np.ndarray:
 class Gathered:
     """Every occupancy of a confirmed set, end to end, in the set's order.
 
-    Built once per confirmed set: ``packed`` rows (:func:`pack`), ``vid[m]``
-    whose occupancy row ``m`` is (an index into ``vins`` and ``routes``, the
-    vehicle's route and shape).
+    ``packed`` rows (:func:`pack`) and ``vid[m]``, whose occupancy row ``m``
+    is (an index into ``vins`` and ``routes``: the vehicle, its route and
+    shape). A vehicle that has left may still own rows until they are
+    compacted away; its ``vins`` and ``routes`` entries are then None and no
+    getCV looks at its rows. A snapshot: later changes to the set never
+    change it.
     """
 
-    vins: list[str]
-    routes: list[tuple[Route, Shape]]
+    vins: list[str | None]
+    routes: list[tuple[Route, Shape] | None]
     vid: np.ndarray
     packed: np.ndarray
 
     @staticmethod
     def of(confirmed: Iterable[tuple[str, Dtot, np.ndarray]]) -> Gathered:
-        items = list(confirmed)
-        if not items:
-            return Gathered([], [], np.zeros(0, np.int64), np.zeros((0, len(PACKED))))
-        return Gathered(
-            vins=[vin for vin, _, _ in items],
-            routes=[(d.route, d.shape) for _, d, _ in items],
-            vid=np.repeat(np.arange(len(items)), [len(p) for _, _, p in items]),
-            packed=np.concatenate([p for _, _, p in items]),
-        )
+        rows = ConfirmedRows()
+        for vin, d, p in confirmed:
+            rows.add(vin, d, p)
+        return rows.gathered()
+
+
+class ConfirmedRows:
+    """The confirmed set's occupancy rows, kept up to date as vehicles come and go.
+
+    Regathering every confirmed vehicle's rows for each request cost as much
+    as the request's rounds of Algorithm 1 at n = 40. Here a confirmation
+    appends its rows, a departure only marks them dead, and the dead rows are
+    compacted away (keeping the set's order) once they outnumber the live
+    ones, so a request pays for neither.
+    """
+
+    def __init__(self, capacity: int = 4096) -> None:
+        self._packed = np.empty((capacity, len(PACKED)))
+        self._vid = np.empty(capacity, np.int64)
+        self._n = 0  # rows in use, dead ones included
+        self._dead = 0  # rows of vehicles that have left
+        self._vins: list[str | None] = []
+        self._routes: list[tuple[Route, Shape] | None] = []
+        self._count: list[int] = []  # rows per slot
+        self._slot: dict[str, int] = {}
+        self._view: Gathered | None = None
+
+    def __len__(self) -> int:
+        return len(self._slot)
+
+    def __contains__(self, vin: str) -> bool:
+        return vin in self._slot
+
+    def add(self, vin: str, dtot: Dtot, packed: np.ndarray) -> None:
+        """Append a newly confirmed vehicle: it goes last in the set's order."""
+        if vin in self._slot:
+            raise ValueError(f"{vin} is already in the confirmed rows")
+        k = len(packed)
+        if self._n + k > len(self._vid):
+            self._regrow(self._n + k)
+        v = len(self._vins)
+        self._packed[self._n : self._n + k] = packed
+        self._vid[self._n : self._n + k] = v
+        self._n += k
+        self._vins.append(vin)
+        self._routes.append((dtot.route, dtot.shape))
+        self._count.append(k)
+        self._slot[vin] = v
+        self._view = None
+
+    def remove(self, vin: str) -> None:
+        """A vehicle has left: its rows are dead from now on."""
+        v = self._slot.pop(vin)
+        self._vins[v] = None
+        self._routes[v] = None
+        self._dead += self._count[v]
+        self._view = None
+        if 2 * self._dead > self._n:
+            self._regrow(self._n - self._dead)
+
+    def gathered(self) -> Gathered:
+        """The rows as they are now, as an immutable :class:`Gathered`."""
+        if self._view is None:
+            self._view = Gathered(
+                list(self._vins), list(self._routes), self._vid[: self._n], self._packed[: self._n]
+            )
+        return self._view
+
+    def _regrow(self, need: int) -> None:
+        """Compact into fresh buffers with room for ``need`` rows and more.
+
+        Fresh buffers, never in place: a :class:`Gathered` handed out earlier
+        keeps looking at the old ones.
+        """
+        live = [v for v, vin in enumerate(self._vins) if vin is not None]
+        keep = np.repeat(np.array([vin is not None for vin in self._vins], bool), self._count)
+        capacity = max(len(self._vid), 2 * need)
+        packed = np.empty((capacity, len(PACKED)))
+        vid = np.empty(capacity, np.int64)
+        n = int(keep.sum())
+        packed[:n] = self._packed[: self._n][keep]
+        vid[:n] = np.repeat(np.arange(len(live)), [self._count[v] for v in live])
+        self._packed, self._vid, self._n, self._dead = packed, vid, n, 0
+        self._vins = [self._vins[v] for v in live]
+        self._routes = [self._routes[v] for v in live]
+        self._count = [self._count[v] for v in live]
+        self._slot = {vin: i for i, vin in enumerate(self._vins) if vin is not None}
+        self._view = None
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -195,7 +277,11 @@ class ConfirmedBatch:
     ) -> ConfirmedBatch:
         offset: dict[tuple[str, float, float], int] = {}
         first_row = np.empty(len(gathered.vins), np.int64)
-        for v, (other, sh) in enumerate(gathered.routes):
+        for v, seen in enumerate(gathered.routes):
+            if seen is None:  # a vehicle that has left
+                first_row[v] = -1
+                continue
+            other, sh = seen
             key = (other.id, sh.length_m, sh.width_m)
             off = offset.get(key)
             if off is None:

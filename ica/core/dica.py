@@ -26,8 +26,8 @@ import numpy as np
 from ica.core.config import IcaConfig
 from ica.core.conflict import (
     ConfirmedBatch,
+    ConfirmedRows,
     Conflict,
-    Gathered,
     follow_conflict,
     get_cv,
     get_cv_batch,
@@ -81,10 +81,10 @@ class Dica:
         self._lane_of: dict[str, str] = {}
         self._entered: set[str] = set()
         self._lane_tail: dict[str, str] = {}  # last vehicle confirmed from each lane
-        # the confirmed set gathered end to end, and as seen from one requester
-        # route and shape; any change to the confirmed set bumps the version
+        # the confirmed set's occupancy rows end to end, and as seen from one
+        # requester route and shape; any change to the confirmed set bumps the version
+        self._rows = ConfirmedRows()
         self._version = 0
-        self._gathered: tuple[int, Gathered] | None = None
         self._batch: tuple[tuple[int, str, Shape], ConfirmedBatch] | None = None
 
     # -- state -------------------------------------------------------------
@@ -119,6 +119,7 @@ class Dica:
         gone = [vin for vin, c in self._confirmed.items() if c.dtot.end_s < now_s]
         for vin in gone:
             del self._confirmed[vin]
+            self._rows.remove(vin)
             self._entered.discard(vin)
         if gone:
             self._version += 1
@@ -145,9 +146,15 @@ class Dica:
         dtot = build_dtot(
             route, shape, traj, self.config.margin_m, grid, self.config.techniques.estimated_oti
         )
-        self._confirmed[confirmation.vin] = Confirmed(
-            confirmation.vin, dtot, confirmation, pack(dtot)
-        )
+        done = Confirmed(confirmation.vin, dtot, confirmation, pack(dtot))
+        if confirmation.vin in self._confirmed:  # replaced in place: keep the set's order
+            self._confirmed[confirmation.vin] = done
+            self._rows = ConfirmedRows()
+            for vin, c in self._confirmed.items():
+                self._rows.add(vin, c.dtot, c.packed)
+        else:
+            self._confirmed[confirmation.vin] = done
+            self._rows.add(confirmation.vin, dtot, done.packed)
         self._version += 1
         self._lane_tail[in_lane] = confirmation.vin
 
@@ -211,7 +218,9 @@ class Dica:
             delay_s=max(0.0, entry - earliest),
             iterations=iterations,
         )
-        self._confirmed[req.vin] = Confirmed(req.vin, dtot, conf, pack(dtot))
+        done = Confirmed(req.vin, dtot, conf, pack(dtot))
+        self._confirmed[req.vin] = done
+        self._rows.add(req.vin, dtot, done.packed)
         self._version += 1
         self._lane_tail[lane] = req.vin
         return conf
@@ -355,14 +364,11 @@ class Dica:
         return get_cv(dtot, self.confirmed_dtots(), tech, self.tables)
 
     def _confirmed_batch(self, route: Route, shape: Shape) -> ConfirmedBatch:
-        """The confirmed set as seen from ``route``, gathered once per confirmed set."""
+        """The confirmed set as seen from ``route``, picked once per confirmed set."""
         key = (self._version, route.id, shape)
         if self._batch is not None and self._batch[0] == key:
             return self._batch[1]
-        if self._gathered is None or self._gathered[0] != self._version:
-            confirmed = ((vin, c.dtot, c.packed) for vin, c in self._confirmed.items())
-            self._gathered = (self._version, Gathered.of(confirmed))
-        batch = ConfirmedBatch.of(route, shape, self._gathered[1], self.tables)
+        batch = ConfirmedBatch.of(route, shape, self._rows.gathered(), self.tables)
         self._batch = (key, batch)
         return batch
 
