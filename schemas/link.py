@@ -27,8 +27,18 @@ class LinkError(Exception):
     """A session that cannot be opened, or a config that cannot be read."""
 
 
-def open_session(config_path: str | Path | None = None, connect: str | None = None, mode=None):
-    """A Zenoh session from a JSON5 config file; ``connect`` replaces its endpoints."""
+def open_session(
+    config_path: str | Path | None = None,
+    connect: str | None = None,
+    mode=None,
+    waiting_note_s: float = 10.0,
+):
+    """A Zenoh session from a JSON5 config file; ``connect`` replaces its endpoints.
+
+    A client may wait for its router without end (``timeout_ms: -1``): a
+    router that is down and one that refuses the log-in look the same, so
+    every ``waiting_note_s`` a log line says where it is waiting.
+    """
     import zenoh
 
     path = Path(config_path) if config_path else DEFAULT_CLIENT_CONFIG
@@ -38,7 +48,24 @@ def open_session(config_path: str | Path | None = None, connect: str | None = No
             conf.insert_json5("connect/endpoints", json.dumps([e for e in connect.split(",") if e]))
         if mode:
             conf.insert_json5("mode", json.dumps(mode))
-        return zenoh.open(conf)
+        where = ", ".join(json.loads(conf.get_json("connect/endpoints") or "[]")) or "(none)"
+        opened = threading.Event()
+
+        def note() -> None:
+            waited = 0.0
+            while not opened.wait(waiting_note_s):
+                waited += waiting_note_s
+                logging.getLogger("dica").warning(
+                    "no session after %.0f s: no router at %s has let this client in "
+                    "(is it up? are the credentials in %s right?)",
+                    waited, where, path,
+                )  # fmt: skip
+
+        threading.Thread(target=note, daemon=True).start()
+        try:
+            return zenoh.open(conf)
+        finally:
+            opened.set()
     except FileNotFoundError:
         raise LinkError(f"no Zenoh config at {path}") from None
     except Exception as e:  # zenoh.ZError and friends carry a readable message
