@@ -297,6 +297,19 @@ def _num(x: float | None) -> str:
 
 
 # -- view ------------------------------------------------------------------------
+def cmd_secure_config(args: argparse.Namespace) -> int:
+    from tools.secure import SecureConfigError, write_secure_configs
+
+    try:
+        paths = write_secure_configs(args.out, args.force)
+    except SecureConfigError as e:
+        raise UsageError(str(e)) from None
+    print(f"router:   dica router --config {paths['router.json5']}")
+    for role in ("ica", "gateway", "agent", "observer"):
+        print(f"{role + ':':10}dica {role} --zenoh-config {paths[role + '.json5']} ...")
+    return 0
+
+
 def cmd_view(args: argparse.Namespace) -> int:
     from tools import view
 
@@ -428,6 +441,18 @@ def parser() -> argparse.ArgumentParser:
     )
     view_arguments(v)
     v.set_defaults(func=cmd_view)
+
+    sc = sub.add_parser(
+        "secure-config",
+        help="Zenoh configs of a secured site: logins, and each role writes only what it owns",
+        description="Writes OUT/users.txt (random passwords), OUT/router.json5 (the router of "
+        "deploy/zenoh/secure/router.json5: log-in required, per-role access rules) and "
+        "OUT/<role>.json5 for ica, gateway, agent and observer (use with --zenoh-config). "
+        "Only the owner can read them. Passwords authenticate, they do not encrypt.",
+    )
+    sc.add_argument("--out", type=Path, required=True, help="directory to write into")
+    sc.add_argument("--force", action="store_true", help="replace configs written before")
+    sc.set_defaults(func=cmd_secure_config)
 
     sub.add_parser("experiment", help="a grid of runs in parallel, resumable (see its --help)")
     sub.add_parser("report", help="markdown tables and PNG plots from runs (see its --help)")

@@ -30,6 +30,8 @@ options:
                         realtime: paced to the wall clock (default lockstep)
   --speed F             realtime clock speed factor (default 1)
   --no-record           no Rerun observer and no .rrd
+  --secure              log-ins and per-role access rules on the router, with fresh
+                        passwords in RUN_DIR/zenoh/ (see dica secure-config --help)
   --port P              router port on 127.0.0.1 (default: a free one)
   --out DIR             run directory (default runs/cluster-TIMESTAMP)
   -h, --help            this help
@@ -39,7 +41,7 @@ EOF
 }
 
 layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
-agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out=""
+agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -55,6 +57,7 @@ while [ $# -gt 0 ]; do
     --clock) clock="$2"; shift 2 ;;
     --speed) speed="$2"; shift 2 ;;
     --no-record) record=0; shift ;;
+    --secure) secure=1; shift ;;
     --port) port="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
@@ -93,6 +96,15 @@ if [ -z "$port" ]; then
 fi
 endpoint="tcp/127.0.0.1:$port"
 link=(--connect "$endpoint")
+router_conf=()
+if [ "$secure" = 1 ]; then
+  "$dica" secure-config --force --out "$out/zenoh" >/dev/null
+  router_conf=(--config "$out/zenoh/router.json5")
+fi
+link_for() {  # link_for ROLE: role_link = the options that connect ROLE to the router
+  role_link=("${link[@]}")
+  if [ "$secure" = 1 ]; then role_link=(--zenoh-config "$out/zenoh/$1.json5" "${link[@]}"); fi
+}
 
 pids=() names=()
 start() {  # start NAME CMD...: own process group, own log
@@ -122,22 +134,27 @@ stop_all() {  # reverse start order: TERM each group, then KILL what is left aft
 trap stop_all EXIT
 trap 'echo "run_cluster: interrupted, stopping all processes" >&2; exit 130' INT TERM
 
-start router "$dica" router --listen "$endpoint"
+start router "$dica" router "${router_conf[@]}" --listen "$endpoint"
 for _ in $(seq 100); do
   grep -q '^ready' "$out/logs/router.log" 2>/dev/null && break
   alive "${pids[0]}" || { echo "run_cluster: the router died:" >&2; tail -n 5 "$out/logs/router.log" >&2; exit 1; }
   sleep 0.1
 done
-start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" "${link[@]}"
+link_for ica
+start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" "${role_link[@]}"
 if [ "$record" = 1 ]; then
-  start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" "${link[@]}"
+  link_for observer
+  start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" "${role_link[@]}"
 fi
+link_for agent
 for i in $(seq "$agents"); do
-  start "agent-$i" "$dica" agent --id "agent-$i" "${scen[@]}" "${link[@]}"
+  start "agent-$i" "$dica" agent --id "agent-$i" "${scen[@]}" "${role_link[@]}"
 done
+link_for gateway
 start gateway "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$volume" \
   --duration "$duration" --seed "$seed" --agents "$agents" --per-agent "$per_agent" \
-  --clock "$clock" --speed "$speed" --observers "$record" --out "$out" "${link[@]}" "${extra[@]}"
+  --clock "$clock" --speed "$speed" --observers "$record" --out "$out" "${role_link[@]}" \
+  "${extra[@]}"
 gateway_pid="${pids[-1]}"
 echo "run_cluster: router on $endpoint; ${#pids[@]} processes; logs in $out/logs/"
 

@@ -1,0 +1,256 @@
+"""A secured site (`dica secure-config`, `run_cluster.sh --secure`), on a real
+Zenoh router process on loopback:
+
+* its files are readable by their owner only and never silently replaced;
+* a client without the right password cannot connect at all;
+* each role writes only what it owns: a vehicle cannot answer other vehicles
+  as the ICA, publish confirmations, the clock or vehicle states, or hold the
+  ICA's liveliness token; the gateway and the observer cannot ask the ICA for
+  reservations; the observer only listens;
+* the whole cluster runs under it and makes the embedded run's decisions.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import signal
+import stat
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from tests.test_cluster import DICA, ROOT, _cluster, _embedded, _same_decisions
+from tools.loopback import free_port
+from tools.secure import FILES, SecureConfigError, write_secure_configs
+
+J = "C"
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory) -> Iterator[tuple[dict[str, Path], str]]:
+    """Generated configs and a router process started from them."""
+    paths = write_secure_configs(tmp_path_factory.mktemp("site") / "zenoh")
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = subprocess.Popen(
+        [*DICA, "router", "--config", str(paths["router.json5"]), "--listen", endpoint],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        cwd=ROOT,
+        start_new_session=True,
+    )
+    try:
+        assert router.stdout.readline().strip() == "ready"
+        yield paths, endpoint
+    finally:
+        os.killpg(router.pid, signal.SIGTERM)
+        router.wait(10)
+
+
+def _open(path: Path, endpoint: str, **override: object) -> zenoh.Session:
+    conf = zenoh.Config.from_file(str(path))
+    conf.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    conf.insert_json5("connect/timeout_ms", "3000")
+    for key, value in override.items():
+        conf.insert_json5(key, json.dumps(value))
+    return zenoh.open(conf)
+
+
+@contextlib.contextmanager
+def _sessions(paths: dict[str, Path], endpoint: str, *roles: str) -> Iterator[list]:
+    opened = [_open(paths[f"{r}.json5"], endpoint) for r in roles]
+    try:
+        yield opened
+    finally:
+        for s in opened:
+            s.close()
+
+
+def test_configs_are_private_and_never_silently_replaced(tmp_path):
+    paths = write_secure_configs(tmp_path / "z")
+    assert stat.S_IMODE((tmp_path / "z").stat().st_mode) == 0o700
+    for name in FILES:
+        assert stat.S_IMODE(paths[name].stat().st_mode) == 0o600, name
+    users = paths["users.txt"].read_text().split()
+    assert [u.split(":")[0] for u in users] == ["ica", "gateway", "agent", "observer"]
+    assert len({u.split(":")[1] for u in users}) == 4  # one password per role
+    with pytest.raises(SecureConfigError, match="--force"):
+        write_secure_configs(tmp_path / "z")
+    assert paths["users.txt"].read_text().split() == users  # untouched
+    write_secure_configs(tmp_path / "z", force=True)
+    assert paths["users.txt"].read_text().split() != users  # fresh passwords
+
+
+def test_secure_config_command_is_one_clear_line_when_it_refuses(tmp_path):
+    run = [*DICA, "secure-config", "--out", str(tmp_path / "z")]
+    first = subprocess.run(run, capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert first.returncode == 0 and "--zenoh-config" in first.stdout
+    again = subprocess.run(run, capture_output=True, text=True, cwd=ROOT, timeout=60)
+    assert again.returncode == 2
+    assert "already holds" in again.stderr and "Traceback" not in again.stderr
+
+
+def test_a_client_without_the_password_cannot_connect(site):
+    paths, endpoint = site
+    for override in (
+        {"transport/auth/usrpwd/password": "guess"},
+        {"transport/auth/usrpwd/user": "root"},
+    ):
+        with pytest.raises(zenoh.ZError):
+            _open(paths["agent.json5"], endpoint, **override).close()
+    plain = ROOT / "deploy" / "zenoh" / "client.json5"  # no credentials at all
+    with pytest.raises(zenoh.ZError):
+        _open(plain, endpoint).close()
+    _open(paths["agent.json5"], endpoint).close()  # and the right one can
+
+
+def test_a_client_left_outside_says_where_it_waits(site, tmp_path):
+    """With timeout_ms -1 a refused client waits; its log says where and why."""
+    paths, endpoint = site
+    bad = tmp_path / "bad.json5"
+    conf = zenoh.Config.from_file(str(paths["agent.json5"]))
+    conf.insert_json5("transport/auth/usrpwd/password", json.dumps("guess"))
+    bad.write_text(str(conf))
+    code = (
+        "import sys; from schemas.link import open_session; "
+        "open_session(sys.argv[1], sys.argv[2], waiting_note_s=0.5)"
+    )
+    with pytest.raises(subprocess.TimeoutExpired) as waited:
+        subprocess.run(
+            [sys.executable, "-c", code, str(bad), endpoint],
+            capture_output=True, text=True, cwd=ROOT, timeout=4,
+        )  # fmt: skip
+    err = waited.value.stderr
+    err = err.decode() if isinstance(err, bytes) else err or ""
+    assert f"no router at {endpoint} has let this client in" in err
+    assert str(bad) in err
+
+
+class _Heard:
+    """Everything one session hears under a key expression, thread-safe."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.items: list[tuple[str, bytes]] = []
+
+    def cb(self, sample) -> None:
+        with self.lock:
+            self.items.append((str(sample.key_expr), sample.payload.to_bytes()))
+
+    def wait_for(self, key: str, timeout: float = 5.0) -> None:
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            with self.lock:
+                if any(k == key for k, _ in self.items):
+                    return
+            time.sleep(0.02)
+        raise AssertionError(f"never heard {key}")
+
+    def keys(self) -> set[str]:
+        with self.lock:
+            return {k for k, _ in self.items}
+
+
+def _answers(session, key: str) -> list[bytes]:
+    return [r.ok.payload.to_bytes() for r in session.get(key, timeout=1.5) if r.ok is not None]
+
+
+def test_only_the_ica_answers_and_only_vehicles_ask(site):
+    paths, endpoint = site
+    roles = ("ica", "agent", "observer", "gateway", "agent", "observer", "gateway")
+    with _sessions(paths, endpoint, *roles) as (ica, *impostors, vehicle, observer, gateway):
+        decls = [ica.declare_queryable(f"dica/{J}/request", lambda q: q.reply(q.key_expr, b"ica"))]
+        for i, s in enumerate(impostors):
+            answer = f"impostor {i}".encode()
+            decls.append(
+                s.declare_queryable(f"dica/{J}/request", lambda q, a=answer: q.reply(q.key_expr, a))
+            )
+        time.sleep(0.5)
+        for _ in range(5):  # whichever queryable the router would pick, only the ICA's
+            assert _answers(vehicle, f"dica/{J}/request") == [b"ica"]
+        # a session's own queryable would answer it locally: these two have none
+        assert _answers(gateway, f"dica/{J}/request") == []  # no reservations but vehicles'
+        assert _answers(observer, f"dica/{J}/request") == []
+        for d in decls:
+            d.undeclare()
+
+
+def test_each_role_publishes_only_what_it_owns(site):
+    paths, endpoint = site
+    with _sessions(paths, endpoint, "ica", "gateway", "agent", "observer", "observer") as (
+        ica, gateway, agent, observer, listener,
+    ):  # fmt: skip
+        heard = _Heard()
+        subs = [listener.declare_subscriber(k, heard.cb) for k in ("dica/**", "sim/**")]
+        time.sleep(0.5)
+        forbidden = {
+            agent: [f"dica/{J}/confirmed/v1", f"sim/{J}/clock", f"sim/{J}/vehicles",
+                    f"sim/{J}/state/agent-1"],
+            gateway: [f"dica/{J}/confirmed/v2", f"dica/{J}/ack/v2", f"sim/{J}/command/agent-1"],
+            observer: [f"dica/{J}/ack/v3", f"sim/{J}/command/agent-1", f"sim/{J}/clock"],
+            ica: [f"sim/{J}/clock", f"sim/{J}/command/agent-1"],
+        }  # fmt: skip
+        allowed = {
+            agent: [f"dica/{J}/ack/v1", f"sim/{J}/command/agent-1"],
+            gateway: [f"sim/{J}/clock", f"sim/{J}/vehicles", f"sim/{J}/state/agent-1"],
+            ica: [f"dica/{J}/confirmed/v4"],
+        }
+        for s, ks in forbidden.items():
+            for k in ks:
+                s.put(k, b"forged")
+        for s, ks in allowed.items():
+            for k in ks:
+                s.put(k, b"ok")
+        for ks in allowed.values():
+            for k in ks:
+                heard.wait_for(k)
+        time.sleep(0.5)  # time for anything forged to arrive, had it been let through
+        assert all(p == b"ok" for _, p in heard.items), heard.items
+        for s in subs:
+            s.undeclare()
+
+
+def test_nobody_holds_another_role_s_liveliness_token(site):
+    paths, endpoint = site
+    with _sessions(paths, endpoint, "ica", "agent", "observer", "gateway") as (
+        ica, agent, observer, gateway,
+    ):  # fmt: skip
+        tokens = [
+            agent.liveliness().declare_token(f"dica/{J}/alive/ica"),
+            observer.liveliness().declare_token(f"sim/{J}/alive/agent-9"),
+            gateway.liveliness().declare_token(f"sim/{J}/observer/fake"),
+            agent.liveliness().declare_token(f"sim/{J}/alive/agent-1"),  # its own: allowed
+            observer.liveliness().declare_token(f"sim/{J}/observer/main"),  # its own: allowed
+        ]
+        time.sleep(0.5)
+
+        def alive(key: str) -> list[str]:
+            replies = ica.liveliness().get(key, timeout=1.5)
+            return sorted(str(r.ok.key_expr) for r in replies if r.ok is not None)
+
+        assert alive(f"dica/{J}/alive/**") == []
+        assert alive(f"sim/{J}/alive/**") == [f"sim/{J}/alive/agent-1"]
+        assert alive(f"sim/{J}/observer/**") == [f"sim/{J}/observer/main"]
+        for t in tokens:
+            t.undeclare()
+
+
+def test_the_cluster_runs_secured_and_makes_the_embedded_decisions(tmp_path):
+    common = ["--volume", "500", "--duration", "60", "--seed", "21"]
+    p = _cluster(tmp_path / "cl", "--secure", "--agents", "2", *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    out = tmp_path / "cl"
+    assert stat.S_IMODE((out / "zenoh" / "users.txt").stat().st_mode) == 0o600
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    assert m["crossed"] > 10
+    _embedded(tmp_path / "emb", common)
+    _same_decisions(out, tmp_path / "emb")
