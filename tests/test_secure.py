@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
-import signal
 import stat
 import subprocess
 import sys
@@ -28,7 +26,7 @@ import pytest
 import zenoh
 
 from tests.test_cluster import DICA, ROOT, _cluster, _embedded, _same_decisions
-from tools.loopback import free_port
+from tools.loopback import router
 from tools.secure import FILES, SecureConfigError, write_secure_configs
 
 J = "C"
@@ -38,21 +36,8 @@ J = "C"
 def site(tmp_path_factory) -> Iterator[tuple[dict[str, Path], str]]:
     """Generated configs and a router process started from them."""
     paths = write_secure_configs(tmp_path_factory.mktemp("site") / "zenoh")
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
-    router = subprocess.Popen(
-        [*DICA, "router", "--config", str(paths["router.json5"]), "--listen", endpoint],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.DEVNULL,
-        text=True,
-        cwd=ROOT,
-        start_new_session=True,
-    )
-    try:
-        assert router.stdout.readline().strip() == "ready"
+    with router(paths["router.json5"]) as endpoint:
         yield paths, endpoint
-    finally:
-        os.killpg(router.pid, signal.SIGTERM)
-        router.wait(10)
 
 
 def _open(path: Path, endpoint: str, **override: object) -> zenoh.Session:

@@ -22,6 +22,45 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def _stop(procs: list[subprocess.Popen]) -> None:
+    """Stop each process group in reverse start order: SIGTERM, then SIGKILL."""
+    for p in reversed(procs):
+        if p.poll() is None:
+            os.killpg(p.pid, signal.SIGTERM)
+            try:
+                p.wait(10)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+
+
+def _start_router(endpoint: str, config: Path | None = None) -> subprocess.Popen:
+    """A `dica router` process listening on ``endpoint``, once it says it is ready."""
+    extra = ["--config", str(config)] if config is not None else []
+    router = subprocess.Popen(
+        [*DICA, "router", *extra, "--listen", endpoint],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.DEVNULL,
+        text=True,
+        cwd=ROOT,
+        start_new_session=True,
+    )
+    if router.stdout.readline().strip() != "ready":
+        _stop([router])
+        raise RuntimeError("the Zenoh router did not start")
+    return router
+
+
+@contextlib.contextmanager
+def router(config: Path | None = None) -> Iterator[str]:
+    """A fresh router on a free loopback port (``config``: its JSON5); yields its endpoint."""
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    proc = _start_router(endpoint, config)
+    try:
+        yield endpoint
+    finally:
+        _stop([proc])
+
+
 @contextlib.contextmanager
 def router_and_ica(
     junction: str = "C", ica_args: tuple[str, ...] = (), ica_log: Path | None = None
@@ -35,17 +74,7 @@ def router_and_ica(
     procs: list[subprocess.Popen] = []
     session = None
     try:
-        router = subprocess.Popen(
-            [*DICA, "router", "--listen", endpoint],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.DEVNULL,
-            text=True,
-            cwd=ROOT,
-            start_new_session=True,
-        )
-        procs.append(router)
-        if router.stdout.readline().strip() != "ready":
-            raise RuntimeError("the Zenoh router did not start")
+        procs.append(_start_router(endpoint))
         log = ica_log.open("w") if ica_log else subprocess.DEVNULL
         ica = subprocess.Popen(
             [*DICA, "ica", "--connect", endpoint, *ica_args],
@@ -65,10 +94,4 @@ def router_and_ica(
     finally:
         if session is not None:
             session.close()
-        for p in reversed(procs):
-            if p.poll() is None:
-                os.killpg(p.pid, signal.SIGTERM)
-                try:
-                    p.wait(10)
-                except subprocess.TimeoutExpired:
-                    os.killpg(p.pid, signal.SIGKILL)
+        _stop(procs)
