@@ -2,7 +2,9 @@
 Zenoh router process on loopback:
 
 * its files are readable by their owner only and never silently replaced;
-* a client without the right password cannot connect at all;
+* only the site's clients get in: TLS with the site's CA, and the right
+  user and password (another site's, a guessed one, plain TCP: refused);
+* the router's certificate names the hosts it was made for;
 * each role writes only what it owns: a vehicle cannot answer other vehicles
   as the ICA, publish confirmations, the clock or vehicle states, or hold the
   ICA's liveliness token; the gateway and the observer cannot ask the ICA for
@@ -12,6 +14,7 @@ Zenoh router process on loopback:
 
 from __future__ import annotations
 
+import base64
 import contextlib
 import json
 import stat
@@ -36,7 +39,7 @@ J = "C"
 def site(tmp_path_factory) -> Iterator[tuple[dict[str, Path], str]]:
     """Generated configs and a router process started from them."""
     paths = write_secure_configs(tmp_path_factory.mktemp("site") / "zenoh")
-    with router(paths["router.json5"]) as endpoint:
+    with router(paths["router.json5"], scheme="tls") as endpoint:
         yield paths, endpoint
 
 
@@ -83,18 +86,38 @@ def test_secure_config_command_is_one_clear_line_when_it_refuses(tmp_path):
     assert "already holds" in again.stderr and "Traceback" not in again.stderr
 
 
-def test_a_client_without_the_password_cannot_connect(site):
+def test_only_the_site_s_clients_get_in(site, tmp_path):
     paths, endpoint = site
-    for override in (
-        {"transport/auth/usrpwd/password": "guess"},
-        {"transport/auth/usrpwd/user": "root"},
+    other = write_secure_configs(tmp_path / "other")  # another site: its CA, its passwords
+    no_ca = {"transport/link/tls/root_ca_certificate_base64": None}
+    for path, override in (
+        (paths["agent.json5"], {"transport/auth/usrpwd/password": "guess"}),
+        (paths["agent.json5"], {"transport/auth/usrpwd/user": "root"}),
+        (paths["agent.json5"], no_ca),  # the right password, but cannot trust the router
+        (other["agent.json5"], {}),
+        (ROOT / "deploy" / "zenoh" / "client.json5", {}),  # no credentials at all
     ):
         with pytest.raises(zenoh.ZError):
-            _open(paths["agent.json5"], endpoint, **override).close()
-    plain = ROOT / "deploy" / "zenoh" / "client.json5"  # no credentials at all
-    with pytest.raises(zenoh.ZError):
-        _open(plain, endpoint).close()
-    _open(paths["agent.json5"], endpoint).close()  # and the right one can
+            _open(path, endpoint, **override).close()
+    _open(paths["agent.json5"], endpoint).close()  # the site's own can
+    with pytest.raises(zenoh.ZError):  # and only over TLS
+        _open(paths["agent.json5"], endpoint.replace("tls/", "tcp/")).close()
+
+
+def test_the_router_certificate_names_the_given_hosts(tmp_path):
+    from cryptography import x509
+
+    paths = write_secure_configs(tmp_path / "z", hosts=("10.0.0.1", "rsu.example"))
+    conf = json.loads(paths["agent.json5"].read_text().split("\n", 1)[1])
+    assert conf["connect"]["endpoints"] == ["tls/10.0.0.1:7447"]
+    router_conf = json.loads(paths["router.json5"].read_text().split("\n", 1)[1])
+    pem = base64.b64decode(router_conf["transport"]["link"]["tls"]["listen_certificate_base64"])
+    names = x509.load_pem_x509_certificate(pem).extensions.get_extension_for_class(
+        x509.SubjectAlternativeName
+    )
+    assert [str(n.value) for n in names.value] == ["10.0.0.1", "rsu.example"]
+    with pytest.raises(SecureConfigError, match="neither an IP address nor a host name"):
+        write_secure_configs(tmp_path / "y", hosts=("a b",))
 
 
 def test_a_client_left_outside_says_where_it_waits(site, tmp_path):

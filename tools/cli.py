@@ -298,10 +298,11 @@ def _num(x: float | None) -> str:
 
 # -- view ------------------------------------------------------------------------
 def cmd_secure_config(args: argparse.Namespace) -> int:
-    from tools.secure import SecureConfigError, write_secure_configs
+    from tools.secure import DEFAULT_HOSTS, SecureConfigError, write_secure_configs
 
     try:
-        paths = write_secure_configs(args.out, args.force)
+        hosts = tuple(args.host) if args.host else DEFAULT_HOSTS
+        paths = write_secure_configs(args.out, args.force, hosts, args.days)
     except SecureConfigError as e:
         raise UsageError(str(e)) from None
     print(f"router:   dica router --config {paths['router.json5']}")
@@ -444,13 +445,22 @@ def parser() -> argparse.ArgumentParser:
 
     sc = sub.add_parser(
         "secure-config",
-        help="Zenoh configs of a secured site: logins, and each role writes only what it owns",
-        description="Writes OUT/users.txt (random passwords), OUT/router.json5 (the router of "
-        "deploy/zenoh/secure/router.json5: log-in required, per-role access rules) and "
-        "OUT/<role>.json5 for ica, gateway, agent and observer (use with --zenoh-config). "
-        "Only the owner can read them. Passwords authenticate, they do not encrypt.",
+        help="Zenoh configs of a secured site: TLS, log-ins, each role writes only what it owns",
+        description="Writes OUT/router.json5 (the router of deploy/zenoh/secure/router.json5: "
+        "TLS only, log-in required, per-role access rules, with a fresh certificate), "
+        "OUT/users.txt (random passwords), OUT/<role>.json5 for ica, gateway, agent and "
+        "observer (use with --zenoh-config; each holds its password and the site's CA) and "
+        "OUT/ca.pem. Only the owner can read them.",
     )
     sc.add_argument("--out", type=Path, required=True, help="directory to write into")
+    sc.add_argument(
+        "--host",
+        action="append",
+        help="a name or address clients reach the router by; repeat for more (the router's "
+        "certificate is valid for these only; the first is the clients' default endpoint; "
+        "default 127.0.0.1 and localhost)",
+    )
+    sc.add_argument("--days", type=int, default=365, help="certificate lifetime (default 365)")
     sc.add_argument("--force", action="store_true", help="replace configs written before")
     sc.set_defaults(func=cmd_secure_config)
 

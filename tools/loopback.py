@@ -51,9 +51,9 @@ def _start_router(endpoint: str, config: Path | None = None) -> subprocess.Popen
 
 
 @contextlib.contextmanager
-def router(config: Path | None = None) -> Iterator[str]:
+def router(config: Path | None = None, scheme: str = "tcp") -> Iterator[str]:
     """A fresh router on a free loopback port (``config``: its JSON5); yields its endpoint."""
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    endpoint = f"{scheme}/127.0.0.1:{free_port()}"
     proc = _start_router(endpoint, config)
     try:
         yield endpoint

@@ -30,8 +30,8 @@ options:
                         realtime: paced to the wall clock (default lockstep)
   --speed F             realtime clock speed factor (default 1)
   --no-record           no Rerun observer and no .rrd
-  --secure              log-ins and per-role access rules on the router, with fresh
-                        passwords in RUN_DIR/zenoh/ (see dica secure-config --help)
+  --secure              TLS, log-ins and per-role access rules on the router, with
+                        fresh secrets in RUN_DIR/zenoh/ (see dica secure-config --help)
   --port P              router port on 127.0.0.1 (default: a free one)
   --out DIR             run directory (default runs/cluster-TIMESTAMP)
   -h, --help            this help
@@ -95,12 +95,13 @@ if [ -z "$port" ]; then
   port="$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
 fi
 endpoint="tcp/127.0.0.1:$port"
-link=(--connect "$endpoint")
 router_conf=()
 if [ "$secure" = 1 ]; then
   "$dica" secure-config --force --out "$out/zenoh" >/dev/null
   router_conf=(--config "$out/zenoh/router.json5")
+  endpoint="tls/127.0.0.1:$port"
 fi
+link=(--connect "$endpoint")
 link_for() {  # link_for ROLE: role_link = the options that connect ROLE to the router
   role_link=("${link[@]}")
   if [ "$secure" = 1 ]; then role_link=(--zenoh-config "$out/zenoh/$1.json5" "${link[@]}"); fi
