@@ -10,7 +10,8 @@ progress can be compared.
 
 Frames. Rerun's 2D views are y-down, so the top view logs (x, -y) to keep
 north up, and the space-time charts log (t [s], -s [m]) so that distance along
-the route grows upwards; 1 s of time is drawn as long as 1 m of road. All data
+the route grows upwards; 1 s of time is drawn as long as CHART_M_PER_S metres of
+road, so that speeds show as slopes. All data
 is on the ``sim_time`` timeline (a duration). Entity paths are listed in
 ``docs/recording.md``.
 
@@ -41,6 +42,11 @@ LANE_WIDTH_M = 3.2  # [m] SUMO's default; to draw entry lines and to tell "on th
 _STRIP_RADIUS_M = 0.08  # [m] line half-width in the top view
 _POINT_RADIUS = 0.25  # [scene units] progress points in the space-time charts
 _FLIP_Y = np.array([1.0, -1.0])
+TICK_S = 10.0  # [s] time grid of the space-time charts
+CHART_M_PER_S = 3.0  # [m] chart width of 1 s: a 15 m/s vehicle climbs at 5:1, not 15:1
+CHART_WINDOW_S = 40.0  # [s] of history each chart shows before the time cursor
+_GRID_COLOR = (190, 190, 190)
+_ACTUAL_SHADE = 0.55  # actual progress: the vehicle's colour, darker than its plan
 
 
 def approach_of(lane: str) -> str:
@@ -175,8 +181,10 @@ class SpaceTimeRecorder:
         application_id: str = "dica",
         recording_id: str | None = None,
         batch_steps: int = 20,
+        window_s: float = CHART_WINDOW_S,
     ) -> None:
         self.intersection = intersection
+        self.window_s = window_s
         self.path = Path(path)
         self.batch_steps = max(1, batch_steps)
         self.approaches: tuple[str, ...] = tuple(
@@ -188,7 +196,12 @@ class SpaceTimeRecorder:
             [self.approaches.index(approach_of(r.in_lane)) for r in intersection.routes]
         )
         self._route_end_m = np.array([r.s_max for r in intersection.routes])
+        self._chart_top_m = [
+            max(r.cross_length_m for r in intersection.routes if approach_of(r.in_lane) == a)
+            for a in self.approaches
+        ]
         self._colors: dict[str, int] = {}
+        self._next_tick = 0.0
         self._n_confirmed = 0
         self._pending = 0
         self._vehicles = _Rows("junction/vehicles", rr.LineStrips2D)
@@ -218,8 +231,10 @@ class SpaceTimeRecorder:
     def blueprint(self) -> rrb.Blueprint:
         """Top view and counts on the left, one space-time chart per approach on the right.
 
-        The charts show all data up to the time cursor (not just the latest),
-        so plans and progress accumulate into lines as the run is replayed.
+        The charts show the ``window_s`` before the time cursor (not just the
+        latest data), so plans and progress form lines as the run is replayed,
+        and the chart moves along with the cursor instead of squeezing the
+        whole run into one view.
         """
         reach = self.intersection.comm_length_m + 10.0
         top = rrb.Spatial2DView(
@@ -229,7 +244,7 @@ class SpaceTimeRecorder:
         )
         history = rrb.VisibleTimeRange(
             TIMELINE,
-            start=rrb.TimeRangeBoundary.infinite(),
+            start=rrb.TimeRangeBoundary.cursor_relative(seconds=-self.window_s),
             end=rrb.TimeRangeBoundary.cursor_relative(),
         )
         charts = [
@@ -238,15 +253,25 @@ class SpaceTimeRecorder:
             )
             for a in self.approaches
         ]
+        counts = rrb.Vertical(
+            rrb.TimeSeriesView(origin="counts/vehicles", name="vehicles in the region"),
+            rrb.TimeSeriesView(origin="counts/confirmed", name="confirmations so far"),
+        )
         left = rrb.Vertical(
             top,
             rrb.Horizontal(
-                rrb.TimeSeriesView(origin="counts", name="counts"),
+                counts,
                 rrb.TextLogView(origin="events", name="confirmations"),
+                column_shares=[1, 2],
             ),
-            row_shares=[3, 1],
+            row_shares=[3, 2],
         )
-        return rrb.Blueprint(rrb.Horizontal(left, rrb.Grid(*charts)), collapse_panels=True)
+        return rrb.Blueprint(
+            rrb.Horizontal(left, rrb.Grid(*charts)),
+            rrb.BlueprintPanel(state="collapsed"),
+            rrb.SelectionPanel(state="collapsed"),
+            rrb.TimePanel(state="expanded"),
+        )
 
     # -- static geometry -----------------------------------------------------
     def geometry(self) -> None:
@@ -335,13 +360,18 @@ class SpaceTimeRecorder:
         chart = f"spacetime/{self._approach_of_route[route_id]}"
         self.rec.log(
             f"{chart}/plan/{part}",
-            rr.LineStrips2D([np.stack([t, -s], axis=-1)], colors=[color], labels=[vin]),
+            rr.LineStrips2D(
+                [np.stack([t * CHART_M_PER_S, -s], axis=-1)],
+                colors=[color],
+                labels=[vin],
+                show_labels=False,
+            ),
         )
         self.rec.log(
             f"{chart}/occupancy/{part}",
             rr.Boxes2D(
-                mins=[(entry_time_s, -route.cross_length_m)],
-                sizes=[(exit_time_s - entry_time_s, route.cross_length_m)],
+                mins=[(entry_time_s * CHART_M_PER_S, -route.cross_length_m)],
+                sizes=[((exit_time_s - entry_time_s) * CHART_M_PER_S, route.cross_length_m)],
                 colors=[color & 0xFFFFFF00 | 90],  # translucent fill
                 labels=[vin],
                 show_labels=False,
@@ -384,6 +414,7 @@ class SpaceTimeRecorder:
             raise ValueError("footprints: vins, x_m, y_m and angle_deg must have equal length")
         colors = self._colors_of(vins)
         strips = rectangles(x, y, sumo_heading_rad(angle_deg), length_m, width_m)
+        self._grid(float(t_s))
         self._vehicles.add(float(t_s), n, strips=strips, colors=colors, labels=list(vins))
         self._count.add(float(t_s), 1, scalars=np.array([float(n)]))
         if route_ids is not None:
@@ -410,8 +441,35 @@ class SpaceTimeRecorder:
         if not len(vins) == len(route_ids) == len(s):
             raise ValueError("progress: vins, route_ids and s_m must have equal length")
         ridx = self._route_indices(route_ids)
+        self._grid(float(t_s))
         self._add_progress(float(t_s), ridx, self._colors_of(vins), s, np.zeros_like(s))
         self._step()
+
+    def _grid(self, t_s: float) -> None:
+        """Every TICK_S of sim time, a time tick with its label and the entry lines
+        in each chart: a 2D view has no axes of its own."""
+        while t_s >= self._next_tick - 1e-9:
+            t0 = self._next_tick
+            x0, x1 = t0 * CHART_M_PER_S, (t0 + TICK_S) * CHART_M_PER_S
+            self.rec.set_time(TIMELINE, duration=t0)
+            comm = self.intersection.comm_length_m
+            for a, top in zip(self.approaches, self._chart_top_m, strict=True):
+                lines = [
+                    [(x0, comm), (x0, -top)],  # the tick
+                    [(x0, 0.0), (x1, 0.0)],  # the junction's entry line
+                    [(x0, comm), (x1, comm)],  # the communication region's
+                ]
+                self.rec.log(
+                    f"spacetime/{a}/grid",
+                    rr.LineStrips2D(lines, colors=[_GRID_COLOR], radii=0.05, draw_order=0.0),
+                )
+                self.rec.log(
+                    f"spacetime/{a}/grid_time",
+                    rr.Points2D(
+                        [(x0, comm)], radii=0.01, colors=[_GRID_COLOR], labels=[f"{t0:g} s"]
+                    ),
+                )
+            self._next_tick += TICK_S
 
     def flush(self) -> None:
         """Send the buffered rows now (also done every ``batch_steps`` steps and on close)."""
@@ -437,8 +495,9 @@ class SpaceTimeRecorder:
         for i, a in enumerate(self.approaches):
             sel = keep & (appr == i)
             if sel.any():
-                pts = np.stack([np.full(int(sel.sum()), t_s), -s[sel]], axis=-1)
-                self._actual[a].add(t_s, len(pts), positions=pts, colors=colors[sel])
+                x = np.full(int(sel.sum()), t_s * CHART_M_PER_S)
+                pts = np.stack([x, -s[sel]], axis=-1)
+                self._actual[a].add(t_s, len(pts), positions=pts, colors=_darker(colors[sel]))
 
     def _step(self) -> None:
         self._pending += 1
@@ -465,6 +524,16 @@ class SpaceTimeRecorder:
 
     def _colors_of(self, vins: Sequence[str]) -> np.ndarray:
         return np.fromiter((self._color(v) for v in vins), dtype=np.uint32, count=len(vins))
+
+
+def _darker(rgba: np.ndarray) -> np.ndarray:
+    """The same colours (packed 0xRRGGBBAA), each channel scaled by _ACTUAL_SHADE."""
+    c = rgba.astype(np.uint32)
+    out = c & np.uint32(0xFF)
+    for shift in (8, 16, 24):
+        channel = (c >> np.uint32(shift)) & np.uint32(0xFF)
+        out |= (channel * _ACTUAL_SHADE).astype(np.uint32) << np.uint32(shift)
+    return out
 
 
 def _clipped(route: Route, s_from: float) -> np.ndarray:

@@ -28,6 +28,7 @@ from ica.core.intersection import Intersection
 from ica.core.proposal import propose
 from ica.core.request import Confirmation
 from sim_gateway.recording import (
+    CHART_M_PER_S,
     RouteProjector,
     SpaceTimeRecorder,
     approach_of,
@@ -131,7 +132,7 @@ def test_files_hold_one_recording_and_its_blueprint(recorded):
             if "ViewBlueprint:space_origin" in b.schema.names:
                 origins += b.column("ViewBlueprint:space_origin").to_pylist()
     flat = {o if isinstance(o, str) else o[0] for o in origins}
-    assert {"junction", "counts", "events"} <= flat
+    assert {"junction", "counts/vehicles", "counts/confirmed", "events"} <= flat
     assert {f"spacetime/{a}" for a in ("E_in", "N_in", "S_in", "W_in")} <= flat
 
 
@@ -185,16 +186,17 @@ def test_space_time_plan_and_occupancy_box(recorded, ch45):
         ((_, halves),) = _rows(data[f"{chart}/occupancy/{_esc(c.vin)}"], "Boxes2D:half_sizes")
         mins = np.array(centers[0]) - halves[0]
         sizes = 2 * np.array(halves[0])
-        np.testing.assert_allclose(mins, [c.entry_time_s, -route.cross_length_m], atol=1e-3)
+        k = CHART_M_PER_S  # chart metres per second
+        np.testing.assert_allclose(mins, [k * c.entry_time_s, -route.cross_length_m], atol=1e-3)
         np.testing.assert_allclose(
-            sizes, [c.exit_time_s - c.entry_time_s, route.cross_length_m], atol=1e-3
+            sizes, [k * (c.exit_time_s - c.entry_time_s), route.cross_length_m], atol=1e-3
         )
         assert t_box == pytest.approx(c.tss.t_s[0])
         ((_, strips),) = _rows(data[f"{chart}/plan/{_esc(c.vin)}"], "LineStrips2D:strips")
         line = np.array(strips[0])
-        np.testing.assert_allclose(line[:, 0], c.tss.t_s, atol=1e-4)
+        np.testing.assert_allclose(line[:, 0], k * c.tss.t_s, atol=1e-4)
         assert -line[0, 1] == pytest.approx(-40.0, abs=0.05)  # requested 40 m before entry
-        s_at_entry = -np.interp(c.entry_time_s, line[:, 0], line[:, 1])
+        s_at_entry = -np.interp(k * c.entry_time_s, line[:, 0], line[:, 1])
         assert abs(s_at_entry) < 1.0  # the front bumper crosses s = 0 at the entry time
 
 
@@ -221,7 +223,72 @@ def test_actual_vehicles_and_their_progress(recorded, ch45):
         s_plan = route.project(np.stack([c.tss.x_m, c.tss.y_m], -1))[0]
         for i, (t, pts) in enumerate(actual):
             assert t == pytest.approx(c.tss.t_s[i])
-            np.testing.assert_allclose(pts[0], [c.tss.t_s[i], -s_plan[i]], atol=1e-3)
+            np.testing.assert_allclose(
+                pts[0], [CHART_M_PER_S * c.tss.t_s[i], -s_plan[i]], atol=1e-3
+            )
+
+
+def test_actual_progress_is_a_darker_shade_of_the_plan(recorded, ch45):
+    path, confs = recorded
+    data = _read(path)
+    for c in confs:
+        chart = f"/spacetime/{approach_of(ch45.route_by_id(c.route_id).in_lane)}"
+        plan = _static_or_row(data[f"{chart}/plan/{_esc(c.vin)}"], "LineStrips2D:colors")
+        actual = _rows(data[f"{chart}/actual"], "Points2D:colors")[0][1][0]
+        rgb = [(plan >> k) & 0xFF for k in (24, 16, 8)]
+        assert [(actual >> k) & 0xFF for k in (24, 16, 8)] == [int(v * 0.55) for v in rgb]
+        assert actual & 0xFF == plan & 0xFF  # same opacity
+
+
+def _static_or_row(batches: list[pa.RecordBatch], column: str) -> int:
+    ((_, colors),) = _rows(batches, column)
+    return colors[0]
+
+
+def test_charts_get_a_time_grid_every_ten_seconds(ch45, tmp_path):
+    """A 2D view has no axes: each chart gets a labelled tick every 10 s of sim
+    time, with the entry lines, logged at that time (so a moving window shows them)."""
+    rec = SpaceTimeRecorder(ch45, tmp_path / "g.rrd")
+    for k in range(0, 501):  # 0 .. 25 s
+        rec.footprints(k * 0.05, [], np.zeros(0), np.zeros(0), np.zeros(0), 5.0, 1.8)
+    rec.close()
+    data = _read(tmp_path / "g.rrd")
+    comm = ch45.comm_length_m
+    for a in ("E_in", "N_in", "S_in", "W_in"):
+        labels = _rows(data[f"/spacetime/{a}/grid_time"], "Points2D:labels")
+        assert labels == [(0.0, ["0 s"]), (10.0, ["10 s"]), (20.0, ["20 s"])]
+        grid = _rows(data[f"/spacetime/{a}/grid"], "LineStrips2D:strips")
+        t, (tick, entry, region) = grid[1]
+        assert t == 10.0
+        x10, x20 = 10.0 * CHART_M_PER_S, 20.0 * CHART_M_PER_S
+        assert [p[0] for p in tick] == [x10, x10] and tick[0][1] == pytest.approx(comm)
+        assert entry == [[x10, 0.0], [x20, 0.0]]
+        assert region == [[x10, pytest.approx(comm)], [x20, pytest.approx(comm)]]
+
+
+def test_charts_show_a_moving_window_and_the_time_panel_is_open(recorded):
+    """Each chart shows the last 40 s before the cursor, not the whole run
+    squeezed into one view; the time panel starts expanded."""
+    path, _ = recorded
+    blueprint = _read(path, blueprint=True)
+    ranges = [
+        b.column(c).to_pylist()
+        for batches in blueprint.values()
+        for b in batches
+        for c in b.schema.names
+        if c.endswith("VisibleTimeRanges:ranges")
+    ]
+    assert len(ranges) == 4  # one per chart
+    for (r,) in ranges:  # from 40 s before the cursor (relative, in ns) to the cursor
+        assert r == [{"timeline": "sim_time", "range": {"start": -40_000_000_000, "end": 0}}]
+    panels = {
+        e: b.column(c).to_pylist()[0][0]
+        for e, batches in blueprint.items()
+        for b in batches
+        for c in b.schema.names
+        if c.endswith("Blueprint:state")
+    }
+    assert panels == {"/time_panel": 3, "/blueprint_panel": 2, "/selection_panel": 2}  # 3 open
 
 
 def test_rectangles_in_sumo_frame_by_hand():
