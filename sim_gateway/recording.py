@@ -9,9 +9,9 @@ per approach (incoming edge), where a confirmed plan and the vehicle's actual
 progress can be compared.
 
 Frames. Rerun's 2D views are y-down, so the top view logs (x, -y) to keep
-north up, and the space-time charts log (t [s], -s [m]) so that distance along
-the route grows upwards; 1 s of time is drawn as long as CHART_M_PER_S metres of
-road, so that speeds show as slopes. All data
+north up, and the space-time charts log (CHART_M_PER_S * t [s], -s [m]) so
+that distance along the route grows upwards and 1 s of time is drawn as long
+as CHART_M_PER_S metres of road: speeds show as slopes. All data
 is on the ``sim_time`` timeline (a duration). Entity paths are listed in
 ``docs/recording.md``.
 
