@@ -162,9 +162,18 @@ class _Heard:
             time.sleep(0.02)
         raise AssertionError(f"never heard {key}")
 
-    def keys(self) -> set[str]:
+    def heard_keys(self) -> set[str]:
         with self.lock:
             return {k for k, _ in self.items}
+
+
+def _until(ready, timeout: float = 15.0) -> None:
+    """Wait until ``ready()`` is truthy: declarations take a moment to reach the router."""
+    deadline = time.monotonic() + timeout
+    while not ready():
+        if time.monotonic() > deadline:
+            raise AssertionError("the router never saw the declarations")
+        time.sleep(0.1)
 
 
 def _answers(session, key: str) -> list[bytes]:
@@ -181,7 +190,7 @@ def test_only_the_ica_answers_and_only_vehicles_ask(site):
             decls.append(
                 s.declare_queryable(f"dica/{J}/request", lambda q, a=answer: q.reply(q.key_expr, a))
             )
-        time.sleep(0.5)
+        _until(lambda: _answers(vehicle, f"dica/{J}/request"))  # declarations have spread
         for _ in range(5):  # whichever queryable the router would pick, only the ICA's
             assert _answers(vehicle, f"dica/{J}/request") == [b"ica"]
         # a session's own queryable would answer it locally: these two have none
@@ -198,7 +207,12 @@ def test_each_role_publishes_only_what_it_owns(site):
     ):  # fmt: skip
         heard = _Heard()
         subs = [listener.declare_subscriber(k, heard.cb) for k in ("dica/**", "sim/**")]
-        time.sleep(0.5)
+
+        def probe() -> bool:  # the subscriptions have reached the router
+            gateway.put(f"sim/{J}/vehicles", b"ok")
+            return f"sim/{J}/vehicles" in heard.heard_keys()
+
+        _until(probe)
         forbidden = {
             agent: [f"dica/{J}/confirmed/v1", f"sim/{J}/clock", f"sim/{J}/vehicles",
                     f"sim/{J}/state/agent-1"],
@@ -238,11 +252,12 @@ def test_nobody_holds_another_role_s_liveliness_token(site):
             agent.liveliness().declare_token(f"sim/{J}/alive/agent-1"),  # its own: allowed
             observer.liveliness().declare_token(f"sim/{J}/observer/main"),  # its own: allowed
         ]
-        time.sleep(0.5)
 
         def alive(key: str) -> list[str]:
             replies = ica.liveliness().get(key, timeout=1.5)
             return sorted(str(r.ok.key_expr) for r in replies if r.ok is not None)
+
+        _until(lambda: alive(f"sim/{J}/observer/**") and alive(f"sim/{J}/alive/**"))
 
         assert alive(f"dica/{J}/alive/**") == []
         assert alive(f"sim/{J}/alive/**") == [f"sim/{J}/alive/agent-1"]
