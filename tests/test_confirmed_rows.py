@@ -40,10 +40,13 @@ def test_incremental_rows_equal_a_fresh_gather() -> None:
         assert len(rows) == len(live)
         vins, packed, owner = _live(g)
         assert vins == list(live)  # the set's order
-        fresh = Gathered.of((v, d, p) for v, (d, p) in live.items())  # type: ignore[misc]
-        assert np.array_equal(packed, fresh.packed)
-        assert list(owner) == [fresh.vins[v] for v in fresh.vid]
-        assert [g.routes[g.vins.index(v)] for v in vins] == fresh.routes
+        # gathered from scratch: every live vehicle's rows end to end, in the set's order
+        fresh = np.concatenate([p for _, p in live.values()]) if live else packed[:0]
+        assert np.array_equal(packed, fresh)
+        assert list(owner) == [v for v, (_, p) in live.items() for _ in range(len(p))]
+        assert [g.routes[g.vins.index(v)] for v in vins] == [
+            (d.route, d.shape) for d, _ in live.values()
+        ]
         assert g.packed.flags.c_contiguous and g.vid.dtype == np.int64
         if step % 97 == 0:
             snapshots.append((g, vins, packed.copy()))

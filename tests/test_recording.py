@@ -233,14 +233,14 @@ def test_actual_progress_is_a_darker_shade_of_the_plan(recorded, ch45):
     data = _read(path)
     for c in confs:
         chart = f"/spacetime/{approach_of(ch45.route_by_id(c.route_id).in_lane)}"
-        plan = _static_or_row(data[f"{chart}/plan/{_esc(c.vin)}"], "LineStrips2D:colors")
+        plan = _only_row(data[f"{chart}/plan/{_esc(c.vin)}"], "LineStrips2D:colors")
         actual = _rows(data[f"{chart}/actual"], "Points2D:colors")[0][1][0]
         rgb = [(plan >> k) & 0xFF for k in (24, 16, 8)]
         assert [(actual >> k) & 0xFF for k in (24, 16, 8)] == [int(v * 0.55) for v in rgb]
         assert actual & 0xFF == plan & 0xFF  # same opacity
 
 
-def _static_or_row(batches: list[pa.RecordBatch], column: str) -> int:
+def _only_row(batches: list[pa.RecordBatch], column: str) -> int:
     ((_, colors),) = _rows(batches, column)
     return colors[0]
 

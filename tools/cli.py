@@ -298,7 +298,7 @@ def _num(x: float | None) -> str:
 
 # -- view ------------------------------------------------------------------------
 def cmd_secure_config(args: argparse.Namespace) -> int:
-    from tools.secure import DEFAULT_HOSTS, SecureConfigError, write_secure_configs
+    from tools.secure import DEFAULT_HOSTS, ROLES, SecureConfigError, write_secure_configs
 
     try:
         hosts = tuple(args.host) if args.host else DEFAULT_HOSTS
@@ -306,7 +306,7 @@ def cmd_secure_config(args: argparse.Namespace) -> int:
     except SecureConfigError as e:
         raise UsageError(str(e)) from None
     print(f"router:   dica router --config {paths['router.json5']}")
-    for role in ("ica", "gateway", "agent", "observer"):
+    for role in ROLES:
         print(f"{role + ':':10}dica {role} --zenoh-config {paths[role + '.json5']} ...")
     return 0
 

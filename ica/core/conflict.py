@@ -156,13 +156,6 @@ class Gathered:
     vid: np.ndarray
     packed: np.ndarray
 
-    @staticmethod
-    def of(confirmed: Iterable[tuple[str, Dtot, np.ndarray]]) -> Gathered:
-        rows = ConfirmedRows()
-        for vin, d, p in confirmed:
-            rows.add(vin, d, p)
-        return rows.gathered()
-
 
 class ConfirmedRows:
     """The confirmed set's occupancy rows, kept up to date as vehicles come and go.
