@@ -20,10 +20,10 @@ from ica.core.config import IcaConfig
 from ica.core.dica import Dica
 from ica.core.intersection import Intersection
 from ica.core.request import Confirmation, Rejection, Request, RequestError
+from sim_gateway.demand import DemandSpec, expected_lane_flows, make_arrivals
 from sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
 from sim_gateway.signals import retime
 from sim_gateway.world import Seen, World, import_libsumo, start_sumo
-from tools.stream import StreamSpec, expected_lane_flows, make_vehicles
 from vehicle_agent.machine import Command, Vehicle
 
 __all__ = ["LIGHTS", "RunConfig", "RunError", "RunResult", "run", "schedule_for"]
@@ -101,7 +101,7 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
     peak = max(cfg.volume_per_10min, cfg.volume_end_per_10min or 0.0)
     # enough arrivals to outlast the horizon; the schedule is cut at the horizon below
     n = cfg.until_left or max(1, math.ceil(peak / 600.0 * cfg.duration_s * 2 + 20))
-    spec = StreamSpec(
+    spec = DemandSpec(
         volume_per_10min=cfg.volume_per_10min,
         n_vehicles=n,
         seed=cfg.seed,
@@ -112,7 +112,7 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
         ramp_s=cfg.ramp_s,
     )
     try:
-        schedule = make_vehicles(inter, spec, step_s)
+        schedule = make_arrivals(inter, spec, step_s)
     except ValueError as e:
         raise RunError(str(e)) from None
     horizon = math.inf if cfg.until_left else cfg.duration_s
@@ -213,7 +213,7 @@ def _record(rec, drivers: LocalDrivers, seen: list[Seen], cfg: RunConfig, t: flo
     )
 
 
-def _setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: StreamSpec) -> dict:
+def _setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> dict:
     """Check the junction is signalised; re-time a fixed program to the expected demand."""
     if inter.junction_id not in ls.trafficlight.getIDList():
         raise RunError(

@@ -25,10 +25,10 @@ from ica.core.config import IcaConfig
 from ica.core.intersection import Intersection
 from ica.core.planner import Planner
 from ica.core.route import Route
+from sim_gateway.demand import Arrival
 from sim_gateway.metrics import Trip, TripLog, summarize
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
 from sim_gateway.safety import SafetyMonitor
-from tools.stream import Vehicle as Arrival
 from vehicle_agent.machine import MODE_CONFIRMED, RELEASE, Command, Observation
 
 VTYPE = "cav"

@@ -14,6 +14,15 @@ import sys
 import time
 from pathlib import Path
 
+from tools.args import (
+    UsageError,
+    add_net_args,
+    add_run_args,
+    intersection,
+    report_run,
+    run_config,
+)
+
 EXAMPLES = """examples:
   dica scenario build --layout ch45 --out nets/
   dica geometry --layout ch3
@@ -24,38 +33,6 @@ EXAMPLES = """examples:
   dica bench ica --json
   dica view runs/run-enhanced-20250101-120000 --web --port 9090
 """
-
-
-class UsageError(Exception):
-    """Bad input from the user: reported as one line, exit status 2."""
-
-
-def _intersection(args: argparse.Namespace):
-    from ica.netfile import NetworkError, load_intersection
-    from sim_gateway.scenario import ScenarioError, default_scenario
-
-    try:
-        if args.net:
-            if not args.junction:
-                raise UsageError("--net needs --junction (the junction id in that network)")
-            return load_intersection(args.net, args.junction)
-        sc = default_scenario(args.layout)
-        return load_intersection(sc.net_path, sc.junction_id)
-    except (NetworkError, ScenarioError) as e:
-        raise UsageError(str(e)) from None
-
-
-def _add_net_args(p: argparse.ArgumentParser) -> None:
-    from sim_gateway.scenario import LAYOUTS
-
-    p.add_argument(
-        "--layout",
-        choices=LAYOUTS,
-        default="ch45",
-        help="built-in intersection: ch3 (2 lanes in, 1 out) or ch45 (3 in, 2 out; default)",
-    )
-    p.add_argument("--net", type=Path, help="any SUMO .net.xml instead of a built-in layout")
-    p.add_argument("--junction", help="junction id in --net")
 
 
 # -- scenario -------------------------------------------------------------------
@@ -74,7 +51,7 @@ def cmd_scenario(args: argparse.Namespace) -> int:
 def cmd_geometry(args: argparse.Namespace) -> int:
     from ica.core.zones import ConflictTables, Shape
 
-    inter = _intersection(args)
+    inter = intersection(args)
     tables = ConflictTables(inter, margin_m=args.margin)
     shape = Shape.of(5.0, 1.8)
     rows = []
@@ -123,7 +100,7 @@ def cmd_stream(args: argparse.Namespace) -> int:
         cfg = IcaConfig(techniques=tech, margin_m=args.margin)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    inter = _intersection(args)
+    inter = intersection(args)
     spec = StreamSpec(volume_per_10min=args.volume, n_vehicles=args.vehicles, seed=args.seed)
     out = args.out or Path("runs") / time.strftime("stream-%Y%m%d-%H%M%S")
     out.mkdir(parents=True, exist_ok=True)
@@ -190,49 +167,6 @@ def _jsonable(x):
 
 
 # -- run -------------------------------------------------------------------------
-def run_config(args: argparse.Namespace):
-    """The RunConfig and intersection the run options name (shared with `dica gateway`)."""
-    import shlex
-
-    from sim_gateway.runconfig import LIGHTS, RunConfig, RunError
-
-    if args.net:
-        if not args.junction:
-            raise UsageError("--net needs --junction (the junction id in that network)")
-        net, junction = str(args.net), args.junction
-    else:
-        from sim_gateway.scenario import ScenarioError, default_scenario
-
-        tls = None
-        if args.algorithm in LIGHTS:
-            tls = "actuated" if args.algorithm == "actuated" else "static"
-        try:
-            sc = default_scenario(args.layout, tls=tls)
-        except ScenarioError as e:
-            raise UsageError(str(e)) from None
-        net, junction = str(sc.net_path), sc.junction_id
-    inter = _intersection(args)
-    try:
-        cfg = RunConfig(
-            net_path=net,
-            junction_id=junction,
-            algorithm=args.algorithm,
-            volume_per_10min=args.volume,
-            seed=args.seed,
-            duration_s=args.duration,
-            until_left=args.until_left,
-            margin_m=args.margin,
-            sumo_args=tuple(shlex.split(args.sumo_args)) if args.sumo_args else (),
-            tile_m=args.tile_size,
-            approach_weights=_weights(args.approach_weights),
-            volume_end_per_10min=args.volume_end,
-            ramp_s=args.ramp if args.ramp is not None else args.duration,
-        )
-    except RunError as e:
-        raise UsageError(str(e)) from None
-    return cfg, inter
-
-
 def cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -258,42 +192,6 @@ def cmd_run(args: argparse.Namespace) -> int:
             raise UsageError(str(e)) from None
     write_outputs(out, cfg, result)
     return report_run(out, result)
-
-
-def report_run(out: Path, result) -> int:
-    """Print a run's headline figures; exit status 1 if anything collided."""
-    m = result.metrics
-    print(
-        f"{m['generated']} generated, {m['crossed']} crossed (rho {m['throughput']:.3f}), "
-        f"mean trip {_num(m['mean_trip_time_s'])} s, "
-        f"tau_e {_num(m['effective_mean_trip_time_s'])} s, "
-        f"stopped {_num(m['stopped_rate'])}"
-    )
-    unconfirmed = result.extra.get("unconfirmed_entries", 0)
-    print(
-        f"safety: {result.safety['overlaps']} overlaps (independent check), "
-        f"{result.sumo_collisions} SUMO collisions, min gap {_num(result.safety['min_gap_m'])} m, "
-        f"{unconfirmed} unconfirmed entries"
-    )
-    print(f"{result.sim_time_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json")
-    return 1 if result.safety["overlaps"] or result.sumo_collisions or unconfirmed else 0
-
-
-def _weights(text: str | None) -> tuple[tuple[str, float], ...]:
-    if not text:
-        return ()
-    out = []
-    for item in text.split(","):
-        name, _, value = item.partition("=")
-        try:
-            out.append((name.strip(), float(value)))
-        except ValueError:
-            raise UsageError(f"--approach-weights wants EDGE=WEIGHT,..., got {item!r}") from None
-    return tuple(out)
-
-
-def _num(x: float | None) -> str:
-    return "n/a" if x is None else f"{x:.2f}"
 
 
 # -- view ------------------------------------------------------------------------
@@ -332,39 +230,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
     raise UsageError(f"unknown benchmark {args.what!r}")
 
 
-def add_run_args(r: argparse.ArgumentParser) -> None:
-    """Scenario and traffic options of a run (shared with `dica gateway`)."""
-    _add_net_args(r)
-    r.add_argument(
-        "--algorithm",
-        default="enhanced",
-        help="DICA: basic, enhanced, t1..t4 (t2+4); baselines: fifo, concurrent, tiles, "
-        "fixed (optimised fixed-cycle light), actuated (SUMO's actuated light)",
-    )
-    r.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
-    r.add_argument(
-        "--approach-weights",
-        help="relative demand per approach, e.g. N_in=1,S_in=1,E_in=0.3,W_in=0.3 (default equal)",
-    )
-    r.add_argument("--volume-end", type=float, help="volume reached by --ramp seconds (linear)")
-    r.add_argument(
-        "--ramp", type=float, help="seconds over which the volume ramps (default: duration)"
-    )
-    r.add_argument(
-        "--volume",
-        type=float,
-        default=300.0,
-        help="vehicles per 10 min (100-500 in the dissertation)",
-    )
-    r.add_argument("--seed", type=int, default=12)
-    r.add_argument("--duration", type=float, default=600.0, help="simulated seconds (default 600)")
-    r.add_argument(
-        "--until-left", type=int, help="instead: generate N vehicles and run until all have left"
-    )
-    r.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
-    r.add_argument("--sumo-args", help="extra SUMO options, verbatim, e.g. '--fcd-output f.xml'")
-
-
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="dica",
@@ -386,7 +251,7 @@ def parser() -> argparse.ArgumentParser:
     sc.set_defaults(func=cmd_scenario)
 
     g = sub.add_parser("geometry", help="routes, turn classes and conflicts of a junction")
-    _add_net_args(g)
+    add_net_args(g)
     g.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
     g.add_argument("--json", action="store_true")
     g.set_defaults(func=cmd_geometry)
@@ -398,7 +263,7 @@ def parser() -> argparse.ArgumentParser:
         "request when head of their lane, and every confirmed trajectory is audited by an "
         "independent brute-force check. Writes summary.json, vehicles.csv and config.json.",
     )
-    _add_net_args(s)
+    add_net_args(s)
     s.add_argument(
         "--variant", default="enhanced", help="basic, enhanced, or t1..t4 / t2+4 (default enhanced)"
     )

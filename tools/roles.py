@@ -14,7 +14,7 @@ import json
 import time
 from pathlib import Path
 
-from tools.cli import UsageError, _add_net_args, _intersection, add_run_args, report_run, run_config
+from tools.args import UsageError, add_net_args, add_run_args, intersection, report_run, run_config
 
 
 def _add_link_args(p: argparse.ArgumentParser) -> None:
@@ -71,7 +71,7 @@ def cmd_ica(args: argparse.Namespace) -> int:
     from ica.core.baselines import controller_config, make_controller
     from ica.service import IcaService, write_stats
 
-    inter = _intersection(args)
+    inter = intersection(args)
     try:
         config = controller_config(args.algorithm, args.margin)
     except ValueError as e:
@@ -99,7 +99,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
     from schemas.keys import KeyChunkError
     from vehicle_agent.agent import Agent
 
-    inter = _intersection(args)
+    inter = intersection(args)
     session, log = _session(args, f"agent {args.id}")
     try:
         agent = Agent(
@@ -178,7 +178,7 @@ def cmd_gateway(args: argparse.Namespace) -> int:
 
 # -- observer ------------------------------------------------------------------
 def cmd_observer(args: argparse.Namespace) -> int:
-    inter = _intersection(args)
+    inter = intersection(args)
     session, log = _session(args, "observer")
     from sim_gateway.observer import Observer
 
@@ -216,7 +216,7 @@ def add_role_parsers(sub) -> None:
         "confirmations on dica/<junction>/confirmed/<vin>, follows the sim clock. Stops on "
         "SIGTERM or when the clock announces the end of the run.",
     )
-    _add_net_args(i)
+    add_net_args(i)
     i.add_argument("--algorithm", default="enhanced", help="basic, enhanced, t1..t4, fifo, ...")
     i.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
     i.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
@@ -234,7 +234,7 @@ def add_role_parsers(sub) -> None:
         "(--per-agent).",
     )
     a.add_argument("--id", required=True, help="this agent's name (letters, digits, _.:-+)")
-    _add_net_args(a)
+    add_net_args(a)
     a.add_argument("--margin", type=float, default=0.25, help="the ICA's margin [m]")
     a.add_argument("--retry", type=float, default=0.5, help="seconds before asking again")
     a.add_argument("--timeout", type=float, default=1.0, help="query timeout [s wall]")
@@ -247,7 +247,7 @@ def add_role_parsers(sub) -> None:
         description="Listens to the vehicle states and the ICA's confirmations and writes a "
         "space-time recording (open it with dica view). Stops at the run's end or on SIGTERM.",
     )
-    _add_net_args(o)
+    add_net_args(o)
     o.add_argument("--rrd", type=Path, required=True, help="the .rrd file to write")
     _add_link_args(o)
     o.set_defaults(func=cmd_observer)

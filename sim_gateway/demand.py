@@ -1,0 +1,129 @@
+"""Traffic demand: who arrives at the communication region, when, on which route.
+
+Arrivals are a Poisson process whose expected count matches the volume (the
+dissertation's definition: vehicles per 10 minutes over all approaches),
+possibly ramped, split over approaches by weight, over turns by the
+left/through/right probabilities and uniformly over a turn's lanes. The same
+draw gives the expected flow per lane, which the light baselines are timed to.
+Both simulation modes and the request-stream tool take their vehicles from here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ica.core.intersection import Intersection
+from ica.core.route import Route, Turn
+
+ROAD_LIMIT_MPS = 70.0 / 3.6  # [m/s] the dissertation's road speed limit v_m
+
+
+@dataclass(frozen=True, slots=True)
+class DemandSpec:
+    volume_per_10min: float = 300.0
+    n_vehicles: int = 100
+    seed: int = 12
+    turn_probs: tuple[float, float, float] = (0.2, 0.6, 0.2)  # left, through, right
+    speed_range: tuple[float, float] = (0.4, 1.0)  # of the road limit
+    length_range_m: tuple[float, float] = (5.0, 5.0)
+    width_range_m: tuple[float, float] = (1.8, 1.8)
+    # relative arrival weight per approach (incoming edge id); missing ones weigh 1
+    approach_weights: tuple[tuple[str, float], ...] = ()
+    # volume rising (or falling) linearly to this by ``ramp_s``, then held
+    volume_end_per_10min: float | None = None
+    ramp_s: float = 1200.0
+
+
+@dataclass(frozen=True, slots=True)
+class Arrival:
+    """One vehicle of the demand: it reaches the region's entry line at ``arrival_s``."""
+
+    vin: str
+    route: Route
+    arrival_s: float
+    speed_mps: float
+    length_m: float
+    width_m: float
+
+
+def approach_of(lane: str) -> str:
+    return lane.rsplit("_", 1)[0]
+
+
+def _weights(approaches: list[str], spec: DemandSpec) -> np.ndarray:
+    given = dict(spec.approach_weights)
+    unknown = set(given) - set(approaches)
+    if unknown:
+        raise ValueError(f"unknown approach(es) {sorted(unknown)}; known: {approaches}")
+    w = np.array([given.get(a, 1.0) for a in approaches], dtype=float)
+    if (w < 0).any() or w.sum() <= 0:
+        raise ValueError("approach weights must be non-negative and not all zero")
+    return w / w.sum()
+
+
+def _by_approach(inter: Intersection) -> dict[str, dict[Turn, list[Route]]]:
+    out: dict[str, dict[Turn, list[Route]]] = {}
+    for r in inter.routes:
+        out.setdefault(approach_of(r.in_lane), {}).setdefault(r.turn, []).append(r)
+    return out
+
+
+def make_arrivals(inter: Intersection, spec: DemandSpec, step_s: float) -> list[Arrival]:
+    """Arrivals in time order: approach by weight, turn by ``turn_probs``, lane uniform.
+
+    Arrivals are a Poisson process whose rate follows the (possibly ramped)
+    volume, drawn by thinning so the expected count matches exactly.
+    """
+    rng = np.random.default_rng(spec.seed)
+    by_approach = _by_approach(inter)
+    approaches = sorted(by_approach)
+    weights = _weights(approaches, spec)
+    probs = dict(zip((Turn.LEFT, Turn.THROUGH, Turn.RIGHT), spec.turn_probs, strict=True))
+    v0 = spec.volume_per_10min
+    v1 = v0 if spec.volume_end_per_10min is None else spec.volume_end_per_10min
+
+    def rate(t: float) -> float:
+        return (v0 + (v1 - v0) * min(t / spec.ramp_s, 1.0)) / 600.0
+
+    rate_max = max(v0, v1) / 600.0
+    t = 0.0
+    out: list[Arrival] = []
+    for k in range(spec.n_vehicles):
+        while True:
+            t += rng.exponential(1.0 / rate_max)
+            if rng.uniform() * rate_max <= rate(t):
+                break
+        turns = by_approach[approaches[rng.choice(len(approaches), p=weights)]]
+        options = sorted(turns, key=str)
+        p = np.array([probs[x] for x in options])
+        turn = options[rng.choice(len(options), p=p / p.sum())]
+        route = turns[turn][rng.integers(len(turns[turn]))]
+        out.append(
+            Arrival(
+                vin=f"v{k:05d}",
+                route=route,
+                arrival_s=round(t / step_s) * step_s,
+                speed_mps=float(rng.uniform(*spec.speed_range)) * ROAD_LIMIT_MPS,
+                length_m=float(rng.uniform(*spec.length_range_m)),
+                width_m=float(rng.uniform(*spec.width_range_m)),
+            )
+        )
+    return out
+
+
+def expected_lane_flows(inter: Intersection, spec: DemandSpec) -> dict[str, float]:
+    """Expected demand per incoming lane [veh/h], by the same draw as make_arrivals."""
+    by_approach = _by_approach(inter)
+    probs = dict(zip((Turn.LEFT, Turn.THROUGH, Turn.RIGHT), spec.turn_probs, strict=True))
+    weights = dict(zip(sorted(by_approach), _weights(sorted(by_approach), spec), strict=True))
+    flows: dict[str, float] = {}
+    for approach, turns in by_approach.items():
+        per_approach = spec.volume_per_10min * 6.0 * weights[approach]
+        total = sum(probs[t] for t in turns)
+        for turn, routes in turns.items():
+            for r in routes:
+                share = probs[turn] / total / len(routes)
+                flows[r.in_lane] = flows.get(r.in_lane, 0.0) + per_approach * share
+    return flows
