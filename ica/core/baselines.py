@@ -118,11 +118,8 @@ class Tiles(Dica):
         out.sort(key=lambda c: c.first_time_s)
         return out
 
-    def advance(self, now_s: float) -> list[str]:
-        gone = super().advance(now_s)
-        for vin in gone:
-            self._tiles.pop(vin, None)
-        return gone
+    def _forget(self, vin: str) -> None:
+        self._tiles.pop(vin, None)
 
 
 BASELINES = ("fifo", "concurrent", "tiles")
