@@ -49,6 +49,9 @@ class LocalLink:
         self.compute_s.append(time.perf_counter() - t_c)
         return answer
 
+    def cancel(self, vin: str, seq: int) -> None:
+        self.ica.cancel(vin, seq)
+
 
 class LocalDrivers:
     """The vehicles' machines, all in this process, with the ICA beside them."""
@@ -76,6 +79,7 @@ class LocalDrivers:
                     c.entry_speed_mps,
                     self.ica.config,
                     self.cfg.retry_s,
+                    lead_s=self.cfg.lead_s,
                 )
                 v.rejections = self.rejections  # one tally for the run
                 self.vehicles[c.vin] = v
@@ -120,7 +124,7 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
 
 
 def ica_config(cfg: RunConfig) -> IcaConfig:
-    return controller_config(cfg.algorithm, cfg.margin_m)
+    return controller_config(cfg.algorithm, cfg.margin_m, cfg.time_pad_s)
 
 
 def run(
