@@ -89,6 +89,7 @@ class ZenohDrivers:
         self.resend_s = resend_s
         self.log = log
         self.inbox = Inbox()
+        self.ended = False
         self.alive: set[str] = set()
         self.ica_alive = False
         self.ica_outages = 0
@@ -158,6 +159,7 @@ class ZenohDrivers:
         self._t0_wall = time.monotonic()
 
     def end(self, t: float) -> None:
+        self.ended = True  # from now on the roles stop: their tokens going is no news
         self._clock_pub.put(encode(Clock(self._k + 1, t, self.clock, self.speed, True, now_ns())))
 
     def close(self) -> None:
@@ -433,7 +435,7 @@ class ZenohDrivers:
         if item.what == "agent" and item.key.startswith(self._agent_key):
             if up:
                 self.alive.add(name)
-            elif name in self.alive:
+            elif name in self.alive and not self.ended:
                 self.alive.discard(name)
                 self.agent_deaths += 1
                 gone = sorted(v for v, a in self.owner.items() if a == name and v in self.known)
@@ -447,7 +449,7 @@ class ZenohDrivers:
         elif item.what == "observer" and item.key.startswith(self._observer_key):
             (self.observers.add if up else self.observers.discard)(name)
         elif item.what == "ica" and item.key == self._ica_key:
-            if self.ica_alive and not up:
+            if self.ica_alive and not up and not self.ended:
                 self.ica_outages += 1
                 self.log.error("the ICA is gone: no new plans until it is back")
             elif up and not self.ica_alive and self.ica_outages:

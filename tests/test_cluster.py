@@ -2,8 +2,10 @@
 
 * lockstep with one agent makes exactly the embedded run's decisions;
 * with three agents too (the lockstep gateway keeps the order of ICA contacts);
-* a killed vehicle agent stops the whole cluster, naming the agent;
+* lockstep waits for the agents only on steps where one must talk to the ICA;
 * garbage sent to the ICA's keys is refused or dropped and the ICA keeps serving.
+
+Faults (late, lost and repeated messages, killed processes) are in test_timing.py.
 """
 
 from __future__ import annotations
@@ -125,45 +127,9 @@ def test_three_agents_make_the_same_decisions_and_the_recording_holds_them(tmp_p
     ica = json.loads((out / "ica.json").read_text())
     assert len(occupancies) == ica["confirmed"] > 20  # every confirmation drawn once
     assert len(steps) > 0.9 * 60 / 0.05  # actual footprints on (almost) every step
-
-
-def test_a_killed_agent_stops_the_cluster_and_is_named(tmp_path):
-    port = _free_port()
-    out = tmp_path / "cl"
-    cmd = ["bash", "tools/run_cluster.sh", "--out", str(out), "--agents", "2", "--no-record"]
-    cmd += ["--port", str(port), "--duration", "600", "--volume", "500"]
-    proc = subprocess.Popen(
-        cmd,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        cwd=ROOT,
-        start_new_session=True,
-    )
-    try:
-        log = out / "logs" / "gateway.log"
-        deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:
-            if log.exists() and "t=30 s" in log.read_text():
-                break
-            assert proc.poll() is None, proc.communicate()
-            time.sleep(0.2)
-        else:
-            pytest.fail("the cluster never got going")
-        victim = subprocess.run(
-            ["pgrep", "-f", f"agent --id agent-2 .*127.0.0.1:{port}"],
-            capture_output=True,
-            text=True,
-        ).stdout.split()
-        assert len(victim) == 1, victim
-        os.kill(int(victim[0]), signal.SIGKILL)
-        _, stderr = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode != 0
-    assert "agent-2" in stderr, stderr
-    _no_leftovers(port)
+    # the agents were asked only when a vehicle had to talk to the ICA, not every step
+    assert m["lockstep_waits"] < 0.2 * 60 / 0.05
+    assert m["lockstep_waits"] >= sum(m["agents"].values())  # at least each DETECT
 
 
 # -- the ICA under bad input -------------------------------------------------------
@@ -193,12 +159,13 @@ def test_ica_refuses_garbage_and_keeps_serving(ica_on_loopback):
     from sim_gateway.scenario import default_scenario
 
     session, ica, tmp_path = ica_on_loopback
+    request, detect = keys.request("C", "tester"), keys.detect("C", "tester")
     good_detect = encode(Detect("v1", "W_in_0", 0.0, now_ns()))
     for bad in (b"", b"\x00\xff garbage", good_detect[:-3], b"\x93\x01\x02\x03", good_detect):
-        (answer,) = _ask(session, keys.request("C"), bad)
+        (answer,) = _ask(session, request, bad)
         assert isinstance(answer, Reject) and answer.reason == "bad_message", answer
     # oversize: refused by the decoder (a REJECT) or dropped by the transport; never a crash
-    answers = _ask(session, keys.request("C"), b"\x00" * (3 << 20), timeout=3.0)
+    answers = _ask(session, request, b"\x00" * (3 << 20), timeout=3.0)
     assert all(isinstance(a, Reject) for a in answers)
     session.put(keys.clock("C"), b"not a clock")
     assert ica.poll() is None
@@ -207,22 +174,22 @@ def test_ica_refuses_garbage_and_keeps_serving(ica_on_loopback):
     sc = default_scenario("ch45")
     inter = load_intersection(sc.net_path, sc.junction_id)
     route = inter.routes_from(inter.in_lanes[0])[0]
-    session.put(keys.clock("C"), encode(Clock(1, 0.05, "lockstep", False, now_ns())))
-    (ack,) = _ask(session, keys.detect("C"), encode(Detect("v1", route.in_lane, 0.0, now_ns())))
+    session.put(keys.clock("C"), encode(Clock(1, 0.05, "lockstep", 1.0, False, now_ns())))
+    (ack,) = _ask(session, detect, encode(Detect("v1", route.in_lane, 0.0, now_ns())))
     assert isinstance(ack, Ack)
     confirmed = []
     sub = session.declare_subscriber(keys.confirmed("C"), lambda s: confirmed.append(s))
     req = propose(route, vin="v1", seq=0, t0_s=0.05, dist_to_entry_m=30.0, speed_mps=10.0)
     payload = encode(request_from_core(req))
-    (first,) = _ask(session, keys.request("C"), payload)
-    (again,) = _ask(session, keys.request("C"), payload)
+    (first,) = _ask(session, request, payload)
+    (again,) = _ask(session, request, payload)
     assert isinstance(first, Response) and isinstance(again, Response)
     assert np.array_equal(first.t_s, again.t_s) and np.array_equal(first.x_m, again.x_m)
     time.sleep(0.5)
     assert len(confirmed) == 1  # one reservation, published once
     sub.undeclare()
 
-    session.put(keys.clock("C"), encode(Clock(2, 0.1, "lockstep", True, now_ns())))
+    session.put(keys.clock("C"), encode(Clock(2, 0.1, "lockstep", 1.0, True, now_ns())))
     assert ica.wait(15) == 0
     stats = json.loads((tmp_path / "ica.json").read_text())
     assert stats["confirmed"] == 1 and stats["repeated"] == 1

@@ -16,7 +16,9 @@ from schemas.codec import MAX_PAYLOAD, DecodeError, Why, decode, encode
 from schemas.messages import (
     MAX_SAMPLES,
     MESSAGES,
+    VERSION,
     Ack,
+    Cancel,
     Clock,
     Command,
     Detect,
@@ -25,6 +27,7 @@ from schemas.messages import (
     Response,
     Setpoint,
     State,
+    Stats,
     VehicleState,
 )
 
@@ -33,7 +36,7 @@ T = np.arange(0.0, 2.0, 0.05)
 
 def _vs(vin: str = "v00001", detected: float = math.nan) -> VehicleState:
     return VehicleState(vin, "r1", "W_in_0", 42.5, 13.9, -50.2, 1.6, 90.0, 5.0, 1.8, 19.4, True,
-                        detected, False)  # fmt: skip
+                        detected, False, 7, -1, "agent-1")  # fmt: skip
 
 
 SAMPLES = {
@@ -51,21 +54,24 @@ SAMPLES = {
         T * 10,
         T * 0,
         T * 0 + 0.1,
+        12.3,
         17,
     ),
     Response: Response("v00001", 3, "W_in_0->E_out_0", T, T * 3, T, T * 0, 14.1, 16.0, 0.4, 2, 5),
     Reject: Reject("v00001", 3, "not_head", "v00000 is ahead", 1),
     Ack: Ack("v00001", 3, "response", 2),
+    Cancel: Cancel("v00001", 3, 7),
     Detect: Detect("v00001", "W_in_0", 10.05, 3),
     State: State("agent-1", 247, 1, 12.35, (_vs(), _vs("v00002", 3.2)), 4),
     Command: Command(
         "agent-1",
         247,
         0,
-        (Setpoint("v00001", 12.35, T, 32, 1e9), Setpoint("v2", 12.35, T[:1], -1, -1e9)),
+        (Setpoint("v00001", 3, 12.35, T, 1e9), Setpoint("v2", -1, math.nan, T[:0], -1e9)),
         5,
     ),
-    Clock: Clock(247, 12.35, "lockstep", False, 6),
+    Clock: Clock(247, 12.35, "lockstep", 1.0, False, 6),
+    Stats: Stats("agent", "agent-1", '{"hosted": 3}', 8),
 }
 
 
@@ -123,7 +129,8 @@ def test_garbage_and_truncated_payloads() -> None:
 
 def test_version_kind_and_fields() -> None:
     body = _raw(SAMPLES[Detect])
-    assert _why(_pack({**body, "v": 2})) is Why.UNKNOWN_VERSION
+    assert _why(_pack({**body, "v": VERSION + 1})) is Why.UNKNOWN_VERSION
+    assert _why(_pack({**body, "v": VERSION - 1})) is Why.UNKNOWN_VERSION  # the old wire
     assert _why(_pack({k: v for k, v in body.items() if k != "v"})) is Why.UNKNOWN_VERSION
     assert _why(_pack({**body, "k": "teleport"})) is Why.UNKNOWN_KIND
     assert _why(_pack(body), Request) is Why.UNEXPECTED_KIND
@@ -179,7 +186,8 @@ def test_corrupted_messages_never_crash(pos: int, byte: int) -> None:
 
 
 def test_keys_refuse_special_characters() -> None:
-    assert keys.request("C") == "dica/C/request"
+    assert keys.request("C", "agent-1") == "dica/C/request/agent-1"
+    assert keys.request("C") == "dica/C/request/*"
     assert keys.state("C", "agent-1") == "sim/C/state/agent-1"
     assert keys.confirmed("C") == "dica/C/confirmed/*"
     for bad in ("a/b", "x?y", "", "$z", "**"):

@@ -57,7 +57,7 @@ def round_trips(n: int) -> dict:
             nonlocal t, step
             t += dt
             step += 1
-            session.put(keys.clock(j), encode(Clock(step, t, "lockstep", False, now_ns())))
+            session.put(keys.clock(j), encode(Clock(step, t, "lockstep", 1.0, False, now_ns())))
 
         out: dict[str, list[float]] = {"repeat": [], "fresh": []}
         tick(0.05)
@@ -69,12 +69,12 @@ def round_trips(n: int) -> dict:
             detect = encode(Detect(vin, route.in_lane, t, now_ns()))
             req = propose(route, vin=vin, seq=0, t0_s=t, dist_to_entry_m=40.0, speed_mps=12.0)
             payload = encode(request_from_core(req))
-            ask(keys.detect(j), detect)
+            ask(keys.detect(j, "bench"), detect)
             t0 = time.perf_counter()
-            answer = ask(keys.request(j), payload)
+            answer = ask(keys.request(j, "bench"), payload)
             t1 = time.perf_counter()
             assert isinstance(answer, Response), answer
-            again = ask(keys.request(j), payload)
+            again = ask(keys.request(j, "bench"), payload)
             t2 = time.perf_counter()
             assert isinstance(again, Response)
             if k >= 20:

@@ -6,18 +6,29 @@ are made in user space, on the real bytes a real Zenoh session sends. Each
 proxy stands for one process's radio link: the process connects to the
 proxy's port instead of the router's, and the proxy forwards to the router.
 
-* ``udp`` proxies forward datagrams. A Zenoh session over ``udp/`` sends each
-  batch of messages as one datagram (large messages as several fragments),
-  so dropping, duplicating or holding back a datagram loses, repeats or
-  reorders whole Zenoh messages. Delay and jitter apply per datagram, in
-  order unless reordering is asked for.
-* ``tcp`` proxies forward a byte stream: delay and jitter only (a stream
-  cannot lose or reorder without breaking the connection).
+Zenoh over TCP sends its messages in batches, each behind a two-byte length.
+A proxy reads the stream batch by batch and applies the faults to whole
+batches, one way, in each direction on its own:
 
-Faults are per role (the proxy's group), one-way (each direction gets them),
-and read from a JSON profile file that the emulator re-reads whenever it
-changes, so a run's link can be degraded or healed while it is running
-(``dica link set``).
+* delay and jitter: each batch is held ``delay + U(0, jitter)``, in order;
+* loss, duplication and reordering: only batches that carry data (a
+  publication, a query or a reply; our data is sent ``express``, one message
+  per batch) are dropped, sent twice, or held back behind later ones. Zenoh
+  then sees what a lossy radio link would give it: gaps in its sequence
+  numbers (the data is gone), and repeated or late batches (which it
+  discards). Session and declaration batches are only delayed: in a
+  deployment they travel on a reliable channel, and losing one would model a
+  broken router, not a bad link.
+
+Over UDP (``udp/`` locators) the same faults could be put on batchs, but
+Zenoh 1.10 over UDP lost most messages of a few kilobytes (our REQUESTs and
+RESPONSEs) under 50 ms of jitter with no loss at all, so the emulator keeps
+to TCP. A TLS stream (``--secure``) cannot be read batch by batch: it gets
+delay and jitter only.
+
+Faults are per role (the proxy's group) and read from a JSON profile file
+that the emulator re-reads whenever it changes, so a run's link can be
+degraded or healed while it is running (``dica link set``).
 """
 
 from __future__ import annotations
@@ -30,63 +41,58 @@ import os
 import random
 import signal
 import sys
-import time
 from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 
 log = logging.getLogger("dica")
 
-TRANSPORTS = ("tcp", "udp")
-REORDER_HOLD_MS = 20.0  # [ms] how long a datagram picked for reordering is held back extra
+REORDER_HOLD_MS = 20.0  # [ms] how long a batch picked for reordering is held back extra
+CHUNK = 65536  # [bytes] what a byte-stream (TLS) proxy reads at a time
 
 # Zenoh 1.x wire ids (zenoh-protocol): transport messages, and network messages in a FRAME
 _FRAME, _FRAGMENT = 0x05, 0x06
 _DATA = {0x1D, 0x1C, 0x1B, 0x1A}  # PUSH, REQUEST, RESPONSE, RESPONSE_FINAL
 
 
-def is_data(datagram: bytes) -> bool:
-    """Whether a Zenoh-over-UDP datagram carries data (a publication, a query or a
-    reply) rather than session or declaration traffic.
+def is_data(batch: bytes) -> bool:
+    """Whether a Zenoh batch (without its length prefix) carries data (a
+    publication, a query or a reply) rather than session or declaration traffic.
 
-    Only data datagrams are lost, duplicated or reordered: in a deployment the
-    session and its declarations travel on a reliable channel, and Zenoh does
-    not resend a lost declaration over UDP, so losing one would model a broken
-    router, not a bad radio link. A FRAME is classed by its first network
-    message (our data is sent ``express``: one message per batch); fragments
-    are data.
+    A FRAME is classed by its first network message (our data is sent
+    ``express``: one message per batch); fragments of a large message are data.
     """
-    if not datagram:
+    if not batch:
         return False
-    kind = datagram[0] & 0x1F
+    kind = batch[0] & 0x1F
     if kind == _FRAGMENT:
         return True
     if kind != _FRAME:
         return False
     i = 1
-    while i < len(datagram) and datagram[i] & 0x80:  # the sequence number (varint)
+    while i < len(batch) and batch[i] & 0x80:  # the sequence number (varint)
         i += 1
     i += 1
-    more = bool(datagram[0] & 0x80)  # Z: extensions follow
-    while more and i < len(datagram):
-        head = datagram[i]
+    more = bool(batch[0] & 0x80)  # Z: extensions follow
+    while more and i < len(batch):
+        head = batch[i]
         more = bool(head & 0x80)
         enc = head & 0x60
         i += 1
         if enc == 0x20:  # a varint
-            while i < len(datagram) and datagram[i] & 0x80:
+            while i < len(batch) and batch[i] & 0x80:
                 i += 1
             i += 1
         elif enc == 0x40:  # length-prefixed bytes
             n, shift = 0, 0
-            while i < len(datagram):
-                b = datagram[i]
+            while i < len(batch):
+                b = batch[i]
                 i += 1
                 n |= (b & 0x7F) << shift
                 shift += 7
                 if not b & 0x80:
                     break
             i += n
-    return i < len(datagram) and (datagram[i] & 0x1F) in _DATA
+    return i < len(batch) and (batch[i] & 0x1F) in _DATA
 
 
 class LinkError(ValueError):
@@ -99,9 +105,9 @@ class Faults:
 
     delay_ms: float = 0.0
     jitter_ms: float = 0.0  # extra delay, uniform in [0, jitter_ms]
-    loss: float = 0.0  # probability a datagram is dropped
-    dup: float = 0.0  # probability a datagram is sent twice
-    reorder: float = 0.0  # probability a datagram is held back so later ones overtake it
+    loss: float = 0.0  # probability a data batch is dropped
+    dup: float = 0.0  # probability a data batch is sent twice
+    reorder: float = 0.0  # probability a data batch is held back so later ones overtake it
 
     def __post_init__(self) -> None:
         for name in ("delay_ms", "jitter_ms"):
@@ -128,23 +134,23 @@ class Faults:
 
 @dataclass(frozen=True, slots=True)
 class Proxy:
-    """One process's link: clients connect to ``listen_port``, traffic goes to the router."""
+    """One process's link: clients connect to ``listen_port``, traffic goes to the router.
+
+    ``framed``: the stream is Zenoh's own (TCP), read batch by batch; False for
+    a TLS stream, which only gets delay and jitter.
+    """
 
     name: str
     role: str  # the profile group whose faults apply
-    transport: str
     listen_port: int
     router_port: int
+    framed: bool = True
     host: str = "127.0.0.1"
-
-    def __post_init__(self) -> None:
-        if self.transport not in TRANSPORTS:
-            raise LinkError(f"proxy {self.name}: transport must be tcp or udp")
 
     @property
     def endpoint(self) -> str:
-        """What the proxied process connects to."""
-        return f"{self.transport}/{self.host}:{self.listen_port}"
+        """What the proxied process connects to (its scheme is the router's)."""
+        return f"{self.host}:{self.listen_port}"
 
 
 def write_profile(path: Path, faults: dict[str, Faults]) -> None:
@@ -168,10 +174,11 @@ def read_profile(path: Path) -> dict[str, Faults]:
 
 @dataclass(slots=True)
 class Counters:
-    """What one proxy did, per direction: up (client to router) and down."""
+    """What one proxy did: batches (or chunks) up (client to router) and down."""
 
     up: int = 0
     down: int = 0
+    data: int = 0
     dropped: int = 0
     duplicated: int = 0
     reordered: int = 0
@@ -206,22 +213,14 @@ class Emulator:
             return
         for p in self.proxies:
             f = new.get(p.role) or new.get("all") or Faults()
-            if p.transport == "tcp" and f.lossy:
-                log.error("%s is a tcp link: loss, dup and reorder need udp; ignored", p.name)
+            if not p.framed and f.lossy:
+                log.error("%s is a TLS link: loss, dup and reorder cannot apply; ignored", p.name)
         self.faults = new
         log.info("faults now %s", {k: asdict(v) for k, v in new.items()})
 
-    # -- scheduling ----------------------------------------------------------
-    def _delay_s(self, f: Faults) -> float:
-        return (f.delay_ms + (self.rng.uniform(0.0, f.jitter_ms) if f.jitter_ms else 0.0)) / 1e3
-
     async def run(self, ready: asyncio.Event | None = None) -> None:
-        servers = []
-        for p in self.proxies:
-            if p.transport == "tcp":
-                servers.append(await self._serve_tcp(p))
-            else:
-                servers.append(await self._serve_udp(p))
+        servers = [await asyncio.start_server(self._handler(p), p.host, p.listen_port)
+                   for p in self.proxies]  # fmt: skip
         if ready is not None:
             ready.set()
         try:
@@ -232,149 +231,83 @@ class Emulator:
             for s in servers:
                 s.close()
 
-    # -- udp -------------------------------------------------------------------
-    async def _serve_udp(self, p: Proxy):
-        loop = asyncio.get_running_loop()
-        emu = self
-
-        class Lane:
-            """Delivery in order, unless a datagram is picked for reordering."""
-
-            def __init__(self) -> None:
-                self.last = 0.0
-
-            def when(self, f: Faults, c: Counters, data: bool) -> float | None:
-                if not data:
-                    at = max(time.monotonic() + emu._delay_s(f), self.last)
-                    self.last = at
-                    return at
-                if f.loss and emu.rng.random() < f.loss:
-                    c.dropped += 1
-                    return None
-                at = max(time.monotonic() + emu._delay_s(f), self.last)
-                if f.reorder and emu.rng.random() < f.reorder:
-                    c.reordered += 1
-                    return at + REORDER_HOLD_MS / 1e3  # later datagrams pass it
-                self.last = at
-                return at
-
-        def send_later(at: float, fn, data: bytes) -> None:
-            loop.call_at(loop.time() + max(at - time.monotonic(), 0.0), fn, data)
-
-        class Upstream(asyncio.DatagramProtocol):
-            def __init__(self, front: Front, addr) -> None:
-                self.front, self.addr = front, addr
-                self.lane = Lane()
-                self.transport: asyncio.DatagramTransport | None = None
-
-            def connection_made(self, transport) -> None:
-                self.transport = transport
-
-            def datagram_received(self, data: bytes, _addr) -> None:
-                c = emu.counters[p.name]
-                c.down += 1
-                f = emu.faults_of(p.role)
-                payload = is_data(data)
-                at = self.lane.when(f, c, payload)
-                if at is None:
-                    return
-                out = self.front.transport
-                send_later(at, lambda d: out.sendto(d, self.addr), data)
-                if payload and f.dup and emu.rng.random() < f.dup:
-                    c.duplicated += 1
-                    send_later(at, lambda d: out.sendto(d, self.addr), data)
-
-        class Front(asyncio.DatagramProtocol):
-            def __init__(self) -> None:
-                self.transport: asyncio.DatagramTransport | None = None
-                self.ups: dict[tuple, tuple[Upstream, Lane]] = {}
-                self.opening: set[asyncio.Task] = set()
-
-            def connection_made(self, transport) -> None:
-                self.transport = transport
-
-            def datagram_received(self, data: bytes, addr) -> None:
-                up = self.ups.get(addr)
-                if up is None:
-                    proto = Upstream(self, addr)
-                    self.ups[addr] = (proto, Lane())
-                    task = loop.create_task(self._open(addr, proto, data))
-                    self.opening.add(task)
-                    task.add_done_callback(self.opening.discard)
-                    return
-                self._forward(up[0], up[1], data)
-
-            async def _open(self, addr, proto: Upstream, first: bytes) -> None:
-                await loop.create_datagram_endpoint(
-                    lambda: proto, remote_addr=(p.host, p.router_port)
-                )
-                self._forward(proto, self.ups[addr][1], first)
-
-            def _forward(self, proto: Upstream, lane: Lane, data: bytes) -> None:
-                c = emu.counters[p.name]
-                c.up += 1
-                f = emu.faults_of(p.role)
-                payload = is_data(data)
-                at = lane.when(f, c, payload)
-                if at is None or proto.transport is None:
-                    return
-                send_later(at, proto.transport.sendto, data)
-                if payload and f.dup and emu.rng.random() < f.dup:
-                    c.duplicated += 1
-                    send_later(at, proto.transport.sendto, data)
-
-        transport, _ = await loop.create_datagram_endpoint(
-            Front, local_addr=(p.host, p.listen_port)
-        )
-        return transport
-
-    # -- tcp -------------------------------------------------------------------
-    async def _serve_tcp(self, p: Proxy):
-        async def pump(reader, writer, up: bool) -> None:
-            queue: asyncio.Queue[tuple[float, bytes]] = asyncio.Queue()
-            last = 0.0
-
-            async def deliver() -> None:
-                while True:
-                    at, data = await queue.get()
-                    wait = at - time.monotonic()
-                    if wait > 0:
-                        await asyncio.sleep(wait)
-                    if not data:
-                        writer.close()
-                        return
-                    writer.write(data)
-                    await writer.drain()
-
-            task = asyncio.create_task(deliver())
-            c = self.counters[p.name]
-            try:
-                while True:
-                    data = await reader.read(65536)
-                    if up:
-                        c.up += 1
-                    else:
-                        c.down += 1
-                    at = max(time.monotonic() + self._delay_s(self.faults_of(p.role)), last)
-                    last = at
-                    queue.put_nowait((at, data))
-                    if not data:
-                        break
-                await task
-            except (ConnectionError, asyncio.CancelledError):
-                task.cancel()
-                with contextlib.suppress(Exception):
-                    writer.close()
-
+    def _handler(self, p: Proxy):
         async def handle(reader, writer) -> None:
             try:
                 r2, w2 = await asyncio.open_connection(p.host, p.router_port)
             except OSError:
                 writer.close()
                 return
-            await asyncio.gather(pump(reader, w2, True), pump(r2, writer, False))
+            pumps = [
+                asyncio.create_task(self._pump(p, reader, w2, up=True)),
+                asyncio.create_task(self._pump(p, r2, writer, up=False)),
+            ]
+            # either side closing ends the link, as a broken radio link would
+            _, pending = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
+            for t in pending:
+                t.cancel()
+            for w in (writer, w2):
+                with contextlib.suppress(Exception):
+                    w.close()
 
-        return await asyncio.start_server(handle, p.host, p.listen_port)
+        return handle
+
+    async def _pump(self, p: Proxy, reader, writer, up: bool) -> None:
+        """One direction: read batches, schedule each (or drop, repeat, hold it back).
+
+        Batches are sent at strictly increasing times, so they stay in order
+        (asyncio runs timers due at the same moment in no set order), except
+        one held back for reordering, which later ones overtake.
+        """
+        loop = asyncio.get_running_loop()
+        c = self.counters[p.name]
+        last = 0.0
+
+        def send(data: bytes) -> None:
+            if not writer.is_closing():
+                writer.write(data)
+
+        while True:
+            data = await self._read(p, reader)
+            if data is None:
+                break
+            if up:
+                c.up += 1
+            else:
+                c.down += 1
+            f = self.faults_of(p.role)
+            at = max(loop.time() + self._delay_s(f), last + 1e-6)
+            if p.framed and is_data(data[2:]):
+                c.data += 1
+                if f.loss and self.rng.random() < f.loss:
+                    c.dropped += 1
+                    continue
+                if f.reorder and self.rng.random() < f.reorder:
+                    c.reordered += 1
+                    loop.call_at(at + REORDER_HOLD_MS / 1e3, send, data)
+                    continue
+                if f.dup and self.rng.random() < f.dup:
+                    c.duplicated += 1
+                    loop.call_at(at, send, data)
+                    at += 1e-6
+            last = at
+            loop.call_at(at, send, data)
+        await asyncio.sleep(max(last - loop.time(), 0.0) + 0.01)  # what is on its way arrives
+
+    @staticmethod
+    async def _read(p: Proxy, reader) -> bytes | None:
+        """The next batch with its length prefix (framed), or the next chunk; None at the end."""
+        try:
+            if not p.framed:
+                data = await reader.read(CHUNK)
+                return data or None
+            head = await reader.readexactly(2)
+            return head + await reader.readexactly(int.from_bytes(head, "little"))
+        except asyncio.IncompleteReadError:
+            return None
+
+    def _delay_s(self, f: Faults) -> float:
+        return (f.delay_ms + (self.rng.uniform(0.0, f.jitter_ms) if f.jitter_ms else 0.0)) / 1e3
 
 
 def serve(proxies: list[Proxy], profile: Path, seed: int = 1, stats: Path | None = None) -> None:
@@ -429,8 +362,8 @@ def _parser():
     p = argparse.ArgumentParser(
         prog="dica link",
         description="A user-space link emulator between Zenoh clients and their router: "
-        "one-way delay and jitter (tcp or udp links), loss, duplication and reordering of "
-        "Zenoh data messages (udp links). tools/run_cluster.sh starts it with --delay, "
+        "one-way delay and jitter, and loss, duplication and reordering of the Zenoh batches "
+        "that carry data. tools/run_cluster.sh starts it with --delay, "
         "--jitter, --loss, --dup, --reorder and --faulty; `dica link set` changes the faults "
         "of a running one.",
     )
@@ -447,7 +380,7 @@ def _parser():
     for name, unit in (("delay", "ms"), ("jitter", "ms")):
         t.add_argument(f"--{name}", type=float, help=f"one-way {name} [{unit}]")
     for name in ("loss", "dup", "reorder"):
-        t.add_argument(f"--{name}", type=float, help=f"{name} probability of a data datagram")
+        t.add_argument(f"--{name}", type=float, help=f"{name} probability of a data batch")
     w = sub.add_parser("show", help="print the faults now in force and what each proxy did")
     w.add_argument("dir", type=Path)
     return p

@@ -39,13 +39,12 @@ imperfect links (a user-space emulator between the chosen roles and the router;
 change them while running with: dica link set RUN_DIR/link --role R --delay MS ...):
   --delay MS            one-way delay on each faulty link (default 0)
   --jitter MS           extra one-way delay, uniform in [0, MS] (default 0)
-  --loss P              probability a data message is lost (needs udp links)
-  --dup P               probability a data message is sent twice (udp)
-  --reorder P           probability a data message is held back behind later ones (udp)
+  --loss P              probability a batch of Zenoh data (a publication, query or
+                        reply) is lost on a faulty link
+  --dup P               probability such a batch is sent twice
+  --reorder P           probability such a batch is held back behind later ones
   --faulty ROLES        whose links: all (default), or a comma list of agents, ica,
                         gateway, observer
-  --link tcp|udp        links through the emulator (default: udp if --loss, --dup or
-                        --reorder is set, else tcp)
   --time-pad S          the ICA grows every confirmed occupancy interval by S on each
                         side (default: 0 in lockstep; in realtime 0.05, or jitter/1000
                         plus 0.05 if larger)
@@ -71,7 +70,7 @@ prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1
 
 layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0
-delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all linkkind="" time_pad="" lead=auto
+delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
 max_age="" restart=1
 extra=()
 while [ $# -gt 0 ]; do
@@ -95,7 +94,6 @@ while [ $# -gt 0 ]; do
     --dup) dup="$2"; shift 2 ;;
     --reorder) reorder="$2"; shift 2 ;;
     --faulty) faulty="$2"; shift 2 ;;
-    --link) linkkind="$2"; shift 2 ;;
     --time-pad) time_pad="$2"; shift 2 ;;
     --lead) lead="$2"; shift 2 ;;
     --max-age) max_age="$2"; shift 2 ;;
@@ -129,11 +127,8 @@ done
 lossy=$(awk -v a="$loss" -v b="$dup" -v c="$reorder" 'BEGIN { print (a + b + c > 0) ? 1 : 0 }')
 faults=$(awk -v a="$delay" -v b="$jitter" 'BEGIN { print (a + b > 0) ? 1 : 0 }')
 [ "$lossy" = 1 ] && faults=1
-if [ -z "$linkkind" ]; then linkkind=$([ "$lossy" = 1 ] && echo udp || echo tcp); fi
-case "$linkkind" in tcp|udp) ;; *) die "--link must be tcp or udp" ;; esac
-[ "$lossy" = 1 ] && [ "$linkkind" = tcp ] && die "--loss, --dup and --reorder need --link udp"
-[ "$secure" = 1 ] && [ "$linkkind" = udp ] && [ "$faults" = 1 ] &&
-  die "--secure speaks TLS, which needs tcp links: drop --loss/--dup/--reorder or --secure"
+[ "$secure" = 1 ] && [ "$lossy" = 1 ] &&
+  die "--secure links are TLS streams the emulator cannot read message by message: use --delay and --jitter only"
 if [ -z "$time_pad" ]; then
   if [ "$clock" = realtime ]; then
     time_pad=$(awk -v j="$jitter" 'BEGIN { p = j / 1000 + 0.05; printf "%.3f", p }')
@@ -171,7 +166,6 @@ scen=(--net "$net" --junction "$junction")
 out="${out:-runs/cluster-$(date +%Y%m%d-%H%M%S)}"
 mkdir -p "$out/logs" "$out/pids"
 free_port() { "$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
-free_udp_port() { "$py" -c 'import socket; s = socket.socket(type=socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
 [ -n "$port" ] || port="$(free_port)"
 scheme=tcp
 router_conf=()
@@ -181,22 +175,17 @@ if [ "$secure" = 1 ]; then
   scheme=tls
 fi
 listen="$scheme/127.0.0.1:$port"
-udp_port=""
-if [ "$faults" = 1 ] && [ "$linkkind" = udp ]; then
-  udp_port="$(free_udp_port)"
-  listen="$listen,udp/127.0.0.1:$udp_port"
-fi
 
 # the link emulator: one proxy per faulty process, faults per role in $out/link/faults.json
 is_faulty() { local r; for r in "${faulty_roles[@]}"; do [ "$r" = "$1" ] && return 0; done; return 1; }
 proxy_json=()
 declare -A endpoint=()
 route_through_link() {  # route_through_link NAME ROLE
-  local lp
-  if [ "$linkkind" = udp ]; then lp="$(free_udp_port)"; else lp="$(free_port)"; fi
-  local target=$([ "$linkkind" = udp ] && echo "$udp_port" || echo "$port")
-  proxy_json+=("{\"name\": \"$1\", \"role\": \"$2\", \"transport\": \"$linkkind\", \"listen_port\": $lp, \"router_port\": $target}")
-  endpoint[$1]="$([ "$linkkind" = udp ] && echo udp || echo "$scheme")/127.0.0.1:$lp"
+  local lp framed
+  lp="$(free_port)"
+  framed=$([ "$secure" = 1 ] && echo false || echo true)
+  proxy_json+=("{\"name\": \"$1\", \"role\": \"$2\", \"listen_port\": $lp, \"router_port\": $port, \"framed\": $framed}")
+  endpoint[$1]="$scheme/127.0.0.1:$lp"
 }
 names_all=(ica gateway)
 [ "$record" = 1 ] && names_all+=(observer)
@@ -303,7 +292,7 @@ start gateway "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$v
 gateway_pid="${pid_of[gateway]}"
 echo "run_cluster: router on tcp/127.0.0.1:$port; ${#order[@]} processes; logs in $out/logs/"
 if [ "$faults" = 1 ]; then
-  echo "run_cluster: links of ${faulty_roles[*]} via $linkkind: delay ${delay} ms, jitter ${jitter} ms, loss $loss, dup $dup, reorder $reorder (dica link set $out/link ...)"
+  echo "run_cluster: links of ${faulty_roles[*]}: delay ${delay} ms, jitter ${jitter} ms, loss $loss, dup $dup, reorder $reorder (dica link set $out/link ...)"
 fi
 
 # progress: the gateway's own lines, as they come (own process group: stopped as one)
@@ -338,9 +327,15 @@ while :; do
   exit 1
 done
 kill -TERM -- "-$tail_pid" 2>/dev/null || true
-if [ ! -f "$out/metrics.json" ]; then
-  echo "run_cluster: the gateway failed (exit status $status):" >&2
+complete=$("$py" -c 'import json, sys; print(json.load(open(sys.argv[1])).get("complete", False))' \
+  "$out/metrics.json" 2>/dev/null || echo False)
+if [ "$complete" != True ]; then  # exit 1 with complete metrics: the run finished, and collided
+  [ "$status" = 0 ] && status=1
+  echo "run_cluster: the gateway stopped the run (exit status $status):" >&2
   grep -E 'ERROR|dica:' "$out/logs/gateway.log" | tail -n 5 >&2 || true
+  if [ -f "$out/metrics.json" ]; then
+    echo "run_cluster: what the run knew by then (marked incomplete): $out/metrics.json" >&2
+  fi
   exit "$status"
 fi
 # the run is over: the ICA, the agents and the observer stop on the clock's end

@@ -28,6 +28,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
@@ -76,6 +77,7 @@ class Timing:
     lag_warnings: int = 0
     resent_plans: int = 0
     bad_replies: int = 0
+    via_publication: int = 0  # answers taken from the ICA's publication, the reply lost
 
     def q(self, xs: deque[float], p: float, default: float) -> float:
         return float(np.percentile(np.asarray(xs), p)) if len(xs) >= 5 else default
@@ -98,6 +100,7 @@ class ZenohLink:
         self.log = log
         self.blocking = True
         self.timeout_s = 1.0
+        self.loss = 0.0  # running share of queries that went unanswered
         self.timing = Timing()
         self._keys = {
             "detect": keys.detect(junction, agent_id),
@@ -133,26 +136,51 @@ class ZenohLink:
             found = None
             for r in self.session.get(key, payload=payload, timeout=self.timeout_s):
                 found = found or self._take(what, key, r, t)
+            self._outcome(found is not None)
             return self._answer(what, vin, seq, found)
         import zenoh
 
-        got: list[object] = []
+        # over a lossy link the same query goes out more than once (the ICA answers a
+        # repeat with the same answer): the first answer counts, silence from all is NO_ANSWER
+        copies = self.copies()
+        lock = threading.Lock()
+        state = {"answered": False, "open": copies}
 
         def on_reply(r) -> None:
-            got.append(self._take(what, key, r, t))
+            msg = self._take(what, key, r, t)
+            with lock:
+                if msg is None or state["answered"]:
+                    return
+                state["answered"] = True
+            self.inbox.put(Item("reply", b"", key, (what, vin, seq, msg)))
 
         def on_done() -> None:
-            answer = next((a for a in got if a is not None), None)
-            self.inbox.put(Item("reply", b"", key, (what, vin, seq, answer)))
+            with lock:
+                state["open"] -= 1
+                if state["open"] or state["answered"]:
+                    if not state["open"]:
+                        self._outcome(True)
+                    return
+            self._outcome(False)
+            self.inbox.put(Item("reply", b"", key, (what, vin, seq, None)))
 
-        self.session.get(
-            key,
-            zenoh.handlers.Callback(on_reply, on_done),
-            payload=payload,
-            timeout=self.timeout_s,
-            express=True,
-        )
+        for _ in range(copies):
+            self.session.get(
+                key,
+                zenoh.handlers.Callback(on_reply, on_done),
+                payload=payload,
+                timeout=self.timeout_s,
+                express=True,
+            )
         return PENDING
+
+    def _outcome(self, answered: bool) -> None:
+        """Keep a running estimate of how often a query goes unanswered."""
+        self.loss = 0.9 * self.loss + 0.1 * (0.0 if answered else 1.0)
+
+    def copies(self) -> int:
+        """How many copies of each query: more the more of them go unanswered."""
+        return 1 if self.loss < 0.05 else 2 if self.loss < 0.25 else 3
 
     def _take(self, what: str, key: str, r, t: float):
         """One reply, if it is one to act on: an answer on the exact key asked."""
@@ -233,6 +261,8 @@ class Agent:
         self._decls = [
             session.declare_subscriber(keys.state(j, self.agent_id), self.inbox.sample_cb("state")),
             session.declare_subscriber(self._clock_key, self.inbox.sample_cb("clock")),
+            # the ICA publishes every confirmation too: a second way for a lost reply to arrive
+            session.declare_subscriber(keys.confirmed(j), self.inbox.sample_cb("confirmed")),
             session.declare_queryable(
                 keys.agent_stats(j, self.agent_id), self.inbox.query_cb("stats")
             ),
@@ -278,6 +308,8 @@ class Agent:
                 self._on_clock(item)
             elif item.what == "reply":
                 self._on_reply(*item.query)
+            elif item.what == "confirmed":
+                self._on_confirmed(item)
             elif item.what == "stats":
                 body = json.dumps(self.summary())
                 reply(item.query, item.key, encode(Stats("agent", self.agent_id, body, now_ns())))
@@ -377,6 +409,17 @@ class Agent:
         if cmd is not None:
             self._send(cmd)
 
+    def _on_confirmed(self, item: Item) -> None:
+        """A published confirmation of one of ours, taken as the answer if it is awaited."""
+        vin = keys.last(item.key)
+        v = self.vehicles.get(vin)
+        if v is None or not v.pending or v.held is not None:
+            return
+        msg = decode(item.payload, Response)
+        if msg.vin == vin and msg.seq == v.last_seq:
+            self.link.timing.via_publication += 1
+            self._on_reply("request", vin, msg.seq, msg)
+
     def _lead(self) -> float:
         """How far ahead a REQUEST's plan starts [sim s]: the measured latency, with margin.
 
@@ -452,6 +495,8 @@ class Agent:
             "max_lag_ms": t.max_lag_s * 1e3,
             "lag_warnings": t.lag_warnings,
             "plans_resent": t.resent_plans,
+            "answers_via_publication": t.via_publication,
+            "query_copies": self.link.copies(),
             "lead_s": self._lead() if self.realtime else 0.0,
             "rejections": dict(self.rejections),
         }
