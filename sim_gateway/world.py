@@ -89,6 +89,10 @@ def sumo_command(net_path: str, step_s: float, extra: tuple[str, ...]) -> list[s
         # (SUMO's default counts any gap under the vehicle type's minGap)
         "--collision.mingap-factor",
         "0",
+        # a vehicle that waits long at the line (a lost link, a dead ICA) waits; it is not
+        # teleported out of the run
+        "--time-to-teleport",
+        "-1",
         "--no-warnings",
         "true",
         "--seed",
@@ -460,8 +464,27 @@ class World:
             extra={
                 "unconfirmed_entries": len(self.unconfirmed_entries),
                 "timing": self.timing.as_dict(),
+                "accounted": self.accounting(end),
             },
         )
+
+    def accounting(self, end_s: float) -> dict[str, int]:
+        """Where every vehicle due by ``end_s`` is: none may be lost."""
+        out = {"generated": 0, "crossed": 0, "in_region": 0, "not_yet_in_region": 0, "lost": 0}
+        for c in self.cars.values():
+            trip = self.log.trips[c.vin]
+            if trip.depart_s > end_s:
+                continue
+            out["generated"] += 1
+            if c.exited:
+                out["crossed"] += 1
+            elif math.isnan(c.detected_s):
+                out["not_yet_in_region"] += 1
+            elif c.vin in self._present:
+                out["in_region"] += 1
+            else:
+                out["lost"] += 1  # gone from SUMO without leaving the junction: never
+        return out
 
     # -- bookkeeping -----------------------------------------------------------
     def _detect(self, c: Car, d: float, v: float, t: float) -> None:

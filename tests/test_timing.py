@@ -1,0 +1,321 @@
+"""Timing tests: the real cluster under late, lost, repeated and reordered messages,
+and with processes killed, on real Zenoh over loopback and real SUMO.
+
+Faults are real: the link emulator (tools/linkem.py) sits between each role and
+the router and delays, drops, duplicates and holds back whole Zenoh batches on
+real TCP connections; crashes are SIGKILLs of real processes. Runs are short and
+paced faster than real time (``--speed``), so a wall-clock delay of D ms is
+``speed x D`` ms of simulated time.
+
+Every run must end with zero collisions by both checks, no vehicle entering the
+junction unconfirmed, and every vehicle accounted for.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from tools.loopback import free_port
+
+ROOT = Path(__file__).resolve().parents[1]
+DICA = [sys.executable, "-m", "tools.cli"]
+
+
+def _start_cluster(out: Path, *args: str, gateway: tuple[str, ...] = ()) -> subprocess.Popen:
+    """run_cluster.sh in the background; the gateway logs its progress every 5 sim s."""
+    return subprocess.Popen(
+        [
+            "bash",
+            "tools/run_cluster.sh",
+            "--out",
+            str(out),
+            "--no-record",
+            *args,
+            "--",
+            "--progress-every",
+            "5",
+            *gateway,
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+        start_new_session=True,
+    )
+
+
+def _finish(proc: subprocess.Popen, timeout: float = 240) -> tuple[str, str]:
+    try:
+        return proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+
+
+def _wait_for_sim_time(out: Path, t_s: int, proc: subprocess.Popen, timeout: float = 180) -> None:
+    log = out / "logs" / "gateway.log"
+    deadline = time.monotonic() + timeout
+    while not (log.exists() and f"t={t_s} s" in log.read_text()):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the cluster never got that far"
+        time.sleep(0.1)
+
+
+def _kill(out: Path, name: str) -> int:
+    pid = int((out / "pids" / name).read_text())
+    os.kill(pid, signal.SIGKILL)
+    return pid
+
+
+def _safe_and_whole(m: dict) -> None:
+    assert m["complete"] is True
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    assert m["unconfirmed_entries"] == 0
+    acc = m["accounted"]
+    assert acc["lost"] == 0
+    assert acc["crossed"] + acc["in_region"] + acc["not_yet_in_region"] == acc["generated"]
+    assert acc["crossed"] == m["crossed"]
+
+
+# -- the emulator itself, on real Zenoh sessions ------------------------------------------
+def test_the_link_emulator_delays_and_loses_real_zenoh_messages(tmp_path):
+    from schemas.link import open_session
+    from tools.linkem import Faults, Proxy, write_profile, write_spec
+    from tools.loopback import router
+
+    with router() as endpoint:
+        port = int(endpoint.rsplit(":", 1)[1])
+        proxy_port = free_port()
+        link = tmp_path / "link"
+        write_spec(link, [Proxy("far", "far", proxy_port, port)])
+        write_profile(link / "faults.json", {"far": Faults(delay_ms=60.0)})
+        emu = subprocess.Popen(
+            [*DICA, "link", "serve", str(link)],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.DEVNULL,
+            text=True,
+            cwd=ROOT,
+            start_new_session=True,
+        )
+        try:
+            assert emu.stdout.readline().strip() == "ready"
+            near = open_session(connect=endpoint)
+            far = open_session(connect=f"tcp/127.0.0.1:{proxy_port}")
+            got: list[float] = []
+            lock = threading.Lock()
+
+            def heard(sample) -> None:
+                sent = int.from_bytes(sample.payload.to_bytes(), "little")
+                with lock:
+                    got.append(time.time_ns() - sent)
+
+            sub = far.declare_subscriber("t/x", heard)  # a declaration: never lost
+            pub = near.declare_publisher("t/x", express=True)
+            time.sleep(1.0)
+
+            def burst(n: int) -> list[float]:
+                with lock:
+                    got.clear()
+                for _ in range(n):
+                    pub.put(time.time_ns().to_bytes(8, "little"))
+                    time.sleep(0.004)
+                time.sleep(0.6)
+                with lock:
+                    return list(got)
+
+            slow = burst(100)
+            assert len(slow) == 100  # delay alone loses nothing
+            assert 55 <= np.median(slow) / 1e6 <= 120  # one-way, on this one link
+            # changed while running, as `dica link set` does
+            write_profile(link / "faults.json", {"far": Faults(delay_ms=5.0, loss=0.3)})
+            time.sleep(0.6)
+            lossy = burst(400)
+            assert 0.55 * 400 <= len(lossy) <= 0.85 * 400  # about 30 % lost, whole messages
+            assert np.median(lossy) / 1e6 < 40
+            # the session survives: a query through the lossy link still gets answered
+            q = near.declare_queryable(
+                "t/q", lambda query: (query.reply(query.key_expr, b"ok"), query.drop())
+            )
+            answered = sum(
+                any(r.ok is not None for r in far.get("t/q", timeout=1.0)) for _ in range(30)
+            )
+            assert answered >= 10
+            for d in (sub, pub, q):
+                d.undeclare()
+            far.close()
+            near.close()
+        finally:
+            os.killpg(emu.pid, signal.SIGTERM)
+            emu.wait(10)
+    stats = json.loads((link / "stats.json").read_text())["far"]
+    assert stats["dropped"] > 50
+
+
+# -- the cluster under faults ---------------------------------------------------------------
+def test_realtime_cluster_under_delay_jitter_loss_duplication_and_reordering(tmp_path):
+    out = tmp_path / "rt"
+    proc = _start_cluster(
+        out,
+        *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
+        *("--volume", "500", "--duration", "70", "--seed", "21"),
+        *("--delay", "40", "--jitter", "20", "--loss", "0.1", "--dup", "0.05"),
+        *("--reorder", "0.05", "--faulty", "all"),
+    )
+    stdout, stderr = _finish(proc)
+    assert proc.returncode == 0, stdout + stderr
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    assert m["crossed"] >= 25
+    # the faults really happened, on every role's link
+    link = json.loads((out / "link" / "stats.json").read_text())
+    assert set(link) == {"ica", "gateway", "agent-1", "agent-2"}
+    assert all(s["dropped"] > 0 and s["duplicated"] > 0 for s in link.values())
+    assert m["command_age_ms"]["median"] > 80  # two faulty hops, in wall time
+    # vehicles kept their plans: the actuator flies by position, late plans are never flown
+    t = m["timing"]
+    assert t["plans_accepted"] > m["crossed"] * 0.9
+    assert t["entry_adherence_p99_s"] < 0.05
+    agents = m["roles"]["agents"]
+    assert sum(a["no_answer"] for a in agents.values()) > 0  # losses the agents lived through
+
+
+def test_a_killed_agent_hands_its_vehicles_over_and_the_run_goes_on(tmp_path):
+    out = tmp_path / "rt"
+    proc = _start_cluster(
+        out,
+        *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
+        *("--volume", "500", "--duration", "60", "--seed", "12", "--delay", "20"),
+    )
+    _wait_for_sim_time(out, 20, proc)
+    _kill(out, "agent-2")
+    stdout, stderr = _finish(proc)
+    assert proc.returncode == 0, stdout + stderr
+    assert "agent-2 died; restarting it" in stderr
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    assert m["agent_deaths"] >= 1
+    assert m["adoptions"] >= 1  # its vehicles went to a live agent
+    assert m["crossed"] >= 30
+    assert "restarting agent-2" in (out / "logs" / "restarts.log").read_text()
+
+
+def test_a_killed_ica_comes_back_from_its_journal_and_keeps_its_promises(tmp_path):
+    from ica.journal import confirmation_of, records
+    from ica.netfile import load_intersection
+    from sim_gateway.scenario import default_scenario
+    from tools.audit import Flown, conflicts
+
+    out = tmp_path / "rt"
+    proc = _start_cluster(
+        out,
+        *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
+        *("--volume", "500", "--duration", "60", "--seed", "66"),
+    )
+    _wait_for_sim_time(out, 25, proc)
+    journal = out / "ica-journal.msgpack"
+    before = sum(1 for r in records(journal)[0] if r["k"] == "confirm")
+    assert before > 5
+    _kill(out, "ica")
+    stdout, stderr = _finish(proc)
+    assert proc.returncode == 0, stdout + stderr
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    assert m["ica_outages"] >= 1
+    ica = json.loads((out / "ica.json").read_text())
+    assert ica["journal_replays"] == 1 and len(ica["incarnations"]) == 2
+    replayed = ica["incarnations"][1]["journal_replayed"]
+    assert replayed["confirmations"] >= before  # everything promised before the crash
+    # no two promises ever conflicted, across the restart: the last confirmation of each
+    # vehicle that was not cancelled, audited by the brute-force checker
+    sc = default_scenario("ch45")
+    inter = load_intersection(sc.net_path, sc.junction_id)
+    held: dict[str, dict] = {}
+    for r in records(journal)[0]:
+        if r["k"] == "confirm":
+            held[r["vin"]] = r
+        elif r["k"] == "cancel" and held.get(r["vin"], {}).get("seq") == r["seq"]:
+            del held[r["vin"]]
+    flown = []
+    for r in held.values():
+        c = confirmation_of(r)
+        route = inter.route_by_id(c.route_id)
+        t = c.tss
+        flown.append(Flown(c.vin, route, r["length"], r["width"], t.t_s, t.x_m, t.y_m,
+                           t.heading_rad))  # fmt: skip
+    assert len(flown) > before
+    assert conflicts(flown, 0.25) == []
+
+
+def test_a_killed_gateway_leaves_what_the_run_knew(tmp_path):
+    out = tmp_path / "rt"
+    proc = _start_cluster(
+        out,
+        *("--clock", "realtime", "--speed", "3", "--agents", "1", "--port", str(free_port())),
+        *("--volume", "300", "--duration", "600", "--seed", "12"),
+        gateway=("--checkpoint-every", "5"),
+    )
+    _wait_for_sim_time(out, 15, proc)
+    _kill(out, "gateway")
+    _finish(proc, timeout=60)
+    assert proc.returncode != 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["complete"] is False and "checkpoint" in m["incomplete"]
+    assert m["sim_time_s"] >= 10
+    rows = (out / "vehicles.csv").read_text().splitlines()
+    assert len(rows) > 10
+
+
+def test_lockstep_under_delay_is_exact_and_waits_only_when_an_agent_must_act(tmp_path):
+    common = ["--volume", "500", "--duration", "40", "--seed", "12"]
+    out = tmp_path / "ls"
+    proc = _start_cluster(
+        out, "--agents", "2", "--port", str(free_port()), "--delay", "15", *common
+    )
+    stdout, stderr = _finish(proc)
+    assert proc.returncode == 0, stdout + stderr
+    e = subprocess.run(
+        [*DICA, "run", *common, "--out", str(tmp_path / "emb"), "--quiet"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=300,
+    )
+    assert e.returncode == 0, e.stderr
+    cl = (out / "vehicles.csv").read_text()
+    assert cl == (tmp_path / "emb" / "vehicles.csv").read_text()  # the same decisions
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    steps = 40 / 0.05
+    assert m["lockstep_waits"] < 0.2 * steps  # a round trip only where an agent must act
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--delay", "-5"], "--delay wants a non-negative number"),
+        (["--loss", "0.95"], "--loss must be at most 0.9"),
+        (["--faulty", "agents,router"], "--faulty takes all or a comma list"),
+        (["--secure", "--loss", "0.1"], "TLS streams the emulator cannot read"),
+        (["--lead", "soon"], "--lead wants a non-negative number"),
+    ],
+)
+def test_bad_fault_options_are_one_clear_line(tmp_path, args, says):
+    p = subprocess.run(
+        ["bash", "tools/run_cluster.sh", "--out", str(tmp_path / "bad"), *args],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=60,
+    )
+    assert p.returncode == 2
+    assert says in p.stderr and "Traceback" not in p.stderr + p.stdout
