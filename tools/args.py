@@ -64,6 +64,10 @@ def run_config(args: argparse.Namespace):
         except ScenarioError as e:
             raise UsageError(str(e)) from None
         net, junction = str(sc.net_path), sc.junction_id
+    if not 0 <= args.seed < 2**32:
+        raise UsageError(f"--seed must be between 0 and {2**32 - 1}, got {args.seed}")
+    if args.ramp is not None and not 1.0 <= args.ramp <= 1e6:
+        raise UsageError(f"--ramp must be between 1 and 1000000 s, got {args.ramp:g}")
     inter = intersection(args)
     try:
         cfg = RunConfig(

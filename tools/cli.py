@@ -346,9 +346,10 @@ def parser() -> argparse.ArgumentParser:
     b = sub.add_parser(
         "bench",
         help="benchmarks: ica (seconds per REQUEST per DICA variant), run (real-time factor), "
-        "cluster (Zenoh round trip, lockstep real-time factor)",
+        "cluster (Zenoh round trip, lockstep real-time factor), timing (the real-time "
+        "cluster under delay, jitter, loss, duplication and reordering)",
     )
-    b.add_argument("what", choices=["ica", "run", "cluster"])
+    b.add_argument("what", choices=["ica", "run", "cluster", "timing"])
     b.add_argument(
         "rest",
         nargs=argparse.REMAINDER,
@@ -375,10 +376,15 @@ def main(argv: list[str] | None = None) -> int:
             return linkem.main(argv[1:])
         except KeyboardInterrupt:
             return 130
-    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in ("ica", "run", "cluster"):
-        from tools import bench_cluster, bench_ica, bench_run
+    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in ("ica", "run", "cluster", "timing"):
+        from tools import bench_cluster, bench_ica, bench_run, bench_timing
 
-        bench = {"ica": bench_ica, "run": bench_run, "cluster": bench_cluster}[argv[1]]
+        bench = {
+            "ica": bench_ica,
+            "run": bench_run,
+            "cluster": bench_cluster,
+            "timing": bench_timing,
+        }[argv[1]]
         try:
             return bench.main(argv[2:])
         except KeyboardInterrupt:

@@ -73,6 +73,10 @@ def cmd_ica(args: argparse.Namespace) -> int:
     from ica.journal import Journal, JournalError
     from ica.service import IcaService, write_stats
 
+    if not 0.1 <= args.tile_size <= 10.0:
+        raise UsageError("--tile-size must be between 0.1 and 10 m")
+    if args.idle_exit is not None and not 0 < args.idle_exit <= 86400:
+        raise UsageError("--idle-exit must be between 0 and 86400 s")
     inter = intersection(args)
     try:
         config = controller_config(args.algorithm, args.margin, args.time_pad)
@@ -178,6 +182,12 @@ def cmd_gateway(args: argparse.Namespace) -> int:
         raise UsageError("--step-timeout must be between 1 and 3600 s")
     if not 1 <= args.checkpoint_every <= 3600:
         raise UsageError("--checkpoint-every must be between 1 and 3600 s")
+    for flag, value, lo in (("--agents", args.agents, 1), ("--observers", args.observers, 0),
+                            ("--per-agent", args.per_agent, 0)):  # fmt: skip
+        if not lo <= value <= 10_000:
+            raise UsageError(f"{flag} must be between {lo} and 10000, got {value}")
+    if not 0 < args.peers_timeout <= 3600 or not 0 < args.progress_every <= 86400:
+        raise UsageError("--peers-timeout and --progress-every must be positive")
     cfg, inter = run_config(args)
     out = args.out or Path("runs") / time.strftime("cluster-%Y%m%d-%H%M%S")
     session, log = _session(args, "gateway")

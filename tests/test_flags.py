@@ -1,0 +1,53 @@
+"""Every command refuses a bad value with one line on stderr and exit status 2.
+
+Checked before anything starts: no SUMO, no Zenoh session (nothing here needs
+a router), never a traceback. The commands run in this process (``dica``'s own
+entry point), so a bad value that slipped through would show as an exception.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from tools.cli import main as dica
+
+BAD = [
+    (["run", "--margin", "-1"], "--margin must be between 0 and 5 m"),
+    (["run", "--margin", "9"], "--margin must be between 0 and 5 m"),
+    (["run", "--time-pad", "-0.1"], "--time-pad must be between 0 and 5 s"),
+    (["run", "--lead", "11"], "--lead must be between 0 and 10 s"),
+    (["run", "--seed", "-3"], "--seed must be between 0"),
+    (["run", "--ramp", "0", "--volume-end", "600"], "--ramp must be between 1"),
+    (["run", "--volume", "0.5"], "out of range"),
+    (["run", "--duration", "-5"], "duration must be positive"),
+    (["run", "--tile-size", "0"], "--tile-size must be between"),
+    (["run", "--until-left", "0"], "--until-left must be at least 1"),
+    (["ica", "--margin", "-1"], "margin_m must be between 0 and 5 m"),
+    (["ica", "--time-pad", "7"], "time_pad_s must be between 0 and 5 s"),
+    (["ica", "--max-age", "0"], "max_request_age_s must be in (0, 60]"),
+    (["ica", "--tile-size", "50"], "--tile-size must be between"),
+    (["ica", "--idle-exit", "-1"], "--idle-exit must be between"),
+    (["agent", "--id", "a", "--lead", "-1"], "--lead must be between 0 and 9 s"),
+    (["agent", "--id", "a", "--lead", "soon"], "--lead wants a number of seconds"),
+    (["agent", "--id", "a", "--retry", "0"], "--retry must be between"),
+    (["agent", "--id", "a", "--margin", "-2"], "margin_m must be between"),
+    (["gateway", "--speed", "0"], "--speed must be in (0, 100]"),
+    (["gateway", "--resend", "0"], "--resend must be between"),
+    (["gateway", "--step-timeout", "0"], "--step-timeout must be between"),
+    (["gateway", "--checkpoint-every", "0"], "--checkpoint-every must be between"),
+    (["gateway", "--agents", "0"], "--agents must be between 1"),
+    (["gateway", "--per-agent", "-1"], "--per-agent must be between 0"),
+    (["gateway", "--peers-timeout", "0"], "--peers-timeout and --progress-every"),
+    (["gateway", "--time-pad", "-1"], "--time-pad must be between 0 and 5 s"),
+    (["link", "set", "/nonexistent"], "no link emulator spec"),
+    (["bench", "timing", "--seeds", "x"], "--seeds wants integers"),
+    (["bench", "timing", "--profiles", "storm"], "unknown profile"),
+]
+
+
+@pytest.mark.parametrize(("args", "says"), BAD, ids=[" ".join(a) for a, _ in BAD])
+def test_a_bad_value_is_one_clear_line(args, says, capsys):
+    assert dica(args) == 2
+    err = capsys.readouterr().err
+    assert says in err, err
+    assert len(err.strip().splitlines()) == 1, err
