@@ -11,7 +11,7 @@ Zenoh router process on loopback:
   nothing else: every role as attacker, every action, on the exact keys of
   others, on every wildcard form that intersects them and on keys outside
   the project's space, is refused; the very same attempts get through the
-  same router with its access control off;
+  same router with its access control off; nobody deletes;
 * an agent's credentials cannot steer another agent's vehicles.
 """
 
@@ -23,6 +23,7 @@ import os
 import stat
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -463,6 +464,33 @@ def test_an_agent_cannot_steer_or_pose_as_another(cast):
 
     assert [got_through(b, a) for a in attempts(A)] == [False] * 4
     assert [got_through(b, a) for a in attempts(B)] == [True] * 4
+
+
+@pytest.mark.parametrize("routed, heard", [("cast", ["PUT"]), ("open_cast", ["DELETE", "PUT"])])
+def test_nobody_deletes_not_even_a_key_s_owner(request, routed, heard):
+    """The gateway's clock: its puts arrive, its delete only with access control
+    off; the put after the delete shows the delete had time to arrive."""
+    s, attackers = request.getfixturevalue(routed)
+    kinds: list[str] = []
+    put = zenoh.SampleKind.PUT
+    sub = s[A].declare_subscriber(
+        f"sim/{J}/clock", lambda x: kinds.append("PUT" if x.kind == put else "DELETE")
+    )
+    try:
+        deadline = time.monotonic() + 10
+        while "PUT" not in kinds:  # the subscription is up
+            assert time.monotonic() < deadline, "the clock never arrived"
+            attackers["gateway"].put(f"sim/{J}/clock", b"tick")
+            time.sleep(0.1)
+        kinds.clear()
+        attackers["gateway"].delete(f"sim/{J}/clock")
+        attackers["gateway"].put(f"sim/{J}/clock", b"after")
+        while "PUT" not in kinds and time.monotonic() < deadline:
+            time.sleep(0.02)
+        time.sleep(0.3)
+        assert kinds == heard
+    finally:
+        sub.undeclare()
 
 
 def test_an_attempt_with_no_way_through_for_its_owner_says_so(cast):
