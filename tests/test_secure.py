@@ -466,6 +466,36 @@ def test_an_agent_cannot_steer_or_pose_as_another(cast):
     assert [got_through(b, a) for a in attempts(B)] == [True] * 4
 
 
+def test_the_gateway_hears_an_agent_s_token_go(cast):
+    """The gateway stops a run when an agent dies: the end of a token must get
+    through the rules as its start does."""
+    s, attackers = cast
+    seen: list[str] = []
+    put = zenoh.SampleKind.PUT
+    watch = (
+        s["gateway"]
+        .liveliness()
+        .declare_subscriber(
+            f"sim/{J}/alive/*", lambda x: seen.append("+" if x.kind == put else "-")
+        )
+    )
+    token = attackers[A].liveliness().declare_token(f"sim/{J}/alive/{A}")
+    try:
+        deadline = time.monotonic() + 10
+        while seen != ["+"]:
+            assert time.monotonic() < deadline, f"the token never came: {seen}"
+            time.sleep(0.02)
+        token.undeclare()
+        token = None
+        while seen != ["+", "-"]:
+            assert time.monotonic() < deadline, f"the token never went: {seen}"
+            time.sleep(0.02)
+    finally:
+        watch.undeclare()
+        if token is not None:
+            token.undeclare()
+
+
 @pytest.mark.parametrize("routed, heard", [("cast", ["PUT"]), ("open_cast", ["DELETE", "PUT"])])
 def test_nobody_deletes_not_even_a_key_s_owner(request, routed, heard):
     """The gateway's clock: its puts arrive, its delete only with access control
