@@ -195,17 +195,60 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 # -- view ------------------------------------------------------------------------
-def cmd_secure_config(args: argparse.Namespace) -> int:
-    from tools.secure import DEFAULT_HOSTS, ROLES, SecureConfigError, write_secure_configs
+SECURE_CONFIG_DESCRIPTION = """\
+Writes a secured site into --out, readable by its owner only:
+  router.json5      the router of deploy/zenoh/secure/router.json5: TLS only, log-in
+                    required, and each user allowed exactly its own keys, nothing else
+  users.txt         one random password per role and per agent
+  ica.json5, gateway.json5, observer.json5, <agent>.json5
+                    each one's client config (--zenoh-config), with its password and
+                    the site's CA certificate; copy each to the host that runs it
+  ca.pem            the site's CA certificate
+  site.json         the junctions it serves, for issuing agents later
 
+  dica secure-config --out site/ --agents car-17,car-18 --host 10.0.0.1 --junction C
+  dica secure-config --out site/ --add-agent car-19      # one more vehicle
+  dica secure-config --out site/ --revoke-agent car-17   # a stolen or retired one
+
+The router reads users.txt and its rules only when it starts: restart it after
+--add-agent or --revoke-agent. A revoked agent is refused from then on; until then
+its open session and its log-ins go on.
+"""
+
+
+def cmd_secure_config(args: argparse.Namespace) -> int:
+    from tools import secure
+
+    run = f"dica router --config {args.out.resolve() / 'router.json5'}"
     try:
-        hosts = tuple(args.host) if args.host else DEFAULT_HOSTS
-        paths = write_secure_configs(args.out, args.force, hosts, args.days)
-    except SecureConfigError as e:
+        new_site_only = (args.host, args.days, args.junction)
+        if (args.add_agent or args.revoke_agent) and any(x is not None for x in new_site_only):
+            raise UsageError("--host, --days and --junction make a new site (--agents)")
+        if args.add_agent:
+            added = secure.add_agents(args.out, args.add_agent, args.force)
+            for name, path in added.items():
+                print(f"{name + ':':10}dica agent --zenoh-config {path} --id {name} ...")
+            print(f"restart the router to let {', '.join(added)} in: {run}")
+            return 0
+        if args.revoke_agent:
+            gone = secure.names(args.revoke_agent)
+            left = secure.revoke_agents(args.out, gone)
+            print(f"revoked {', '.join(gone)}; the site's agents: {', '.join(left) or '(none)'}")
+            print(f"restart the router to refuse them (until then they stay in): {run}")
+            return 0
+        hosts = tuple(args.host) if args.host else secure.DEFAULT_HOSTS
+        days = 365 if args.days is None else args.days
+        junctions = args.junction or secure.DEFAULT_JUNCTIONS
+        paths = secure.write_secure_configs(
+            args.out, args.force, hosts, days, args.agents, junctions
+        )
+    except secure.SecureConfigError as e:
         raise UsageError(str(e)) from None
-    print(f"router:   dica router --config {paths['router.json5']}")
-    for role in ROLES:
+    print(f"router:   {run}")
+    for role in secure.ROLES:
         print(f"{role + ':':10}dica {role} --zenoh-config {paths[role + '.json5']} ...")
+    for name in secure.agent_names(args.agents):
+        print(f"{name + ':':10}dica agent --zenoh-config {paths[name + '.json5']} --id {name} ...")
     return 0
 
 
@@ -317,23 +360,49 @@ def parser() -> argparse.ArgumentParser:
 
     sc = sub.add_parser(
         "secure-config",
-        help="Zenoh configs of a secured site: TLS, log-ins, each role writes only what it owns",
-        description="Writes OUT/router.json5 (the router of deploy/zenoh/secure/router.json5: "
-        "TLS only, log-in required, per-role access rules, with a fresh certificate), "
-        "OUT/users.txt (random passwords), OUT/<role>.json5 for ica, gateway, agent and "
-        "observer (use with --zenoh-config; each holds its password and the site's CA) and "
-        "OUT/ca.pem. Only the owner can read them.",
+        help="Zenoh configs of a secured site: TLS, log-ins, one identity per vehicle agent, "
+        "each allowed only its own keys",
+        description=SECURE_CONFIG_DESCRIPTION,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    sc.add_argument("--out", type=Path, required=True, help="directory to write into")
+    sc.add_argument("--out", type=Path, required=True, help="the site's directory")
+    issue = sc.add_mutually_exclusive_group()
+    issue.add_argument(
+        "--agents",
+        default="1",
+        help="a new site's vehicle agents: a number N (agent-1 ... agent-N, as run_cluster.sh "
+        "names them) or comma-separated names, each its --id (default 1)",
+    )
+    issue.add_argument(
+        "--add-agent",
+        metavar="NAMES",
+        help="issue identities to more agents on the site in --out (comma-separated names)",
+    )
+    issue.add_argument(
+        "--revoke-agent",
+        metavar="NAMES",
+        help="withdraw agents' identities on the site in --out (comma-separated names)",
+    )
     sc.add_argument(
         "--host",
         action="append",
-        help="a name or address clients reach the router by; repeat for more (the router's "
-        "certificate is valid for these only; the first is the clients' default endpoint; "
-        "default 127.0.0.1 and localhost)",
+        help="a new site: a name or address clients reach the router by; repeat for more "
+        "(the router's certificate is valid for these only; the first is the clients' "
+        "default endpoint; default 127.0.0.1 and localhost)",
     )
-    sc.add_argument("--days", type=int, default=365, help="certificate lifetime (default 365)")
-    sc.add_argument("--force", action="store_true", help="replace configs written before")
+    sc.add_argument("--days", type=int, help="a new site: certificate lifetime (default 365)")
+    sc.add_argument(
+        "--junction",
+        action="append",
+        help="a new site: a junction it serves (the roles' --junction); repeat for more; the "
+        "rules name these and no other (default C, the built-in layouts' junction)",
+    )
+    sc.add_argument(
+        "--force",
+        action="store_true",
+        help="replace a site written before; with --add-agent, a new password for an agent "
+        "the site has",
+    )
     sc.set_defaults(func=cmd_secure_config)
 
     sub.add_parser("experiment", help="a grid of runs in parallel, resumable (see its --help)")

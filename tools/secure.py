@@ -1,98 +1,335 @@
 """`dica secure-config`: the Zenoh configs of a secured site, with fresh secrets.
 
 The router of ``deploy/zenoh/secure/router.json5`` speaks TLS only, makes
-every client log in and lets each role write only what it owns (its comments
-list the rules). This writes, into one directory only its owner can read:
+every client log in and refuses whatever its allow lists do not name (its
+comments say why). Every vehicle agent has an identity of its own, so the
+router can keep an agent to its own keys, and every rule names the site's
+junctions exactly. This writes, into one directory
+only its owner can read:
 
-* ``users.txt``: one ``user:password`` line per role, random passwords;
+* ``users.txt``: one ``user:password`` line per role and per agent, random
+  passwords;
 * ``router.json5``: that router, with its TLS key and certificate inside,
-  pointed at ``users.txt``;
-* ``ica.json5``, ``gateway.json5``, ``agent.json5``, ``observer.json5``: the
-  client config of each role (``deploy/zenoh/client.json5``) with its
-  credentials and the site's CA certificate inside, for ``--zenoh-config``;
-* ``ca.pem``: that CA certificate, for other tools.
+  pointed at ``users.txt``, with one copy of the agent rules per agent;
+* ``ica.json5``, ``gateway.json5``, ``observer.json5`` and ``<agent>.json5``
+  for each agent: the client config of each (``deploy/zenoh/client.json5``)
+  with its credentials and the site's CA certificate inside, for
+  ``--zenoh-config``;
+* ``ca.pem``: that CA certificate, for other tools;
+* ``site.json``: the junctions the site serves, for issuing agents later.
 
 Each file stands alone: copy a role's file to the host that runs it. The
 CA's private key signs the router's certificate and is then thrown away, so
-nobody can issue another certificate this site's clients would trust.
+nobody can issue another certificate this site's clients would trust. Agents
+log in with a password rather than a client certificate for that reason:
+issuing one more agent later needs no CA key, only a new line in
+``users.txt`` and a new copy of the agent rules.
+
+The router reads ``users.txt`` and its rules when it starts, and only then:
+an added agent gets in, and a revoked one is refused, once it restarts.
 """
 
 from __future__ import annotations
 
 import base64
+import copy
 import datetime as dt
 import ipaddress
 import json
 import os
+import re
 import secrets
+from collections.abc import Sequence
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 ROUTER_TEMPLATE = ROOT / "deploy" / "zenoh" / "secure" / "router.json5"
 CLIENT_TEMPLATE = ROOT / "deploy" / "zenoh" / "client.json5"
-ROLES = ("ica", "gateway", "agent", "observer")
-FILES = ("users.txt", "router.json5", "ca.pem", *(f"{r}.json5" for r in ROLES))
+ROLES = ("ica", "gateway", "observer")  # one identity each; agents have one apiece
+FILES = ("users.txt", "router.json5", "ca.pem", "site.json", *(f"{r}.json5" for r in ROLES))
+AGENT = "@agent"  # the template's stand-ins (verbatim key chunks, which match no real key)
+JUNCTION = "@j"
 DEFAULT_HOSTS = ("127.0.0.1", "localhost")
+DEFAULT_JUNCTIONS = ("C",)  # the built-in layouts' junction (sim_gateway.scenario)
 PORT = 7447
+# a key chunk (schemas/keys.py) without ':' (users.txt's separator), starting
+# with a letter or digit so that it is a plain file name too
+_AGENT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+\-]{0,63}$")
+_RESERVED = {*ROLES, "router", "users", "ca"}
 
 
 class SecureConfigError(Exception):
     """Why the configs were not written (one line for the user)."""
 
 
+def agent_names(agents: int | str | Sequence[str]) -> tuple[str, ...]:
+    """The agents' names: N gives agent-1 ... agent-N (as `run_cluster.sh` names
+    them); a comma-separated string or a list gives those names, checked."""
+    if isinstance(agents, str):
+        text = agents.strip()
+        agents = int(text) if text.isdigit() else [a.strip() for a in text.split(",")]
+    if isinstance(agents, int):
+        if agents < 0:
+            raise SecureConfigError(f"--agents must be at least 0, got {agents}")
+        return tuple(f"agent-{i}" for i in range(1, agents + 1))
+    chosen = tuple(agents)
+    for name in chosen:
+        if not _AGENT_NAME.match(name):
+            raise SecureConfigError(
+                f"agent name {name!r}: use 1-64 letters, digits and _.+- (a letter or digit first)"
+            )
+        if name in _RESERVED:
+            raise SecureConfigError(f"agent name {name!r} is taken by the site's own files")
+    dup = sorted({n for n in chosen if chosen.count(n) > 1})
+    if dup:
+        raise SecureConfigError(f"agent {', '.join(dup)} named twice")
+    return chosen
+
+
+def names(agents: str | Sequence[str]) -> tuple[str, ...]:
+    """Agents' names only (comma-separated or a list), checked: no count here."""
+    if isinstance(agents, str):
+        agents = [a.strip() for a in agents.split(",")]
+    return agent_names(agents)
+
+
+def junction_names(junctions: str | Sequence[str]) -> tuple[str, ...]:
+    """The junctions' ids (comma-separated or a list), checked as key chunks."""
+    from schemas.keys import KeyChunkError, chunk
+
+    if isinstance(junctions, str):
+        junctions = [j.strip() for j in junctions.split(",")]
+    try:
+        chosen = tuple(chunk(j) for j in junctions)
+    except KeyChunkError as e:
+        raise SecureConfigError(f"--junction {e}") from None
+    if not chosen or len(set(chosen)) < len(chosen):
+        raise SecureConfigError("--junction: give each junction the site serves, once")
+    return chosen
+
+
 def write_secure_configs(
-    out: Path, force: bool = False, hosts: tuple[str, ...] = DEFAULT_HOSTS, days: int = 365
+    out: Path,
+    force: bool = False,
+    hosts: tuple[str, ...] = DEFAULT_HOSTS,
+    days: int = 365,
+    agents: int | str | Sequence[str] = 1,
+    junctions: str | Sequence[str] = DEFAULT_JUNCTIONS,
 ) -> dict[str, Path]:
-    """Write the router's and every role's config into ``out``; the paths by name.
+    """Write a new site into ``out``: the router's config, every role's and one
+    per agent (``agents``: see :func:`agent_names`); the paths by file name.
+    The rules name ``junctions`` (the roles' ``--junction``), and no other.
 
     ``hosts`` are the names and addresses clients reach the router by (its
     certificate is valid for these only; the first is the clients' default
-    endpoint). Refuses to overwrite earlier configs unless ``force``: their
-    secrets may be deployed already.
+    endpoint). Refuses to overwrite an earlier site unless ``force``: its
+    secrets may be deployed already. With ``force``, the earlier site's agent
+    files go too (their passwords no longer log in).
     """
-    import zenoh
-
+    agents = agent_names(agents)
+    junctions = junction_names(junctions)
     if not hosts:
         raise SecureConfigError("the router needs at least one --host")
     if days < 1:
         raise SecureConfigError(f"--days must be at least 1, got {days}")
     out = out.resolve()
-    clash = [f for f in FILES if (out / f).exists()]
+    earlier = _users(out / "users.txt") if (out / "users.txt").is_file() else {}
+    stale = [f"{u}.json5" for u in earlier if u not in ROLES]
+    clash = [f for f in (*FILES, *stale, *(f"{a}.json5" for a in agents)) if (out / f).exists()]
     if clash and not force:
         raise SecureConfigError(f"{out} already holds {', '.join(clash)} (--force replaces them)")
     ca_pem, key_pem, cert_pem = _certificates(hosts, days)
-    passwords = {role: secrets.token_urlsafe(24) for role in ROLES}
-    paths = {name: out / name for name in FILES}
-
-    router = json.loads(str(zenoh.Config.from_file(str(ROUTER_TEMPLATE))))
-    router["transport"]["auth"]["usrpwd"]["dictionary_file"] = str(paths["users.txt"])
-    tls = router["transport"]["link"].setdefault("tls", {})
-    tls["listen_private_key_base64"] = _b64(key_pem)
-    tls["listen_certificate_base64"] = _b64(cert_pem)
-    stamp = f"by dica secure-config on {dt.date.today()}, for {', '.join(hosts)}"
+    tls = {"listen_private_key_base64": _b64(key_pem), "listen_certificate_base64": _b64(cert_pem)}
+    passwords = {user: _password() for user in (*ROLES, *agents)}
+    endpoint = f"tls/{_endpoint_host(hosts[0])}:{PORT}"
     texts = {
-        "users.txt": "".join(f"{r}:{pw}\n" for r, pw in passwords.items()),
-        "router.json5": f"// The site's router, {stamp}. Holds its TLS key: keep it private.\n"
-        + json.dumps(router, indent=1),
         "ca.pem": ca_pem.decode(),
+        "site.json": json.dumps({"junctions": list(junctions)}) + "\n",
+        **_site_texts(out, passwords, tls, hosts, junctions),
     }
-    for role, pw in passwords.items():
-        conf = json.loads(str(zenoh.Config.from_file(str(CLIENT_TEMPLATE))))
-        conf["connect"]["endpoints"] = [f"tls/{_endpoint_host(hosts[0])}:{PORT}"]
-        conf["transport"]["auth"]["usrpwd"].update(user=role, password=pw)
-        conf["transport"]["link"].setdefault("tls", {})["root_ca_certificate_base64"] = _b64(ca_pem)
-        head = (
-            f"// The {role} role's client config, {stamp}. Holds its password: keep it private.\n"
-        )
-        texts[f"{role}.json5"] = head + json.dumps(conf, indent=1)
+    for user in passwords:
+        texts[f"{user}.json5"] = _client_text(user, passwords[user], endpoint, ca_pem, hosts)
     try:
         out.mkdir(parents=True, exist_ok=True)
         out.chmod(0o700)
         for name, text in texts.items():
-            _private(paths[name], text)
+            _private(out / name, text)
+        for name in stale:
+            if name not in texts:
+                (out / name).unlink(missing_ok=True)
     except OSError as e:
         raise SecureConfigError(f"cannot write {e.filename or out}: {e.strerror}") from None
-    return paths
+    return {name: out / name for name in texts}
+
+
+def add_agents(out: Path, agents: str | Sequence[str], force: bool = False) -> dict[str, Path]:
+    """Issue an identity to each of ``agents`` on the site in ``out``; the paths
+    of their client configs. A name the site has already is refused unless
+    ``force``, which gives it a new password (the old one stops working).
+    The router lets them in once it restarts."""
+    new = names(agents)
+    out = out.resolve()
+    passwords, tls, hosts, endpoint, ca_pem, junctions = _site(out)
+    known = [a for a in new if a in passwords]
+    if known and not force:
+        raise SecureConfigError(
+            f"the site already has agent {', '.join(known)} (--force issues a new password)"
+        )
+    for name in new:
+        passwords[name] = _password()
+    texts = {f"{a}.json5": _client_text(a, passwords[a], endpoint, ca_pem, hosts) for a in new}
+    texts.update(_site_texts(out, passwords, tls, hosts, junctions))
+    _write(out, texts)
+    return {a: out / f"{a}.json5" for a in new}
+
+
+def revoke_agents(out: Path, agents: str | Sequence[str]) -> tuple[str, ...]:
+    """Withdraw the identity of each of ``agents``: its password, its rules and
+    its client config go. Returns the agents the site still has. The router
+    refuses a revoked agent once it restarts; until then its open session and
+    its log-ins go on."""
+    gone = names(agents)
+    out = out.resolve()
+    passwords, tls, hosts, _, _, junctions = _site(out)
+    unknown = [a for a in gone if a not in passwords]
+    if unknown:
+        raise SecureConfigError(f"the site in {out} has no agent {', '.join(unknown)}")
+    for name in gone:
+        del passwords[name]
+    _write(out, _site_texts(out, passwords, tls, hosts, junctions))
+    for name in gone:
+        (out / f"{name}.json5").unlink(missing_ok=True)
+    return tuple(u for u in passwords if u not in ROLES)
+
+
+def site_agents(out: Path) -> tuple[str, ...]:
+    """The agents the site in ``out`` has, in the order they were issued."""
+    return tuple(u for u in _site(out.resolve())[0] if u not in ROLES)
+
+
+def site_junctions(out: Path) -> tuple[str, ...]:
+    """The junctions the site in ``out`` serves."""
+    return _site(out.resolve())[5]
+
+
+def router_config(agents: Sequence[str], junctions: Sequence[str] = DEFAULT_JUNCTIONS) -> dict:
+    """The router template with every key copied once per junction (``@j``), the
+    agent rules once per agent (``@agent``), and no TLS material or password file."""
+    import zenoh
+
+    conf = json.loads(str(zenoh.Config.from_file(str(ROUTER_TEMPLATE))))
+    acl = conf["access_control"]
+    for rule in acl["rules"]:
+        keys = (k.replace(JUNCTION, j) for k in rule["key_exprs"] for j in junctions)
+        rule["key_exprs"] = list(dict.fromkeys(keys))
+    policy = next(p for p in acl["policies"] if p["id"] == "agent")
+    subject = next(s for s in acl["subjects"] if s["id"] == "agent")
+    templates = [r for r in acl["rules"] if r["id"] in policy["rules"]]
+    acl["rules"] = [r for r in acl["rules"] if r["id"] not in policy["rules"]]
+    acl["subjects"].remove(subject)
+    acl["policies"].remove(policy)
+    for name in agents:
+        for rule in templates:
+            own = copy.deepcopy(rule)
+            own["id"] = f"{rule['id']}/{name}"
+            own["key_exprs"] = [k.replace(AGENT, name) for k in rule["key_exprs"]]
+            acl["rules"].append(own)
+        acl["subjects"].append({"id": f"agent/{name}", "usernames": [name]})
+        acl["policies"].append(
+            {
+                "id": f"agent/{name}",
+                "subjects": [f"agent/{name}"],
+                "rules": [f"{r['id']}/{name}" for r in templates],
+            }
+        )
+    return conf
+
+
+def _site_texts(
+    out: Path,
+    passwords: dict[str, str],
+    tls: dict[str, str],
+    hosts: Sequence[str],
+    junctions: Sequence[str],
+) -> dict[str, str]:
+    """``users.txt`` and ``router.json5`` for these users (roles first, then agents)."""
+    agents = [u for u in passwords if u not in ROLES]
+    router = router_config(agents, junctions)
+    router["transport"]["auth"]["usrpwd"]["dictionary_file"] = str(out / "users.txt")
+    router["transport"]["link"].setdefault("tls", {}).update(tls)
+    head = (
+        f"// The site's router, by dica secure-config on {dt.date.today()}, for "
+        f"{', '.join(hosts)}; junctions: {', '.join(junctions)}; "
+        f"agents: {', '.join(agents) or '(none)'}.\n"
+        "// Holds its TLS key: keep it private. Read once, when the router starts.\n"
+    )
+    return {
+        "users.txt": "".join(f"{u}:{pw}\n" for u, pw in passwords.items()),
+        "router.json5": head + json.dumps(router, indent=1),
+    }
+
+
+def _client_text(user: str, password: str, endpoint: str, ca_pem: bytes, hosts) -> str:
+    import zenoh
+
+    conf = json.loads(str(zenoh.Config.from_file(str(CLIENT_TEMPLATE))))
+    conf["connect"]["endpoints"] = [endpoint]
+    conf["transport"]["auth"]["usrpwd"].update(user=user, password=password)
+    conf["transport"]["link"].setdefault("tls", {})["root_ca_certificate_base64"] = _b64(ca_pem)
+    who = f"the {user} role" if user in ROLES else f"vehicle agent {user} (dica agent --id {user})"
+    return (
+        f"// The client config of {who}, by dica secure-config on {dt.date.today()}, "
+        f"for {', '.join(hosts)}.\n// Holds its password: keep it private.\n"
+        + json.dumps(conf, indent=1)
+    )
+
+
+def _site(out: Path):
+    """What a site written before holds: its passwords, the router's TLS
+    material, its hosts, the clients' endpoint, the CA certificate and the
+    junctions."""
+    missing = [f for f in FILES if not (out / f).is_file()]
+    if missing:
+        raise SecureConfigError(
+            f"{out} holds no site written by dica secure-config (no {', '.join(missing)})"
+        )
+    try:
+        router, client = _written(out / "router.json5"), _written(out / f"{ROLES[0]}.json5")
+        tls = router["transport"]["link"]["tls"]
+        tls = {k: tls[k] for k in ("listen_private_key_base64", "listen_certificate_base64")}
+        endpoint = client["connect"]["endpoints"][0]
+        ca_pem = (out / "ca.pem").read_bytes()
+        junctions = junction_names(json.loads((out / "site.json").read_text())["junctions"])
+    except (KeyError, IndexError, TypeError, ValueError) as e:
+        raise SecureConfigError(f"{out}: cannot read the site's configs ({e})") from None
+    hosts = _hosts(base64.b64decode(tls["listen_certificate_base64"]))
+    return _users(out / "users.txt"), tls, hosts, endpoint, ca_pem, junctions
+
+
+def _written(path: Path) -> dict:
+    """A config this module wrote: JSON after its ``//`` header (Zenoh's own
+    reader would hide the secrets it holds)."""
+    lines = path.read_text().splitlines()
+    return json.loads("\n".join(line for line in lines if not line.startswith("//")))
+
+
+def _users(path: Path) -> dict[str, str]:
+    users: dict[str, str] = {}
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        user, sep, password = line.partition(":")
+        if not sep or not user or not password:
+            raise SecureConfigError(f"{path}:{n}: not a user:password line")
+        users[user] = password
+    return users
+
+
+def _hosts(cert_pem: bytes) -> tuple[str, ...]:
+    """The names the router's certificate is valid for."""
+    from cryptography import x509
+
+    cert = x509.load_pem_x509_certificate(cert_pem)
+    names = cert.extensions.get_extension_for_class(x509.SubjectAlternativeName).value
+    return tuple(str(n.value) for n in names)
 
 
 def _certificates(hosts: tuple[str, ...], days: int) -> tuple[bytes, bytes, bytes]:
@@ -171,13 +408,28 @@ def _endpoint_host(host: str) -> str:
         return host
 
 
+def _password() -> str:
+    return secrets.token_urlsafe(24)
+
+
 def _b64(pem: bytes) -> str:
     return base64.b64encode(pem).decode()
 
 
+def _write(out: Path, texts: dict[str, str]) -> None:
+    try:
+        for name, text in texts.items():
+            _private(out / name, text)
+    except OSError as e:
+        raise SecureConfigError(f"cannot write {e.filename or out}: {e.strerror}") from None
+
+
 def _private(path: Path, text: str) -> None:
-    """Write ``text`` readable by its owner only, from the first byte on."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    """Replace ``path`` with ``text``, readable by its owner only from the first
+    byte on; readers see the old file or the new one, never half of one."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
     with os.fdopen(fd, "w") as f:
         f.write(text)
-    path.chmod(0o600)
+    tmp.chmod(0o600)
+    os.replace(tmp, path)
