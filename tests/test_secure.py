@@ -268,7 +268,7 @@ def _uses() -> tuple[Use, ...]:
         Use("subscribe", f"sim/{J}/clock", ("ica", A, B, "observer"), "gateway", "", A, ""),
         Use("subscribe", f"sim/{J}/state/{A}", (A,), "gateway", "", A, ""),
         Use("subscribe", f"sim/{J}/vehicles", ("ica", "observer"), "gateway", "", "observer", ""),
-        Use("subscribe", f"dica/{J}/confirmed/v7", ("observer",), "ica", "", "observer",
+        Use("subscribe", f"dica/{J}/confirmed/v7", ("observer", A, B), "ica", "", "observer",
             f"dica/{J}/confirmed/*"),
         Use("subscribe", f"dica/{J}/revoke/{A}", (A,), "ica", "", A, ""),
         Use("subscribe", f"dica/{J}/ack/{A}", ("ica",), A, "", "ica", f"dica/{J}/ack/*"),
@@ -534,11 +534,6 @@ def test_an_attempt_with_no_way_through_for_its_owner_says_so(cast):
 
 
 # -- the whole cluster ------------------------------------------------------------------
-@pytest.mark.xfail(
-    strict=True,
-    reason="run_cluster.sh --secure still uses one shared agent config (agent.json5) and "
-    "the roles the old key layout; wire it to per-agent identities (secure-config --agents N)",
-)
 def test_the_cluster_runs_secured_and_makes_the_embedded_decisions(tmp_path):
     common = ["--volume", "500", "--duration", "60", "--seed", "21"]
     p = _cluster(tmp_path / "cl", "--secure", "--agents", "2", *common)

@@ -170,7 +170,7 @@ free_port() { "$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1",
 scheme=tcp
 router_conf=()
 if [ "$secure" = 1 ]; then
-  "$dica" secure-config --force --out "$out/zenoh" >/dev/null
+  "$dica" secure-config --force --out "$out/zenoh" --agents "$agents" --junction "$junction" >/dev/null
   router_conf=(--config "$out/zenoh/router.json5")
   scheme=tls
 fi
@@ -281,7 +281,7 @@ if [ "$record" = 1 ]; then
   start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" "${role_link[@]}"
 fi
 for i in $(seq "$agents"); do
-  link_for "agent-$i" agent
+  link_for "agent-$i" "agent-$i"
   start "agent-$i" "$dica" agent --id "agent-$i" "${scen[@]}" --lead "$lead" "${role_link[@]}"
 done
 link_for gateway gateway
