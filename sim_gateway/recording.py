@@ -270,7 +270,8 @@ class SpaceTimeRecorder:
         self._steps: list[_Step] = []
         self._step_no = 0
         self._buf_t0 = 0.0
-        self._next_tick = 0.0
+        self._tick_enter = 0.0  # next tick to log as it enters the window
+        self._tick_at = 0.0  # next tick to log at its own time
         self._n_confirmed = 0
         self._n_rejected = 0
         self._start_s: float | None = None  # the timeline starts at the first confirmation
@@ -1040,42 +1041,45 @@ class SpaceTimeRecorder:
         )
 
     def _ticks(self, t_s: float) -> None:
-        """A labelled time tick every TICK_S, logged FUTURE_S ahead of its time so that
-        it shows as soon as it enters the window."""
-        k = CHART_M_PER_S
+        """A labelled time tick every TICK_S. A chart shows the rows of the last PAST_S,
+        so each tick is logged twice: when it enters the window (FUTURE_S ahead of
+        its time) and at its time; never later than the run has got."""
+        start = self._start_s or 0.0
+        while self._tick_enter <= t_s + FUTURE_S + 1e-9:
+            self._tick(self._tick_enter, max(self._tick_enter - FUTURE_S, start))
+            self._tick_enter += TICK_S
+        while self._tick_at <= t_s + 1e-9:
+            self._tick(self._tick_at, max(self._tick_at, start))
+            self._tick_at += TICK_S
+
+    def _tick(self, t0: float, at: float) -> None:
+        x = t0 * CHART_M_PER_S
         n = max(len(self.points), 1)
-        while self._next_tick <= t_s + FUTURE_S + 1e-9:
-            t0 = self._next_tick
-            x = t0 * k
-            # shown while t0 is in the window: logged at t0 - FUTURE_S and again at t0
-            start = self._start_s or 0.0
-            for at in sorted({max(t0 - FUTURE_S, start), max(t0, start)}):
-                self._row(
-                    "charts/data/ticks/lines",
-                    rr.LineStrips2D,
-                    at,
-                    1,
-                    strips=[np.array([(x, -self._top_m - 2.0), (x, n * ROW_M + 60.0)], np.float32)],
-                    colors=np.array([_rgba(_GRID)], np.uint32),
-                )
-                label = [f"{t0:g} s"]
-                self._row(
-                    "charts/data/ticks/lane_labels",
-                    rr.Points2D,
-                    at,
-                    1,
-                    positions=np.array([(x, -self._top_m)], np.float32),
-                    labels=label,
-                )
-                self._row(
-                    "charts/data/ticks/zone_labels",
-                    rr.Points2D,
-                    at,
-                    1,
-                    positions=np.array([(x, -1.0)], np.float32),
-                    labels=label,
-                )
-            self._next_tick += TICK_S
+        self._row(
+            "charts/data/ticks/lines",
+            rr.LineStrips2D,
+            at,
+            1,
+            strips=[np.array([(x, -self._top_m - 2.0), (x, n * ROW_M + 60.0)], np.float32)],
+            colors=np.array([_rgba(_GRID)], np.uint32),
+        )
+        label = [f"{t0:g} s"]
+        self._row(
+            "charts/data/ticks/lane_labels",
+            rr.Points2D,
+            at,
+            1,
+            positions=np.array([(x, -self._top_m)], np.float32),
+            labels=label,
+        )
+        self._row(
+            "charts/data/ticks/zone_labels",
+            rr.Points2D,
+            at,
+            1,
+            positions=np.array([(x, -1.0)], np.float32),
+            labels=label,
+        )
 
     # -- helpers -------------------------------------------------------------
     def _row(self, entity: str, archetype: Any, t_s: float, n: int, **fields: Any) -> None:

@@ -30,6 +30,8 @@ options:
                         realtime: paced to the wall clock (default lockstep)
   --speed F             realtime clock speed factor (default 1)
   --no-record           no Rerun observer and no .rrd
+  --live                the observer also serves the recording on 127.0.0.1:9876
+                        as it is made; watch with: .venv/bin/dica view --live [--web]
   --secure              TLS, log-ins and per-role access rules on the router, with
                         fresh secrets in RUN_DIR/zenoh/ (see dica secure-config --help)
   --port P              router port on 127.0.0.1 (default: a free one)
@@ -41,7 +43,7 @@ EOF
 }
 
 layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
-agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0
+agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -57,6 +59,7 @@ while [ $# -gt 0 ]; do
     --clock) clock="$2"; shift 2 ;;
     --speed) speed="$2"; shift 2 ;;
     --no-record) record=0; shift ;;
+    --live) live=(--live); shift ;;
     --secure) secure=1; shift ;;
     --port) port="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
@@ -145,7 +148,7 @@ link_for ica
 start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" "${role_link[@]}"
 if [ "$record" = 1 ]; then
   link_for observer
-  start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" "${role_link[@]}"
+  start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" "${live[@]}" "${role_link[@]}"
 fi
 link_for agent
 for i in $(seq "$agents"); do
