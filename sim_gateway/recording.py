@@ -22,9 +22,12 @@ on ``charts/data`` shifts it by ``-CHART_M_PER_S * t_now`` every chart step:
 frame (axis labels, the entry and exit lines, "now") is static.
 
 Cost. A Rerun call costs 0.1-0.5 ms, so a step only appends its arrays to a
-buffer; every ``flush_s`` of simulated time the buffer is turned into a few
-column chunks (one per entity) with numpy. Few entities and few, large chunks
-also make the file load fast in the viewer.
+buffer; every ``flush_s`` of simulated time the buffer is drawn with numpy
+into rows per entity. The web viewer pays about as much per chunk as for a
+megabyte of data, so rows are sent as one column chunk per entity only when
+it holds MAX_ROWS of them, and at the end: a 10-minute run makes a few dozen
+chunks. A live recording sends every LIVE_FLUSH_S instead, so that viewers
+see the run as it goes.
 
 States. :data:`STATE_STYLE` is the one table of vehicle states, their names
 and colours, and :func:`vehicle_states` the one place that decides a
@@ -73,7 +76,8 @@ ROW_M = 5.0  # [chart units] pitch of the conflict-point rows
 LABEL_GAP_M = 4.0  # [m] names start this far beyond the kerb
 START_WAIT_S = 60.0  # [s] how long the recording waits for a first confirmation
 FLUSH_S = 20.0  # [s] of simulated time buffered before it is sent (saved file)
-LIVE_FLUSH_S = 1.0  # [s] the same when viewers watch live
+LIVE_FLUSH_S = 1.0  # [s] the same when viewers watch live (and rows are sent then)
+MAX_ROWS = 4096  # rows of one entity sent as one chunk (Rerun's own compaction limit)
 _STRIP_RADIUS_M = 0.08  # [m] outline half-width in the top view
 _OVERRUN = (220, 30, 30)  # actual holding outside its reserved interval
 _GRID = (185, 185, 185)
@@ -100,7 +104,7 @@ STATE_STYLE: dict[State, tuple[str, tuple[int, int, int]]] = {
     State.CLEARED: ("cleared", (140, 140, 140)),
 }
 RESERVED_RGBA = (40, 110, 235, 90)  # the reserved footprint's margin band
-PLAN_ALPHA = 110  # plans are the vehicle's colour, translucent
+PLAN_ALPHA = 100  # plans are the vehicle's colour, translucent
 
 
 def vehicle_states(confirmed: np.ndarray, s_m: np.ndarray, out_m: np.ndarray) -> np.ndarray:
@@ -252,7 +256,8 @@ class SpaceTimeRecorder:
         self.intersection = intersection
         self.path = Path(path)
         self.margin_m = margin_m
-        self.flush_s = LIVE_FLUSH_S if live_port is not None else flush_s
+        self.live = live_port is not None
+        self.flush_s = LIVE_FLUSH_S if self.live else flush_s
         routes = intersection.routes
         self.lanes: tuple[str, ...] = intersection.in_lanes
         self._projector = RouteProjector(routes)
@@ -305,12 +310,12 @@ class SpaceTimeRecorder:
         k = CHART_M_PER_S
         n = max(len(self.points), 1)
         return rrb.VisualBounds2D(
-            x_range=[-PAST_S * k - 38.0, FUTURE_S * k + 2.0], y_range=[-5.0, n * ROW_M + 1.0]
+            x_range=[-PAST_S * k - 38.0, FUTURE_S * k + 2.0], y_range=[-3.0, n * ROW_M + 5.0]
         )
 
-    def blueprint(self) -> rrb.Blueprint:
-        """Top view, counts and tables on the left; lane charts and the conflict-point
-        chart on the right; paused at the start, the time panel open."""
+    def views(self) -> dict[str, Any]:
+        """Every view of the layout by name: top, zones, counts, confirmed, rejected and
+        one per lane (its lane id); ``tools/screenshots.py`` shows them one by one."""
         reach = _frame_reach(self.intersection)
         top = rrb.Spatial2DView(
             origin="junction",
@@ -352,7 +357,6 @@ class SpaceTimeRecorder:
             visual_bounds=self.zone_bounds(),
             time_ranges=history,
         )
-        n_cols = len({approach_of(ln) for ln in self.lanes})
         table_columns = rrb.TextLogColumns(
             timeline_columns=[rrb.encodings.TimelineColumn(TIMELINE)],
             text_log_columns=[
@@ -363,24 +367,32 @@ class SpaceTimeRecorder:
         counts = rrb.TimeSeriesView(
             origin="counts", name="counts", plot_legend=rrb.PlotLegend(corner="LeftTop")
         )
-        bottom = rrb.Horizontal(
-            counts,
-            rrb.TextLogView(
-                origin="tables/confirmed",
-                name="confirmed: VIN, route, entry s, exit s, delay s, rounds",
-                columns=table_columns,
-                format_options=mono,
-            ),
-            rrb.TextLogView(
-                origin="tables/rejected",
-                name="rejected: VIN, reason",
-                columns=table_columns,
-                format_options=mono,
-            ),
-            column_shares=[2, 4, 3],
+        confirmed = rrb.TextLogView(
+            origin="tables/confirmed",
+            name="confirmed: VIN, route, entry s, exit s, delay s, rounds",
+            columns=table_columns,
+            format_options=mono,
         )
-        left = rrb.Vertical(top, zones, row_shares=[3, 2])
-        right = rrb.Vertical(rrb.Grid(*charts, grid_columns=n_cols), bottom, row_shares=[3, 1])
+        rejected = rrb.TextLogView(
+            origin="tables/rejected",
+            name="rejected: VIN, reason",
+            columns=table_columns,
+            format_options=mono,
+        )
+        views = dict(zip(lanes, charts, strict=True))
+        views.update(top=top, zones=zones, counts=counts, confirmed=confirmed, rejected=rejected)
+        return views
+
+    def blueprint(self) -> rrb.Blueprint:
+        """Top view and conflict points on the left; lane charts, counts and tables on
+        the right; paused at the start, the time panel folded to its play bar."""
+        v = self.views()
+        lanes = sorted(self.lanes, key=lambda ln: (ln.rsplit("_", 1)[1], ln))  # lane-major
+        n_cols = len({approach_of(ln) for ln in self.lanes})
+        bottom = rrb.Horizontal(v["counts"], v["confirmed"], v["rejected"], column_shares=[2, 4, 3])
+        left = rrb.Vertical(v["top"], v["zones"], row_shares=[3, 2])
+        grid = rrb.Grid(*(v[lane] for lane in lanes), grid_columns=n_cols)
+        right = rrb.Vertical(grid, bottom, row_shares=[3, 1])
         return rrb.Blueprint(
             rrb.Horizontal(left, right, column_shares=[2, 3]),
             rrb.BlueprintPanel(state="collapsed"),
@@ -415,7 +427,7 @@ class SpaceTimeRecorder:
         for lane in self.lanes:
             log(
                 f"charts/data/lanes/{lane}/plans",
-                rr.LineStrips2D.from_fields(radii=0.25, draw_order=10.0, show_labels=False),
+                rr.LineStrips2D.from_fields(radii=0.15, draw_order=10.0, show_labels=False),
                 static=True,
             )
             log(
@@ -502,45 +514,26 @@ class SpaceTimeRecorder:
         self._chart_frames()
 
     def _top_legend(self) -> None:
-        """A legend in the top view's upper left corner, clear of the roads."""
+        """A legend in the top view's upper left corner, clear of the roads: each entry
+        written in the colour of what it names (labels have a fixed size on screen, so
+        separate key shapes would drift into the text when zooming)."""
         reach = _frame_reach(self.intersection)
-        x0, y0 = -reach + 1.5, -reach + 1.5  # viewer frame: y grows downwards
-        rows = [(name, _rgba(rgb)) for name, rgb in STATE_STYLE.values()]
-        pos, labels, colors, strips, strip_colors, radii = [], [], [], [], [], []
-        for i, (name, color) in enumerate(rows):
-            y = y0 + i * 2.2
-            strips.append(_box(x0, y, 2.4, 1.2))
-            strip_colors.append(color)
-            radii.append(_STRIP_RADIUS_M * 1.5)
-            pos.append((x0 + 3.2, y))
-            labels.append(f"{name} (actual footprint)")
-            colors.append(color)
-        y = y0 + len(rows) * 2.2
-        strips.append(_box(x0, y, 2.4, 1.2))
-        strip_colors.append(_rgba(RESERVED_RGBA[:3], RESERVED_RGBA[3]))
-        radii.append(max(self.margin_m / 2.0, 0.05) * 2.0)
-        pos.append((x0 + 3.2, y))
-        labels.append(f"reserved footprint, {self.margin_m:g} m margin band")
-        colors.append(_rgba(RESERVED_RGBA[:3]))
-        for name, rgb, yy in (
-            ("entry line", (30, 30, 30), y + 2.2),
-            ("communication region starts", (150, 60, 150), y + 4.4),
-        ):
-            strips.append(np.array([(x0 - 1.2, yy), (x0 + 1.2, yy)]))
-            strip_colors.append(_rgba(rgb))
-            radii.append(0.15)
-            pos.append((x0 + 3.2, yy))
-            labels.append(name)
-            colors.append(_rgba(rgb))
-        pos = [(x0 + 2.0 + 0.24 * len(t), y) for (_, y), t in zip(pos, labels, strict=True)]
-        self.rec.log(
-            "junction/legend/keys",
-            rr.LineStrips2D(strips, colors=strip_colors, radii=radii),
-            static=True,
-        )
+        x0, y0 = -reach + 11.0, -reach + 1.5  # viewer frame: y grows downwards
+        entries = [(f"{name}: outline", rgb) for name, rgb in STATE_STYLE.values()]
+        entries += [
+            (f"reserved, with its {self.margin_m:g} m margin: band", RESERVED_RGBA[:3]),
+            ("entry line", (30, 30, 30)),
+            ("communication region starts", (150, 60, 150)),
+        ]
         self.rec.log(
             "junction/legend/text",
-            rr.Points2D(pos, radii=0.01, colors=colors, labels=labels, show_labels=True),
+            rr.Points2D(
+                [(x0, y0 + i * 2.4) for i in range(len(entries))],
+                radii=0.01,
+                colors=[_rgba(rgb) for _, rgb in entries],
+                labels=[text for text, _ in entries],
+                show_labels=True,
+            ),
             static=True,
         )
 
@@ -605,10 +598,10 @@ class SpaceTimeRecorder:
             log(
                 f"charts/frame/lanes/{lane}/legend",
                 rr.Points2D(
-                    [(x1 - 12.0, comm + 2.0), (x1 - 12.0, comm - 2.5)],
-                    radii=[0.25, 0.6],
-                    colors=[(90, 90, 90, PLAN_ALPHA), (40, 40, 40)],
-                    labels=["plan: line", "actual: dots"],
+                    [(x0 + 24.0, comm + 2.5)],
+                    radii=0.01,
+                    colors=[(60, 60, 60)],
+                    labels=["plan: thin line · actual: dots"],
                     show_labels=True,
                 ),
                 static=True,
@@ -638,7 +631,7 @@ class SpaceTimeRecorder:
         log(
             "charts/frame/zones/legend",
             rr.Points2D(
-                [(x0 + 14.0, -3.5), (x0 + 52.0, -3.5)],
+                [(x0 + 14.0, n * ROW_M + 2.5), (x0 + 55.0, n * ROW_M + 2.5)],
                 radii=[0.5, 0.5],
                 colors=[(60, 60, 60), _OVERRUN],
                 labels=["held, as reserved", "held outside its reservation"],
@@ -799,8 +792,9 @@ class SpaceTimeRecorder:
             self._buf_t0 = t_s
 
     def flush(self, final: bool = False) -> None:
-        """Draw the buffered steps and send everything buffered (also done every
-        ``flush_s`` of simulated time and on close).
+        """Draw the buffered steps (done every ``flush_s`` of simulated time) and send
+        the rows of entities that have MAX_ROWS of them; ``final`` (on close), or a
+        live recording: send everything.
 
         The recording starts at the first confirmation, so that a viewer opens
         on it; steps before it are dropped. A run with no confirmation within
@@ -818,7 +812,8 @@ class SpaceTimeRecorder:
                 self._draw_steps(kept)
             self._steps = []
         for rows in self._rows.values():
-            rows.send(self.rec)
+            if final or self.live or rows.n_rows >= MAX_ROWS:
+                rows.send(self.rec)
 
     def close(self) -> None:
         """Send what is buffered and finish the file (Rerun writes its footer on disconnect)."""
@@ -875,7 +870,6 @@ class SpaceTimeRecorder:
             counts[top_idx],
             strips=strips.astype(np.float32),
             class_ids=state[top],
-            labels=[vins[i] for i in top],
         )
         self._names(times, top_step, step_of, vins, ridx, s, dist)
         self._reserved(times[top_idx])
@@ -1132,6 +1126,10 @@ class _Rows:
     def add(self, t_s: float, n: int, **fields: Any) -> None:
         self.add_many(np.array([t_s]), np.array([n]), **fields)
 
+    @property
+    def n_rows(self) -> int:
+        return sum(len(t) for t in self.times)
+
     def add_many(self, times: np.ndarray, lengths: np.ndarray, **fields: Any) -> None:
         self.times.append(np.asarray(times, dtype=float))
         self.lengths.append(np.asarray(lengths, dtype=int))
@@ -1207,13 +1205,6 @@ def _frame_reach(inter: Intersection) -> float:
     """Half the side of the top view's opening frame: the junction and 22 m around it."""
     region = np.asarray(inter.region, dtype=float)
     return float(np.abs(region).max()) + 22.0
-
-
-def _box(x: float, y: float, w: float, h: float) -> np.ndarray:
-    return np.array(
-        [(x - w / 2, y - h / 2), (x + w / 2, y - h / 2), (x + w / 2, y + h / 2),
-         (x - w / 2, y + h / 2), (x - w / 2, y - h / 2)]
-    )  # fmt: skip
 
 
 def _clipped(route: Route, s_from: float, s_to: float) -> np.ndarray:
