@@ -86,7 +86,7 @@ _FLIP_Y = np.array([1.0, -1.0])
 
 
 class State(IntEnum):
-    """A vehicle's state as drawn; the values are Rerun class ids."""
+    """A vehicle's state as drawn."""
 
     REQUESTING = 1  # in the region, no confirmation yet
     CONFIRMED = 2  # confirmed, front before the entry line
@@ -103,6 +103,9 @@ STATE_STYLE: dict[State, tuple[str, tuple[int, int, int]]] = {
     State.CROSSING: ("crossing", (20, 165, 60)),
     State.CLEARED: ("cleared", (140, 140, 140)),
 }
+_STATE_RGBA = np.zeros(max(STATE_STYLE) + 1, dtype=np.uint32)  # packed colour by state
+for _state, (_, _rgb) in STATE_STYLE.items():
+    _STATE_RGBA[_state] = (_rgb[0] << 24) | (_rgb[1] << 16) | (_rgb[2] << 8) | 0xFF
 RESERVED_RGBA = (40, 110, 235, 90)  # the reserved footprint's margin band
 PLAN_ALPHA = 100  # plans are the vehicle's colour, translucent
 
@@ -281,6 +284,7 @@ class SpaceTimeRecorder:
         self._n_rejected = 0
         self._start_s: float | None = None  # the timeline starts at the first confirmation
         self._rows: dict[str, _Rows] = {}
+        self._later: list[tuple[float, str, Any, int, dict]] = []  # see _again
 
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
         self.rec.set_log_time_enabled(False)  # only sim_time: wall clock would mislead
@@ -310,7 +314,7 @@ class SpaceTimeRecorder:
         k = CHART_M_PER_S
         n = max(len(self.points), 1)
         return rrb.VisualBounds2D(
-            x_range=[-PAST_S * k - 38.0, FUTURE_S * k + 2.0], y_range=[-3.0, n * ROW_M + 5.0]
+            x_range=[-PAST_S * k - 38.0, FUTURE_S * k + 2.0], y_range=[-3.0, n * ROW_M + 5.5]
         )
 
     def views(self) -> dict[str, Any]:
@@ -403,13 +407,6 @@ class SpaceTimeRecorder:
     # -- static geometry -----------------------------------------------------
     def _static_styles(self) -> None:
         log = self.rec.log
-        log(
-            "junction",
-            rr.AnnotationContext(
-                [(int(s), name, rgb) for s, (name, rgb) in STATE_STYLE.items()]  # type: ignore[misc]
-            ),
-            static=True,
-        )
         log("junction/vehicles", rr.LineStrips2D.from_fields(radii=_STRIP_RADIUS_M), static=True)
         half_margin = self.margin_m / 2.0
         log(
@@ -556,7 +553,12 @@ class SpaceTimeRecorder:
         )
         log(
             "charts/frame/now/label",
-            rr.Points2D([(0.0, comm + 2.5)], radii=0.01, labels=["now"], show_labels=True),
+            rr.Points2D(
+                [(0.0, -self._top_m + 3.0), (0.0, n * ROW_M + 2.5)],
+                radii=0.01,
+                labels=["now", "now"],
+                show_labels=True,
+            ),
             static=True,
         )
         for lane in self.lanes:
@@ -584,24 +586,15 @@ class SpaceTimeRecorder:
             for s in np.arange(-comm, self._top_m, 10.0):
                 if all(abs(s - m) > 5.0 for m in marks):
                     marks[float(s)] = f"{s:.0f}"
+            # and the legend, in the same entity: every static entity costs the viewer a chunk
+            pos = [(x0 - 11.0, -s) for s in marks] + [(x0 + 58.0, comm + 2.5)]
             log(
                 f"charts/frame/lanes/{lane}/axis",
                 rr.Points2D(
-                    [(x0 - 11.0, -s) for s in marks],
+                    pos,
                     radii=0.01,
-                    colors=[_FRAME],
-                    labels=list(marks.values()),
-                    show_labels=True,
-                ),
-                static=True,
-            )
-            log(
-                f"charts/frame/lanes/{lane}/legend",
-                rr.Points2D(
-                    [(x0 + 24.0, comm + 2.5)],
-                    radii=0.01,
-                    colors=[(60, 60, 60)],
-                    labels=["plan: thin line · actual: dots"],
+                    colors=[_FRAME] * len(marks) + [(60, 60, 60)],
+                    labels=[*marks.values(), "line: plan · dots: actual"],
                     show_labels=True,
                 ),
                 static=True,
@@ -631,7 +624,7 @@ class SpaceTimeRecorder:
         log(
             "charts/frame/zones/legend",
             rr.Points2D(
-                [(x0 + 14.0, n * ROW_M + 2.5), (x0 + 55.0, n * ROW_M + 2.5)],
+                [(x0 + 12.0, n * ROW_M + 2.5), (x0 + 55.0, n * ROW_M + 2.5)],
                 radii=[0.5, 0.5],
                 colors=[(60, 60, 60), _OVERRUN],
                 labels=["held, as reserved", "held outside its reservation"],
@@ -697,33 +690,31 @@ class SpaceTimeRecorder:
         s, _ = route.project(np.stack([np.asarray(x_m, float), np.asarray(y_m, float)], -1))
         keep = np.unique(np.append(np.arange(0, n, CHART_EVERY), n - 1))
         line = np.stack([t[keep] * k, -s[keep]], axis=-1).astype(np.float32)
-        self._row(
-            f"charts/data/lanes/{route.in_lane}/plans",
-            rr.LineStrips2D,
-            now,
-            1,
-            strips=[line],
-            colors=np.array([color & 0xFFFFFF00 | PLAN_ALPHA], dtype=np.uint32),
-            labels=[f"{vin} plan"],
-        )
+        plan = {
+            "strips": [line],
+            "colors": np.array([color & 0xFFFFFF00 | PLAN_ALPHA], dtype=np.uint32),
+            "labels": [f"{vin} plan"],
+        }
+        entity = f"charts/data/lanes/{route.in_lane}/plans"
+        self._row(entity, rr.LineStrips2D, now, 1, **plan)
+        self._again(float(t[-1]), now, entity, rr.LineStrips2D, 1, plan)
         if len(hold):
             centers = np.stack([(hold.lb_s + hold.ub_s) / 2 * k, (hold.point + 0.5) * ROW_M], -1)
             halves = np.stack(
                 [(hold.ub_s - hold.lb_s) / 2 * k, np.full(len(hold), 0.4 * ROW_M)], -1
             )
-            self._row(
-                "charts/data/zones/reserved",
-                rr.Boxes2D,
-                now,
-                len(hold),
-                centers=centers.astype(np.float32),
-                half_sizes=halves.astype(np.float32),
-                colors=np.full(len(hold), color, dtype=np.uint32),
-                labels=[
+            boxes = {
+                "centers": centers.astype(np.float32),
+                "half_sizes": halves.astype(np.float32),
+                "colors": np.full(len(hold), color, dtype=np.uint32),
+                "labels": [
                     f"{vin} P{p + 1} {a:.2f}-{b:.2f} s"
                     for p, a, b in zip(hold.point, hold.lb_s, hold.ub_s, strict=True)
                 ],
-            )
+            }
+            entity = "charts/data/zones/reserved"
+            self._row(entity, rr.Boxes2D, now, len(hold), **boxes)
+            self._again(float(hold.ub_s.max()), now, entity, rr.Boxes2D, len(hold), boxes)
         self._n_confirmed += 1
         self._row("counts/confirmed", rr.Scalars, now, 1, scalars=np.array([self._n_confirmed]))
         delay = f"{delay_s:6.2f}" if math.isfinite(delay_s) else "     -"
@@ -869,9 +860,9 @@ class SpaceTimeRecorder:
             times[top_idx],
             counts[top_idx],
             strips=strips.astype(np.float32),
-            class_ids=state[top],
+            colors=_STATE_RGBA[state[top]],
         )
-        self._names(times, top_step, step_of, vins, ridx, s, dist)
+        self._names(times, top_step, step_of, vins, ridx, s, dist, length)
         self._reserved(times[top_idx])
 
         # charts: every CHART_EVERY steps
@@ -894,6 +885,8 @@ class SpaceTimeRecorder:
                 translation=np.stack([-k * ct, np.zeros_like(ct), np.zeros_like(ct)], -1),
             )
         self._ticks(times[-1] if len(times) else 0.0)
+        if len(times):
+            self._due(float(times[-1]))
         at_chart = chart_step[step_of]
         on_chart = (
             at_chart
@@ -937,20 +930,20 @@ class SpaceTimeRecorder:
             width,
         )
 
-    def _names(self, times, top_step, step_of, vins, ridx, s, dist) -> None:
+    def _names(self, times, top_step, step_of, vins, ridx, s, dist, length) -> None:
         """Names beside the kerb, level with the vehicle, for vehicles in the approach."""
         sel = (
             top_step[step_of]
             & (ridx >= 0)
             & (dist <= LANE_WIDTH_M)
-            & (s < -LABEL_GAP_M)
+            & (s < 0.0)
             & (s >= -self.intersection.comm_length_m - 5.0)
         )
         idx = np.nonzero(sel)[0]
         top_idx = np.nonzero(top_step)[0]
         per = np.bincount(np.searchsorted(top_idx, step_of[idx]), minlength=len(top_idx))
         pos = (
-            self._label_at.places(self._route_lane[ridx[idx]], s[idx])
+            self._label_at.places(self._route_lane[ridx[idx]], s[idx] - length[idx] / 2)
             if len(idx)
             else np.zeros((0, 2))
         )
@@ -1076,6 +1069,26 @@ class SpaceTimeRecorder:
         )
 
     # -- helpers -------------------------------------------------------------
+    def _again(
+        self, t_end: float, now: float, entity: str, archetype: Any, n: int, fields: dict
+    ) -> None:
+        """Log a row once more when what it draws ends, if that is later than now:
+        a chart shows the rows of the last PAST_S, and a plan or a reserved interval
+        must stay as long as any of it is in the window."""
+        if t_end > now + 1e-9:
+            self._later.append((t_end, entity, archetype, n, fields))
+
+    def _due(self, t_s: float) -> None:
+        """Emit the rows of :meth:`_again` that the run has reached."""
+        keep = []
+        for item in self._later:
+            if item[0] <= t_s + 1e-9:
+                t_end, entity, archetype, n, fields = item
+                self._row(entity, archetype, t_end, n, **fields)
+            else:
+                keep.append(item)
+        self._later = keep
+
     def _row(self, entity: str, archetype: Any, t_s: float, n: int, **fields: Any) -> None:
         rows = self._rows.get(entity)
         if rows is None:

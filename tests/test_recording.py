@@ -263,7 +263,7 @@ def test_chart_lines_are_labelled_for_every_lane(recorded, ch45):
         )
         axis = _static(data[f"/charts/frame/lanes/{lane}/axis"], "Points2D:labels")
         assert "0 entry" in axis and "-20" in axis  # distances on the axis, in metres
-    assert _static(data["/charts/frame/now/label"], "Points2D:labels") == ["now"]
+    assert _static(data["/charts/frame/now/label"], "Points2D:labels") == ["now", "now"]
 
 
 def _holding_oracle(conf: Confirmation, route, points) -> dict[int, tuple[float, float]]:
@@ -292,7 +292,9 @@ def test_conflict_chart_has_one_bar_per_held_interval_and_none_overlap(recorded,
     for (_, cs), (_, hs), (_, ls) in zip(rows, halves, labels, strict=True):
         for c, h, lb in zip(cs, hs, ls, strict=True):
             p = round(c[1] / ROW_M - 0.5)
-            bars[p].append(((c[0] - h[0]) / K, (c[0] + h[0]) / K, lb.split()[0]))
+            bar = ((c[0] - h[0]) / K, (c[0] + h[0]) / K, lb.split()[0])
+            if bar not in bars[p]:  # logged at the confirmation and again when it ends
+                bars[p].append(bar)
     expected = defaultdict(list)
     for c in confs:
         for p, (lb, ub) in _holding_oracle(c, ch45.route_by_id(c.route_id), points).items():
@@ -325,7 +327,9 @@ def test_a_real_run_has_no_two_bars_overlapping_at_any_conflict_point(tmp_path):
     bars = defaultdict(list)
     for (_, cs), (_, hs) in zip(rows, halves, strict=True):
         for c, h in zip(cs, hs, strict=True):
-            bars[round(c[1] / ROW_M - 0.5)].append(((c[0] - h[0]) / K, (c[0] + h[0]) / K))
+            bar = ((c[0] - h[0]) / K, (c[0] + h[0]) / K)
+            if bar not in bars[round(c[1] / ROW_M - 0.5)]:  # each is logged twice
+                bars[round(c[1] / ROW_M - 0.5)].append(bar)
     assert sum(len(b) for b in bars.values()) > 25
     for p, b in bars.items():
         b.sort()
@@ -393,7 +397,10 @@ def test_actual_footprints_states_and_names(recorded, ch45):
     path, confs, _ = recorded
     data = _read(path)
     rows = _rows(data["/junction/vehicles"], "LineStrips2D:strips")
-    classes = _rows(data["/junction/vehicles"], "LineStrips2D:class_ids")
+    classes = _rows(data["/junction/vehicles"], "LineStrips2D:colors")
+    rgba = {
+        st: (r << 24) | (g << 16) | (b << 8) | 0xFF for st, (_, (r, g, b)) in STATE_STYLE.items()
+    }
     assert len(rows) == math.ceil((N_STEPS + 1) / TOP_EVERY)
     assert all(len(strips) == len(confs) for _, strips in rows[:-1])
     assert rows[-1][1] == []  # the empty step clears the view
@@ -422,7 +429,7 @@ def test_actual_footprints_states_and_names(recorded, ch45):
                 if s < ch45.route_by_id(c.route_id).cross_length_m + LENGTH_M
                 else State.CLEARED
             )
-            assert cid == want, (t, c.vin, s)
+            assert cid == rgba[want], (t, c.vin, s)
     names = _rows(data["/junction/names"], "Points2D:labels")
     assert {n for _, ns in names for n in ns} <= {c.vin for c in confs}
     assert any(ns for _, ns in names)
@@ -436,10 +443,14 @@ def test_charts_move_with_time_and_show_plan_and_progress(recorded, ch45):
     for c in confs:
         route = ch45.route_by_id(c.route_id)
         lane = route.in_lane
-        ((_, strips),) = [
-            r for r in _rows(data[f"/charts/data/lanes/{lane}/plans"], "LineStrips2D:strips")
+        plans = _rows(data[f"/charts/data/lanes/{lane}/plans"], "LineStrips2D:strips")
+        names = _rows(data[f"/charts/data/lanes/{lane}/plans"], "LineStrips2D:labels")
+        mine = [
+            (t, st) for (t, st), (_, (n,)) in zip(plans, names, strict=True) if n == f"{c.vin} plan"
         ]
-        line = np.array(strips[0])
+        # logged at the confirmation and again when the plan ends (if the run got there)
+        assert [t for t, _ in mine] == [0.0, pytest.approx(c.tss.t_s[-1])][: len(mine)]
+        line = np.array(mine[0][1][0])
         s_plan = route.project(np.stack([c.tss.x_m, c.tss.y_m], -1))[0]
         keep = [*range(0, len(s_plan) - 1, CHART_EVERY), len(s_plan) - 1]  # and the last
         np.testing.assert_allclose(line[:, 0] / K, c.tss.t_s[keep], atol=1e-4)
@@ -613,3 +624,28 @@ def test_view_web_serves_on_loopback_and_stops_its_viewer(recorded):
     while (_port_open(port) or _port_open(grpc)) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _port_open(port) and not _port_open(grpc), "the viewer outlived dica view"
+
+
+def test_view_live_web_points_the_page_at_the_live_observer(ch45, tmp_path):
+    live = _free_port()
+    rec = SpaceTimeRecorder(ch45, tmp_path / "live.rrd", live_port=live)
+    port = _free_port()
+    cmd = [sys.executable, "-m", "tools.cli", "view", "--live", "--web", "--port", str(port)]
+    cmd += ["--grpc-port", str(live)]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True
+    )
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith(f"web viewer: http://127.0.0.1:{port}/"), line
+        assert f"rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{live}%2Fproxy" in line
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10) as resp:
+            assert resp.status == 200
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=15)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        rec.close()

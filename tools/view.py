@@ -124,21 +124,22 @@ def run(files: list[Path], web: bool, port: int, grpc_port: int, live: bool = Fa
     ``live``: the data comes from an observer's gRPC server on ``grpc_port``;
     the web viewer's own (empty) server then takes a free port.
     """
-    if live:
-        if not _port_open(grpc_port):
-            raise ViewError(
-                f"nothing serves a live recording on 127.0.0.1:{grpc_port}; start the run "
-                "with run_cluster.sh --live (or dica observer --live)"
-            )
-        files = [Path(live_source(grpc_port))]
+    if live and not _port_open(grpc_port):
+        raise ViewError(
+            f"nothing serves a live recording on 127.0.0.1:{grpc_port}; start the run "
+            "with run_cluster.sh --live (or dica observer --live)"
+        )
     own_grpc = free_port() if live else grpc_port
     if web:
         busy = [p for p in (port, own_grpc) if _port_open(p)]
         if busy:
             raise ViewError(f"port {busy[0]} on 127.0.0.1 is in use; choose another with --port")
-    cmd = viewer_command(files, web, port, own_grpc)
-    if live and web:
-        cmd = cmd[:-1]  # the page itself connects to the observer
+    if live and web:  # the page connects to the observer itself (see web_url)
+        cmd = viewer_command([], True, port, own_grpc)
+    elif live:
+        cmd = [rerun_binary(), live_source(grpc_port)]
+    else:
+        cmd = viewer_command(files, web, port, grpc_port)
     proc = subprocess.Popen(cmd, start_new_session=True)
 
     def on_term(signum: int, frame: FrameType | None) -> None:
