@@ -84,6 +84,20 @@ def layouts(rrd_dir: Path):
     }
 
 
+def settled(browser, before: bytes, timeout_s: float = 60.0) -> bytes:
+    """The window once it differs from ``before`` and two pictures 2 s apart agree:
+    the viewer has taken the new layout and drawn it."""
+    deadline = time.monotonic() + timeout_s
+    prev = browser.screenshot()
+    while time.monotonic() < deadline:
+        time.sleep(2.0)
+        shot = browser.screenshot()
+        if shot == prev and shot != before:
+            return shot
+        prev = shot
+    return prev
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="screenshots", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", type=Path, default=ROOT / "docs" / "recording")
@@ -106,11 +120,13 @@ def main(argv: list[str] | None = None) -> int:
             took = wait_loaded(browser, last_time_ns(rrd), args.timeout)
             print(f"screenshots: the viewer showed the recording after {took:.0f} s", flush=True)
             set_time(browser, args.at)
-            save_png(browser.screenshot(), args.out / "overview.png")
+            browser.move_to(WIDTH_PX // 2, 60)  # no tooltip over the time box
+            last = settled(browser, b"")
+            save_png(last, args.out / "overview.png")
             for name, bp in pictures.items():
                 show_blueprint(viewer, rrd, bp)
-                time.sleep(4.0)
-                save_png(browser.screenshot(), args.out / f"{name}.png")
+                last = settled(browser, last)
+                save_png(last, args.out / f"{name}.png")
                 print(f"screenshots: {args.out / name}.png", flush=True)
     return 0
 

@@ -143,6 +143,13 @@ class Browser:
             "POST", f"/session/{self.session}/actions", {"actions": [{**source, "actions": acts}]}
         )
 
+    def move_to(self, x: int, y: int) -> None:
+        acts = [{"type": "pointerMove", "duration": 0, "x": x, "y": y, "origin": "viewport"}]
+        source = {"type": "pointer", "id": "mouse", "parameters": {"pointerType": "mouse"}}
+        self._call(
+            "POST", f"/session/{self.session}/actions", {"actions": [{**source, "actions": acts}]}
+        )
+
     def type_keys(self, text: str, select_all: bool = False) -> None:
         """Type ``text`` (``\\n`` is Enter), after Ctrl-A when ``select_all``."""
         keys: list[dict] = []
