@@ -1,21 +1,37 @@
-"""The ICA process: the DICA core behind a Zenoh queryable.
+"""The ICA process: the DICA core behind Zenoh queryables.
 
-Keys (``schemas.keys``): REQUESTs arrive as queries on ``dica/<j>/request``
-and are answered with a RESPONSE or a REJECT; DETECTs on ``dica/<j>/detect``
-get an ACK or a REJECT. Every new confirmation is also published on
-``dica/<j>/confirmed/<vin>`` for observers. The ICA's clock is the sim CLOCK
-(``sim/<j>/clock``): it never takes a vehicle's word for the time, so a
-request planned ahead of the clock waits (briefly) for the clock to catch up
-instead of moving the ICA's time. A repeated request (same VIN and sequence
-number) gets the same confirmation, never a second reservation. Bytes that are
-not a valid message get a REJECT with the reason when a reply is possible,
-and are logged; the ICA keeps serving.
+Keys (``schemas.keys``): each agent asks on its own chunk, REQUESTs on
+``dica/<j>/request/<agent>`` (a RESPONSE or a REJECT), DETECTs on
+``dica/<j>/detect/<agent>`` (an ACK or a REJECT), CANCELs on
+``dica/<j>/cancel/<agent>``. Every new confirmation is also published on
+``dica/<j>/confirmed/<vin>`` for observers, and the statistics answer on
+``dica/<j>/stats``.
+
+Time: the ICA's clock is the sim CLOCK, taken only from the gateway's exact
+key and only forward (an old or repeated CLOCK changes nothing). It never
+takes a vehicle's word for the time: a request observed at a time the clock
+has not reached waits (briefly) for the clock; one observed longer ago than
+the declared bound, or whose plan would already have begun, is refused as
+stale.
+
+Repeats and loss: a repeated request (same VIN and sequence number) gets the
+same confirmation, never a second reservation; an older one is refused; a
+newer one means the vehicle did not fly the one it holds, which is then freed.
+
+Crashes: with a journal, every DETECT taken, confirmation given and
+reservation freed is written to disk before it is answered, and a restarted
+ICA replays it before it serves, so no confirmation after a restart conflicts
+with one before. Only one ICA serves a junction: a second one waits until the
+first one's liveliness token is gone. Bytes that are not a valid message get a
+REJECT with the reason when a reply is possible, and are logged; the ICA keeps
+serving.
 """
 
 from __future__ import annotations
 
 import json
 import logging
+import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,25 +40,31 @@ import numpy as np
 
 from ica.core.dica import Dica
 from ica.core.request import Confirmation, Reason, Rejection, RequestError
+from ica.journal import Journal, Replayed, replay
 from schemas import keys
 from schemas.codec import DecodeError, decode, encode, now_ns
 from schemas.convert import reject_from_core, request_to_core, response_from_core
 from schemas.link import Inbox, Item, put, reply
-from schemas.messages import Ack, Clock, Detect, Reject, Request
+from schemas.messages import Ack, Cancel, Clock, Detect, Reject, Request, Stats
 
 HOLD_S = 2.0  # [s wall] longest a request may wait for the clock to reach its time
+STATS_EVERY_S = 5.0  # [s wall] how often the statistics file is rewritten
 
 
 @dataclass(slots=True)
-class Stats:
+class ServiceStats:
     requests: int = 0
     confirmed: int = 0
     repeated: int = 0
+    superseded: int = 0
     detects: int = 0
+    cancels: int = 0
     bad_messages: int = 0
     acks: int = 0
+    ignored_clocks: int = 0
     rejections: dict[str, int] = field(default_factory=dict)
     compute_s: list[float] = field(default_factory=list)
+    journal_replayed: dict | None = None
 
     def as_dict(self) -> dict:
         rt = np.array(self.compute_s) if self.compute_s else np.zeros(1)
@@ -50,44 +72,100 @@ class Stats:
             "requests": self.requests,
             "confirmed": self.confirmed,
             "repeated": self.repeated,
+            "superseded": self.superseded,
             "detects": self.detects,
+            "cancels": self.cancels,
             "bad_messages": self.bad_messages,
             "acks": self.acks,
+            "ignored_clocks": self.ignored_clocks,
             "rejections": dict(self.rejections),
             "compute_median_ms": float(np.median(rt) * 1e3),
             "compute_p99_ms": float(np.percentile(rt, 99) * 1e3),
+            "journal_replayed": self.journal_replayed,
         }
 
 
 class IcaService:
     """One junction's ICA: owns the core, answers the wire, publishes confirmations."""
 
-    def __init__(self, session, ica: Dica, junction: str, log: logging.Logger) -> None:
+    def __init__(
+        self,
+        session,
+        ica: Dica,
+        junction: str,
+        log: logging.Logger,
+        journal: Journal | None = None,
+    ) -> None:
         self.session = session
         self.ica = ica
         self.junction = junction
         self.log = log
+        self.journal = journal
         self.inbox = Inbox()
-        self.now_s = 0.0
+        self.now_s = -1.0
+        self.clock_step = -1
         self.ended = False
-        self.stats = Stats()
+        self.stats = ServiceStats()
         self._held: list[tuple[float, Item]] = []
         self._published: set[tuple[str, int]] = set()
-        j = junction
-        self._decls = [
-            session.declare_queryable(keys.request(j), self.inbox.query_cb("request")),
-            session.declare_queryable(keys.detect(j), self.inbox.query_cb("detect")),
-            session.declare_subscriber(keys.clock(j), self.inbox.sample_cb("clock")),
-            session.declare_subscriber(keys.ack(j), self.inbox.sample_cb("ack")),
-        ]
-        self._token = session.liveliness().declare_token(keys.ica_alive(j))
+        self._clock_key = keys.clock(junction)
+        self._decls: list = []
+        self._token = None
 
-    def run(self, idle_exit_s: float | None = None) -> None:
+    def restore(self, path: Path) -> Replayed:
+        """Replay a journal into the core before serving (a restarted ICA)."""
+        done = replay(path, self.ica)
+        for vin, c in self.ica.confirmed.items():
+            self._published.add((vin, c.confirmation.seq))
+        self.stats.journal_replayed = {
+            "detects": done.detects,
+            "confirmations": done.confirmations,
+            "cancels": done.cancels,
+            "skipped": done.skipped,
+            "truncated": done.truncated,
+            "confirmed_set_after": len(self.ica.confirmed),
+        }
+        return done
+
+    def wait_alone(self, timeout_s: float = 30.0) -> None:
+        """Wait while another ICA holds this junction's token: never two answering at once."""
+        key = keys.ica_alive(self.junction)
+        deadline = time.monotonic() + timeout_s
+        noted = False
+        while time.monotonic() < deadline and not self.inbox.stopping.is_set():
+            if not list(self.session.liveliness().get(key, timeout=1.0)):
+                return
+            if not noted:
+                self.log.warning(
+                    "another ICA serves junction %s; waiting for it to go", self.junction
+                )
+                noted = True
+            time.sleep(0.5)
+        raise RuntimeError(f"another ICA still serves junction {self.junction}")
+
+    def serve(self) -> None:
+        """Declare the queryables and the token: from now on the ICA answers."""
+        j = self.junction
+        self._decls = [
+            self.session.declare_queryable(keys.request(j), self.inbox.query_cb("request")),
+            self.session.declare_queryable(keys.detect(j), self.inbox.query_cb("detect")),
+            self.session.declare_queryable(keys.cancel(j), self.inbox.query_cb("cancel")),
+            self.session.declare_queryable(keys.ica_stats(j), self.inbox.query_cb("stats")),
+            self.session.declare_subscriber(self._clock_key, self.inbox.sample_cb("clock")),
+            self.session.declare_subscriber(keys.ack(j), self.inbox.sample_cb("ack")),
+        ]
+        self._token = self.session.liveliness().declare_token(keys.ica_alive(j))
+
+    def run(self, idle_exit_s: float | None = None, stats_path: Path | None = None) -> None:
         """Serve until SIGTERM, the run's end on the clock, or ``idle_exit_s`` of silence."""
         last = time.monotonic()
+        written = time.monotonic()
         while not self.inbox.stopping.is_set() and not self.ended:
             item = self.inbox.get(timeout=0.1)
             self._expire_held()
+            if stats_path is not None and time.monotonic() - written > STATS_EVERY_S:
+                write_stats(stats_path, self.stats)
+                written = time.monotonic()
             if item is None:
                 if idle_exit_s is not None and time.monotonic() - last > idle_exit_s:
                     break
@@ -102,9 +180,12 @@ class IcaService:
         for _, item in self._held:
             self._reject(item.query, "?", -1, Reason.BAD_TIME, "the ICA is stopping")
         self._held.clear()
-        self._token.undeclare()
+        if self._token is not None:
+            self._token.undeclare()
         for d in self._decls:
             d.undeclare()
+        if self.journal is not None:
+            self.journal.close()
 
     # -- messages ------------------------------------------------------------
     def _dispatch(self, item: Item) -> None:
@@ -114,6 +195,11 @@ class IcaService:
             self._on_request(item)
         elif item.what == "detect":
             self._on_detect(item)
+        elif item.what == "cancel":
+            self._on_cancel(item)
+        elif item.what == "stats":
+            body = json.dumps(self.stats.as_dict())
+            reply(item.query, item.key, encode(Stats("ica", self.junction, body, now_ns())))
         elif item.what == "ack":
             try:
                 decode(item.payload, Ack)
@@ -122,11 +208,20 @@ class IcaService:
                 self._bad(item, e)
 
     def _on_clock(self, item: Item) -> None:
+        if item.key != self._clock_key:
+            self.stats.ignored_clocks += 1
+            return
         try:
             clock = decode(item.payload, Clock)
         except DecodeError as e:
             self._bad(item, e)
             return
+        if clock.step <= self.clock_step:
+            if not clock.end:
+                self.stats.ignored_clocks += 1  # an old or repeated CLOCK
+                return
+        else:
+            self.clock_step = clock.step
         if clock.t_s > self.now_s:
             self.now_s = clock.t_s
             self.ica.advance(self.now_s)
@@ -145,20 +240,26 @@ class IcaService:
         if not _is_chunk(msg.vin):
             self._reject(item.query, "?", msg.seq, Reason.BAD_STATE, "VIN has key characters")
             return
-        if msg.t0_s > self.now_s + 1e-9:
-            # planned at a time the ICA's clock has not reached: the CLOCK for it
+        if msg.t_obs_s > self.now_s + 1e-9:
+            # observed at a time the ICA's clock has not reached: the CLOCK for it
             # may still be on its way (another path through the router); wait for it
             self._held.append((since if since is not None else time.monotonic(), item))
             return
         self.stats.requests += 1
+        req = request_to_core(msg)
+        held = self.ica.confirmed.get(msg.vin)
         t_c = time.perf_counter()
-        answer = self.ica.handle(request_to_core(msg), self.now_s)
+        answer = self.ica.handle(req, self.now_s)
         self.stats.compute_s.append(time.perf_counter() - t_c)
         if isinstance(answer, Confirmation):
             payload = encode(response_from_core(answer))
             if (answer.vin, answer.seq) in self._published:
                 self.stats.repeated += 1
             else:
+                if held is not None and held.confirmation.seq != answer.seq:
+                    self.stats.superseded += 1
+                if self.journal is not None:
+                    self.journal.confirm(answer, msg.length_m, msg.width_m, msg.in_lane)
                 # published before the reply: observers have it before the vehicle acts on it
                 self._published.add((answer.vin, answer.seq))
                 self.stats.confirmed += 1
@@ -179,13 +280,29 @@ class IcaService:
         if not _is_chunk(msg.vin):
             self._reject(item.query, "?", -1, Reason.BAD_STATE, "VIN has key characters")
             return
+        known = msg.vin in self.ica._lane_of
         try:
             self.ica.detect(msg.vin, msg.lane, msg.t_s)
         except RequestError as e:
             self._count(Rejection(msg.vin, -1, e.reason, e.detail))
             self._reject(item.query, msg.vin, -1, e.reason, e.detail)
             return
+        if self.journal is not None and not known:
+            self.journal.detect(msg.vin, msg.lane, msg.t_s)
         reply(item.query, item.key, encode(Ack(msg.vin, -1, Detect.KIND, now_ns())))
+
+    def _on_cancel(self, item: Item) -> None:
+        try:
+            msg = decode(item.payload, Cancel)
+        except DecodeError as e:
+            self._bad(item, e)
+            self._reject(item.query, "?", -1, Reason.BAD_MESSAGE, f"{e.why.value}: {e.detail}")
+            return
+        if self.ica.cancel(msg.vin, msg.seq):
+            self.stats.cancels += 1
+            if self.journal is not None:
+                self.journal.cancel(msg.vin, msg.seq)
+        reply(item.query, item.key, encode(Ack(msg.vin, msg.seq, Cancel.KIND, now_ns())))
 
     # -- helpers -------------------------------------------------------------
     def _expire_held(self) -> None:
@@ -195,7 +312,7 @@ class IcaService:
         keep = []
         for since, item in self._held:
             if now - since > HOLD_S:
-                self._reject(item.query, "?", -1, Reason.BAD_TIME, "planned ahead of the clock")
+                self._reject(item.query, "?", -1, Reason.BAD_TIME, "observed ahead of the clock")
             else:
                 keep.append((since, item))
         self._held = keep
@@ -223,6 +340,31 @@ def _is_chunk(name: str) -> bool:
     return True
 
 
-def write_stats(path: Path, stats: Stats) -> None:
+def write_stats(path: Path, stats: ServiceStats) -> None:
+    """This ICA's statistics, beside those of earlier ICAs of the same run.
+
+    A restarted ICA must not replace its predecessor's figures with its own
+    (nearly empty) ones: the file keeps one entry per ICA process, each
+    rewritten atomically as it goes, and their sum.
+    """
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(stats.as_dict(), indent=2))
+    mine = {"pid": os.getpid(), **stats.as_dict()}
+    try:
+        old = json.loads(path.read_text())
+        runs = [r for r in old.get("incarnations", []) if r.get("pid") != mine["pid"]]
+    except (OSError, ValueError, AttributeError):
+        runs = []
+    runs.append(mine)
+    total: dict = {"incarnations": runs}
+    for k in ("requests", "confirmed", "repeated", "superseded", "detects", "cancels",
+              "bad_messages", "acks", "ignored_clocks"):  # fmt: skip
+        total[k] = sum(int(r.get(k, 0)) for r in runs)
+    rej: dict[str, int] = {}
+    for r in runs:
+        for k, v in (r.get("rejections") or {}).items():
+            rej[k] = rej.get(k, 0) + int(v)
+    total["rejections"] = rej
+    total["journal_replays"] = sum(1 for r in runs if r.get("journal_replayed"))
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(total, indent=2))
+    os.replace(tmp, path)

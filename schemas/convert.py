@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 from ica.core import request as core
 from schemas import messages as m
 from schemas.codec import now_ns
@@ -20,6 +22,7 @@ def request_to_core(msg: m.Request) -> core.Request:
         dist_to_entry_m=msg.dist_to_entry_m,
         speed_mps=msg.speed_mps,
         tss=tss,
+        t_obs_s=msg.t_obs_s,
     )
 
 
@@ -38,6 +41,7 @@ def request_from_core(req: core.Request) -> m.Request:
         x_m=req.tss.x_m,
         y_m=req.tss.y_m,
         heading_rad=req.tss.heading_rad,
+        t_obs_s=float(req.t0_s if math.isnan(req.t_obs_s) else req.t_obs_s),
         sent_ns=now_ns(),
     )
 

@@ -22,24 +22,42 @@ def chunk(name: str) -> str:
     return name
 
 
-def request(junction: str) -> str:
-    return f"dica/{chunk(junction)}/request"  # queryable: REQUEST -> RESPONSE | REJECT
+def request(junction: str, agent: str = "*") -> str:
+    """Queryable (ICA, on ``*``): an agent's REQUEST -> RESPONSE | REJECT, on its own chunk."""
+    return f"dica/{chunk(junction)}/request/{_one(agent)}"
 
 
-def detect(junction: str) -> str:
-    return f"dica/{chunk(junction)}/detect"  # queryable: DETECT -> ACK | REJECT
+def detect(junction: str, agent: str = "*") -> str:
+    """Queryable (ICA, on ``*``): DETECT -> ACK | REJECT."""
+    return f"dica/{chunk(junction)}/detect/{_one(agent)}"
+
+
+def cancel(junction: str, agent: str = "*") -> str:
+    """Queryable (ICA, on ``*``): CANCEL -> ACK | REJECT."""
+    return f"dica/{chunk(junction)}/cancel/{_one(agent)}"
+
+
+def ack(junction: str, agent: str = "*") -> str:
+    """Publication (agent): ACK of a RESPONSE received."""
+    return f"dica/{chunk(junction)}/ack/{_one(agent)}"
+
+
+def revoke(junction: str, agent: str = "*") -> str:
+    """Publication (ICA): a confirmation taken back from one of the agent's vehicles."""
+    return f"dica/{chunk(junction)}/revoke/{_one(agent)}"
 
 
 def confirmed(junction: str, vin: str = "*") -> str:
-    return f"dica/{chunk(junction)}/confirmed/{vin if vin == '*' else chunk(vin)}"
-
-
-def ack(junction: str, vin: str = "*") -> str:
-    return f"dica/{chunk(junction)}/ack/{vin if vin == '*' else chunk(vin)}"
+    """Publication (ICA): every new confirmation, for observers."""
+    return f"dica/{chunk(junction)}/confirmed/{_one(vin)}"
 
 
 def ica_alive(junction: str) -> str:
     return f"dica/{chunk(junction)}/alive/ica"  # liveliness token
+
+
+def ica_stats(junction: str) -> str:
+    return f"dica/{chunk(junction)}/stats"  # queryable (ICA): its statistics
 
 
 def clock(junction: str) -> str:
@@ -47,7 +65,7 @@ def clock(junction: str) -> str:
 
 
 def state(junction: str, agent: str = "*") -> str:
-    return f"sim/{chunk(junction)}/state/{agent if agent == '*' else chunk(agent)}"
+    return f"sim/{chunk(junction)}/state/{_one(agent)}"
 
 
 def vehicles(junction: str) -> str:
@@ -55,12 +73,25 @@ def vehicles(junction: str) -> str:
 
 
 def command(junction: str, agent: str = "*") -> str:
-    return f"sim/{chunk(junction)}/command/{agent if agent == '*' else chunk(agent)}"
+    return f"sim/{chunk(junction)}/command/{_one(agent)}"
 
 
 def agent_alive(junction: str, agent: str = "*") -> str:
-    return f"sim/{chunk(junction)}/alive/{agent if agent == '*' else chunk(agent)}"
+    return f"sim/{chunk(junction)}/alive/{_one(agent)}"
+
+
+def agent_stats(junction: str, agent: str = "*") -> str:
+    return f"sim/{chunk(junction)}/stats/{_one(agent)}"  # queryable (agent): its statistics
 
 
 def observer_alive(junction: str, name: str = "*") -> str:
-    return f"sim/{chunk(junction)}/observer/{name if name == '*' else chunk(name)}"
+    return f"sim/{chunk(junction)}/observer/{_one(name)}"
+
+
+def last(key: str) -> str:
+    """The last chunk of a key (the agent, VIN or observer it names)."""
+    return key.rsplit("/", 1)[-1]
+
+
+def _one(name: str) -> str:
+    return name if name == "*" else chunk(name)

@@ -16,7 +16,8 @@ import queue
 import signal
 import sys
 import threading
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -78,6 +79,7 @@ class Item:
     payload: bytes
     key: str
     query: Any = None  # a zenoh.Query to reply to, for queryables
+    arrived_ns: int = field(default_factory=time.time_ns)  # wall clock when it arrived
 
 
 class Inbox:
@@ -115,6 +117,19 @@ class Inbox:
         except queue.Empty:
             return None
 
+    def put(self, item: Item) -> None:
+        """Add an item of the role's own (the answer of an asynchronous query)."""
+        self._q.put(item)
+
+    def drain(self) -> list[Item]:
+        """Everything waiting now, in arrival order, without blocking."""
+        out = []
+        while True:
+            try:
+                out.append(self._q.get_nowait())
+            except queue.Empty:
+                return out
+
     def backlog(self) -> int:
         return self._q.qsize()
 
@@ -149,7 +164,7 @@ def put(session, key: str, payload: bytes) -> None:
 def reply(query, key: str, payload: bytes) -> None:
     """Answer a query once and finish it (the querier then stops waiting at once)."""
     try:
-        query.reply(key, payload)
+        query.reply(key, payload, express=True)
     finally:
         query.drop()
 

@@ -17,11 +17,12 @@ from typing import ClassVar
 
 import numpy as np
 
-VERSION = 1
+VERSION = 2
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
 MAX_DETAIL = 512  # human-readable reasons
+MAX_STATS = 64 * 1024  # [bytes] a role's statistics as JSON text
 BIG = 1e9 + 1  # [s] or [m]: the outer bound of every time and distance on the wire
 
 
@@ -51,6 +52,7 @@ class Request:
     x_m: np.ndarray = lim(n=MAX_SAMPLES)
     y_m: np.ndarray = lim(n=MAX_SAMPLES)
     heading_rad: np.ndarray = lim(n=MAX_SAMPLES)
+    t_obs_s: float = lim(*TIME)  # when the vehicle observed what it planned from (<= t0_s)
     sent_ns: int = lim(0, 2**63 - 1)
 
 
@@ -97,6 +99,16 @@ class Ack:
 
 
 @dataclass(frozen=True, slots=True)
+class Cancel:
+    """The vehicle will not fly confirmation ``seq`` (it came too late): free it."""
+
+    KIND: ClassVar[str] = "cancel"
+    vin: str = lim(n=MAX_TEXT)
+    seq: int = lim(0, 2**31 - 1)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
 class Detect:
     """A vehicle entered the communication region on ``lane`` at sim time ``t_s``."""
 
@@ -116,7 +128,10 @@ class VehicleState:
     lane (meaningful while ``lane`` is that lane). ``head``: no vehicle is ahead
     on the incoming lane. ``detected_s`` is when it crossed the communication
     region's entry line (NaN before). ``exited``: its rear has left the junction.
-    The first STATE that names a vehicle hands it to the agent it is sent to.
+    ``plan_seq`` is the plan its actuator holds (-1: none), ``refused_seq`` the
+    last plan it refused because it arrived after its start (-1: none).
+    ``owner`` is the agent that hosts it. The first STATE that names a vehicle
+    to an agent hands it to that agent.
     """
 
     vin: str = lim(n=MAX_TEXT)
@@ -133,6 +148,9 @@ class VehicleState:
     head: bool = lim()
     detected_s: float = lim(*TIME, n=-1)  # n=-1: NaN allowed (not yet detected)
     exited: bool = lim()
+    plan_seq: int = lim(-1, 2**31 - 1)
+    refused_seq: int = lim(-1, 2**31 - 1)
+    owner: str = lim(n=MAX_TEXT)
 
 
 @dataclass(frozen=True, slots=True)
@@ -150,16 +168,18 @@ class State:
 
 @dataclass(frozen=True, slots=True, eq=False)
 class Setpoint:
-    """Speeds for one vehicle, one per step from ``t0_s`` (the last one holds).
+    """A plan for one vehicle's actuator: route positions, one per step from ``t0_s``.
 
-    A speed of -1 hands the vehicle back to SUMO's own driver. ``speed_mode``
-    is SUMO's speed-mode bit set to switch to first, or -1 to keep the current.
+    ``s_m`` is the front's position along the route [m], 0 at the entry line;
+    the actuator flies it by position and takes it only if it arrives by
+    ``t0_s``. ``seq`` is the confirmation it comes from (-1 and no positions:
+    no new plan, only ``wake_s``).
     """
 
     vin: str = lim(n=MAX_TEXT)
-    t0_s: float = lim(*TIME)
-    speeds: np.ndarray = lim(n=MAX_SAMPLES)
-    speed_mode: int = lim(-1, 63)
+    seq: int = lim(-1, 2**31 - 1)
+    t0_s: float = lim(*TIME, n=-1)  # NaN without a plan
+    s_m: np.ndarray = lim(n=MAX_SAMPLES)
     wake_s: float = lim(*TIME)  # next sim time it may DETECT or REQUEST (-1e9: now, 1e9: never)
 
 
@@ -183,7 +203,19 @@ class Clock:
     step: int = lim(0, 2**62)
     t_s: float = lim(*TIME)
     mode: str = lim(n=16)  # "lockstep" or "realtime"
+    speed: float = lim(0.0, 1000.0)  # realtime: sim seconds per wall second
     end: bool = lim()
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class Stats:
+    """A role's statistics for the run's record (answer to a stats query)."""
+
+    KIND: ClassVar[str] = "stats"
+    role: str = lim(n=32)
+    name: str = lim(n=MAX_TEXT)
+    json: str = lim(n=MAX_STATS)
     sent_ns: int = lim(0, 2**63 - 1)
 
 
@@ -192,8 +224,10 @@ MESSAGES: tuple[type, ...] = (
     Response,
     Reject,
     Ack,
+    Cancel,
     Detect,
     State,
     Command,
     Clock,
+    Stats,
 )

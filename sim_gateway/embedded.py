@@ -49,6 +49,9 @@ class LocalLink:
         self.compute_s.append(time.perf_counter() - t_c)
         return answer
 
+    def cancel(self, vin: str, seq: int) -> None:
+        self.ica.cancel(vin, seq)
+
 
 class LocalDrivers:
     """The vehicles' machines, all in this process, with the ICA beside them."""
@@ -76,6 +79,7 @@ class LocalDrivers:
                     c.entry_speed_mps,
                     self.ica.config,
                     self.cfg.retry_s,
+                    lead_s=self.cfg.lead_s,
                 )
                 v.rejections = self.rejections  # one tally for the run
                 self.vehicles[c.vin] = v
@@ -120,7 +124,7 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
 
 
 def ica_config(cfg: RunConfig) -> IcaConfig:
-    return controller_config(cfg.algorithm, cfg.margin_m)
+    return controller_config(cfg.algorithm, cfg.margin_m, cfg.time_pad_s)
 
 
 def run(
@@ -185,7 +189,7 @@ class _Recording:
 
     def __init__(self, rec) -> None:
         self.rec = rec
-        self.seq: dict[str, int] = {}  # requests answered per vehicle
+        self.wake: dict[str, float] = {}  # when each vehicle may ask again, as last seen
         self.tally: dict[str, int] = {}  # rejections per reason, as last seen
 
     def close(self) -> None:
@@ -222,9 +226,9 @@ def _record(
                 rounds=conf.iterations,
                 margin_m=cfg.margin_m,
             )
-        elif conf is None and v.seq > r.seq.get(v.vin, 0):
-            rejected.append(v.vin)
-        r.seq[v.vin] = v.seq
+        elif conf is None and v.next_request_s != r.wake.get(v.vin, v.next_request_s):
+            rejected.append(v.vin)  # told to wait: its request was answered with a no
+        r.wake[v.vin] = v.next_request_s
     if drivers.rejections != r.tally:
         new = {k: n - r.tally.get(k, 0) for k, n in drivers.rejections.items()}
         reasons = [k for k, n in new.items() if n > 0]

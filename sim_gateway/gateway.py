@@ -1,45 +1,57 @@
 """The gateway process: SUMO's side of the cluster, keyed to Zenoh.
 
 The only process that imports libsumo. It steps the same world as the
-embedded runner (:mod:`sim_gateway.world`), publishes the sim CLOCK on
-``sim/<j>/clock`` and each agent's vehicles' states on ``sim/<j>/state/<agent>``
-(the first STATE naming a vehicle hands it to that agent), and applies the
-COMMANDs agents send on ``sim/<j>/command/<agent>``.
+embedded runner (:mod:`sim_gateway.world`), which is also every vehicle's
+actuator; publishes the sim CLOCK on ``sim/<j>/clock`` and each agent's
+vehicles' states on ``sim/<j>/state/<agent>`` (the first STATE naming a
+vehicle hands it to that agent), and takes the plans agents send on
+``sim/<j>/command/<agent>``, each only from the agent that hosts the vehicle.
 
 Two clocks:
 
-* ``lockstep``: each step waits until every agent that got a STATE has
-  answered it, in waves that keep the ICA's order of contacts (see
-  :meth:`ZenohDrivers._waves`). Deterministic, the same decisions as the
-  embedded runner, and as fast as the slowest participant.
-* ``realtime``: steps are paced to the wall clock times ``--speed``; whatever
-  commands have arrived are applied, late ones at the next step. A confirmed
-  vehicle's command holds its whole speed profile, so it is flown on time.
+* ``lockstep``: a step waits for the agents only when one of their vehicles
+  must talk to the ICA (announce itself, or ask, being head of its lane),
+  in waves that keep the ICA's order of contacts (see
+  :meth:`ZenohDrivers._waves`); a STATE whose COMMAND does not come back in
+  time is sent again. Deterministic, the same decisions as the embedded
+  runner, and as fast as the slowest participant.
+* ``realtime``: steps are paced to the wall clock times ``--speed``; each
+  agent gets its vehicles' states every step, and whatever plans have arrived
+  are handed to the actuators, which take a plan only before its start.
 
-Agents announce themselves with liveliness tokens; a token that disappears
-mid-run (a killed process) stops the run with an error naming the agent.
+Peers come and go. Agents announce themselves with liveliness tokens; when one
+disappears (a killed process, a lost link) its vehicles are handed to the
+least loaded live agent, which takes each over in the phase its actuator
+reports, and until then each actuator keeps its vehicle short of the line (or
+flying the plan it holds). Without the ICA no vehicle gets a new plan and the
+run goes on. What the run knows so far is written every so often (marked
+incomplete), so a crash of the gateway itself loses at most that interval.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import time
 from collections import Counter
+from collections.abc import Callable
 
 import numpy as np
 
 from schemas import keys
 from schemas.codec import DecodeError, decode, encode, now_ns
 from schemas.link import Inbox, Item, publisher
-from schemas.messages import Clock, Command, State, VehicleState
+from schemas.messages import Clock, Command, State, Stats, VehicleState
 from sim_gateway.embedded import ica_config, schedule_for
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
 from sim_gateway.world import Seen, World
-from vehicle_agent.machine import BIG, MODE_CONFIRMED
+from vehicle_agent.machine import BIG, NO_PLAN
 from vehicle_agent.machine import Command as Actuation
 
 CLOCKS = ("lockstep", "realtime")
+NOTICE_S = 1.0  # [s sim] how long a realtime STATE keeps naming a vehicle after news about it
+AGE_BINS_MS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)  # command age histogram
 
 
 class ZenohDrivers:
@@ -57,6 +69,7 @@ class ZenohDrivers:
         clock: str = "lockstep",
         speed: float = 1.0,
         step_timeout_s: float = 30.0,
+        resend_s: float = 0.5,
         log: logging.Logger,
     ) -> None:
         if clock not in CLOCKS:
@@ -73,27 +86,37 @@ class ZenohDrivers:
         self.clock = clock
         self.speed = speed
         self.step_timeout_s = step_timeout_s
+        self.resend_s = resend_s
         self.log = log
         self.inbox = Inbox()
         self.alive: set[str] = set()
         self.ica_alive = False
+        self.ica_outages = 0
         self.owner: dict[str, str] = {}
         self.load: Counter[str] = Counter()
         self.hosted: Counter[str] = Counter()
-        self.late_commands = 0
+        self.adoptions = 0
+        self.agent_deaths = 0
         self.multi_wave_steps = 0
+        self.resent_states = 0
+        self.stale_commands = 0  # lockstep: answers to an earlier step or wave
         self.known: set[str] = set()  # vehicles their agent has seen (it has DETECTed them)
         self.wake: dict[str, float] = {}  # per vehicle: when it may next talk to the ICA
+        self.news: dict[str, float] = {}  # realtime: vehicles to keep naming until this time
+        self.exits: list[Seen] = []  # lockstep: exit notices not yet delivered
         self.dropped_setpoints = 0
+        self.age_ms: list[float] = []
         self.wait_s: list[float] = []
-        self._pending: tuple[int, int, set[str], list[Actuation]] = (0, 0, set(), [])
         self.step_s = ica_config(cfg).step_s
+        self._pending: tuple[int, int, dict[str, list[VehicleState]], list[Actuation]] = (
+            0, 0, {}, []
+        )  # fmt: skip
         self._k = 0
         self._t0_wall = 0.0
+        self._seen_plan: dict[str, tuple[int, int]] = {}
         j = junction
         self._clock_pub = publisher(session, keys.clock(j))
         self._vehicles_pub = publisher(session, keys.vehicles(j))
-        self.told_entered: set[str] = set()
         self._state_pubs: dict[str, object] = {}
         lv = session.liveliness()
         self._decls = [
@@ -106,6 +129,10 @@ class ZenohDrivers:
                 keys.observer_alive(j), self.inbox.liveliness_cb("observer"), history=True
             ),
         ]
+        self._agent_key = keys.agent_alive(j, "x").rsplit("/", 1)[0] + "/"
+        self._ica_key = keys.ica_alive(j)
+        self._observer_key = keys.observer_alive(j, "x").rsplit("/", 1)[0] + "/"
+        self._command_key = keys.command(j, "x").rsplit("/", 1)[0] + "/"
 
     # -- start and end ---------------------------------------------------------
     def wait_for_peers(self, timeout_s: float) -> None:
@@ -131,7 +158,7 @@ class ZenohDrivers:
         self._t0_wall = time.monotonic()
 
     def end(self, t: float) -> None:
-        self._clock_pub.put(encode(Clock(self._k, t, self.clock, True, now_ns())))
+        self._clock_pub.put(encode(Clock(self._k + 1, t, self.clock, self.speed, True, now_ns())))
 
     def close(self) -> None:
         self._clock_pub.undeclare()
@@ -141,73 +168,119 @@ class ZenohDrivers:
         for d in self._decls:
             d.undeclare()
 
+    def role_stats(self, timeout_s: float = 2.0) -> dict:
+        """The ICA's and every live agent's own figures, asked for at the end of the run."""
+        out: dict = {"ica": None, "agents": {}}
+        j = self.junction
+        targets = [("ica", keys.ica_stats(j))] + [
+            (a, keys.agent_stats(j, a)) for a in sorted(self.alive)
+        ]
+        for name, key in targets:
+            for _ in range(3):  # a lossy link may eat the query or the answer
+                got = None
+                for r in self.session.get(key, timeout=timeout_s):
+                    if r.ok is None or str(r.ok.key_expr) != key:
+                        continue
+                    try:
+                        got = json.loads(decode(r.ok.payload.to_bytes(), Stats).json)
+                    except (DecodeError, ValueError):
+                        continue
+                if got is not None:
+                    if name == "ica":
+                        out["ica"] = got
+                    else:
+                        out["agents"][name] = got
+                    break
+        return out
+
     # -- one step ----------------------------------------------------------------
     def send(self, t: float, seen: list[Seen]) -> None:
         """Publish this step's CLOCK and STATEs; in lockstep, every wave but the
         last is also answered here. :meth:`collect` gets the last answers."""
         out: list[Actuation] = []
-        while (item := self.inbox.get(timeout=0)) is not None:
-            self._take(item, None, out)  # liveliness news, and realtime's late commands
-        if not self.ica_alive:
-            raise RunError(f"the ICA is gone (t={t:.2f} s)")
+        for item in self.inbox.drain():
+            self._take(item, None, out)  # liveliness news, and realtime's commands
         self._k += 1
         k = self._k
-        self._clock_pub.put(encode(Clock(k, t, self.clock, False, now_ns())))
+        self._clock_pub.put(encode(Clock(k, t, self.clock, self.speed, False, now_ns())))
         stamp = now_ns()
         if self._vehicles_pub.matching_status.matching:  # an observer listens
-            everyone = tuple(_vehicle_state(s, self.cfg) for s in seen)
+            everyone = tuple(self._vehicle_state(s) for s in seen)
             self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
-        # a vehicle flying its confirmed plan needs its agent again only when it
-        # enters the junction (crossing) and when it has left (hand back to SUMO)
-        feed = [s for s in seen if self._needs_agent(s)]
-        waves = self._waves(t, feed) if self.clock == "lockstep" else [self._batches(feed)]
+        if self.clock == "lockstep":
+            waves = self._waves(t, seen)
+        else:
+            waves = [self._batches(self._realtime_feed(t, seen))]
         for part, batches in enumerate(waves):
             if part > 0:
-                self._wait_commands(k, part - 1, set(waves[part - 1]), out, t)
+                self._wait_commands(k, part - 1, waves[part - 1], out, t)
             for agent, vehicles in batches.items():
-                pub = self._state_pubs.get(agent)
-                if pub is None:
-                    pub = self._state_pubs[agent] = publisher(
-                        self.session, keys.state(self.junction, agent)
-                    )
-                pub.put(encode(State(agent, k, part, t, tuple(vehicles), stamp)))
+                self._publish_state(agent, State(agent, k, part, t, tuple(vehicles), stamp))
         if len(waves) > 1:
             self.multi_wave_steps += 1
-        for s in feed:
-            self.known.add(s.car.vin)
+        for s in seen:
             if s.obs.exited:
-                self.load[self.owner[s.car.vin]] -= 1
+                agent = self.owner.get(s.car.vin)
+                if agent is not None and s.car.vin in self.known:
+                    self.load[agent] -= 1
                 self.known.discard(s.car.vin)
                 self.wake.pop(s.car.vin, None)
-                self.told_entered.discard(s.car.vin)
-        self._pending = (k, len(waves) - 1, set(waves[-1]), out)
+        self._pending = (k, len(waves) - 1, waves[-1] if waves else {}, out)
 
     def collect(self, t: float) -> list[Actuation]:
-        """The commands to apply before the next step (lockstep: waits for them)."""
+        """The plans to hand to the actuators before the next step (lockstep: waits)."""
         k, part, expected, out = self._pending
         if self.clock == "lockstep":
-            self._wait_commands(k, part, expected, out, t)
+            if expected:
+                self._wait_commands(k, part, expected, out, t)
         else:
-            self._drain(k, out, t)
+            for item in self.inbox.drain():
+                self._take(item, None, out)
             pace = self._t0_wall + k * self.step_s / self.speed - time.monotonic()
             if pace > 0:
                 time.sleep(pace)
         return out
 
-    def _needs_agent(self, s: Seen) -> bool:
-        c = s.car
-        if c.speed_mode != MODE_CONFIRMED or s.obs.exited:
-            return True
-        if c.entered and c.vin not in self.told_entered:
-            self.told_entered.add(c.vin)
-            return True
-        return False
+    def _publish_state(self, agent: str, state: State) -> None:
+        pub = self._state_pubs.get(agent)
+        if pub is None:
+            pub = self._state_pubs[agent] = publisher(
+                self.session, keys.state(self.junction, agent)
+            )
+        pub.put(encode(state))
+
+    def _realtime_feed(self, t: float, seen: list[Seen]) -> list[Seen]:
+        """Who the agents hear about this step: every vehicle without a plan, and any
+        vehicle with news (a plan taken or refused, an exit) for NOTICE_S after it."""
+        feed = []
+        for s in seen:
+            c = s.car
+            if s.obs.exited:  # named once, the step it leaves
+                self.news.pop(c.vin, None)
+                self._seen_plan.pop(c.vin, None)
+                feed.append(s)
+                continue
+            mark = (c.plan_seq, c.refused_seq)
+            if self._seen_plan.get(c.vin) != mark:
+                self._seen_plan[c.vin] = mark
+                self.news[c.vin] = t + NOTICE_S
+            if c.plan_seq == NO_PLAN or t <= self.news.get(c.vin, -math.inf):
+                feed.append(s)
+        return feed
 
     def _batches(self, seen: list[Seen]) -> dict[str, list[VehicleState]]:
         batches: dict[str, list[VehicleState]] = {}
         for s in seen:
-            agent = self.owner.get(s.car.vin) or self._assign(s.car.vin)
-            batches.setdefault(agent, []).append(_vehicle_state(s, self.cfg))
+            if s.obs.exited:  # only its own agent needs to hear it left
+                agent = self.owner.get(s.car.vin)
+                if agent not in self.alive:
+                    continue
+            else:
+                agent = self._owner(s.car.vin)
+            if agent is None:
+                continue
+            batches.setdefault(agent, []).append(self._vehicle_state(s))
+            self.known.add(s.car.vin)
         return batches
 
     def _waves(self, t: float, seen: list[Seen]) -> list[dict[str, list[VehicleState]]]:
@@ -215,149 +288,222 @@ class ZenohDrivers:
 
         A vehicle talks to the ICA this step if it is new to its agent (it
         will DETECT) or its agent said it may (``wake_s``) and it is head of
-        its lane. When such vehicles belong to more than one agent, the step
-        is split: each run of consecutive contacts (in the world's order, the
-        embedded runner's order) of one agent is a wave, and a wave is sent
-        only after the previous one is answered. The ICA then sees DETECTs
-        and REQUESTs in exactly the embedded runner's order, whatever the
-        number of agents: lockstep runs are deterministic and equal to it.
+        its lane. Only such vehicles are sent, with any exit notices waiting;
+        a step without one costs no round trip. When contacts belong to more
+        than one agent, the step is split: each run of consecutive contacts
+        (in the world's order, the embedded runner's order) of one agent is a
+        wave, and a wave is sent only after the previous one is answered. The
+        ICA then sees DETECTs and REQUESTs in exactly the embedded runner's
+        order, whatever the number of agents: lockstep runs are deterministic
+        and equal to it.
         """
         runs: list[tuple[str, list[Seen]]] = []
-        quiet: list[Seen] = []
         for s in seen:
-            agent = self.owner.get(s.car.vin) or self._assign(s.car.vin)
-            wake = self.wake.get(s.car.vin, -BIG)
-            contact = s.car.vin not in self.known or (t >= wake and (s.obs.head or wake <= -BIG))
-            if not contact:
-                quiet.append(s)
-            elif runs and runs[-1][0] == agent:
+            vin = s.car.vin
+            if s.obs.exited:
+                if vin in self.known:
+                    self.exits.append(s)
+                continue
+            if s.car.plan_seq != NO_PLAN:
+                continue  # flying its plan: nothing to ask
+            wake = self.wake.get(vin, -BIG)
+            if vin in self.known and not (t >= wake and (s.obs.head or wake <= -BIG)):
+                continue
+            agent = self._owner(vin)
+            if agent is None:
+                continue
+            if runs and runs[-1][0] == agent:
                 runs[-1][1].append(s)
             else:
                 runs.append((agent, [s]))
-        if len(runs) <= 1:
-            return [self._batches(seen)]
-        waves: list[dict[str, list[VehicleState]]] = [
-            {agent: [_vehicle_state(s, self.cfg) for s in run]} for agent, run in runs
-        ]
-        for s in quiet:  # no ICA contact: order does not matter, send them first
-            waves[0].setdefault(self.owner[s.car.vin], []).append(_vehicle_state(s, self.cfg))
+        if not runs:
+            return []
+        waves: list[dict[str, list[VehicleState]]] = []
+        for agent, run in runs:
+            waves.append({agent: [self._vehicle_state(s) for s in run]})
+            self.known.update(s.car.vin for s in run)
+        for s in self.exits:  # no ICA contact: order does not matter, send them first
+            agent = self.owner.get(s.car.vin)
+            if agent in self.alive:
+                waves[0].setdefault(agent, []).append(self._vehicle_state(s))
+        self.exits = []
         return waves
 
-    def _assign(self, vin: str) -> str:
+    def _owner(self, vin: str) -> str | None:
+        agent = self.owner.get(vin)
+        if agent is not None and agent in self.alive:
+            return agent
+        return self._assign(vin)
+
+    def _assign(self, vin: str) -> str | None:
         free = [
             a for a in sorted(self.alive) if not self.per_agent or self.load[a] < self.per_agent
         ]
         if not free:
+            if not self.alive:
+                return None  # no agent at all for now: the actuator keeps it short of the line
             raise RunError(
                 f"no vehicle agent has room for {vin}: {len(self.alive)} agents x "
                 f"{self.per_agent} vehicles are all in use; start more agents or raise --per-agent"
             )
         agent = min(free, key=lambda a: (self.load[a], a))
+        old = self.owner.get(vin)
+        if old is not None:
+            self.adoptions += 1
+            self.known.discard(vin)
         self.owner[vin] = agent
         self.load[agent] += 1
         self.hosted[agent] += 1
         return agent
 
     def _wait_commands(
-        self, k: int, part: int, expected: set[str], out: list[Actuation], t: float
+        self,
+        k: int,
+        part: int,
+        batches: dict[str, list[VehicleState]],
+        out: list[Actuation],
+        t: float,
     ) -> None:
         start = time.perf_counter()
+        expected = set(batches)
         deadline = time.monotonic() + self.step_timeout_s
+        resend_at = time.monotonic() + self.resend_s
         while expected:
             dead = expected - self.alive
-            if dead:
-                raise RunError(f"vehicle agent {', '.join(sorted(dead))} died at t={t:.2f} s")
+            for agent in dead:  # its vehicles go to another agent at the next step
+                expected.discard(agent)
+                for vs in batches[agent]:
+                    self.known.discard(vs.vin)
+            if not expected:
+                break
             if self.inbox.stopping.is_set():
                 raise RunError(f"stopped by a signal at t={t:.2f} s")
-            item = self.inbox.get(timeout=min(0.5, max(deadline - time.monotonic(), 0.01)))
-            if item is None:
-                if time.monotonic() > deadline:
-                    raise RunError(
-                        f"no command for step {k} (t={t:.2f} s) from "
-                        f"{', '.join(sorted(expected))} within {self.step_timeout_s:.0f} s"
+            now = time.monotonic()
+            if now > deadline:
+                raise RunError(
+                    f"no command for step {k} (t={t:.2f} s) from "
+                    f"{', '.join(sorted(expected))} within {self.step_timeout_s:.0f} s"
+                )
+            if now > resend_at:  # lost on the way there or back: the same STATE again
+                for agent in expected:
+                    self.resent_states += 1
+                    self._publish_state(
+                        agent, State(agent, k, part, t, tuple(batches[agent]), now_ns())
                     )
+                resend_at = now + self.resend_s
+            item = self.inbox.get(timeout=min(0.05, max(deadline - now, 0.01)))
+            if item is None:
                 continue
             answered = self._take(item, (k, part), out)
             if answered is not None:
                 expected.discard(answered)
         self.wait_s.append(time.perf_counter() - start)
 
-    def _drain(self, k: int, out: list[Actuation], t: float) -> None:
-        while (item := self.inbox.get(timeout=0)) is not None:
-            self._take(item, (k, 0), out)
-        gone = set(self.owner.values()) - self.alive
-        if gone & {a for a, n in self.load.items() if n > 0}:
-            raise RunError(f"vehicle agent {', '.join(sorted(gone))} died at t={t:.2f} s")
-
     def _take(self, item: Item, wanted: tuple[int, int] | None, out: list[Actuation]) -> str | None:
         """Handle one inbox item; the agent, if it was its command for (step, part) ``wanted``."""
         if item.what != "command":
             self._note(item)
+            return None
+        if not item.key.startswith(self._command_key):
             return None
         try:
             cmd = decode(item.payload, Command)
         except DecodeError as e:
             self.log.warning("dropped a bad command on %s: %s", item.key, e)
             return None
-        on_time = wanted is not None and (cmd.step, cmd.part) == wanted
-        if not on_time:
-            self.late_commands += 1
+        if keys.last(item.key) != cmd.agent:
+            self.dropped_setpoints += len(cmd.setpoints)  # someone else's name on its key
+            return None
+        self.age_ms.append(max((item.arrived_ns - cmd.sent_ns) / 1e6, 0.0))  # in transit
+        if wanted is not None and (cmd.step, cmd.part) != wanted:
+            self.stale_commands += 1
+            return None  # lockstep: an answer to an earlier STATE (resent, or late)
         for sp in cmd.setpoints:
             if self.owner.get(sp.vin) != cmd.agent:
-                self.dropped_setpoints += 1  # not this agent's vehicle
+                self.dropped_setpoints += 1  # not this agent's vehicle (any more)
                 continue
-            self.wake[sp.vin] = sp.wake_s
-            out.append(Actuation(sp.vin, sp.t0_s, sp.speeds, sp.speed_mode, sp.wake_s))
-        return cmd.agent if on_time else None
+            if sp.wake_s != BIG or sp.seq != NO_PLAN:
+                self.wake[sp.vin] = sp.wake_s
+            out.append(Actuation(sp.vin, sp.seq, sp.t0_s, sp.s_m, sp.wake_s))
+        return cmd.agent if wanted is not None else None
 
     def _note(self, item: Item) -> None:
-        name = item.key.rsplit("/", 1)[-1]
         up = item.payload == b"+"
-        if item.what == "agent":
+        name = keys.last(item.key)
+        if item.what == "agent" and item.key.startswith(self._agent_key):
             if up:
                 self.alive.add(name)
-            else:
+            elif name in self.alive:
                 self.alive.discard(name)
-                self.log.error("vehicle agent %s is gone", name)
-        elif item.what == "observer":
+                self.agent_deaths += 1
+                gone = sorted(v for v, a in self.owner.items() if a == name and v in self.known)
+                self.load.pop(name, None)
+                self.log.error(
+                    "vehicle agent %s is gone; %d of its vehicles go to the other agents",
+                    name, len(gone),
+                )  # fmt: skip
+                for vin in gone:
+                    self.known.discard(vin)
+        elif item.what == "observer" and item.key.startswith(self._observer_key):
             (self.observers.add if up else self.observers.discard)(name)
-        elif item.what == "ica":
+        elif item.what == "ica" and item.key == self._ica_key:
+            if self.ica_alive and not up:
+                self.ica_outages += 1
+                self.log.error("the ICA is gone: no new plans until it is back")
+            elif up and not self.ica_alive and self.ica_outages:
+                self.log.info("the ICA is back")
             self.ica_alive = up
-            if not up:
-                self.log.error("the ICA is gone")
+
+    def _vehicle_state(self, s: Seen) -> VehicleState:
+        c, o = s.car, s.obs
+        return VehicleState(
+            vin=c.vin,
+            route_id=c.route.id,
+            lane=o.lane,
+            dist_to_entry_m=float(o.dist_to_entry_m),
+            speed_mps=float(o.speed_mps),
+            x_m=float(s.xy[0]),
+            y_m=float(s.xy[1]),
+            angle_deg=float(s.angle_deg),
+            length_m=self.cfg.length_m,
+            width_m=self.cfg.width_m,
+            max_speed_mps=float(c.entry_speed_mps),
+            head=o.head,
+            detected_s=float(o.detected_s),
+            exited=o.exited,
+            plan_seq=c.plan_seq,
+            refused_seq=c.refused_seq,
+            owner=self.owner.get(c.vin, ""),
+        )
 
     def facts(self) -> dict:
         w = np.array(self.wait_s) if self.wait_s else np.full(1, math.nan)
+        age = np.array(self.age_ms) if self.age_ms else np.full(1, math.nan)
+        hist = np.histogram(np.clip(age, 0, None), bins=[*AGE_BINS_MS, math.inf])[0]
         return {
             "clock": self.clock,
             "speed": self.speed if self.clock == "realtime" else None,
             "agents": dict(sorted(self.hosted.items())),
-            "late_commands": self.late_commands,
+            "agent_deaths": self.agent_deaths,
+            "adoptions": self.adoptions,
+            "ica_outages": self.ica_outages,
             "multi_wave_steps": self.multi_wave_steps,
+            "lockstep_waits": len(self.wait_s),
+            "resent_states": self.resent_states,
+            "stale_commands": self.stale_commands,
             "dropped_setpoints": self.dropped_setpoints,
             "step_wait_median_ms": float(np.median(w) * 1e3),
             "step_wait_p99_ms": float(np.percentile(w, 99) * 1e3),
+            "command_age_ms": {
+                "median": float(np.median(age)),
+                "p99": float(np.percentile(age, 99)),
+                "max": float(np.max(age)),
+                "histogram": {
+                    f"{lo}-{hi}": int(n)
+                    for lo, hi, n in zip(AGE_BINS_MS, [*AGE_BINS_MS[1:], "inf"], hist, strict=True)
+                },
+            },
         }
-
-
-def _vehicle_state(s: Seen, cfg: RunConfig) -> VehicleState:
-    c, o = s.car, s.obs
-    return VehicleState(
-        vin=c.vin,
-        route_id=c.route.id,
-        lane=o.lane,
-        dist_to_entry_m=float(o.dist_to_entry_m),
-        speed_mps=float(o.speed_mps),
-        x_m=float(s.xy[0]),
-        y_m=float(s.xy[1]),
-        angle_deg=float(s.angle_deg),
-        length_m=cfg.length_m,
-        width_m=cfg.width_m,
-        max_speed_mps=float(c.entry_speed_mps),
-        head=o.head,
-        detected_s=float(o.detected_s),
-        exited=o.exited,
-    )
 
 
 def run_gateway(
@@ -368,8 +514,15 @@ def run_gateway(
     *,
     peers_timeout_s: float = 60.0,
     progress=None,
+    checkpoint: Callable[[RunResult, str | None], None] | None = None,
+    checkpoint_every_s: float = 30.0,
 ) -> RunResult:
-    """Run the world with the agents' decisions; the same result as an embedded run."""
+    """Run the world with the agents' decisions; the same result as an embedded run.
+
+    ``checkpoint(result, why)`` is handed what the run knows every
+    ``checkpoint_every_s`` of sim time (``why`` says it is incomplete) and,
+    should the run stop early, once more with the reason.
+    """
     from sim_gateway.world import import_libsumo, start_sumo
 
     ls = import_libsumo()
@@ -377,8 +530,17 @@ def run_gateway(
     schedule, _spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
     drivers.wait_for_peers(peers_timeout_s)
     cmd = start_sumo(ls, cfg, ica_cfg.step_s)
+    world = None
+
+    def result() -> RunResult:
+        res = world.result({}, cmd)
+        res.extra.update(drivers.facts())
+        return res
+
     try:
         world = World(ls, cfg, inter, ica_cfg, schedule, horizon, want_xy=True)
+        next_checkpoint = checkpoint_every_s
+        ended = False
         try:
             while True:
                 seen = world.step()
@@ -387,10 +549,20 @@ def run_gateway(
                 world.apply(drivers.collect(world.t))
                 if world.done():
                     break
-        finally:
+                if checkpoint is not None and world.t >= next_checkpoint:
+                    checkpoint(result(), f"running: checkpoint at t={world.t:.0f} s")
+                    next_checkpoint += checkpoint_every_s
+            res = result()
+            res.extra["roles"] = drivers.role_stats()  # before the end: they stop on it
             drivers.end(world.t)
-        result = world.result({}, cmd)
-        result.extra.update(drivers.facts())
-        return result
+            ended = True
+            return res
+        except (RunError, KeyboardInterrupt) as e:
+            if checkpoint is not None:
+                checkpoint(result(), f"stopped at t={world.t:.2f} s: {e or 'interrupted'}")
+            raise
+        finally:
+            if not ended:
+                drivers.end(world.t)
     finally:
         ls.close()

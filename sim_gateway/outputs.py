@@ -5,15 +5,30 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import os
 from pathlib import Path
 
 from sim_gateway.runconfig import RunConfig, RunResult
 
 
-def write_outputs(out: Path, cfg: RunConfig, result: RunResult, mode: str = "embedded") -> None:
-    """Write everything a run produced; the same files in the embedded and cluster modes."""
+def write_outputs(
+    out: Path,
+    cfg: RunConfig,
+    result: RunResult,
+    mode: str = "embedded",
+    incomplete: str | None = None,
+) -> None:
+    """Write everything a run produced; the same files in the embedded and cluster modes.
+
+    ``incomplete`` says why the figures are not a finished run's (a checkpoint,
+    a stop); each file is replaced atomically, so a crash mid-write leaves
+    the previous version, never a torn or empty one.
+    """
     out.mkdir(parents=True, exist_ok=True)
     metrics = dict(result.metrics)
+    metrics["complete"] = incomplete is None
+    if incomplete is not None:
+        metrics["incomplete"] = incomplete
     metrics["collisions"] = result.safety["overlaps"]
     metrics["min_gap_m"] = result.safety["min_gap_m"]
     metrics["sumo_collisions"] = result.sumo_collisions
@@ -24,15 +39,15 @@ def write_outputs(out: Path, cfg: RunConfig, result: RunResult, mode: str = "emb
     metrics["real_time_factor"] = result.sim_time_s / result.wall_s if result.wall_s > 0 else None
     metrics["mode"] = mode
     metrics.update(result.extra)
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    _atomic(out / "metrics.json", json.dumps(metrics, indent=2))
     config = {
         "mode": mode,
         "run": dataclasses.asdict(cfg),
         "sumo_command": result.sumo_command,
         "signal": result.signal,
     }
-    (out / "config.json").write_text(json.dumps(config, indent=2, default=list))
-    with (out / "vehicles.csv").open("w", newline="") as fh:
+    _atomic(out / "config.json", json.dumps(config, indent=2, default=list))
+    with _Replacing(out / "vehicles.csv") as fh:
         w = csv.writer(fh)
         w.writerow(
             [
@@ -64,7 +79,7 @@ def write_outputs(out: Path, cfg: RunConfig, result: RunResult, mode: str = "emb
                     int(tr.stopped),
                 ]
             )
-    with (out / "timeseries.csv").open("w", newline="") as fh:
+    with _Replacing(out / "timeseries.csv") as fh:
         w = csv.writer(fh)
         w.writerow(["t_s", "waiting", "crossed", "generated", "flow_ratio"])
         log = result.trips
@@ -75,3 +90,28 @@ def write_outputs(out: Path, cfg: RunConfig, result: RunResult, mode: str = "emb
 
 def _f(x: float | None) -> str:
     return "" if x is None else f"{x:.3f}"
+
+
+def _atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+class _Replacing:
+    """A text file written beside ``path`` and moved over it only once complete."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.tmp = path.with_name(path.name + ".tmp")
+
+    def __enter__(self):
+        self.fh = self.tmp.open("w", newline="")
+        return self.fh
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.fh.close()
+        if exc_type is None:
+            os.replace(self.tmp, self.path)
+        else:
+            self.tmp.unlink(missing_ok=True)

@@ -35,6 +35,8 @@ class RunConfig:
     approach_weights: tuple[tuple[str, float], ...] = ()
     volume_end_per_10min: float | None = None
     ramp_s: float = 1200.0
+    lead_s: float = 0.0  # [s] vehicles plan their REQUESTs this far ahead of what they observed
+    time_pad_s: float = 0.0  # [s] the ICA's padding of every confirmed occupancy interval
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.volume_per_10min <= 2000.0:
@@ -57,6 +59,14 @@ class RunConfig:
             raise RunError("--volume-end is out of range: 1 to 2000 vehicles per 10 min")
         if not 0.1 <= self.tile_m <= 10.0:
             raise RunError("--tile-size must be between 0.1 and 10 m")
+        if not 0.0 <= self.margin_m <= 5.0:
+            raise RunError(f"--margin must be between 0 and 5 m, got {self.margin_m:g}")
+        if not 0.0 <= self.lead_s <= 10.0:
+            raise RunError(f"--lead must be between 0 and 10 s, got {self.lead_s:g}")
+        if not 0.0 <= self.time_pad_s <= 5.0:
+            raise RunError(f"--time-pad must be between 0 and 5 s, got {self.time_pad_s:g}")
+        if not 0.05 <= self.retry_s <= 60.0:
+            raise RunError(f"retry must be between 0.05 and 60 s, got {self.retry_s:g}")
 
 
 @dataclass(slots=True)

@@ -7,6 +7,16 @@ monitor and the trip log. Who decides the commands (vehicle machines in this
 process, or vehicle-agent processes over Zenoh) is not its business, so both
 modes measure and check with exactly this code.
 
+The world is also each vehicle's actuator, the part of a connected vehicle
+that runs on board whatever its links do. A vehicle without a plan it may
+fly stops short of the junction's entry line by its own control law; a plan
+is taken only if it arrives before its start (a late one is refused, and the
+next observation says so), and is flown by position against time, closing
+the loop on where the vehicle really is; once out of the junction the
+vehicle is handed back to SUMO's driver. So a late, lost or repeated message
+can cost time but cannot put a vehicle into the junction without a
+reservation it can keep.
+
 Nothing here trusts the ICA for safety: every step the monitor rebuilds
 rectangles from SUMO's own positions, and SUMO's junction collision detection
 gives a second opinion.
@@ -29,9 +39,23 @@ from sim_gateway.demand import Arrival
 from sim_gateway.metrics import Trip, TripLog, summarize
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
 from sim_gateway.safety import SafetyMonitor
-from vehicle_agent.machine import MODE_CONFIRMED, RELEASE, Command, Observation
+from vehicle_agent.control import entry_time, stop_speed, track_speed
+from vehicle_agent.machine import (
+    MODE_CONFIRMED,
+    MODE_DEFAULT,
+    MODE_HEAD,
+    MODE_QUEUED,
+    NO_PLAN,
+    RELEASE,
+    Command,
+    Observation,
+)
 
 VTYPE = "cav"
+# [m] how far from its plan's first position a vehicle may be when the plan starts; within
+# it the position loop catches up in a few steps and the ICA's margin covers the gap
+START_TOL_M = 0.1
+MIN_GAP_M = 2.5  # [m] the standstill gap a vehicle short of the line keeps to the one ahead
 
 
 def import_libsumo():
@@ -61,6 +85,10 @@ def sumo_command(net_path: str, step_s: float, extra: tuple[str, ...]) -> list[s
         "true",
         "--collision.action",
         "warn",
+        # a collision is bodies touching, not a gap below a driver's preferred minimum
+        # (SUMO's default counts any gap under the vehicle type's minGap)
+        "--collision.mingap-factor",
+        "0",
         "--no-warnings",
         "true",
         "--seed",
@@ -89,8 +117,19 @@ class Car:
     detected_s: float = math.nan
     exited: bool = False
     entered: bool = False
-    command: Command | None = None
     speed_mode: int = -1
+    head: bool = False  # nothing ahead of it on its incoming lane
+    released: bool = False
+    # the actuator's plan: route positions [m] every step from plan_t0_s
+    plan_seq: int = NO_PLAN
+    plan_t0_s: float = math.nan
+    plan_s: np.ndarray | None = None
+    refused_seq: int = NO_PLAN
+    # where the front is along the route [m] (0 at the entry line) and how fast, this step
+    s_m: float = math.nan
+    speed_mps: float = 0.0
+    odo_ref: float = math.nan  # SUMO's odometer at the last step on the incoming lane
+    s_ref: float = math.nan  # the route position then
 
 
 @dataclass(slots=True)
@@ -135,6 +174,7 @@ class World:
         self.waiting = 0
         self.sumo_collisions = 0
         self.unconfirmed_entries: list[str] = []
+        self.timing = Timing()
         self._next = 0
         self._present: set[str] = set()
         self._last_sample = -1.0
@@ -154,6 +194,11 @@ class World:
             ("setMaxSpeed", self.ica_cfg.caps.road_mps),
             ("setMinGap", 2.5),
             ("setImperfection", 0.0),
+            (
+                "setSpeedFactor",
+                1.0,
+            ),  # it keeps its own entry speed, not a random share of the limit
+            ("setSpeedDeviation", 0.0),
         ):
             getattr(ls.vehicletype, setter)(VTYPE, value)
         self._edge_routes: dict[tuple[str, str], str] = {}
@@ -163,6 +208,13 @@ class World:
                 self._edge_routes[key] = f"r_{key[0]}_{key[1]}"
                 ls.route.add(self._edge_routes[key], list(key))
         self._lane_len = {lane: ls.lane.getLength(lane) for lane in inter.in_lanes}
+        self._last_in: dict[str, Car] = {}  # per incoming lane, the last car that entered from it
+        if not self.signalised:
+            # inside the junction vehicles fly their plans (speed mode 32), which hold the
+            # turn caps; SUMO's own lower turn speed limits would only make a vehicle that
+            # is stopping short of the line slow down early, off its predictable stop law
+            for lane in {v for r in inter.routes for v in r.via_lanes}:
+                ls.lane.setMaxSpeed(lane, self.ica_cfg.caps.road_mps)
         for v in self.schedule:
             lane_index = int(v.route.in_lane.rsplit("_", 1)[1])
             self.cars[v.vin] = Car(v.vin, v.route, lane_index, v.speed_mps)
@@ -231,25 +283,41 @@ class World:
                     self._detect(c, d, vw.getSpeed(c.vin), t)
                 else:
                     continue
+            speed = vw.getSpeed(c.vin)
+            odo = vw.getDistance(c.vin)
+            if lane == c.route.in_lane:
+                c.s_m = vw.getLanePosition(c.vin) - self._lane_len[lane]
+                c.odo_ref, c.s_ref = odo, c.s_m
+            elif not math.isnan(c.odo_ref):
+                c.s_m = c.s_ref + (odo - c.odo_ref)
+            c.speed_mps = speed
             if not c.entered and lane != c.route.in_lane:
                 c.entered = True  # the front is past the entry line
+                self._last_in[c.route.in_lane] = c
                 if not self.signalised and c.speed_mode != MODE_CONFIRMED:
                     self.unconfirmed_entries.append(c.vin)  # never: the vehicles must stop
-            speed = vw.getSpeed(c.vin)
+                elif c.plan_s is not None:
+                    actual = t - c.s_m / speed if speed > 0.1 else t
+                    planned = entry_time(c.plan_t0_s, self.h, c.plan_s)
+                    self.timing.adherence_s.append(actual - planned)
+                    self.timing.worst.append((abs(actual - planned), c.vin, actual, planned))
             if speed < 0.1:
                 self.log.trips[c.vin].stopped = True  # stopped in the region before leaving
                 self.waiting += 1
             if self._left_junction(vw, c, t):
                 self.crossed += 1
             d = self._lane_len[c.route.in_lane] - vw.getLanePosition(c.vin)
+            c.head = heads.get(c.route.in_lane, (0.0, ""))[1] == c.vin
             obs = Observation(
                 t_s=t,
                 lane=lane,
                 dist_to_entry_m=d if lane == c.route.in_lane else -1.0,
                 speed_mps=speed,
-                head=heads.get(c.route.in_lane, (0.0, ""))[1] == c.vin,
+                head=c.head,
                 detected_s=c.detected_s,
                 exited=c.exited,
+                plan_seq=c.plan_seq,
+                refused_seq=c.refused_seq,
             )
             seen.append(Seen(c, obs))
         if self.want_xy:
@@ -260,28 +328,101 @@ class World:
         return seen
 
     def apply(self, commands: Iterable[Command]) -> None:
-        """Take the drivers' new commands; every commanded vehicle gets its speed for now."""
-        ls = self.ls
+        """Take the drivers' new plans, then drive every vehicle in the region for one step.
+
+        A plan is taken only if it arrives no later than its start (and is
+        newer than any plan the vehicle held or refused); a later one could
+        not be flown from where the vehicle is, so it is refused, and the
+        vehicle goes on stopping short of the line. Commands without a plan
+        change nothing here.
+        """
+        ls, t = self.ls, self.t
         for cmd in commands:
             c = self.cars.get(cmd.vin)
-            if c is None or len(cmd.speeds) == 0:
+            if c is None or not cmd.has_plan or c.entered or c.exited:
                 continue
-            if cmd.speed_mode >= 0 and cmd.speed_mode != c.speed_mode:
-                ls.vehicle.setSpeedMode(c.vin, cmd.speed_mode)
-                c.speed_mode = cmd.speed_mode
-                trip = self.log.trips[c.vin]
-                if cmd.speed_mode == MODE_CONFIRMED and trip.confirmed_s is None:
-                    trip.confirmed_s = self.t
-            c.command = cmd
+            if cmd.seq <= max(c.plan_seq, c.refused_seq):
+                continue  # a repeat, or older than what the vehicle holds
+            if t > cmd.t0_s + 1e-6:
+                c.refused_seq = cmd.seq
+                self.timing.refused += 1
+                continue
+            c.plan_seq, c.plan_t0_s, c.plan_s = cmd.seq, cmd.t0_s, np.asarray(cmd.s_m, float)
+            self.timing.accepted += 1
+            self.timing.slack_s.append(cmd.t0_s - t)
+        ahead = self._obstacles()
         for c in self.active:
-            cmd = c.command
-            if cmd is None or c.vin not in self._present:
+            if c.vin not in self._present or c.released or math.isnan(c.detected_s):
                 continue
-            k = round((self.t - cmd.t0_s) / self.h)
-            v = float(cmd.speeds[min(max(k, 0), len(cmd.speeds) - 1)])
-            ls.vehicle.setSpeed(c.vin, v)
-            if v == RELEASE:
-                c.command = None
+            if c.plan_s is not None and t >= c.plan_t0_s - 1e-6:
+                if abs(t - c.plan_t0_s) < 1e-6 and abs(c.s_m - c.plan_s[0]) > START_TOL_M:
+                    # not where the plan starts (a leader held it back during the lead):
+                    # a reservation it cannot keep is not flown; it stops and asks again
+                    c.refused_seq, c.plan_seq, c.plan_s = c.plan_seq, NO_PLAN, None
+                    self.timing.off_start += 1
+                    self.timing.refused += 1
+                    ls.vehicle.setSpeed(c.vin, self._stop_speed(c, ahead.get(c.vin, math.inf)))
+                    continue
+                if c.exited:
+                    if c.speed_mode != MODE_DEFAULT:
+                        ls.vehicle.setSpeedMode(c.vin, MODE_DEFAULT)
+                        c.speed_mode = MODE_DEFAULT
+                    ls.vehicle.setSpeed(c.vin, RELEASE)
+                    c.released = True
+                    continue
+                if c.speed_mode != MODE_CONFIRMED:
+                    ls.vehicle.setSpeedMode(c.vin, MODE_CONFIRMED)
+                    c.speed_mode = MODE_CONFIRMED
+                    trip = self.log.trips[c.vin]
+                    if trip.confirmed_s is None:
+                        trip.confirmed_s = t
+                k = round((t - c.plan_t0_s) / self.h)
+                plan = c.plan_s
+                if k + 1 < len(plan):
+                    v = track_speed(float(plan[k + 1]), c.s_m, c.speed_mps, self.h)
+                else:  # past the plan's end (the vehicle is out): hold its last speed
+                    v = float(plan[-1] - plan[-2]) / self.h if len(plan) > 1 else c.speed_mps
+                ls.vehicle.setSpeed(c.vin, v)
+            elif not c.entered:
+                mode = MODE_HEAD if c.head else MODE_QUEUED
+                if c.speed_mode != mode:
+                    ls.vehicle.setSpeedMode(c.vin, mode)
+                    c.speed_mode = mode
+                ls.vehicle.setSpeed(c.vin, self._stop_speed(c, ahead.get(c.vin, math.inf)))
+
+    def _obstacles(self) -> dict[str, float]:
+        """For each vehicle short of the junction, the rear of the vehicle ahead of it
+        on its lane [m, route position] (that vehicle may have begun to enter)."""
+        lanes: dict[str, list[Car]] = {}
+        for c in self.active:
+            if c.vin in self._present and not c.entered and not math.isnan(c.s_m):
+                lanes.setdefault(c.route.in_lane, []).append(c)
+        out: dict[str, float] = {}
+        length = self.cfg.length_m
+        for lane, cars in lanes.items():
+            cars.sort(key=lambda c: c.s_m)
+            prev = self._last_in.get(lane)
+            rear = prev.s_m - length if prev is not None and not prev.exited else math.inf
+            for c in reversed(cars):
+                out[c.vin] = rear
+                rear = c.s_m - length
+        return out
+
+    def _stop_speed(self, c: Car, rear_ahead_m: float) -> float:
+        """The vehicle's own law without a plan to fly: stop short of the entry line,
+        and short of the rear of the vehicle ahead as it is now.
+
+        The vehicle ahead only moves forward, so a vehicle that can always stop
+        short of where it is now never hits it. The head of a lane (the one that
+        asks) moves by this law alone and does not speed up, so what it asks for
+        starts where the law predictably takes it; SUMO's car-following, which
+        also brakes for slow vehicles far beyond the junction, is off for it.
+        Behind the head, SUMO's car-following closes the queue up as drivers do.
+        """
+        kin = self.ica_cfg.kinematics
+        cap = min(c.entry_speed_mps, c.speed_mps) if c.head else c.entry_speed_mps
+        room = min(-c.s_m - kin.stop_gap_m, rear_ahead_m - c.s_m - MIN_GAP_M)
+        return stop_speed(room, c.speed_mps, cap, self.h, kin.accel_mps2, kin.decel_mps2)
 
     def end_step(self, progress: Callable[[float, int, int], None] | None = None) -> None:
         """Check and log this step. Needs nothing from the drivers, so the cluster
@@ -316,7 +457,10 @@ class World:
             sim_time_s=self.t,
             wall_s=time.perf_counter() - self._t_wall,
             sumo_command=cmd,
-            extra={"unconfirmed_entries": len(self.unconfirmed_entries)},
+            extra={
+                "unconfirmed_entries": len(self.unconfirmed_entries),
+                "timing": self.timing.as_dict(),
+            },
         )
 
     # -- bookkeeping -----------------------------------------------------------
@@ -349,14 +493,50 @@ class World:
         return True
 
 
+@dataclass(slots=True)
+class Timing:
+    """How well the vehicles kept to their plans, as their actuators saw it."""
+
+    accepted: int = 0  # plans taken before their start
+    refused: int = 0  # plans never flown: arrived after their start, or found off it
+    off_start: int = 0  # of those, found further than START_TOL_M off the plan at its start
+    slack_s: list[float] = field(default_factory=list)  # plan start minus arrival [s]
+    adherence_s: list[float] = field(default_factory=list)  # actual minus planned entry [s]
+    worst: list[tuple[float, str, float, float]] = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        def pct(xs: list[float], q: float) -> float | None:
+            return float(np.percentile(np.asarray(xs), q)) if xs else None
+
+        adh = [abs(x) for x in self.adherence_s]
+        return {
+            "plans_accepted": self.accepted,
+            "plans_refused": self.refused,
+            "plans_refused_off_start": self.off_start,
+            "plan_slack_p1_s": pct(self.slack_s, 1),
+            "plan_slack_median_s": pct(self.slack_s, 50),
+            "entry_adherence_p50_s": pct(adh, 50),
+            "entry_adherence_p99_s": pct(adh, 99),
+            "entry_adherence_max_s": max(adh) if adh else None,
+            "entry_adherence_mean_signed_s": (
+                float(np.mean(self.adherence_s)) if self.adherence_s else None
+            ),
+            "entry_adherence_worst": [
+                {"vin": vin, "actual_s": round(a, 3), "planned_s": round(p, 3)}
+                for _, vin, a, p in sorted(self.worst, reverse=True)[:5]
+            ],
+        }
+
+
 def _edges(r: Route) -> tuple[str, str]:
     return r.in_lane.rsplit("_", 1)[0], r.out_lane.rsplit("_", 1)[0]
 
 
 class _Reads:
-    """This step's lane, position, speed and road of every vehicle, from one SUMO call.
+    """This step's lane, position, speed, road and odometer of every vehicle, from one
+    SUMO call.
 
-    Each vehicle is subscribed to those four values when it departs; a vehicle
+    Each vehicle is subscribed to those values when it departs; a vehicle
     missing from the results (not delivered yet) is read directly.
     """
 
@@ -369,7 +549,7 @@ class _Reads:
     @staticmethod
     def subscribe(ls, vin: str, xy: bool = False) -> None:
         c = ls.constants
-        wanted = [c.VAR_LANE_ID, c.VAR_LANEPOSITION, c.VAR_SPEED, c.VAR_ROAD_ID]
+        wanted = [c.VAR_LANE_ID, c.VAR_LANEPOSITION, c.VAR_SPEED, c.VAR_ROAD_ID, c.VAR_DISTANCE]
         ls.vehicle.subscribe(vin, wanted + ([c.VAR_POSITION, c.VAR_ANGLE] if xy else []))
 
     def _get(self, vin: str, var: int, direct):
@@ -384,6 +564,9 @@ class _Reads:
 
     def getSpeed(self, vin: str) -> float:
         return self._get(vin, self._ls.constants.VAR_SPEED, self._ls.vehicle.getSpeed)
+
+    def getDistance(self, vin: str) -> float:
+        return self._get(vin, self._ls.constants.VAR_DISTANCE, self._ls.vehicle.getDistance)
 
     def getRoadID(self, vin: str) -> str:
         return self._get(vin, self._ls.constants.VAR_ROAD_ID, self._ls.vehicle.getRoadID)

@@ -142,13 +142,63 @@ def test_non_head_undetected_and_repeated_requests(ch45):
     # the same request again: the same answer, not a second reservation
     assert ica.handle(a, 0.0) is first
     assert len(ica.confirmed) == 1
-    again = dataclasses.replace(a, seq=1)
-    assert ica.handle(again, 0.0).reason == Reason.ALREADY_CONFIRMED
+    # a higher seq: the vehicle did not fly seq 0 and asks again; it replaces it
+    again = ica.handle(dataclasses.replace(a, seq=1), 0.0)
+    assert isinstance(again, Confirmation) and again.seq == 1
+    assert len(ica.confirmed) == 1 and ica.confirmed["a"].confirmation is again
+    # an older request (a duplicate arriving late) never takes a reservation back
+    assert ica.handle(a, 0.0).reason == Reason.ALREADY_CONFIRMED
     # b is still not head until a has entered
     assert ica.handle(b, 0.0).reason == Reason.NOT_HEAD
-    ica.advance(first.entry_time_s)
-    b2 = propose(route, vin="b", seq=1, t0_s=first.entry_time_s, dist_to_entry_m=8.0, speed_mps=0.0)
-    assert isinstance(ica.handle(b2, first.entry_time_s), Confirmation)
+    ica.advance(again.entry_time_s)
+    b2 = propose(route, vin="b", seq=1, t0_s=again.entry_time_s, dist_to_entry_m=8.0, speed_mps=0.0)
+    assert isinstance(ica.handle(b2, again.entry_time_s), Confirmation)
+
+
+def test_cancel_frees_the_reservation_and_keeps_the_queue(ch45):
+    ica = Dica(ch45, IcaConfig())
+    route = ch45.routes[1]
+    ica.detect("a", route.in_lane, 0.0)
+    ica.detect("b", route.in_lane, 0.5)
+    a = propose(route, vin="a", seq=0, t0_s=0.0, dist_to_entry_m=50.0, speed_mps=12.0)
+    first = ica.handle(a, 0.0)
+    assert isinstance(first, Confirmation)
+    assert not ica.cancel("a", 7)  # not the held seq: nothing happens
+    assert ica.cancel("a", 0) and not ica.confirmed
+    # past a's old entry time a is still at the front of its lane: b is not head
+    t = first.entry_time_s + 0.5
+    ica.advance(t)
+    b = propose(route, vin="b", seq=0, t0_s=t, dist_to_entry_m=40.0, speed_mps=10.0)
+    assert ica.handle(b, t).reason == Reason.NOT_HEAD
+    a2 = propose(route, vin="a", seq=3, t0_s=t, dist_to_entry_m=0.5, speed_mps=0.0)
+    assert isinstance(ica.handle(a2, t), Confirmation)
+
+
+def test_a_vehicle_announcing_itself_again_keeps_its_place(ch45):
+    """Lanes are queued by when each vehicle crossed the region's entry line."""
+    ica = Dica(ch45, IcaConfig())
+    route = ch45.routes[1]
+    ica.detect("b", route.in_lane, 2.0)
+    ica.detect("a", route.in_lane, 1.0)  # announced later, but crossed earlier
+    ica.detect("a", route.in_lane, 1.0)  # and a repeat changes nothing
+    assert ica.is_head("a", 3.0) and not ica.is_head("b", 3.0)
+
+
+def test_plans_must_start_between_observation_and_lead_and_not_before_now(ch45):
+    ica = Dica(ch45, IcaConfig(max_lead_s=2.0))
+    route = ch45.routes[1]
+    ica.detect("a", route.in_lane, 0.0)
+
+    def ask(t_obs: float, t0: float, now: float):
+        req = propose(route, vin="a", seq=0, t0_s=t0, dist_to_entry_m=45.0, speed_mps=12.0)
+        return ica.handle(dataclasses.replace(req, t_obs_s=t_obs), now)
+
+    assert ask(1.0, 3.5, 1.2).reason == Reason.BAD_TIME  # beyond the 2 s lead
+    assert ask(1.0, 0.5, 1.2).reason == Reason.BAD_TIME  # starts before it was observed
+    assert ask(1.0, 1.5, 1.6).reason == Reason.STALE  # the plan began before now
+    assert ask(0.0, 1.5, 1.2).reason == Reason.STALE  # observed over 1 s ago
+    assert ask(2.0, 2.5, 1.2).reason == Reason.BAD_TIME  # observed in the future
+    assert isinstance(ask(1.0, 2.0, 1.2), Confirmation)
 
 
 def test_detection_on_unknown_lane_is_typed(ch45):

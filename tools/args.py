@@ -80,6 +80,8 @@ def run_config(args: argparse.Namespace):
             approach_weights=_weights(args.approach_weights),
             volume_end_per_10min=args.volume_end,
             ramp_s=args.ramp if args.ramp is not None else args.duration,
+            time_pad_s=args.time_pad,
+            lead_s=getattr(args, "lead", 0.0),
         )
     except RunError as e:
         raise UsageError(str(e)) from None
@@ -152,4 +154,11 @@ def add_run_args(r: argparse.ArgumentParser) -> None:
         "--until-left", type=int, help="instead: generate N vehicles and run until all have left"
     )
     r.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
+    r.add_argument(
+        "--time-pad",
+        type=float,
+        default=0.0,
+        help="the ICA grows every confirmed occupancy interval by this on each side [s]: "
+        "the declared bound on how far off its plan in time a vehicle may be (default 0)",
+    )
     r.add_argument("--sumo-args", help="extra SUMO options, verbatim, e.g. '--fcd-output f.xml'")

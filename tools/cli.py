@@ -286,6 +286,13 @@ def parser() -> argparse.ArgumentParser:
         "collision was seen.",
     )
     add_run_args(r)
+    r.add_argument(
+        "--lead",
+        type=float,
+        default=0.0,
+        help="vehicles plan each REQUEST this far ahead of what they observed [s], from where "
+        "their stop law will have taken them: what a link with delay needs (default 0)",
+    )
     r.add_argument("--out", type=Path, help="output directory (default runs/run-ALG-TIMESTAMP)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.add_argument(
@@ -330,6 +337,10 @@ def parser() -> argparse.ArgumentParser:
     sc.set_defaults(func=cmd_secure_config)
 
     sub.add_parser("experiment", help="a grid of runs in parallel, resumable (see its --help)")
+    sub.add_parser(
+        "link",
+        help="the link emulator: delay, jitter, loss, duplication, reordering (see its --help)",
+    )
     sub.add_parser("report", help="markdown tables and PNG plots from runs (see its --help)")
 
     b = sub.add_parser(
@@ -355,6 +366,13 @@ def main(argv: list[str] | None = None) -> int:
 
         try:
             return (experiment if argv[0] == "experiment" else report).main(argv[1:])
+        except KeyboardInterrupt:
+            return 130
+    if argv and argv[0] == "link":
+        from tools import linkem
+
+        try:
+            return linkem.main(argv[1:])
         except KeyboardInterrupt:
             return 130
     if len(argv) >= 2 and argv[0] == "bench" and argv[1] in ("ica", "run", "cluster"):

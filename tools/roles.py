@@ -10,6 +10,7 @@ announced on the sim clock.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -69,27 +70,47 @@ def cmd_router(args: argparse.Namespace) -> int:
 # -- ica -----------------------------------------------------------------------
 def cmd_ica(args: argparse.Namespace) -> int:
     from ica.core.baselines import controller_config, make_controller
+    from ica.journal import Journal, JournalError
     from ica.service import IcaService, write_stats
 
     inter = intersection(args)
     try:
-        config = controller_config(args.algorithm, args.margin)
+        config = controller_config(args.algorithm, args.margin, args.time_pad)
+        config = dataclasses.replace(config, max_request_age_s=args.max_age)
     except ValueError as e:
         raise UsageError(str(e)) from None
     ica = make_controller(args.algorithm, inter, config, args.tile_size)
+    journal_path = args.journal or (args.out / "ica-journal.msgpack" if args.out else None)
     session, log = _session(args, "ica")
-    service = IcaService(session, ica, inter.junction_id, log)
-    service.inbox.stop_on_signals()
+    try:
+        service = IcaService(session, ica, inter.junction_id, log)
+        service.inbox.stop_on_signals()
+        if journal_path is not None:
+            if journal_path.exists():
+                done = service.restore(journal_path)
+                log.info(
+                    "journal %s replayed: %d detections, %d confirmations, %d cancels%s; "
+                    "%d confirmations held",
+                    journal_path, done.detects, done.confirmations, done.cancels,
+                    " (a torn last record dropped)" if done.truncated else "",
+                    len(ica.confirmed),
+                )  # fmt: skip
+            service.journal = Journal(journal_path, sync=not args.no_sync)
+        service.wait_alone()
+        service.serve()
+    except (JournalError, RuntimeError) as e:
+        session.close()
+        raise UsageError(str(e)) from None
+    stats_path = args.out / "ica.json" if args.out else None
     log.info("ICA for junction %s (%s) serving", inter.junction_id, args.algorithm)
     try:
-        service.run(idle_exit_s=args.idle_exit)
+        service.run(idle_exit_s=args.idle_exit, stats_path=stats_path)
     finally:
         service.close()
         session.close()
-        stats = service.stats.as_dict()
-        log.info("stopped: %s", json.dumps(stats))
-        if args.out:
-            write_stats(args.out / "ica.json", service.stats)
+        log.info("stopped: %s", json.dumps(service.stats.as_dict()))
+        if stats_path is not None:
+            write_stats(stats_path, service.stats)
     return 0
 
 
@@ -100,15 +121,21 @@ def cmd_agent(args: argparse.Namespace) -> int:
     from vehicle_agent.agent import Agent
 
     inter = intersection(args)
+    lead = None if args.lead == "auto" else _seconds(args.lead, "--lead", 0.0, 9.0)
+    _seconds(str(args.retry), "--retry", 0.05, 60.0)
+    try:
+        config = controller_config("enhanced", args.margin)
+    except ValueError as e:
+        raise UsageError(str(e)) from None
     session, log = _session(args, f"agent {args.id}")
     try:
         agent = Agent(
             session,
             args.id,
             inter,
-            controller_config("enhanced", args.margin),
+            config,
             retry_s=args.retry,
-            timeout_s=args.timeout,
+            lead_s=lead,
             log=log,
         )
     except KeyChunkError as e:
@@ -125,6 +152,16 @@ def cmd_agent(args: argparse.Namespace) -> int:
     return 0
 
 
+def _seconds(text: str, flag: str, lo: float, hi: float) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        raise UsageError(f"{flag} wants a number of seconds, got {text!r}") from None
+    if not lo <= x <= hi:
+        raise UsageError(f"{flag} must be between {lo:g} and {hi:g} s, got {x:g}")
+    return x
+
+
 # -- gateway -------------------------------------------------------------------
 def cmd_gateway(args: argparse.Namespace) -> int:
     from sim_gateway.gateway import ZenohDrivers, run_gateway
@@ -133,8 +170,14 @@ def cmd_gateway(args: argparse.Namespace) -> int:
 
     if args.algorithm in LIGHTS:
         raise UsageError("the cluster runs ICA controllers; run the light baselines with dica run")
-    if args.speed <= 0:
-        raise UsageError("--speed must be positive")
+    if not 0 < args.speed <= 100:
+        raise UsageError("--speed must be in (0, 100]")
+    if not 0.05 <= args.resend <= 30:
+        raise UsageError("--resend must be between 0.05 and 30 s")
+    if not 1 <= args.step_timeout <= 3600:
+        raise UsageError("--step-timeout must be between 1 and 3600 s")
+    if not 1 <= args.checkpoint_every <= 3600:
+        raise UsageError("--checkpoint-every must be between 1 and 3600 s")
     cfg, inter = run_config(args)
     out = args.out or Path("runs") / time.strftime("cluster-%Y%m%d-%H%M%S")
     session, log = _session(args, "gateway")
@@ -149,6 +192,7 @@ def cmd_gateway(args: argparse.Namespace) -> int:
             clock=args.clock,
             speed=args.speed,
             step_timeout_s=args.step_timeout,
+            resend_s=args.resend,
             log=log,
         )
     except RunError as e:
@@ -162,9 +206,13 @@ def cmd_gateway(args: argparse.Namespace) -> int:
             log.info("t=%.0f s  waiting=%d  crossed=%d", t, waiting, crossed)
             last[0] = t
 
+    def checkpoint(result, why: str | None) -> None:
+        write_outputs(out, cfg, result, mode="cluster", incomplete=why)
+
     try:
         result = run_gateway(session, cfg, inter, drivers, peers_timeout_s=args.peers_timeout,
-                             progress=tick)  # fmt: skip
+                             progress=tick, checkpoint=checkpoint,
+                             checkpoint_every_s=args.checkpoint_every)  # fmt: skip
     except RunError as e:
         log.error("%s", e)
         raise UsageError(str(e)) from None
@@ -226,8 +274,37 @@ def add_role_parsers(sub) -> None:
     add_net_args(i)
     i.add_argument("--algorithm", default="enhanced", help="basic, enhanced, t1..t4, fifo, ...")
     i.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
+    i.add_argument(
+        "--time-pad",
+        type=float,
+        default=0.0,
+        help="how far off its plan in time a vehicle may be [s]: every confirmed occupancy "
+        "interval is grown by it on each side (default 0: exact actuators, as in lockstep)",
+    )
+    i.add_argument(
+        "--max-age",
+        type=float,
+        default=1.0,
+        help="oldest observation a REQUEST may be planned from [sim s] (default 1)",
+    )
     i.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
-    i.add_argument("--out", type=Path, help="directory for ica.json (request statistics)")
+    i.add_argument(
+        "--out",
+        type=Path,
+        help="directory for ica.json (request statistics) and, unless --journal says "
+        "otherwise, the journal ica-journal.msgpack",
+    )
+    i.add_argument(
+        "--journal",
+        type=Path,
+        help="journal every detection, confirmation and cancel here before answering, and "
+        "replay it first if it exists (a restarted ICA keeps its promises)",
+    )
+    i.add_argument(
+        "--no-sync",
+        action="store_true",
+        help="do not fsync each journal record (faster, less safe)",
+    )
     i.add_argument("--idle-exit", type=float, help="stop after this many seconds without traffic")
     _add_link_args(i)
     i.set_defaults(func=cmd_ica)
@@ -243,8 +320,14 @@ def add_role_parsers(sub) -> None:
     a.add_argument("--id", required=True, help="this agent's name (letters, digits, _.:-+)")
     add_net_args(a)
     a.add_argument("--margin", type=float, default=0.25, help="the ICA's margin [m]")
-    a.add_argument("--retry", type=float, default=0.5, help="seconds before asking again")
-    a.add_argument("--timeout", type=float, default=1.0, help="query timeout [s wall]")
+    a.add_argument("--retry", type=float, default=0.5, help="sim seconds before asking again")
+    a.add_argument(
+        "--lead",
+        default="auto",
+        help="realtime: how far ahead of its observation a REQUEST's plan starts [sim s]; "
+        "auto (default) uses the measured round trip plus a margin. Lockstep always plans "
+        "from the observed state.",
+    )
     _add_link_args(a)
     a.set_defaults(func=cmd_agent)
 
@@ -291,6 +374,18 @@ def add_role_parsers(sub) -> None:
     g.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
     g.add_argument("--speed", type=float, default=1.0, help="realtime clock: x wall-clock speed")
     g.add_argument("--step-timeout", type=float, default=30.0, help="lockstep: wait per step [s]")
+    g.add_argument(
+        "--resend",
+        type=float,
+        default=0.5,
+        help="lockstep: send a STATE again after this many wall seconds without its COMMAND",
+    )
+    g.add_argument(
+        "--checkpoint-every",
+        type=float,
+        default=30.0,
+        help="write what the run knows (marked incomplete) every N sim seconds (default 30)",
+    )
     g.add_argument("--peers-timeout", type=float, default=60.0, help="wait for peers at start [s]")
     g.add_argument("--progress-every", type=float, default=30.0, help="log a line every N sim s")
     g.add_argument("--out", type=Path, help="output directory (default runs/cluster-TIMESTAMP)")

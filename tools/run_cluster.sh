@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
 # Start the whole cluster on this host: a Zenoh router, the ICA, the Rerun
 # observer, N vehicle agents and the SUMO gateway, each its own process with
-# its own log in RUN_DIR/logs/. Stops everything on Ctrl-C, at the end of the
-# run, or as soon as any process dies (then with a non-zero exit status and
-# the name of the process that died).
+# its own log in RUN_DIR/logs/, optionally behind a link emulator that delays,
+# loses, duplicates and reorders their messages. A role that crashes is
+# restarted (the ICA from its journal; a dead agent's vehicles go to the
+# others meanwhile) and the run goes on; the run ends when the gateway does.
+# Ctrl-C stops everything.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
@@ -15,7 +17,7 @@ usage: tools/run_cluster.sh [options] [-- extra gateway options]
 Runs one scenario end to end over Zenoh on loopback and writes metrics.json,
 vehicles.csv, timeseries.csv, ica.json and spacetime.rrd into the run directory.
 
-options:
+scenario and roles:
   --layout ch45|ch3     built-in intersection (default ch45)
   --net FILE --junction ID
                         any SUMO net instead
@@ -34,16 +36,45 @@ options:
                         as it is made; watch with: .venv/bin/dica view --live [--web]
   --secure              TLS, log-ins and per-role access rules on the router, with
                         fresh secrets in RUN_DIR/zenoh/ (see dica secure-config --help)
+
+imperfect links (a user-space emulator between the chosen roles and the router;
+change them while running with: dica link set RUN_DIR/link --role R --delay MS ...):
+  --delay MS            one-way delay on each faulty link (default 0)
+  --jitter MS           extra one-way delay, uniform in [0, MS] (default 0)
+  --loss P              probability a data message is lost (needs udp links)
+  --dup P               probability a data message is sent twice (udp)
+  --reorder P           probability a data message is held back behind later ones (udp)
+  --faulty ROLES        whose links: all (default), or a comma list of agents, ica,
+                        gateway, observer
+  --link tcp|udp        links through the emulator (default: udp if --loss, --dup or
+                        --reorder is set, else tcp)
+  --time-pad S          the ICA grows every confirmed occupancy interval by S on each
+                        side (default: 0 in lockstep; in realtime 0.05, or jitter/1000
+                        plus 0.05 if larger)
+  --lead auto|S         realtime: how far ahead of its observation a REQUEST's plan
+                        starts [sim s] (default auto: measured round trip plus margin)
+  --max-age S           the ICA refuses REQUESTs observed longer ago (default 1; in
+                        realtime with faults, 2 x (delay + jitter) x speed + 1 s)
+  --no-restart          a role that dies stops the cluster instead of being restarted
+
+other:
   --port P              router port on 127.0.0.1 (default: a free one)
   --out DIR             run directory (default runs/cluster-TIMESTAMP)
   -h, --help            this help
 
-View the recording afterwards with: .venv/bin/dica view RUN_DIR
+Each process's PID is in RUN_DIR/pids/NAME while it runs. View the recording
+afterwards with: .venv/bin/dica view RUN_DIR
 EOF
 }
 
+die() { echo "run_cluster: $*" >&2; exit 2; }
+number() { [[ "$2" =~ ^[0-9]+([.][0-9]+)?$ ]] || die "$1 wants a non-negative number, got '$2'"; }
+prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1 must be at most 0.9, got $2"; }
+
 layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
+delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all linkkind="" time_pad="" lead=auto
+max_age="" restart=1
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -61,6 +92,17 @@ while [ $# -gt 0 ]; do
     --no-record) record=0; shift ;;
     --live) live=(--live); shift ;;
     --secure) secure=1; shift ;;
+    --delay) delay="$2"; shift 2 ;;
+    --jitter) jitter="$2"; shift 2 ;;
+    --loss) loss="$2"; shift 2 ;;
+    --dup) dup="$2"; shift 2 ;;
+    --reorder) reorder="$2"; shift 2 ;;
+    --faulty) faulty="$2"; shift 2 ;;
+    --link) linkkind="$2"; shift 2 ;;
+    --time-pad) time_pad="$2"; shift 2 ;;
+    --lead) lead="$2"; shift 2 ;;
+    --max-age) max_age="$2"; shift 2 ;;
+    --no-restart) restart=0; shift ;;
     --port) port="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
@@ -68,7 +110,44 @@ while [ $# -gt 0 ]; do
     *) echo "run_cluster: unknown option $1 (see --help)" >&2; exit 2 ;;
   esac
 done
-case "$agents" in ''|*[!0-9]*|0) echo "run_cluster: --agents wants a positive integer" >&2; exit 2 ;; esac
+case "$agents" in ''|*[!0-9]*|0) die "--agents wants a positive integer" ;; esac
+case "$clock" in lockstep|realtime) ;; *) die "--clock must be lockstep or realtime" ;; esac
+number --delay "$delay"; number --jitter "$jitter"
+awk -v d="$delay" -v j="$jitter" 'BEGIN { exit !(d <= 10000 && j <= 10000) }' ||
+  die "--delay and --jitter must be at most 10000 ms"
+prob --loss "$loss"; prob --dup "$dup"; prob --reorder "$reorder"
+[ -z "$time_pad" ] || number --time-pad "$time_pad"
+[ -z "$max_age" ] || number --max-age "$max_age"
+[ "$lead" = auto ] || number --lead "$lead"
+[ -z "$port" ] || [[ "$port" =~ ^[0-9]+$ ]] || die "--port wants a port number"
+faulty_roles=()
+IFS=',' read -r -a parts <<< "$faulty"
+for r in "${parts[@]}"; do
+  case "$r" in
+    all) faulty_roles+=(agents ica gateway observer) ;;
+    agents|ica|gateway|observer) faulty_roles+=("$r") ;;
+    *) die "--faulty takes all or a comma list of agents, ica, gateway, observer; got '$r'" ;;
+  esac
+done
+lossy=$(awk -v a="$loss" -v b="$dup" -v c="$reorder" 'BEGIN { print (a + b + c > 0) ? 1 : 0 }')
+faults=$(awk -v a="$delay" -v b="$jitter" 'BEGIN { print (a + b > 0) ? 1 : 0 }')
+[ "$lossy" = 1 ] && faults=1
+if [ -z "$linkkind" ]; then linkkind=$([ "$lossy" = 1 ] && echo udp || echo tcp); fi
+case "$linkkind" in tcp|udp) ;; *) die "--link must be tcp or udp" ;; esac
+[ "$lossy" = 1 ] && [ "$linkkind" = tcp ] && die "--loss, --dup and --reorder need --link udp"
+[ "$secure" = 1 ] && [ "$linkkind" = udp ] && [ "$faults" = 1 ] &&
+  die "--secure speaks TLS, which needs tcp links: drop --loss/--dup/--reorder or --secure"
+if [ -z "$time_pad" ]; then
+  if [ "$clock" = realtime ]; then
+    time_pad=$(awk -v j="$jitter" 'BEGIN { p = j / 1000 + 0.05; printf "%.3f", p }')
+  else
+    time_pad=0
+  fi
+fi
+if [ -z "$max_age" ]; then
+  max_age=$(awk -v d="$delay" -v j="$jitter" -v s="$speed" \
+    'BEGIN { a = 2 * (d + j) / 1000 * s + 1; if (a > 30) a = 30; printf "%.3f", a }')
+fi
 
 bash tools/setup.sh
 dica=.venv/bin/dica
@@ -87,102 +166,179 @@ except ScenarioError as e:
     sys.exit(f'run_cluster: {e}')
 print(sc.net_path, sc.junction_id)" "$layout") || exit 2
 fi
-[ -n "$junction" ] || { echo "run_cluster: --net needs --junction" >&2; exit 2; }
-[ -f "$net" ] || { echo "run_cluster: no net file $net" >&2; exit 2; }
+[ -n "$junction" ] || die "--net needs --junction"
+[ -f "$net" ] || die "no net file $net"
 "$py" -c "import ica.core.dica"
 scen=(--net "$net" --junction "$junction")
 
 out="${out:-runs/cluster-$(date +%Y%m%d-%H%M%S)}"
-mkdir -p "$out/logs"
-if [ -z "$port" ]; then
-  port="$("$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
-fi
-endpoint="tcp/127.0.0.1:$port"
+mkdir -p "$out/logs" "$out/pids"
+free_port() { "$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
+free_udp_port() { "$py" -c 'import socket; s = socket.socket(type=socket.SOCK_DGRAM); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
+[ -n "$port" ] || port="$(free_port)"
+scheme=tcp
 router_conf=()
 if [ "$secure" = 1 ]; then
   "$dica" secure-config --force --out "$out/zenoh" >/dev/null
   router_conf=(--config "$out/zenoh/router.json5")
-  endpoint="tls/127.0.0.1:$port"
+  scheme=tls
 fi
-link=(--connect "$endpoint")
-link_for() {  # link_for ROLE: role_link = the options that connect ROLE to the router
-  role_link=("${link[@]}")
-  if [ "$secure" = 1 ]; then role_link=(--zenoh-config "$out/zenoh/$1.json5" "${link[@]}"); fi
-}
+listen="$scheme/127.0.0.1:$port"
+udp_port=""
+if [ "$faults" = 1 ] && [ "$linkkind" = udp ]; then
+  udp_port="$(free_udp_port)"
+  listen="$listen,udp/127.0.0.1:$udp_port"
+fi
 
-pids=() names=()
-start() {  # start NAME CMD...: own process group, own log
-  local name="$1"; shift
-  setsid "$@" >"$out/logs/$name.log" 2>&1 &
-  pids+=("$!"); names+=("$name")
+# the link emulator: one proxy per faulty process, faults per role in $out/link/faults.json
+is_faulty() { local r; for r in "${faulty_roles[@]}"; do [ "$r" = "$1" ] && return 0; done; return 1; }
+proxy_json=()
+declare -A endpoint=()
+route_through_link() {  # route_through_link NAME ROLE
+  local lp
+  if [ "$linkkind" = udp ]; then lp="$(free_udp_port)"; else lp="$(free_port)"; fi
+  local target=$([ "$linkkind" = udp ] && echo "$udp_port" || echo "$port")
+  proxy_json+=("{\"name\": \"$1\", \"role\": \"$2\", \"transport\": \"$linkkind\", \"listen_port\": $lp, \"router_port\": $target}")
+  endpoint[$1]="$([ "$linkkind" = udp ] && echo udp || echo "$scheme")/127.0.0.1:$lp"
 }
-name_of() {
-  local i
-  for i in "${!pids[@]}"; do [ "${pids[$i]}" = "$1" ] && { echo "${names[$i]}"; return; }; done
-  echo "pid $1"
+names_all=(ica gateway)
+[ "$record" = 1 ] && names_all+=(observer)
+for i in $(seq "$agents"); do names_all+=("agent-$i"); done
+for name in "${names_all[@]}"; do
+  role="$name"; [[ "$name" == agent-* ]] && role=agents
+  if [ "$faults" = 1 ] && is_faulty "$role"; then
+    route_through_link "$name" "$role"
+  else
+    endpoint[$name]="$scheme/127.0.0.1:$port"
+  fi
+done
+
+# -- processes: start, watch, restart ----------------------------------------------------
+declare -A pid_of=() cmd_of=() restarts=()
+order=()
+start() {  # start NAME CMD...: own process group, own log (appended across restarts)
+  local name="$1"; shift
+  cmd_of[$name]="$(printf '%q ' "$@")"
+  setsid "$@" >>"$out/logs/$name.log" 2>&1 &
+  pid_of[$name]=$!
+  echo "$!" > "$out/pids/$name"
+  [[ " ${order[*]} " == *" $name "* ]] || order+=("$name")
+}
+restart_role() {  # the same command again (the observer into a new .rrd, never over the old)
+  local name="$1" n="${restarts[$1]:-0}"
+  restarts[$name]=$((n + 1))
+  local cmd="${cmd_of[$name]}"
+  if [ "$name" = observer ]; then
+    cmd="${cmd//spacetime.rrd/spacetime.$((n + 1)).rrd}"
+    cmd="${cmd//spacetime.$n.rrd/spacetime.$((n + 1)).rrd}"
+  fi
+  echo "$(date +%H:%M:%S) restarting $name (restart $((n + 1)))" >> "$out/logs/restarts.log"
+  echo "run_cluster: $name died; restarting it (restart $((n + 1)))" >&2
+  eval "setsid $cmd >>\"$out/logs/$name.log\" 2>&1 &"
+  pid_of[$name]=$!
+  echo "$!" > "$out/pids/$name"
+  cmd_of[$name]="$cmd"
 }
 alive() { kill -0 "$1" 2>/dev/null; }
 stop_all() {  # reverse start order: TERM each group, then KILL what is left after a grace
-  local i pid deadline
+  local i name pid deadline
   [ -n "${tail_pid:-}" ] && kill -TERM -- "-$tail_pid" 2>/dev/null || true
-  for ((i = ${#pids[@]} - 1; i >= 0; i--)); do
-    pid="${pids[$i]}"; alive "$pid" && kill -TERM -- "-$pid" 2>/dev/null || true
+  for ((i = ${#order[@]} - 1; i >= 0; i--)); do
+    pid="${pid_of[${order[$i]}]}"; alive "$pid" && kill -TERM -- "-$pid" 2>/dev/null || true
   done
   deadline=$((SECONDS + 10))
-  for pid in "${pids[@]}"; do
+  for name in "${order[@]}"; do
+    pid="${pid_of[$name]}"
     while alive "$pid" && [ "$SECONDS" -lt "$deadline" ]; do sleep 0.1; done
     alive "$pid" && kill -KILL -- "-$pid" 2>/dev/null || true
   done
-  wait "${pids[@]}" 2>/dev/null || true
+  wait 2>/dev/null || true
+  rm -f "$out"/pids/*
 }
 trap stop_all EXIT
 trap 'echo "run_cluster: interrupted, stopping all processes" >&2; exit 130' INT TERM
 
-start router "$dica" router "${router_conf[@]}" --listen "$endpoint"
-for _ in $(seq 100); do
-  grep -q '^ready' "$out/logs/router.log" 2>/dev/null && break
-  alive "${pids[0]}" || { echo "run_cluster: the router died:" >&2; tail -n 5 "$out/logs/router.log" >&2; exit 1; }
-  sleep 0.1
-done
-link_for ica
-start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" "${role_link[@]}"
+wait_ready() {  # wait_ready NAME: its log says ready
+  for _ in $(seq 100); do
+    grep -q '^ready' "$out/logs/$1.log" 2>/dev/null && return 0
+    alive "${pid_of[$1]}" || { echo "run_cluster: the $1 died:" >&2; tail -n 5 "$out/logs/$1.log" >&2; exit 1; }
+    sleep 0.1
+  done
+  die "the $1 did not start"
+}
+
+start router "$dica" router "${router_conf[@]}" --listen "$listen"
+wait_ready router
+if [ "${#proxy_json[@]}" -gt 0 ]; then
+  mkdir -p "$out/link"
+  { echo "{\"seed\": $seed, \"proxies\": ["; (IFS=','; echo "${proxy_json[*]}"); echo "]}"; } > "$out/link/spec.json"
+  "$py" - "$out/link/faults.json" "$delay" "$jitter" "$loss" "$dup" "$reorder" "${faulty_roles[@]}" <<'PY'
+import sys
+from pathlib import Path
+from tools.linkem import Faults, write_profile
+path, d, j, l, du, r, *roles = sys.argv[1:]
+f = Faults(float(d), float(j), float(l), float(du), float(r))
+write_profile(Path(path), {role: f for role in roles})
+PY
+  start link "$dica" link serve "$out/link"
+  wait_ready link
+fi
+link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to the router
+  role_link=(--connect "${endpoint[$1]}")
+  if [ "$secure" = 1 ]; then role_link=(--zenoh-config "$out/zenoh/$2.json5" "${role_link[@]}"); fi
+}
+link_for ica ica
+start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" \
+  --time-pad "$time_pad" --max-age "$max_age" "${role_link[@]}"
 if [ "$record" = 1 ]; then
-  link_for observer
+  link_for observer observer
   start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" "${live[@]}" "${role_link[@]}"
 fi
-link_for agent
 for i in $(seq "$agents"); do
-  start "agent-$i" "$dica" agent --id "agent-$i" "${scen[@]}" "${role_link[@]}"
+  link_for "agent-$i" agent
+  start "agent-$i" "$dica" agent --id "agent-$i" "${scen[@]}" --lead "$lead" "${role_link[@]}"
 done
-link_for gateway
+link_for gateway gateway
 start gateway "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$volume" \
   --duration "$duration" --seed "$seed" --agents "$agents" --per-agent "$per_agent" \
-  --clock "$clock" --speed "$speed" --observers "$record" --out "$out" "${role_link[@]}" \
-  "${extra[@]}"
-gateway_pid="${pids[-1]}"
-echo "run_cluster: router on $endpoint; ${#pids[@]} processes; logs in $out/logs/"
+  --clock "$clock" --speed "$speed" --observers "$record" --time-pad "$time_pad" \
+  --out "$out" "${role_link[@]}" "${extra[@]}"
+gateway_pid="${pid_of[gateway]}"
+echo "run_cluster: router on tcp/127.0.0.1:$port; ${#order[@]} processes; logs in $out/logs/"
+if [ "$faults" = 1 ]; then
+  echo "run_cluster: links of ${faulty_roles[*]} via $linkkind: delay ${delay} ms, jitter ${jitter} ms, loss $loss, dup $dup, reorder $reorder (dica link set $out/link ...)"
+fi
 
 # progress: the gateway's own lines, as they come (own process group: stopped as one)
-setsid bash -c 'tail -n +1 -F "$1" 2>/dev/null | grep --line-buffered -E "t=|ICA and|ERROR"' \
+setsid bash -c 'tail -n +1 -F "$1" 2>/dev/null | grep --line-buffered -E "t=|ICA and|ERROR|is gone|is back"' \
   _ "$out/logs/gateway.log" &
 tail_pid=$!
 
 # the gateway finishing is the normal end; roles that stop cleanly on the clock's end
-# (exit 0) may go first; any other exit stops the cluster
-running=("${pids[@]}")
+# (exit 0) may go first; any other exit is a crash: restart the role (up to 5 times)
+status=0
 while :; do
-  status=0
-  wait -n -p died "${running[@]}" || status=$?
-  [ "$died" = "$gateway_pid" ] && break
-  if [ "$status" != 0 ]; then
-    kill -TERM -- "-$tail_pid" 2>/dev/null || true
-    echo "run_cluster: process $(name_of "$died") died (exit status $status); stopping the cluster" >&2
-    tail -n 5 "$out/logs/$(name_of "$died").log" >&2 || true
-    exit 1
+  running=()
+  for name in "${order[@]}"; do
+    pid="${pid_of[$name]}"
+    [ -n "$pid" ] && running+=("$pid")
+  done
+  st=0
+  wait -n -p died "${running[@]}" || st=$?
+  if [ "$died" = "$gateway_pid" ]; then status=$st; break; fi
+  dead_name=""
+  for name in "${order[@]}"; do [ "${pid_of[$name]}" = "$died" ] && dead_name="$name"; done
+  [ -n "$dead_name" ] || continue
+  if [ "$st" = 0 ]; then pid_of[$dead_name]=""; rm -f "$out/pids/$dead_name"; continue; fi
+  if [ "$restart" = 1 ] && [ "${restarts[$dead_name]:-0}" -lt 5 ] && alive "$gateway_pid"; then
+    tail -n 3 "$out/logs/$dead_name.log" >&2 || true
+    restart_role "$dead_name"
+    continue
   fi
-  rest=()
-  for pid in "${running[@]}"; do [ "$pid" != "$died" ] && rest+=("$pid"); done
-  running=("${rest[@]}")
+  kill -TERM -- "-$tail_pid" 2>/dev/null || true
+  echo "run_cluster: process $dead_name died (exit status $st); stopping the cluster" >&2
+  tail -n 5 "$out/logs/$dead_name.log" >&2 || true
+  exit 1
 done
 kill -TERM -- "-$tail_pid" 2>/dev/null || true
 if [ ! -f "$out/metrics.json" ]; then
@@ -192,12 +348,17 @@ if [ ! -f "$out/metrics.json" ]; then
 fi
 # the run is over: the ICA, the agents and the observer stop on the clock's end
 deadline=$((SECONDS + 120))
-for pid in "${pids[@]}"; do
-  [ "$pid" = "${pids[0]}" ] && continue  # the router goes last
+for name in "${order[@]}"; do
+  case "$name" in router|link) continue ;; esac  # these go last
+  pid="${pid_of[$name]}"
+  [ -n "$pid" ] || continue
   while alive "$pid" && [ "$SECONDS" -lt "$deadline" ]; do sleep 0.2; done
 done
 echo
 sed -n '/generated, /,$p' "$out/logs/gateway.log"
+if [ -s "$out/logs/restarts.log" ]; then
+  echo "run_cluster: restarts:"; sed 's/^/  /' "$out/logs/restarts.log"
+fi
 echo "run_cluster: metrics  $out/metrics.json"
 [ "$record" = 1 ] && echo "run_cluster: rerun    $out/spacetime.rrd  (view: .venv/bin/dica view $out)"
 echo "run_cluster: logs     $out/logs/"

@@ -2,28 +2,35 @@
 
     approaching -> requesting -> confirmed -> crossing -> exited
 
-*approaching*: upstream of the communication region; SUMO's driver drives.
-*requesting*: detected at the region's entry line (the vehicle announces
-itself with a DETECT). While it has no confirmation it brakes so that its
-front stops before the junction's entry line, and when it is head of its lane
-it sends a REQUEST (again ``retry_s`` after a rejection, or the next step
-after NOT_HEAD). *confirmed*: it flies the confirmed TSS exactly (SUMO speed
-mode 32: SUMO's own checks off, so it does not yield inside the junction).
-*crossing*: its front has passed the entry line. *exited*: its rear has left
-the junction; it is handed back to SUMO's driver.
+*approaching*: not yet announced; once it has crossed the communication
+region's entry line it sends a DETECT. *requesting*: without a plan it may
+fly, the vehicle's own control stops it short of the junction's entry line
+(:mod:`vehicle_agent.control`, run at the actuator every step, no message
+needed); when it is head of its lane it sends a REQUEST (again ``retry_s``
+after a rejection, half a step after NOT_HEAD). The REQUEST plans from a start
+``lead_s`` ahead of the observed state, from where the stop law will have
+taken the vehicle by then, so that an answer that takes a while still arrives
+before its plan begins. A confirmation goes to the actuator, which flies it by
+position only if it arrives before its start; the next observation says
+whether it did (*confirmed*) or refused it as late, in which case the vehicle
+cancels it and asks again under a new sequence number. *crossing*: its front
+has passed the entry line. *exited*: its rear has left the junction (the
+actuator hands it back to SUMO's driver by itself).
 
 The machine does no I/O: it reads one observation per step, talks to the ICA
 through an :class:`IcaLink` (in-process in the embedded runner, Zenoh queries
-in a vehicle-agent process) and returns the setpoint for its actuator. The
-same code runs in both, so the two modes make the same decisions.
+in a vehicle-agent process) and returns what its actuator must be told. A
+link may answer at once or later (``PENDING``; the answer then comes through
+:meth:`Vehicle.answered`). The same code runs in both modes, so they make the
+same decisions.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import StrEnum
-from typing import Protocol
+from typing import Final, Protocol
 
 import numpy as np
 
@@ -31,12 +38,28 @@ from ica.core.config import IcaConfig
 from ica.core.proposal import propose
 from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from ica.core.route import Route
+from vehicle_agent.control import predict_stop
 
-STOP_DECEL_MPS2 = 4.0  # [m/s^2] braking an unconfirmed vehicle plans with (below SUMO's 4.5)
-MODE_CONFIRMED = 32  # SUMO speed mode: obey the commanded speed, no own checks
+MODE_CONFIRMED = 32  # SUMO speed mode while flying a plan: obey the speed, no own checks
 MODE_DEFAULT = 31  # SUMO's default checks
+# stopping short of the line (vehicle_agent.control): the head of a lane by its own stop law
+# alone (SUMO keeps only its acceleration limits), a queued vehicle also by SUMO's
+# car-following, but never by SUMO's right-of-way logic at the junction ahead
+MODE_HEAD = 6
+MODE_QUEUED = 7
 RELEASE = -1.0  # a commanded speed of -1 gives the vehicle back to SUMO
 BIG = 1e9  # [s] "never" for wake_s
+NO_PLAN = -1  # plan sequence number meaning "none"
+
+
+class _Pending:
+    """The answer is on its way (an asynchronous link); see :meth:`Vehicle.answered`."""
+
+    def __repr__(self) -> str:
+        return "PENDING"
+
+
+PENDING: Final = _Pending()
 
 
 class Phase(StrEnum):
@@ -50,9 +73,11 @@ class Phase(StrEnum):
 class IcaLink(Protocol):
     """How a vehicle reaches its ICA."""
 
-    def detect(self, vin: str, lane: str, t_s: float) -> Rejection | None: ...
+    def detect(self, vin: str, lane: str, t_s: float) -> Rejection | _Pending | None: ...
 
-    def request(self, req: Request, now_s: float) -> Confirmation | Rejection: ...
+    def request(self, req: Request, now_s: float) -> Confirmation | Rejection | _Pending: ...
+
+    def cancel(self, vin: str, seq: int) -> None: ...
 
 
 @dataclass(frozen=True, slots=True)
@@ -66,19 +91,29 @@ class Observation:
     head: bool  # no vehicle ahead on the incoming lane
     detected_s: float  # when it crossed the region's entry line; NaN before
     exited: bool  # rear out of the junction
+    plan_seq: int = NO_PLAN  # the plan the actuator holds (waiting for its start, or flying)
+    refused_seq: int = NO_PLAN  # the last plan the actuator refused because it came too late
 
 
 @dataclass(frozen=True, slots=True, eq=False)
 class Command:
-    """Speeds from ``t0_s``, one per step (the last holds); -1 releases to SUMO."""
+    """What the actuator is told: a plan to fly by position, and when to wake the vehicle.
+
+    ``s_m`` are route positions [m] (0 at the entry line), one per step from
+    ``t0_s``; empty when there is no new plan. ``wake_s`` is when the vehicle
+    may next talk to the ICA (DETECT or REQUEST): -BIG at once, BIG never; a
+    lockstep gateway uses it to keep the order of ICA contacts across agents.
+    """
 
     vin: str
-    t0_s: float
-    speeds: np.ndarray
-    speed_mode: int = -1  # SUMO speed mode to switch to first; -1 keeps the current
-    # when the vehicle may next talk to the ICA (DETECT or REQUEST): -BIG at once,
-    # BIG never; lets a lockstep gateway keep the order of ICA contacts across agents
+    seq: int = NO_PLAN
+    t0_s: float = math.nan
+    s_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     wake_s: float = BIG
+
+    @property
+    def has_plan(self) -> bool:
+        return self.seq != NO_PLAN and len(self.s_m) > 0
 
 
 @dataclass(slots=True)
@@ -90,90 +125,168 @@ class Vehicle:
     max_speed_mps: float  # the speed it entered with and would keep when free
     config: IcaConfig
     retry_s: float = 0.5
+    lead_s: float = 0.0  # [s] how far ahead of its observation a REQUEST's plan starts
     phase: Phase = Phase.APPROACHING
-    seq: int = 0
     next_request_s: float = 0.0
-    confirmation: Confirmation | None = None
+    last_seq: int = NO_PLAN  # the newest REQUEST sent; only its answer counts
+    pending: bool = False  # a REQUEST or DETECT awaits its answer
+    held: Command | None = None  # a plan sent to the actuator, its verdict not yet seen
+    confirmation: Confirmation | None = None  # the plan the actuator flies
     rejections: dict[str, int] = field(default_factory=dict)
-    brake_steps: int = 1  # length of an unconfirmed vehicle's braking profile (see _brake)
+    _answer: Confirmation | None = None  # the confirmation behind ``held``
 
     def step(self, obs: Observation, link: IcaLink) -> Command | None:
-        """Advance one step; the command for the actuator, or None to keep the last."""
-        if self.phase is Phase.APPROACHING:
-            if math.isnan(obs.detected_s):
-                return None
-            rej = link.detect(self.vin, self.route.in_lane, obs.detected_s)
-            if rej is not None:
-                self._count(rej.reason.value)
-                return self._brake(obs, wake_s=-BIG)  # announce again next step; never enter
-            self.phase = Phase.REQUESTING
-        if self.phase is Phase.REQUESTING:
-            if obs.t_s >= self.next_request_s and obs.head:
-                command = self._request(obs, link)
-                if command is not None:
-                    return command
-            return self._brake(obs, wake_s=self.next_request_s)
+        """Advance one step; what the actuator must be told, or None for nothing new."""
         if obs.exited:
             self.phase = Phase.EXITED
-            return Command(self.vin, obs.t_s, np.array([RELEASE]), MODE_DEFAULT)
-        if self.phase is Phase.CONFIRMED and obs.lane != self.route.in_lane:
-            self.phase = Phase.CROSSING
+            return None
+        if self.held is not None and (verdict := self._verdict(obs, link)) is not None:
+            return verdict
+        cmd = None
+        if self.phase is Phase.APPROACHING:
+            if math.isnan(obs.detected_s) or self.pending:
+                return None
+            rej = link.detect(self.vin, self.route.in_lane, obs.detected_s)
+            if rej is PENDING:
+                self.pending = True
+                return None
+            cmd = self.detected(rej, obs.t_s)
+            if self.phase is not Phase.REQUESTING:
+                return cmd
+        if self.phase is Phase.REQUESTING:
+            if (
+                self.held is None
+                and not self.pending
+                and obs.t_s >= self.next_request_s
+                and obs.head
+            ):
+                return self._request(obs, link)
+            return cmd
+        if self.phase is Phase.CONFIRMED:
+            if obs.lane != self.route.in_lane:
+                self.phase = Phase.CROSSING
+            elif obs.plan_seq == NO_PLAN:  # the actuator dropped it (taken over from another agent)
+                return self._unflown(self.last_seq, obs, link)
         return None
+
+    def detected(self, rej: Rejection | None, now_s: float) -> Command | None:
+        """The ICA's answer to this vehicle's DETECT (None: accepted)."""
+        self.pending = False
+        if self.phase is not Phase.APPROACHING:
+            return None
+        if rej is not None:
+            self._count(rej.reason.value)
+            return Command(self.vin, wake_s=-BIG)  # announce again next step; never enter
+        self.phase = Phase.REQUESTING
+        return Command(self.vin, wake_s=self.next_request_s)  # it may ask once head
+
+    def answered(self, answer: Confirmation | Rejection, now_s: float) -> Command | None:
+        """The ICA's answer to a REQUEST; answers to any but the newest are stale."""
+        if answer.seq != self.last_seq or self.phase is not Phase.REQUESTING:
+            return None
+        if self.held is not None:  # a repeat of the answer already taken
+            return None
+        self.pending = False
+        if isinstance(answer, Confirmation):
+            tss = answer.tss
+            s, _ = self.route.project(np.stack([tss.x_m, tss.y_m], -1))
+            self._answer = answer
+            self.held = Command(
+                self.vin, answer.seq, float(tss.t_s[0]), np.maximum.accumulate(s), BIG
+            )
+            return self.held
+        self._count(answer.reason.value)
+        if answer.reason is Reason.NOT_DETECTED:  # the ICA lost track of it: announce again
+            self.phase = Phase.APPROACHING
+            return Command(self.vin, wake_s=-BIG)
+        if answer.reason is Reason.NO_ANSWER:
+            wait = self.config.step_s  # the query has waited its timeout already
+        elif answer.reason is Reason.NOT_HEAD:
+            wait = self.config.step_s / 2  # the lane's order is about to change
+        else:
+            wait = self.retry_s
+        self.next_request_s = now_s + wait
+        return Command(self.vin, wake_s=self.next_request_s)
+
+    def _verdict(self, obs: Observation, link: IcaLink) -> Command | None:
+        """Whether the actuator flies the held plan, or it never will.
+
+        Taken is not flown: an actuator that took a plan still refuses it at
+        its start if the vehicle is not where the plan begins. Once the start
+        has passed, the actuator either flies it or never will.
+        """
+        held = self.held
+        assert held is not None
+        started = obs.t_s > held.t0_s + 1e-6
+        if obs.refused_seq == held.seq or (started and obs.plan_seq != held.seq):
+            return self._unflown(held.seq, obs, link)
+        if started:
+            self.confirmation = self._answer
+            self.held = None
+            self.phase = Phase.CONFIRMED if obs.lane == self.route.in_lane else Phase.CROSSING
+        return None
+
+    def _unflown(self, seq: int, obs: Observation, link: IcaLink) -> Command:
+        """Never flown, and it never will be: free the reservation and ask again."""
+        self._count("unflown")
+        self.held = None
+        self._answer = None
+        self.confirmation = None
+        self.phase = Phase.REQUESTING
+        link.cancel(self.vin, seq)
+        self.next_request_s = obs.t_s
+        return Command(self.vin, wake_s=obs.t_s)
 
     def _request(self, obs: Observation, link: IcaLink) -> Command | None:
         cfg = self.config
+        h = cfg.step_s
+        lead = max(round(self.lead_s / h), 0)
+        d, v = max(obs.dist_to_entry_m, 0.0), obs.speed_mps
+        if lead:
+            kin = cfg.kinematics
+            d, v = predict_stop(
+                d,
+                v,
+                lead,
+                gap_m=kin.stop_gap_m,
+                cap_mps=min(self.max_speed_mps, v),  # a head vehicle does not speed up
+                h=h,
+                accel_mps2=kin.accel_mps2,
+                decel_mps2=kin.decel_mps2,
+            )
+        # sequence numbers grow with the step observed, so a vehicle handed to another
+        # agent still asks under numbers higher than any it asked under before
+        seq = max(self.last_seq + 1, round(obs.t_s / h))
+        self.last_seq = seq
         try:
             req = propose(
                 self.route,
                 vin=self.vin,
-                seq=self.seq,
-                t0_s=obs.t_s,
-                dist_to_entry_m=max(obs.dist_to_entry_m, 0.0),
-                speed_mps=obs.speed_mps,
+                seq=seq,
+                t0_s=obs.t_s + lead * h,
+                dist_to_entry_m=max(d, 0.0),
+                speed_mps=v,
                 length_m=self.length_m,
                 width_m=self.width_m,
                 config=cfg,
             )
-            answer = link.request(req, obs.t_s)
+            answer = link.request(replace(req, t_obs_s=obs.t_s), obs.t_s)
         except RequestError as e:  # cannot even make a plan: stop and ask later
-            answer = Rejection(self.vin, self.seq, e.reason, e.detail)
-        if not (isinstance(answer, Rejection) and answer.reason is Reason.NO_ANSWER):
-            self.seq += 1  # unanswered: ask again under the same number (never two reservations)
-        if isinstance(answer, Confirmation):
-            self.confirmation = answer
-            self.phase = Phase.CONFIRMED
-            tss = answer.tss
-            s, _ = self.route.project(np.stack([tss.x_m, tss.y_m], -1))
-            speeds = np.diff(np.maximum.accumulate(s)) / cfg.step_s
-            return Command(self.vin, float(tss.t_s[0]), speeds, MODE_CONFIRMED)
-        self._count(answer.reason.value)
-        # NOT_HEAD: the lane's order is about to change (the vehicle ahead is entering)
-        wait = cfg.step_s / 2 if answer.reason is Reason.NOT_HEAD else self.retry_s
-        self.next_request_s = obs.t_s + wait
-        return None
+            answer = Rejection(self.vin, seq, e.reason, e.detail)
+        if answer is PENDING:
+            self.pending = True
+            return None
+        return self.answered(answer, obs.t_s)
 
-    def _brake(self, obs: Observation, wake_s: float) -> Command:
-        """Speeds that keep the front short of the entry line (SUMO's discrete stop rule).
+    def adopt(self, obs: Observation) -> None:
+        """Take over a vehicle from another agent, in the phase its actuator says it is."""
+        if obs.plan_seq != NO_PLAN:
+            self.phase = Phase.CONFIRMED if obs.lane == self.route.in_lane else Phase.CROSSING
+            self.last_seq = obs.plan_seq
 
-        The first is for the coming step; with ``brake_steps`` > 1 the profile
-        goes on as if each speed were flown, so an actuator that hears nothing
-        new (a late message) keeps braking instead of holding its speed.
-        """
-        cfg = self.config
-        room = max(obs.dist_to_entry_m - cfg.kinematics.stop_gap_m, 0.0)
-        b = STOP_DECEL_MPS2
-        h = cfg.step_s
-        cap = self.max_speed_mps
-        speeds = []
-        for _ in range(self.brake_steps):
-            v_stop = math.sqrt(2 * b * room + (b * h / 2) ** 2) - b * h / 2
-            v = max(0.0, min(cap, v_stop, room / h))
-            speeds.append(v)
-            if v == 0.0:
-                break
-            room = max(room - v * h, 0.0)
-            cap = v
-        return Command(self.vin, obs.t_s, np.array(speeds), wake_s=wake_s)
+    def resend(self) -> Command | None:
+        """The held plan again (for a link that may have lost it), while it can be flown."""
+        return self.held
 
     def _count(self, reason: str) -> None:
         self.rejections[reason] = self.rejections.get(reason, 0) + 1

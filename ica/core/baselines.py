@@ -118,11 +118,8 @@ class Tiles(Dica):
         out.sort(key=lambda c: c.first_time_s)
         return out
 
-    def advance(self, now_s: float) -> list[str]:
-        gone = super().advance(now_s)
-        for vin in gone:
-            self._tiles.pop(vin, None)
-        return gone
+    def _forget(self, vin: str) -> None:
+        self._tiles.pop(vin, None)
 
 
 BASELINES = ("fifo", "concurrent", "tiles")
@@ -141,10 +138,12 @@ def make_controller(
     return Dica(intersection, config)
 
 
-def controller_config(algorithm: str, margin_m: float) -> IcaConfig:
-    """The ICA settings for a controller name: a DICA variant's techniques, else enhanced."""
+def controller_config(algorithm: str, margin_m: float, time_pad_s: float = 0.0) -> IcaConfig:
+    """The ICA settings for a controller name: a DICA variant's techniques, else enhanced.
+
+    Raises ValueError for settings out of range (see :class:`IcaConfig`)."""
     try:
         techniques = Techniques.parse(algorithm)
     except ValueError:
         techniques = ENHANCED  # baselines and lights keep the enhanced machinery underneath
-    return IcaConfig(techniques=techniques, margin_m=margin_m)
+    return IcaConfig(techniques=techniques, margin_m=margin_m, time_pad_s=time_pad_s)

@@ -74,12 +74,22 @@ class IcaConfig:
     heading_tol_rad: float = 0.2
     speed_tol_mps: float = 0.05
     accel_tol_mps2: float = 0.1
-    max_request_age_s: float = 1.0
+    max_request_age_s: float = 1.0  # [s] oldest observation a REQUEST may be planned from
+    max_lead_s: float = 10.0  # [s] furthest ahead of its observation a plan may start
+    # [s] how far off its plan in time a vehicle may be (tracking error, late
+    # actuation): every confirmed occupancy interval is grown by it on each side
+    time_pad_s: float = 0.0
     max_iterations: int = 2000
     max_wait_s: float = 300.0
 
     def __post_init__(self) -> None:
         if not (0 < self.step_s <= 1.0):
             raise ValueError("step_s must be in (0, 1] seconds")
-        if self.margin_m < 0:
-            raise ValueError("margin_m must not be negative")
+        if not 0.0 <= self.margin_m <= 5.0:
+            raise ValueError("margin_m must be between 0 and 5 m")
+        if not 0.0 <= self.time_pad_s <= 5.0:
+            raise ValueError("time_pad_s must be between 0 and 5 s")
+        if not 0.0 < self.max_request_age_s <= 60.0:
+            raise ValueError("max_request_age_s must be in (0, 60] s")
+        if not 0.0 <= self.max_lead_s <= 60.0:
+            raise ValueError("max_lead_s must be between 0 and 60 s")

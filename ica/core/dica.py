@@ -13,10 +13,23 @@ before it.
 The class keeps the ICA's state: per-lane order of detected vehicles (to tell
 head vehicles), the confirmed set and the answers already given (a repeated
 request gets the same answer, never a second reservation). It does no I/O.
+
+Over a real link a confirmation can reach its vehicle too late to be flown.
+The vehicle then keeps stopping short of the line and asks again under a
+higher sequence number, or cancels: either frees the unflown reservation
+(until then it only blocks others, which is safe). Since the ICA cannot see
+whether a vehicle flew its plan, a vehicle stays in its lane's queue until
+its reservation ends, and the queue is ordered by the time each vehicle
+crossed the region's entry line, so a vehicle that asks again (or announces
+itself again) finds its place at the front. Every occupancy of a confirmed
+vehicle can be padded in time by the declared tracking and latency bound
+(``IcaConfig.time_pad_s``), the dissertation's remedy for imperfect links.
 """
 
 from __future__ import annotations
 
+import bisect
+import dataclasses
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -47,9 +60,21 @@ from ica.core.zones import ConflictTables, RouteGrid, Shape
 @dataclass(frozen=True, slots=True, eq=False)
 class Confirmed:
     vin: str
-    dtot: Dtot
+    dtot: Dtot  # intervals padded by 2 x time_pad_s: conflicts are judged against this
     confirmation: Confirmation
     packed: np.ndarray  # the DTOT's occupancies as rows for the batched getCV (pack)
+
+
+def padded(dtot: Dtot, pad_s: float) -> Dtot:
+    """The DTOT with every occupancy time interval grown by ``pad_s`` on each side.
+
+    If each of two vehicles keeps within ``delta`` seconds of its plan, their
+    occupancies can only meet when the intervals grown by ``delta`` overlap;
+    growing the stored (confirmed) side by ``2 delta`` tests exactly that.
+    """
+    if pad_s == 0.0:
+        return dtot
+    return dataclasses.replace(dtot, lb_s=dtot.lb_s - pad_s, ub_s=dtot.ub_s + pad_s)
 
 
 _NO_SAMPLES = np.zeros(0)
@@ -77,10 +102,14 @@ class Dica:
         self.tables = tables or ConflictTables(intersection, self.config.margin_m)
         self.tables.precompute(Shape.of(5.0, 1.8))
         self._confirmed: dict[str, Confirmed] = {}
-        self._lanes: dict[str, list[str]] = {lane: [] for lane in intersection.in_lanes}
+        # per lane, the detected vehicles in the order they crossed the region's
+        # entry line, as (detection time, arrival count, vin); a vehicle leaves its
+        # queue only when its reservation ends (the ICA cannot see that it flew it)
+        self._lanes: dict[str, list[tuple[float, int, str]]] = {
+            lane: [] for lane in intersection.in_lanes
+        }
         self._lane_of: dict[str, str] = {}
-        self._entered: set[str] = set()
-        self._lane_tail: dict[str, str] = {}  # last vehicle confirmed from each lane
+        self._arrivals = 0
         # the confirmed set's occupancy rows end to end, and as seen from one
         # requester route and shape; any change to the confirmed set bumps the version
         self._rows = ConfirmedRows()
@@ -105,25 +134,42 @@ class Dica:
             if self._lane_of[vin] == lane:
                 return  # a repeated detection
             raise RequestError(Reason.BAD_STATE, f"{vin} already detected on {self._lane_of[vin]}")
-        self._lanes[lane].append(vin)
+        if not math.isfinite(t_s):
+            raise RequestError(Reason.NOT_FINITE, f"detection time of {vin} is not finite")
+        self._arrivals += 1
+        bisect.insort(self._lanes[lane], (t_s, self._arrivals, vin))
         self._lane_of[vin] = lane
 
     def advance(self, now_s: float) -> list[str]:
-        """Move the ICA's clock: note who has entered, forget who has left."""
-        for vin, c in self._confirmed.items():
-            if vin not in self._entered and c.confirmation.entry_time_s <= now_s:
-                self._entered.add(vin)
-                lane = self._lane_of.pop(vin, None)
-                if lane is not None:
-                    self._lanes[lane].remove(vin)
+        """Move the ICA's clock: forget who has left (their reservation has ended)."""
         gone = [vin for vin, c in self._confirmed.items() if c.dtot.end_s < now_s]
         for vin in gone:
-            del self._confirmed[vin]
-            self._rows.remove(vin)
-            self._entered.discard(vin)
-        if gone:
-            self._version += 1
+            self._withdraw(vin)
+            lane = self._lane_of.pop(vin, None)
+            if lane is not None:
+                self._lanes[lane] = [e for e in self._lanes[lane] if e[2] != vin]
         return gone
+
+    def cancel(self, vin: str, seq: int) -> bool:
+        """The vehicle will not fly confirmation ``seq``: free its reservation.
+
+        It keeps its place in its lane's queue (it is still there, short of
+        the line). False if the ICA holds no such confirmation.
+        """
+        done = self._confirmed.get(vin)
+        if done is None or done.confirmation.seq != seq:
+            return False
+        self._withdraw(vin)
+        return True
+
+    def _withdraw(self, vin: str) -> None:
+        del self._confirmed[vin]
+        self._rows.remove(vin)
+        self._version += 1
+        self._forget(vin)
+
+    def _forget(self, vin: str) -> None:
+        """A confirmation left the set; controllers with per-vehicle caches extend this."""
 
     def adopt(
         self, confirmation: Confirmation, length_m: float, width_m: float, in_lane: str
@@ -146,6 +192,7 @@ class Dica:
         dtot = build_dtot(
             route, shape, traj, self.config.margin_m, grid, self.config.techniques.estimated_oti
         )
+        dtot = padded(dtot, 2.0 * self.config.time_pad_s)
         done = Confirmed(confirmation.vin, dtot, confirmation, pack(dtot))
         if confirmation.vin in self._confirmed:  # replaced in place: keep the set's order
             self._confirmed[confirmation.vin] = done
@@ -156,13 +203,13 @@ class Dica:
             self._confirmed[confirmation.vin] = done
             self._rows.add(confirmation.vin, dtot, done.packed)
         self._version += 1
-        self._lane_tail[in_lane] = confirmation.vin
 
     def is_head(self, vin: str, now_s: float) -> bool:
+        """Every vehicle ahead of ``vin`` in its lane is confirmed and has begun to enter."""
         lane = self._lane_of.get(vin)
         if lane is None:
             return False
-        for ahead in self._lanes[lane]:
+        for _, _, ahead in self._lanes[lane]:
             if ahead == vin:
                 return True
             c = self._confirmed.get(ahead)
@@ -171,6 +218,15 @@ class Dica:
             if c.confirmation.entry_time_s > now_s:
                 return False
         return False
+
+    def _leader(self, vin: str, lane: str) -> Confirmed | None:
+        """The nearest confirmed vehicle ahead of ``vin`` in its lane (kept clear of)."""
+        leader = None
+        for _, _, ahead in self._lanes[lane]:
+            if ahead == vin:
+                break
+            leader = self._confirmed.get(ahead, leader)
+        return leader
 
     # -- REQUEST -----------------------------------------------------------
     def handle(self, req: Request, now_s: float) -> Confirmation | Rejection:
@@ -187,10 +243,13 @@ class Dica:
         if done is not None:
             if done.confirmation.seq == req.seq:
                 return done.confirmation
-            raise RequestError(
-                Reason.ALREADY_CONFIRMED,
-                f"{req.vin} holds confirmation seq {done.confirmation.seq}",
-            )
+            if not isinstance(req.seq, int) or req.seq < done.confirmation.seq:
+                raise RequestError(
+                    Reason.ALREADY_CONFIRMED,
+                    f"{req.vin} holds confirmation seq {done.confirmation.seq}",
+                )
+            # a higher seq: the vehicle did not fly the held one and asks again
+            # (it is dropped below, once the new request is known to be valid)
         route, shape, traj = check_request(req, self.intersection, self.config, now_s)
         lane = self._lane_of.get(req.vin)
         if lane is None:
@@ -203,8 +262,10 @@ class Dica:
             )
         if not self.is_head(req.vin, now_s):
             raise RequestError(Reason.NOT_HEAD, f"{req.vin} is not the head vehicle of {lane}")
+        if done is not None:
+            self._withdraw(req.vin)
 
-        leader = self._confirmed.get(self._lane_tail.get(lane, ""))
+        leader = self._leader(req.vin, lane)
         dtot, iterations, earliest = self._resolve(req, route, shape, traj, leader)
         entry = dtot.trajectory.entry_time_s()
         front, heading = dtot.trajectory.xy_heading(route, req.length_m)
@@ -218,11 +279,11 @@ class Dica:
             delay_s=max(0.0, entry - earliest),
             iterations=iterations,
         )
-        done = Confirmed(req.vin, dtot, conf, pack(dtot))
+        stored = padded(dtot, 2.0 * self.config.time_pad_s)
+        done = Confirmed(req.vin, stored, conf, pack(stored))
         self._confirmed[req.vin] = done
-        self._rows.add(req.vin, dtot, done.packed)
+        self._rows.add(req.vin, stored, done.packed)
         self._version += 1
-        self._lane_tail[lane] = req.vin
         return conf
 
     def front_cap_mps(self, route: Route) -> float:
@@ -263,8 +324,14 @@ class Dica:
             traj = self._plan(planner, req.t0_s, traj.entry_time_s() - req.t0_s, s_end)
         grid = self.tables.grid(route, shape)
         gap = 2.0 * cfg.margin_m
+        # the leader as late as the tracking bound lets it be, against a requester as early
+        lag = leader.dtot.trajectory if leader is not None else None
+        if lag is not None and cfg.time_pad_s > 0.0:
+            lag = Trajectory(lag.t0_s + 2.0 * cfg.time_pad_s, lag.step_s, lag.s_m)
         if self._compiled_rounds():
-            found = self._resolve_compiled(req, route, shape, traj, leader, planner, grid, s_end)
+            found = self._resolve_compiled(
+                req, route, shape, traj, leader, lag, planner, grid, s_end
+            )
             if found is not None:
                 return found[0], found[1], earliest
             # the compiled loop stops where this loop raises: let it raise, with its message
@@ -274,7 +341,7 @@ class Dica:
             conflicts = self.conflicts(dtot)
             if leader is not None:
                 lead = leader.dtot
-                found = follow_conflict(traj, lead.trajectory, lead.shape.length_m, gap)
+                found = follow_conflict(traj, lag, lead.shape.length_m, gap)
                 if found is not None:
                     if found[0] <= req.t0_s + cfg.step_s + 1e-9:
                         raise RequestError(
@@ -315,6 +382,7 @@ class Dica:
         shape: Shape,
         traj: Trajectory,
         leader: Confirmed | None,
+        lag: Trajectory | None,
         planner: Planner,
         grid: RouteGrid,
         s_end: float,
@@ -325,10 +393,9 @@ class Dica:
         cfg = self.config
         batch = self._confirmed_batch(route, shape)
         g = batch.gathered
-        if leader is not None:
-            lead = leader.dtot.trajectory
+        if leader is not None and lag is not None:
             lead_args = (
-                True, lead.t0_s, lead.step_s, np.ascontiguousarray(lead.s_m, dtype=float),
+                True, lag.t0_s, lag.step_s, np.ascontiguousarray(lag.s_m, dtype=float),
                 leader.dtot.shape.length_m,
             )  # fmt: skip
         else:

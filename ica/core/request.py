@@ -2,13 +2,17 @@
 
 A REQUEST carries the vehicle's identity, size, the lanes it enters and
 leaves by, the state it planned from, and its timed state sequence (TSS):
-front-bumper position and heading every step from the request time until the
-vehicle is fully out of the junction. Everything in it is untrusted until
+front-bumper position and heading every step from the plan's start until the
+vehicle is fully out of the junction. Over a link with delay, a vehicle plans
+from a start a little ahead of the state it observed (``t_obs_s``), from
+the state its stopping manoeuvre will have reached by then, so the answer can
+arrive before the plan begins. Everything in it is untrusted until
 :func:`ica.core.validate.check_request` has accepted it.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from enum import StrEnum
 
@@ -40,6 +44,7 @@ class Request:
     dist_to_entry_m: float  # front bumper to entry line, along the lane
     speed_mps: float
     tss: Tss
+    t_obs_s: float = math.nan  # when the vehicle observed what it planned from; NaN: t0_s
 
 
 class Reason(StrEnum):

@@ -36,6 +36,8 @@ def check_request(
         raise RequestError(Reason.BAD_STATE, f"seq must be a non-negative integer, got {req.seq!r}")
     for name in ("length_m", "width_m", "t0_s", "dist_to_entry_m", "speed_mps"):
         _finite(name, getattr(req, name))
+    t_obs = req.t0_s if isinstance(req.t_obs_s, float) and math.isnan(req.t_obs_s) else req.t_obs_s
+    _finite("t_obs_s", t_obs)
     if req.length_m <= 0 or req.width_m <= 0:
         raise RequestError(
             Reason.BAD_SIZE, f"vehicle size must be positive, got {req.length_m} x {req.width_m} m"
@@ -65,10 +67,20 @@ def check_request(
         raise RequestError(
             Reason.BAD_STATE, f"speed {req.speed_mps:.2f} m/s outside [0, road limit]"
         )
-    if req.t0_s > now_s + cfg.step_s + 1e-9:
-        raise RequestError(Reason.BAD_TIME, f"request planned at t={req.t0_s:.3f} s, in the future")
-    if now_s - req.t0_s > cfg.max_request_age_s:
-        raise RequestError(Reason.STALE, f"request is {now_s - req.t0_s:.3f} s old")
+    if t_obs > now_s + cfg.step_s + 1e-9:
+        raise RequestError(Reason.BAD_TIME, f"request observed at t={t_obs:.3f} s, in the future")
+    if now_s - t_obs > cfg.max_request_age_s:
+        raise RequestError(Reason.STALE, f"request is {now_s - t_obs:.3f} s old")
+    if req.t0_s < t_obs - 1e-9 or req.t0_s - t_obs > cfg.max_lead_s + 1e-9:
+        raise RequestError(
+            Reason.BAD_TIME,
+            f"plan starts {req.t0_s - t_obs:.3f} s after the observation: outside "
+            f"[0, {cfg.max_lead_s:g}] s",
+        )
+    if req.t0_s < now_s - 1e-9:
+        raise RequestError(
+            Reason.STALE, f"the plan starts at t={req.t0_s:.3f} s, before now ({now_s:.3f} s)"
+        )
 
     traj = _check_tss(req, route, cfg)
     return route, Shape.of(req.length_m, req.width_m), traj

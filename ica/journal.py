@@ -1,0 +1,154 @@
+"""The ICA's journal: every decision that binds it, on disk before anyone hears of it.
+
+A confirmation promises a vehicle a piece of space and time. If the ICA
+crashes and comes back without it, the next vehicle may be promised the same
+piece. So each DETECT taken, each confirmation given and each reservation
+freed is appended here (and by default synced to disk) before the answer is
+sent, and a restarted ICA replays the journal into a fresh core before it
+serves again: no confirmation after the restart conflicts with one before.
+
+The file is a stream of msgpack maps. A record cut short by a crash is the
+last one and was never answered, so it is dropped on replay.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import msgpack
+import numpy as np
+
+from ica.core.dica import Dica
+from ica.core.request import Confirmation, RequestError, Tss
+
+
+class JournalError(Exception):
+    """A journal that cannot be opened or read."""
+
+
+@dataclass(slots=True)
+class Replayed:
+    detects: int = 0
+    confirmations: int = 0
+    cancels: int = 0
+    skipped: int = 0  # records the core refused (a geometry that changed, a bad record)
+    truncated: bool = False
+
+
+class Journal:
+    """Append-only record of an ICA's binding decisions (``sync``: fsync each one)."""
+
+    def __init__(self, path: Path, sync: bool = True) -> None:
+        self.path = path
+        self.sync = sync
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._f = open(path, "ab")  # noqa: SIM115 - held open for the ICA's life
+        except OSError as e:
+            raise JournalError(f"cannot open the journal {path}: {e}") from None
+        self.written = 0
+
+    def close(self) -> None:
+        self._f.close()
+
+    def _write(self, rec: dict) -> None:
+        self._f.write(msgpack.packb(rec, use_bin_type=True))
+        self._f.flush()
+        if self.sync:
+            os.fsync(self._f.fileno())
+        self.written += 1
+
+    def detect(self, vin: str, lane: str, t_s: float) -> None:
+        self._write({"k": "detect", "vin": vin, "lane": lane, "t": t_s})
+
+    def confirm(self, c: Confirmation, length_m: float, width_m: float, in_lane: str) -> None:
+        self._write(
+            {
+                "k": "confirm",
+                "vin": c.vin,
+                "seq": c.seq,
+                "route": c.route_id,
+                "lane": in_lane,
+                "length": length_m,
+                "width": width_m,
+                "t": _f8(c.tss.t_s),
+                "x": _f8(c.tss.x_m),
+                "y": _f8(c.tss.y_m),
+                "h": _f8(c.tss.heading_rad),
+                "entry": c.entry_time_s,
+                "exit": c.exit_time_s,
+                "delay": c.delay_s,
+                "iterations": c.iterations,
+            }
+        )
+
+    def cancel(self, vin: str, seq: int) -> None:
+        self._write({"k": "cancel", "vin": vin, "seq": seq})
+
+
+def records(path: Path) -> tuple[list[dict], bool]:
+    """The journal's records in order, and whether a torn record ended it."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return [], False
+    except OSError as e:
+        raise JournalError(f"cannot read the journal {path}: {e}") from None
+    unpacker = msgpack.Unpacker(raw=False)
+    unpacker.feed(data)
+    out: list[dict] = []
+    try:
+        for rec in unpacker:
+            if isinstance(rec, dict):
+                out.append(rec)
+    except (msgpack.ExtraData, msgpack.FormatError, msgpack.StackError, ValueError):
+        return out, True
+    return out, unpacker.tell() < len(data)
+
+
+def confirmation_of(rec: dict) -> Confirmation:
+    return Confirmation(
+        vin=rec["vin"],
+        seq=int(rec["seq"]),
+        route_id=rec["route"],
+        tss=Tss(_arr(rec["t"]), _arr(rec["x"]), _arr(rec["y"]), _arr(rec["h"])),
+        entry_time_s=float(rec["entry"]),
+        exit_time_s=float(rec["exit"]),
+        delay_s=float(rec["delay"]),
+        iterations=int(rec["iterations"]),
+    )
+
+
+def replay(path: Path, ica: Dica) -> Replayed:
+    """Rebuild the core's state from the journal (before serving again)."""
+    out = Replayed()
+    recs, out.truncated = records(path)
+    for rec in recs:
+        try:
+            kind = rec.get("k")
+            if kind == "detect":
+                ica.detect(rec["vin"], rec["lane"], float(rec["t"]))
+                out.detects += 1
+            elif kind == "confirm":
+                ica.adopt(
+                    confirmation_of(rec), float(rec["length"]), float(rec["width"]), rec["lane"]
+                )
+                out.confirmations += 1
+            elif kind == "cancel":
+                ica.cancel(rec["vin"], int(rec["seq"]))
+                out.cancels += 1
+            else:
+                out.skipped += 1
+        except (RequestError, KeyError, TypeError, ValueError):
+            out.skipped += 1
+    return out
+
+
+def _f8(a: np.ndarray) -> bytes:
+    return np.ascontiguousarray(a, dtype="<f8").tobytes()
+
+
+def _arr(b: bytes) -> np.ndarray:
+    return np.frombuffer(b, dtype="<f8").astype(float)

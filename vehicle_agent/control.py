@@ -1,0 +1,77 @@
+"""A vehicle's own low-level control: stop short of the line, or track a plan by position.
+
+These laws run on the vehicle itself (in simulation: at the gateway's
+actuator, every step, from SUMO's measured state), so they need no message
+to act: a vehicle without a plan it may fly stops short of the junction's
+entry line on its own, whatever its links do. The vehicle's planner uses the
+same stop law to predict where it will be when a plan could start, which is
+what makes a plan asked for ahead of time flyable.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+STOP_DECEL_MPS2 = 4.0  # [m/s^2] braking an unconfirmed vehicle plans with (below SUMO's 4.5)
+TRACK_ACCEL_MPS2 = 4.0  # [m/s^2] most a tracking vehicle speeds up to catch its plan
+TRACK_DECEL_MPS2 = 9.0  # [m/s^2] most it brakes to fall back onto its plan (SUMO's emergency)
+
+
+def stop_speed(
+    room_m: float, v_mps: float, cap_mps: float, h: float, accel_mps2: float, decel_mps2: float
+) -> float:
+    """The speed for the next step that keeps the front short of a line ``room_m`` ahead.
+
+    SUMO's discrete stopping rule at STOP_DECEL_MPS2 (so that with Euler steps
+    the vehicle stops exactly at the line), never above ``cap_mps``, and within
+    what one step of the vehicle's acceleration and deceleration can change,
+    which is what SUMO executes for a vehicle free of a leader.
+    """
+    room = max(room_m, 0.0)
+    b = STOP_DECEL_MPS2
+    v_stop = math.sqrt(2.0 * b * room + (b * h / 2.0) ** 2) - b * h / 2.0
+    v = min(cap_mps, v_stop, room / h, v_mps + accel_mps2 * h)
+    return max(v, v_mps - decel_mps2 * h, 0.0)
+
+
+def predict_stop(
+    d_m: float,
+    v_mps: float,
+    steps: int,
+    *,
+    gap_m: float,
+    cap_mps: float,
+    h: float,
+    accel_mps2: float,
+    decel_mps2: float,
+) -> tuple[float, float]:
+    """Distance to the entry line and speed after ``steps`` steps of the stop law."""
+    for _ in range(steps):
+        v_mps = stop_speed(d_m - gap_m, v_mps, cap_mps, h, accel_mps2, decel_mps2)
+        d_m -= v_mps * h
+    return d_m, v_mps
+
+
+def track_speed(s_target_m: float, s_m: float, v_mps: float, h: float) -> float:
+    """The speed that brings the front from ``s_m`` to ``s_target_m`` in one step.
+
+    Closed loop on the measured position: the distance gained or lost
+    (late start, a leader's car-following, a slow actuator) is made up at the
+    next step within TRACK_ACCEL_MPS2 and TRACK_DECEL_MPS2, instead of
+    persisting as it would with open-loop speeds.
+    """
+    v = (s_target_m - s_m) / h
+    return float(min(max(v, v_mps - TRACK_DECEL_MPS2 * h, 0.0), v_mps + TRACK_ACCEL_MPS2 * h))
+
+
+def entry_time(t0_s: float, h: float, s_m: np.ndarray) -> float:
+    """When a plan's front crosses the entry line (s = 0), linearly between samples."""
+    k = int(np.searchsorted(s_m, 0.0, side="left"))
+    if k <= 0:
+        return t0_s
+    if k >= len(s_m):
+        return math.inf
+    s0, s1 = float(s_m[k - 1]), float(s_m[k])
+    return t0_s + h * (k - 1 + (0.0 - s0) / (s1 - s0) if s1 > s0 else k)
