@@ -225,6 +225,7 @@ def _record(
                 delay_s=conf.delay_s,
                 rounds=conf.iterations,
                 margin_m=cfg.margin_m,
+                time_pad_s=cfg.time_pad_s,
             )
         elif conf is None and v.next_request_s != r.wake.get(v.vin, v.next_request_s):
             rejected.append(v.vin)  # told to wait: its request was answered with a no

@@ -47,11 +47,13 @@ class Observer:
         name: str = "observer",
         *,
         margin_m: float = 0.25,
+        time_pad_s: float = 0.0,
         live_port: int | None = None,
     ) -> None:
         self.inter = inter
         self.log = log
         self.margin_m = margin_m
+        self.time_pad_s = time_pad_s
         self.inbox = Inbox()
         self.recorder = SpaceTimeRecorder(inter, rrd_path, margin_m=margin_m, live_port=live_port)
         self.recorder.geometry()
@@ -117,6 +119,7 @@ class Observer:
                 delay_s=r.delay_s,
                 rounds=r.iterations,
                 margin_m=self.margin_m,
+                time_pad_s=self.time_pad_s,
             )
             self.confirmations += 1
         elif item.what == "clock":

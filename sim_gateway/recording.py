@@ -651,6 +651,7 @@ class SpaceTimeRecorder:
         delay_s: float = math.nan,
         rounds: int = -1,
         margin_m: float | None = None,
+        time_pad_s: float = 0.0,
     ) -> None:
         """One confirmation, logged at ``now_s`` (default: the TSS's first time).
 
@@ -658,7 +659,8 @@ class SpaceTimeRecorder:
         each conflict point (from its DTOT, computed by the core) to the
         conflict-point chart, and its reserved footprints with their margin to
         the top view, step by step as the run reaches them. ``margin_m``: the
-        ICA's margin (default: the recorder's).
+        ICA's margin (default: the recorder's); ``time_pad_s``: the ICA's time
+        padding, which it adds to every interval on each side.
         """
         route = self._route(route_id)
         t = np.asarray(t_s, dtype=float)
@@ -682,6 +684,8 @@ class SpaceTimeRecorder:
             np.full(len(r), r.half_width - half_m),
         ).astype(np.float32)
         hold = holding(dtot, self.points)
+        if time_pad_s > 0.0:
+            hold = Holding(hold.point, hold.lb_s - time_pad_s, hold.ub_s + time_pad_s)
         self._plans[vin] = _Plan(
             now, ridx, route.cross_length_m + length_m, float(dtot.t_s[0]), band, hold
         )

@@ -649,3 +649,20 @@ def test_view_live_web_points_the_page_at_the_live_observer(ch45, tmp_path):
             if proc.poll() is None:
                 os.killpg(proc.pid, signal.SIGKILL)
         rec.close()
+
+
+def test_time_padding_widens_every_reserved_box(ch45, tmp_path):
+    """With the ICA's time padding the boxes show what it reserved: that much wider."""
+    conf = _confirmations(ch45)[1]
+    widths = {}
+    for pad in (0.0, 0.5):
+        rec = SpaceTimeRecorder(ch45, tmp_path / f"pad{pad}.rrd")
+        t = conf.tss
+        rec.confirmed(conf.vin, conf.route_id, t.t_s, t.x_m, t.y_m, t.heading_rad,
+                      LENGTH_M, WIDTH_M, conf.entry_time_s, conf.exit_time_s,
+                      time_pad_s=pad)  # fmt: skip
+        rec.close()
+        data = _read(tmp_path / f"pad{pad}.rrd")
+        ((_, halves),) = _rows(data["/charts/data/zones/reserved"], "Boxes2D:half_sizes")[:1]
+        widths[pad] = np.array([2 * h[0] / K for h in halves])
+    np.testing.assert_allclose(widths[0.5], widths[0.0] + 1.0, atol=1e-4)

@@ -235,7 +235,15 @@ def cmd_observer(args: argparse.Namespace) -> int:
         raise UsageError("--grpc-port must be between 1 and 65535")
     live = args.grpc_port if args.live else None
     try:
-        obs = Observer(session, inter, args.rrd, log, margin_m=args.margin, live_port=live)
+        obs = Observer(
+            session,
+            inter,
+            args.rrd,
+            log,
+            margin_m=args.margin,
+            time_pad_s=args.time_pad,
+            live_port=live,
+        )
     except (OSError, RuntimeError) as e:
         session.close()
         what = f"port {live} on 127.0.0.1" if live else args.rrd
@@ -342,6 +350,12 @@ def add_role_parsers(sub) -> None:
     add_net_args(o)
     o.add_argument("--rrd", type=Path, required=True, help="the .rrd file to write")
     o.add_argument("--margin", type=float, default=0.25, help="the ICA's margin [m]")
+    o.add_argument(
+        "--time-pad",
+        type=float,
+        default=0.0,
+        help="the ICA's time padding [s]: reserved intervals are drawn that much wider",
+    )
     o.add_argument(
         "--live",
         action="store_true",
