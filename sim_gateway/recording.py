@@ -94,7 +94,7 @@ class State(IntEnum):
     CLEARED = 4  # rear past the exit line
 
 
-# The one table of states, names and colours (top view, legend, hover). To give
+# The one table of states, names and colours (the top view and its legend). To give
 # emergency vehicles their own colour: add State.EMERGENCY here and return it
 # from vehicle_states() for vehicles that carry the flag.
 STATE_STYLE: dict[State, tuple[str, tuple[int, int, int]]] = {
