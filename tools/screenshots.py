@@ -7,7 +7,7 @@ time cursor to ``--at`` and saves the whole layout and then each view alone
 (the viewer is sent a layout with only that view). Software rendering is slow:
 the whole script takes a few minutes.
 
-    python -m tools.screenshots [--out docs/recording] [--at 80]
+    .venv/bin/python -m tools.screenshots [--out docs/recording] [--at 80] [--rrd FILE]
 """
 
 from __future__ import annotations
