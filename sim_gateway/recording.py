@@ -25,8 +25,9 @@ Cost. A Rerun call costs 0.1-0.5 ms, so a step only appends its arrays to a
 buffer; every ``flush_s`` of simulated time the buffer is drawn with numpy
 into rows per entity. The web viewer pays dearly for every chunk, so rows
 are sent as one column chunk per entity only when it holds MAX_ROWS of them,
-and at the end: a 10-minute run makes about a hundred chunks. A live recording sends every LIVE_FLUSH_S instead, so that viewers
-see the run as it goes.
+and at the end: a 10-minute run makes about a hundred chunks. A live
+recording sends every LIVE_FLUSH_S instead, so that viewers see the run as
+it goes.
 
 States. :data:`STATE_STYLE` is the one table of vehicle states, their names
 and colours, and :func:`vehicle_states` the one place that decides a
