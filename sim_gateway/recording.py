@@ -285,6 +285,7 @@ class SpaceTimeRecorder:
         self._start_s: float | None = None  # the timeline starts at the first confirmation
         self._rows: dict[str, _Rows] = {}
         self._later: list[tuple[float, str, Any, int, dict]] = []  # see _again
+        self._splat: dict[str, dict[str, Any]] = {}  # per entity: one value for every row
 
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
         self.rec.set_log_time_enabled(False)  # only sim_time: wall clock would mislead
@@ -406,42 +407,44 @@ class SpaceTimeRecorder:
 
     # -- static geometry -----------------------------------------------------
     def _static_styles(self) -> None:
-        log = self.rec.log
-        log("junction/vehicles", rr.LineStrips2D.from_fields(radii=_STRIP_RADIUS_M), static=True)
-        half_margin = self.margin_m / 2.0
-        log(
-            "junction/reserved",
-            rr.LineStrips2D.from_fields(
-                radii=max(half_margin, 0.05), colors=[RESERVED_RGBA], draw_order=5.0
-            ),
-            static=True,
-        )
-        log(
-            "junction/names",
-            rr.Points2D.from_fields(radii=0.05, colors=[(60, 60, 60)], show_labels=True),
-            static=True,
-        )
+        """Sizes, colours and draw orders that never change. They ride along with each
+        row (one value, which Rerun applies to every instance) rather than as a static
+        chunk per entity: every chunk costs the viewer time to load."""
+        half_margin = max(self.margin_m / 2.0, 0.05)
+        splat = self._splat
+        splat["junction/vehicles"] = {"radii": _STRIP_RADIUS_M}
+        splat["junction/reserved"] = {
+            "radii": half_margin,
+            "colors": _rgba(RESERVED_RGBA[:3], RESERVED_RGBA[3]),
+            "draw_order": 5.0,
+        }
+        splat["junction/names"] = {
+            "radii": 0.05,
+            "colors": _rgba((60, 60, 60)),
+            "show_labels": True,
+        }
         for lane in self.lanes:
-            log(
-                f"charts/data/lanes/{lane}/plans",
-                rr.LineStrips2D.from_fields(radii=0.15, draw_order=10.0, show_labels=False),
-                static=True,
-            )
-            log(
-                f"charts/data/lanes/{lane}/actual",
-                rr.Points2D.from_fields(radii=0.45, draw_order=20.0, show_labels=False),
-                static=True,
-            )
-        log(
-            "charts/data/zones/reserved",
-            rr.Boxes2D.from_fields(radii=0.12, draw_order=10.0, show_labels=False),
-            static=True,
-        )
-        log(
-            "charts/data/zones/held",
-            rr.Points2D.from_fields(radii=0.45, draw_order=20.0, show_labels=False),
-            static=True,
-        )
+            splat[f"charts/data/lanes/{lane}/plans"] = {
+                "radii": 0.15,
+                "draw_order": 10.0,
+                "show_labels": False,
+            }
+            splat[f"charts/data/lanes/{lane}/actual"] = {
+                "radii": 0.45,
+                "draw_order": 20.0,
+                "show_labels": False,
+            }
+        splat["charts/data/zones/reserved"] = {
+            "radii": 0.12,
+            "draw_order": 10.0,
+            "show_labels": False,
+        }
+        splat["charts/data/zones/held"] = {
+            "radii": 0.45,
+            "draw_order": 20.0,
+            "show_labels": False,
+        }
+        log = self.rec.log
         log("counts/vehicles", rr.SeriesLines(names="vehicles in the region"), static=True)
         log("counts/confirmed", rr.SeriesLines(names="confirmed so far"), static=True)
         log("counts/rejected", rr.SeriesLines(names="rejected so far"), static=True)
@@ -1096,7 +1099,7 @@ class SpaceTimeRecorder:
     def _row(self, entity: str, archetype: Any, t_s: float, n: int, **fields: Any) -> None:
         rows = self._rows.get(entity)
         if rows is None:
-            rows = self._rows[entity] = _Rows(entity, archetype)
+            rows = self._rows[entity] = _Rows(entity, archetype, self._splat.get(entity))
         rows.add(t_s, n, **fields)
 
     def _send_rows(
@@ -1105,7 +1108,7 @@ class SpaceTimeRecorder:
         """Many rows at once: ``lengths[i]`` instances at ``times[i]``."""
         rows = self._rows.get(entity)
         if rows is None:
-            rows = self._rows[entity] = _Rows(entity, archetype)
+            rows = self._rows[entity] = _Rows(entity, archetype, self._splat.get(entity))
         rows.add_many(times, lengths, **fields)
 
     def _route(self, route_id: str) -> Route:
@@ -1133,9 +1136,10 @@ class SpaceTimeRecorder:
 class _Rows:
     """Rows of one entity, kept until they are sent as one column chunk."""
 
-    def __init__(self, entity: str, archetype: Any) -> None:
+    def __init__(self, entity: str, archetype: Any, splat: dict[str, Any] | None = None) -> None:
         self.entity = entity
         self.archetype = archetype
+        self.splat = splat or {}  # fields with one value for every row
         self.times: list[np.ndarray] = []
         self.lengths: list[np.ndarray] = []
         self.fields: dict[str, list[Any]] = {}
@@ -1165,7 +1169,11 @@ class _Rows:
             take = np.concatenate([np.arange(starts[i], starts[i] + lengths[i]) for i in order])
             data = {k: _take(v, take) for k, v in data.items()}
             times, lengths = times[order], lengths[order]
-        cols = self.archetype.columns(**data).partition(lengths)
+        cols = list(self.archetype.columns(**data).partition(lengths))
+        if self.splat:
+            n = len(times)
+            each = {k: [v] * n for k, v in self.splat.items()}
+            cols += list(self.archetype.columns(**each).partition(np.ones(n, dtype=int)))
         rec.send_columns(
             self.entity, indexes=[rr.TimeColumn(TIMELINE, duration=times)], columns=cols
         )
