@@ -181,14 +181,32 @@ def _recorder(inter: Intersection, rrd_path: Path | None):
     except OSError as e:
         raise RunError(f"cannot write {rrd_path}: {e}") from None
     rec.geometry()
-    return rec
+    return _Recording(rec)
 
 
-def _record(rec, drivers: LocalDrivers, seen: list[Seen], cfg: RunConfig, t: float) -> None:
-    """This step's new confirmations and every observed vehicle's footprint."""
+class _Recording:
+    """The recorder and what it has already been told: confirmations, rejections."""
+
+    def __init__(self, rec) -> None:
+        self.rec = rec
+        self.wake: dict[str, float] = {}  # when each vehicle may ask again, as last seen
+        self.tally: dict[str, int] = {}  # rejections per reason, as last seen
+
+    def close(self) -> None:
+        self.rec.close()
+
+
+def _record(
+    r: _Recording, drivers: LocalDrivers, seen: list[Seen], cfg: RunConfig, t: float
+) -> None:
+    """This step's new confirmations and rejections, and every observed vehicle's footprint."""
+    rec = r.rec
+    rejected = []
     for s in seen:
         v = drivers.vehicles.get(s.car.vin)
-        conf = v.confirmation if v is not None else None
+        if v is None:
+            continue
+        conf = v.confirmation
         if conf is not None and s.car.vin not in drivers.recorded:
             drivers.recorded.add(s.car.vin)
             tss = conf.tss
@@ -204,7 +222,20 @@ def _record(rec, drivers: LocalDrivers, seen: list[Seen], cfg: RunConfig, t: flo
                 conf.entry_time_s,
                 conf.exit_time_s,
                 now_s=s.obs.t_s,
+                delay_s=conf.delay_s,
+                rounds=conf.iterations,
+                margin_m=cfg.margin_m,
+                time_pad_s=cfg.time_pad_s,
             )
+        elif conf is None and v.next_request_s != r.wake.get(v.vin, v.next_request_s):
+            rejected.append(v.vin)  # told to wait: its request was answered with a no
+        r.wake[v.vin] = v.next_request_s
+    if drivers.rejections != r.tally:
+        new = {k: n - r.tally.get(k, 0) for k, n in drivers.rejections.items()}
+        reasons = [k for k, n in new.items() if n > 0]
+        r.tally = dict(drivers.rejections)
+        for vin in rejected or ["-"]:
+            rec.rejected(t, vin, "/".join(reasons))
     rec.footprints(
         t,
         [s.car.vin for s in seen],

@@ -5,6 +5,14 @@ confirmations the ICA publishes (``dica/<j>/confirmed/*``) and the CLOCK. It
 is not a lockstep participant, so recording never slows the run; at the
 run's end on the clock it drains what is queued, closes the ``.rrd`` and
 exits. All Rerun calls go through :class:`sim_gateway.recording.SpaceTimeRecorder`.
+With ``live_port`` it also serves the recording over gRPC on 127.0.0.1 while
+it writes the file, so ``dica view --live`` can watch the run as it happens.
+
+The wire carries no rejections to the observer (a REJECT is the reply to the
+vehicle's query), so the rejections table stays empty in a cluster run.
+Where a new message or field changes what is drawn: a vehicle's state and
+colour are decided in :func:`sim_gateway.recording.vehicle_states`; a
+withdrawn plan would call the recorder from :meth:`Observer._on`.
 """
 
 from __future__ import annotations
@@ -31,12 +39,23 @@ class _Step:
 
 class Observer:
     def __init__(
-        self, session, inter: Intersection, rrd_path, log: logging.Logger, name: str = "observer"
+        self,
+        session,
+        inter: Intersection,
+        rrd_path,
+        log: logging.Logger,
+        name: str = "observer",
+        *,
+        margin_m: float = 0.25,
+        time_pad_s: float = 0.0,
+        live_port: int | None = None,
     ) -> None:
         self.inter = inter
         self.log = log
+        self.margin_m = margin_m
+        self.time_pad_s = time_pad_s
         self.inbox = Inbox()
-        self.recorder = SpaceTimeRecorder(inter, rrd_path)
+        self.recorder = SpaceTimeRecorder(inter, rrd_path, margin_m=margin_m, live_port=live_port)
         self.recorder.geometry()
         self.sizes: dict[str, tuple[float, float]] = {}
         self.confirmations = 0
@@ -97,6 +116,10 @@ class Observer:
                 r.entry_time_s,
                 r.exit_time_s,
                 now_s=float(r.t_s[0]),
+                delay_s=r.delay_s,
+                rounds=r.iterations,
+                margin_m=self.margin_m,
+                time_pad_s=self.time_pad_s,
             )
             self.confirmations += 1
         elif item.what == "clock":

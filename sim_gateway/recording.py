@@ -1,32 +1,48 @@
-"""A Rerun recording of a run: the junction, every confirmed plan, and what vehicles did.
+"""A Rerun recording of a run: the junction, every reservation, and what vehicles did.
 
 The recorder sits beside the control loop, never inside it: the ICA core does
 not know it exists, and it takes plain arrays and strings, so the embedded
 runner, a Zenoh process or a test can all feed it. It writes to its own
-:class:`rerun.RecordingStream` (never Rerun's global one) and saves a ``.rrd``
-with a default layout: a top view of the junction and one space-time chart
-per approach (incoming edge), where a confirmed plan and the vehicle's actual
-progress can be compared.
+:class:`rerun.RecordingStream` (never Rerun's global one), to a ``.rrd`` file
+and, when asked, to a gRPC server on loopback that viewers can watch live.
+``docs/recording.md`` says how to read each view.
 
-Frames. Rerun's 2D views are y-down, so the top view logs (x, -y) to keep
-north up, and the space-time charts log (CHART_M_PER_S * t [s], -s [m]) so
-that distance along the route grows upwards and 1 s of time is drawn as long
-as CHART_M_PER_S metres of road: speeds show as slopes. All data
-is on the ``sim_time`` timeline (a duration). Entity paths are listed in
-``docs/recording.md``.
+Views. A top view of the junction (actual footprints coloured by state, the
+reserved footprint with its margin as a translucent band, names beside the
+kerb); one space-time chart per incoming lane (distance along the route
+against time, the plan as a thin translucent line and the actual progress as
+dots); a conflict-point chart (for each point where conflicting routes meet,
+the interval each confirmed vehicle holds it, and dots where it really was);
+tables of confirmations and rejections; counts.
 
-Cost. A Rerun log call costs 0.1-0.5 ms, more than a whole step's worth of
-budget for a handful of them, so per-step data (footprints, progress, counts)
-is buffered and sent as one column chunk per entity every ``batch_steps``
-steps; a confirmation is logged at once (it is rare and carries its whole
-future as one column chunk).
+Charts that move with time. Rerun's 2D views have fixed bounds, so chart data
+is logged at ``(CHART_M_PER_S * t, y)`` under ``charts/data``, and a transform
+on ``charts/data`` shifts it by ``-CHART_M_PER_S * t_now`` every chart step:
+"now" is always at x = 0, the window is the same for every chart, and the
+frame (axis labels, the entry and exit lines, "now") is static.
+
+Cost. A Rerun call costs 0.1-0.5 ms, so a step only appends its arrays to a
+buffer; every ``flush_s`` of simulated time the buffer is drawn with numpy
+into rows per entity. The web viewer pays dearly for every chunk, so rows
+are sent as one column chunk per entity only when it holds MAX_ROWS of them,
+and at the end: a 10-minute run makes about a hundred chunks. A live
+recording sends every LIVE_FLUSH_S instead, so that viewers see the run as
+it goes.
+
+States. :data:`STATE_STYLE` is the one table of vehicle states, their names
+and colours, and :func:`vehicle_states` the one place that decides a
+vehicle's state: a new state (an emergency vehicle) is one row there and one
+line there.
 """
 
 from __future__ import annotations
 
 import colorsys
+import math
 import zlib
 from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import IntEnum
 from pathlib import Path
 from typing import Any
 
@@ -36,21 +52,77 @@ import rerun.blueprint as rrb
 
 from ica.core.intersection import Intersection
 from ica.core.route import Route
+from ica.core.zones import ConflictTables, Shape
+from sim_gateway.conflict_points import (
+    ConflictPoints,
+    Holding,
+    covers,
+    dtot_of_tss,
+    find_conflict_points,
+    holding,
+)
 
 TIMELINE = "sim_time"
-LANE_WIDTH_M = 3.2  # [m] SUMO's default; to draw entry lines and to tell "on the route"
-_STRIP_RADIUS_M = 0.08  # [m] line half-width in the top view
-_POINT_RADIUS = 0.25  # [scene units] progress points in the space-time charts
+LANE_WIDTH_M = 3.2  # [m] SUMO's default; to draw lane edges and to tell "on the route"
+STEP_S = 0.05  # [s] the simulation step the recorder expects
+CHART_M_PER_S = 2.0  # [chart units] width of 1 s in the charts
+PAST_S = 40.0  # [s] of history every chart shows left of "now"
+FUTURE_S = 20.0  # [s] of plans every chart shows right of "now"
+HISTORY_S = PAST_S  # [s] rows logged this long before the cursor are drawn
+CHART_EVERY = 5  # chart samples every 5 steps (0.25 s)
+TOP_EVERY = 2  # the top view every 2 steps (10 Hz): half the file, motion still smooth
+TICK_S = 10.0  # [s] time grid of the charts
+ROW_M = 5.0  # [chart units] pitch of the conflict-point rows
+LABEL_GAP_M = 4.0  # [m] names start this far beyond the kerb
+START_WAIT_S = 60.0  # [s] how long the recording waits for a first confirmation
+FLUSH_S = 20.0  # [s] of simulated time buffered before it is sent (saved file)
+LIVE_FLUSH_S = 1.0  # [s] the same when viewers watch live (and rows are sent then)
+MAX_ROWS = 4096  # rows of one entity sent as one chunk (Rerun's own compaction limit)
+_STRIP_RADIUS_M = 0.08  # [m] outline half-width in the top view
+_OVERRUN = (220, 30, 30)  # actual holding outside its reserved interval
+_GRID = (185, 185, 185)
+_FRAME = (120, 120, 120)
 _FLIP_Y = np.array([1.0, -1.0])
-TICK_S = 10.0  # [s] time grid of the space-time charts
-CHART_M_PER_S = 3.0  # [m] chart width of 1 s: a 15 m/s vehicle climbs at 5:1, not 15:1
-CHART_WINDOW_S = 40.0  # [s] of history each chart shows before the time cursor
-_GRID_COLOR = (190, 190, 190)
-_ACTUAL_SHADE = 0.55  # actual progress: the vehicle's colour, darker than its plan
+
+
+class State(IntEnum):
+    """A vehicle's state as drawn."""
+
+    REQUESTING = 1  # in the region, no confirmation yet
+    CONFIRMED = 2  # confirmed, front before the entry line
+    CROSSING = 3  # front past the entry line, rear not yet past the exit line
+    CLEARED = 4  # rear past the exit line
+
+
+# The one table of states, names and colours (the top view and its legend). To give
+# emergency vehicles their own colour: add State.EMERGENCY here and return it
+# from vehicle_states() for vehicles that carry the flag.
+STATE_STYLE: dict[State, tuple[str, tuple[int, int, int]]] = {
+    State.REQUESTING: ("requesting", (235, 150, 20)),
+    State.CONFIRMED: ("confirmed", (40, 110, 235)),
+    State.CROSSING: ("crossing", (20, 165, 60)),
+    State.CLEARED: ("cleared", (140, 140, 140)),
+}
+_STATE_RGBA = np.zeros(max(STATE_STYLE) + 1, dtype=np.uint32)  # packed colour by state
+for _state, (_, _rgb) in STATE_STYLE.items():
+    _STATE_RGBA[_state] = (_rgb[0] << 24) | (_rgb[1] << 16) | (_rgb[2] << 8) | 0xFF
+RESERVED_RGBA = (40, 110, 235, 90)  # the reserved footprint's margin band
+PLAN_ALPHA = 100  # plans are the vehicle's colour, translucent
+
+
+def vehicle_states(confirmed: np.ndarray, s_m: np.ndarray, out_m: np.ndarray) -> np.ndarray:
+    """State per vehicle from whether it holds a confirmation, its front's distance
+    along its route ``s_m`` (NaN: unknown) and the distance at which its rear is out."""
+    st = np.full(len(s_m), int(State.REQUESTING), dtype=np.uint16)
+    s = np.nan_to_num(s_m, nan=-np.inf)
+    st[confirmed] = State.CONFIRMED
+    st[confirmed & (s > 0.0)] = State.CROSSING
+    st[confirmed & (s >= out_m)] = State.CLEARED
+    return st
 
 
 def approach_of(lane: str) -> str:
-    """The incoming edge of a lane id (``N_in_2`` -> ``N_in``): one chart per edge."""
+    """The incoming edge of a lane id (``N_in_2`` -> ``N_in``)."""
     return lane.rsplit("_", 1)[0]
 
 
@@ -72,12 +144,15 @@ def rectangles(
     half_l = np.broadcast_to(np.asarray(length_m, dtype=float), x.shape) / 2.0
     half_w = np.broadcast_to(np.asarray(width_m, dtype=float), x.shape) / 2.0
     c, s = np.cos(h), np.sin(h)
-    cx, cy = x - c * half_l, y - s * half_l  # centre = front - heading * length / 2
-    # corners as (along, across) multiples: front-left, front-right, rear-right, rear-left
+    return _outlines(x - c * half_l, y - s * half_l, c, s, half_l, half_w)
+
+
+def _outlines(cx, cy, c, s, half_l, half_w) -> np.ndarray:
+    """Closed outlines (N, 5, 2), viewer frame, of rectangles by centre and unit heading."""
     along = np.array([1.0, 1.0, -1.0, -1.0, 1.0])
     across = np.array([1.0, -1.0, -1.0, 1.0, 1.0])
-    dl = along[None, :] * half_l[:, None]
-    dw = across[None, :] * half_w[:, None]
+    dl = along[None, :] * np.reshape(half_l, (-1, 1))
+    dw = across[None, :] * np.reshape(half_w, (-1, 1))
     px = cx[:, None] + dl * c[:, None] - dw * s[:, None]
     py = cy[:, None] + dl * s[:, None] + dw * c[:, None]
     return np.stack([px, -py], axis=-1)
@@ -88,19 +163,23 @@ def sumo_heading_rad(angle_deg: np.ndarray) -> np.ndarray:
     return np.pi / 2.0 - np.radians(np.asarray(angle_deg, dtype=float))
 
 
-def vehicle_color(vin: str) -> int:
-    """A colour (0xRRGGBBAA) fixed by the VIN, so plan, footprint and progress match."""
+def vehicle_color(vin: str, alpha: int = 0xFF) -> int:
+    """A colour (0xRRGGBBAA) fixed by the VIN, so a plan and its progress match."""
     hue = (zlib.crc32(vin.encode()) % 360) / 360.0
-    r, g, b = (round(c * 255) for c in colorsys.hsv_to_rgb(hue, 0.75, 0.95))
-    return (r << 24) | (g << 16) | (b << 8) | 0xFF
+    r, g, b = (round(c * 255) for c in colorsys.hsv_to_rgb(hue, 0.8, 0.85))
+    return (r << 24) | (g << 16) | (b << 8) | alpha
+
+
+def _rgba(rgb: tuple[int, ...], alpha: int = 255) -> int:
+    r, g, b = rgb[:3]
+    return (r << 24) | (g << 16) | (b << 8) | alpha
 
 
 class RouteProjector:
     """``Route.project`` for many vehicles on different routes in one numpy pass.
 
     Routes are padded to the same number of segments by repeating their last
-    segment, which changes no nearest point. Saves a Python loop per route
-    every step.
+    segment, which changes no nearest point.
     """
 
     def __init__(self, routes: Sequence[Route]) -> None:
@@ -130,39 +209,28 @@ class RouteProjector:
         return s, np.sqrt(dist2[rows, k])
 
 
-class _Rows:
-    """Rows of one entity, kept until they are sent as one column chunk."""
+@dataclass(slots=True)
+class _Plan:
+    """What the recorder keeps of one confirmation."""
 
-    def __init__(self, entity: str, archetype: Any) -> None:
-        self.entity = entity
-        self.archetype = archetype
-        self.times: list[float] = []
-        self.lengths: list[int] = []
-        self.fields: dict[str, list[Any]] = {}
-
-    def add(self, t_s: float, n: int, **fields: Any) -> None:
-        self.times.append(t_s)
-        self.lengths.append(n)
-        for k, v in fields.items():
-            self.fields.setdefault(k, []).append(v)
-
-    def send(self, rec: rr.RecordingStream) -> None:
-        if not self.times:
-            return
-        data = {k: _joined(v) for k, v in self.fields.items()}
-        cols = self.archetype.columns(**data).partition(self.lengths)
-        rec.send_columns(
-            self.entity, indexes=[rr.TimeColumn(TIMELINE, duration=self.times)], columns=cols
-        )
-        self.times, self.lengths, self.fields = [], [], {}
+    t_confirmed_s: float
+    route_idx: int
+    out_m: float  # front distance at which the rear is out
+    t0_s: float  # first DTOT sample time
+    band: np.ndarray  # (K, 5, 2) reserved outlines at the DTOT samples, viewer frame
+    hold: Holding
 
 
-def _joined(parts: list[Any]) -> Any:
-    """Rows of one field as one batch; floats as float32, which Rerun converts twice as fast."""
-    if isinstance(parts[0], list):
-        return [x for part in parts for x in part]
-    joined = np.concatenate(parts)
-    return joined.astype(np.float32) if joined.dtype == np.float64 else joined
+@dataclass(slots=True)
+class _Step:
+    t_s: float
+    vins: list[str]
+    x: np.ndarray
+    y: np.ndarray
+    angle: np.ndarray
+    length: np.ndarray
+    width: np.ndarray
+    routes: np.ndarray  # route index per vehicle, -1 unknown
 
 
 class SpaceTimeRecorder:
@@ -180,46 +248,53 @@ class SpaceTimeRecorder:
         *,
         application_id: str = "dica",
         recording_id: str | None = None,
-        batch_steps: int = 20,
-        window_s: float = CHART_WINDOW_S,
+        margin_m: float = 0.25,
+        shape: Shape | None = None,
+        flush_s: float = FLUSH_S,
+        live_port: int | None = None,
     ) -> None:
+        """``live_port``: also serve the recording over gRPC on 127.0.0.1 at that port
+        (viewers attach with ``rerun+http://127.0.0.1:PORT/proxy``); sends every
+        ``LIVE_FLUSH_S`` then."""
         self.intersection = intersection
-        self.window_s = window_s
         self.path = Path(path)
-        self.batch_steps = max(1, batch_steps)
-        self.approaches: tuple[str, ...] = tuple(
-            sorted({approach_of(lane) for lane in intersection.in_lanes})
+        self.margin_m = margin_m
+        self.live = live_port is not None
+        self.flush_s = LIVE_FLUSH_S if self.live else flush_s
+        routes = intersection.routes
+        self.lanes: tuple[str, ...] = intersection.in_lanes
+        self._projector = RouteProjector(routes)
+        self._route_lane = np.array([self.lanes.index(r.in_lane) for r in routes])
+        self._route_end_m = np.array([r.s_max for r in routes])
+        self._route_cross_m = np.array([r.cross_length_m for r in routes])
+        self._label_at = _LabelPlaces(intersection)
+        shape = shape or Shape(5.0, 1.8)
+        self._top_m = max(r.cross_length_m for r in routes) + shape.length_m
+        self.points: ConflictPoints = find_conflict_points(
+            intersection, ConflictTables(intersection, margin_m), shape
         )
-        self._approach_of_route = {r.id: approach_of(r.in_lane) for r in intersection.routes}
-        self._projector = RouteProjector(intersection.routes)
-        self._route_approach = np.array(
-            [self.approaches.index(approach_of(r.in_lane)) for r in intersection.routes]
-        )
-        self._route_end_m = np.array([r.s_max for r in intersection.routes])
-        self._chart_top_m = [
-            max(r.cross_length_m for r in intersection.routes if approach_of(r.in_lane) == a)
-            for a in self.approaches
-        ]
+        self._plans: dict[str, _Plan] = {}
         self._colors: dict[str, int] = {}
-        self._next_tick = 0.0
+        self._steps: list[_Step] = []
+        self._step_no = 0
+        self._buf_t0 = 0.0
+        self._tick_enter = 0.0  # next tick to log as it enters the window
+        self._tick_at = 0.0  # next tick to log at its own time
         self._n_confirmed = 0
-        self._pending = 0
-        self._vehicles = _Rows("junction/vehicles", rr.LineStrips2D)
-        self._count = _Rows("counts/vehicles", rr.Scalars)
-        self._actual = {a: _Rows(f"spacetime/{a}/actual", rr.Points2D) for a in self.approaches}
+        self._n_rejected = 0
+        self._start_s: float | None = None  # the timeline starts at the first confirmation
+        self._rows: dict[str, _Rows] = {}
+        self._later: list[tuple[float, str, Any, int, dict]] = []  # see _again
+        self._splat: dict[str, dict[str, Any]] = {}  # per entity: one value for every row
 
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
         self.rec.set_log_time_enabled(False)  # only sim_time: wall clock would mislead
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self.rec.save(self.path, default_blueprint=self.blueprint())
-        # sizes that never change, logged once so the batched rows carry only data
-        self.rec.log(
-            "junction/vehicles", rr.LineStrips2D.from_fields(radii=_STRIP_RADIUS_M), static=True
-        )
-        for a in self.approaches:
-            self.rec.log(
-                f"spacetime/{a}/actual", rr.Points2D.from_fields(radii=_POINT_RADIUS), static=True
-            )
+        sinks: list[Any] = [rr.FileSink(str(self.path))]
+        if live_port is not None:
+            sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=live_port))
+        self.rec.set_sinks(*sinks, default_blueprint=self.blueprint())
+        self._static_styles()
 
     def __enter__(self) -> SpaceTimeRecorder:
         return self
@@ -228,87 +303,340 @@ class SpaceTimeRecorder:
         self.close()
 
     # -- layout --------------------------------------------------------------
-    def blueprint(self) -> rrb.Blueprint:
-        """Top view and counts on the left, one space-time chart per approach on the right.
+    def chart_bounds(self) -> rrb.VisualBounds2D:
+        """The one window and distance scale every space-time chart shares."""
+        k = CHART_M_PER_S
+        return rrb.VisualBounds2D(
+            x_range=[-PAST_S * k - 24.0, FUTURE_S * k + 2.0],
+            y_range=[-self._top_m - 2.0, self.intersection.comm_length_m + 4.0],
+        )
 
-        The charts show the ``window_s`` before the time cursor (not just the
-        latest data), so plans and progress form lines as the run is replayed,
-        and the chart moves along with the cursor instead of squeezing the
-        whole run into one view.
-        """
-        reach = self.intersection.comm_length_m + 10.0
+    def zone_bounds(self) -> rrb.VisualBounds2D:
+        k = CHART_M_PER_S
+        n = max(len(self.points), 1)
+        return rrb.VisualBounds2D(
+            x_range=[-PAST_S * k - 38.0, FUTURE_S * k + 2.0], y_range=[-3.0, n * ROW_M + 5.5]
+        )
+
+    def views(self) -> dict[str, Any]:
+        """Every view of the layout by name: top, zones, counts, confirmed, rejected and
+        one per lane (its lane id); ``tools/screenshots.py`` shows them one by one."""
+        reach = _frame_reach(self.intersection)
         top = rrb.Spatial2DView(
             origin="junction",
-            name="junction (north up)",
+            name="junction: top view, north up",
             visual_bounds=rrb.VisualBounds2D(x_range=[-reach, reach], y_range=[-reach, reach]),
         )
         history = rrb.VisibleTimeRange(
             TIMELINE,
-            start=rrb.TimeRangeBoundary.cursor_relative(seconds=-self.window_s),
+            start=rrb.TimeRangeBoundary.cursor_relative(seconds=-HISTORY_S),
             end=rrb.TimeRangeBoundary.cursor_relative(),
         )
+        lanes = sorted(self.lanes, key=lambda ln: (ln.rsplit("_", 1)[1], ln))  # lane-major
         charts = [
             rrb.Spatial2DView(
-                origin=f"spacetime/{a}", name=f"{a}: distance up, time right", time_ranges=history
+                origin="charts",
+                contents=[
+                    "+ /charts/frame/now/**",
+                    f"+ /charts/frame/lanes/{lane}/**",
+                    f"+ /charts/data/lanes/{lane}/**",
+                    "+ /charts/data/ticks/**",
+                    "- /charts/data/ticks/zone_labels",
+                ],
+                name=f"{lane}: distance [m] vs time [s]",
+                visual_bounds=self.chart_bounds(),
+                time_ranges=history,
             )
-            for a in self.approaches
+            for lane in lanes
         ]
-        counts = rrb.Vertical(
-            rrb.TimeSeriesView(origin="counts/vehicles", name="vehicles in the region"),
-            rrb.TimeSeriesView(origin="counts/confirmed", name="confirmations so far"),
+        zones = rrb.Spatial2DView(
+            origin="charts",
+            contents=[
+                "+ /charts/frame/now/**",
+                "+ /charts/frame/zones/**",
+                "+ /charts/data/zones/**",
+                "+ /charts/data/ticks/**",
+                "- /charts/data/ticks/lane_labels",
+            ],
+            name="conflict points: reserved (box) and held (dots) vs time [s]",
+            visual_bounds=self.zone_bounds(),
+            time_ranges=history,
         )
-        left = rrb.Vertical(
-            top,
-            rrb.Horizontal(
-                counts,
-                rrb.TextLogView(origin="events", name="confirmations"),
-                column_shares=[1, 2],
-            ),
-            row_shares=[3, 2],
+        table_columns = rrb.TextLogColumns(
+            timeline_columns=[rrb.encodings.TimelineColumn(TIMELINE)],
+            text_log_columns=[
+                rrb.encodings.TextLogColumn(rrb.encodings.TextLogColumnKind.Body),
+            ],
         )
+        mono = rrb.TextLogFormat(monospace_body=True)
+        counts = rrb.TimeSeriesView(
+            origin="counts", name="counts", plot_legend=rrb.PlotLegend(corner="LeftTop")
+        )
+        confirmed = rrb.TextLogView(
+            origin="tables/confirmed",
+            name="confirmed: VIN, route, entry s, exit s, delay s, rounds",
+            columns=table_columns,
+            format_options=mono,
+        )
+        rejected = rrb.TextLogView(
+            origin="tables/rejected",
+            name="rejected: VIN, reason",
+            columns=table_columns,
+            format_options=mono,
+        )
+        views = dict(zip(lanes, charts, strict=True))
+        views.update(top=top, zones=zones, counts=counts, confirmed=confirmed, rejected=rejected)
+        return views
+
+    def blueprint(self) -> rrb.Blueprint:
+        """Top view and conflict points on the left; lane charts, counts and tables on
+        the right; paused at the start, the time panel folded to its play bar."""
+        v = self.views()
+        lanes = sorted(self.lanes, key=lambda ln: (ln.rsplit("_", 1)[1], ln))  # lane-major
+        n_cols = len({approach_of(ln) for ln in self.lanes})
+        bottom = rrb.Horizontal(v["counts"], v["confirmed"], v["rejected"], column_shares=[2, 4, 3])
+        left = rrb.Vertical(v["top"], v["zones"], row_shares=[3, 2])
+        grid = rrb.Grid(*(v[lane] for lane in lanes), grid_columns=n_cols)
+        right = rrb.Vertical(grid, bottom, row_shares=[3, 1])
         return rrb.Blueprint(
-            rrb.Horizontal(left, rrb.Grid(*charts)),
+            rrb.Horizontal(left, right, column_shares=[2, 3]),
             rrb.BlueprintPanel(state="collapsed"),
             rrb.SelectionPanel(state="collapsed"),
-            rrb.TimePanel(state="expanded"),
+            rrb.TimePanel(state="collapsed", play_state="paused", timeline=TIMELINE),
         )
 
     # -- static geometry -----------------------------------------------------
+    def _static_styles(self) -> None:
+        """Sizes, colours and draw orders that never change. They ride along with each
+        row (one value, which Rerun applies to every instance) rather than as a static
+        chunk per entity: every chunk costs the viewer time to load."""
+        half_margin = max(self.margin_m / 2.0, 0.05)
+        splat = self._splat
+        splat["junction/vehicles"] = {"radii": _STRIP_RADIUS_M}
+        splat["junction/reserved"] = {
+            "radii": half_margin,
+            "colors": _rgba(RESERVED_RGBA[:3], RESERVED_RGBA[3]),
+            "draw_order": 5.0,
+        }
+        splat["junction/names"] = {
+            "radii": 0.05,
+            "colors": _rgba((60, 60, 60)),
+            "show_labels": True,
+        }
+        for lane in self.lanes:
+            splat[f"charts/data/lanes/{lane}/plans"] = {
+                "radii": 0.15,
+                "draw_order": 10.0,
+                "show_labels": False,
+            }
+            splat[f"charts/data/lanes/{lane}/actual"] = {
+                "radii": 0.45,
+                "draw_order": 20.0,
+                "show_labels": False,
+            }
+        splat["charts/data/zones/reserved"] = {
+            "radii": 0.12,
+            "draw_order": 10.0,
+            "show_labels": False,
+        }
+        splat["charts/data/zones/held"] = {
+            "radii": 0.45,
+            "draw_order": 20.0,
+            "show_labels": False,
+        }
+        log = self.rec.log
+        log("counts/vehicles", rr.SeriesLines(names="vehicles in the region"), static=True)
+        log("counts/confirmed", rr.SeriesLines(names="confirmed so far"), static=True)
+        log("counts/rejected", rr.SeriesLines(names="rejected so far"), static=True)
+
     def geometry(self) -> None:
-        """Junction area, routes (from the communication region's entry line on), entry lines."""
+        """Static drawings: the junction, lane edges, entry lines, legends and chart frames."""
         inter = self.intersection
+        comm = inter.comm_length_m
+        log = self.rec.log
         region = np.asarray(inter.region, dtype=float)
-        outline = np.vstack([region, region[:1]]) * _FLIP_Y
-        self.rec.log(
-            "junction/region", rr.LineStrips2D([outline], colors=[(200, 200, 200)]), static=True
+        log(
+            "junction/region",
+            rr.LineStrips2D([np.vstack([region, region[:1]]) * _FLIP_Y], colors=[(90, 90, 90)]),
+            static=True,
         )
-        paths = [_clipped(r, -inter.comm_length_m) * _FLIP_Y for r in inter.routes]
-        self.rec.log(
-            "junction/routes",
+        edges, entry, start, lane_names = [], [], [], []
+        first: dict[str, Route] = {}
+        for r in inter.routes:
+            first.setdefault(r.in_lane, r)
+        outs: dict[str, Route] = {}
+        for r in inter.routes:
+            outs.setdefault(r.out_lane, r)
+        for lane in self.lanes:
+            r = first[lane]
+            for side in (-1.0, 1.0):
+                edges.append(_offset(r, -comm - 5.0, 0.0, side * LANE_WIDTH_M / 2.0))
+            entry.append(_across(r, 0.0))
+            start.append(_across(r, -comm))
+            lane_names.append(lane)
+        for r in outs.values():
+            a = r.cross_length_m
+            for side in (-1.0, 1.0):
+                edges.append(_offset(r, a, a + comm, side * LANE_WIDTH_M / 2.0))
+        log(
+            "junction/lane_edges",
+            rr.LineStrips2D(edges, radii=0.06, colors=[(170, 170, 170)], draw_order=1.0),
+            static=True,
+        )
+        log(
+            "junction/entry_lines",
             rr.LineStrips2D(
-                paths,
-                radii=0.05,
-                colors=[(110, 110, 110)],
-                labels=[r.id for r in inter.routes],
-                show_labels=False,
+                entry, radii=0.15, colors=[(30, 30, 30)], labels=lane_names, show_labels=False
             ),
             static=True,
         )
-        first_route: dict[str, Route] = {}
-        for r in inter.routes:
-            first_route.setdefault(r.in_lane, r)
-        lanes = sorted(first_route)
-        for name, s in (("entry_lines", 0.0), ("comm_entry_lines", -inter.comm_length_m)):
-            segs = [_across(first_route[lane], s) for lane in lanes]
-            self.rec.log(
-                f"junction/{name}",
+        log(
+            "junction/region_start_lines",
+            rr.LineStrips2D(
+                start, radii=0.15, colors=[(150, 60, 150)], labels=lane_names, show_labels=False
+            ),
+            static=True,
+        )
+        routes = [_clipped(r, 0.0, r.cross_length_m) * _FLIP_Y for r in inter.routes]
+        log(
+            "junction/routes",
+            rr.LineStrips2D(
+                routes,
+                radii=0.04,
+                colors=[(205, 205, 205)],
+                labels=[r.id for r in inter.routes],
+                show_labels=False,
+                draw_order=0.5,
+            ),
+            static=True,
+        )
+        self._top_legend()
+        self._chart_frames()
+
+    def _top_legend(self) -> None:
+        """A legend in the top view's upper left corner, clear of the roads: each entry
+        written in the colour of what it names (labels have a fixed size on screen, so
+        separate key shapes would drift into the text when zooming)."""
+        reach = _frame_reach(self.intersection)
+        x0, y0 = -reach + 11.0, -reach + 1.5  # viewer frame: y grows downwards
+        entries = [(f"{name}: outline", rgb) for name, rgb in STATE_STYLE.values()]
+        entries += [
+            (f"reserved, with its {self.margin_m:g} m margin: band", RESERVED_RGBA[:3]),
+            ("entry line", (30, 30, 30)),
+            ("communication region starts", (150, 60, 150)),
+        ]
+        self.rec.log(
+            "junction/legend/text",
+            rr.Points2D(
+                [(x0, y0 + i * 2.4) for i in range(len(entries))],
+                radii=0.01,
+                colors=[_rgba(rgb) for _, rgb in entries],
+                labels=[text for text, _ in entries],
+                show_labels=True,
+            ),
+            static=True,
+        )
+
+    def _chart_frames(self) -> None:
+        """Static chart frames: "now", distance labels, labelled region/entry/exit lines."""
+        k = CHART_M_PER_S
+        x0, x1 = -PAST_S * k, FUTURE_S * k
+        comm = self.intersection.comm_length_m
+        log = self.rec.log
+        n = len(self.points)
+        log(
+            "charts/frame/now",
+            rr.LineStrips2D(
+                [[(0.0, -self._top_m - 2.0), (0.0, comm + 4.0)], [(0.0, -3.0), (0.0, n * ROW_M)]],
+                radii=0.25,
+                colors=[(0, 0, 0, 160)],
+                draw_order=30.0,
+            ),
+            static=True,
+        )
+        log(
+            "charts/frame/now/label",
+            rr.Points2D(
+                [(0.0, -self._top_m + 3.0), (0.0, n * ROW_M + 2.5)],
+                radii=0.01,
+                labels=["now", "now"],
+                show_labels=True,
+            ),
+            static=True,
+        )
+        for lane in self.lanes:
+            routes = [r for r in self.intersection.routes if r.in_lane == lane]
+            lines = [(-comm, "region start"), (0.0, "entry")]
+            for length in sorted({round(r.cross_length_m, 1) for r in routes}):
+                turns = sorted(
+                    {r.turn.value for r in routes if round(r.cross_length_m, 1) == length}
+                )
+                lines.append((length, f"exit ({'/'.join(turns)})"))
+            log(
+                f"charts/frame/lanes/{lane}/lines",
                 rr.LineStrips2D(
-                    segs, radii=0.1, colors=[(240, 240, 240)], labels=lanes, show_labels=False
+                    [[(x0, -s), (x1, -s)] for s, _ in lines],
+                    radii=0.18,
+                    colors=[(150, 60, 150)] + [(30, 30, 30)] * (len(lines) - 1),
+                    labels=[f"{name} {s:g} m" for s, name in lines],
+                    show_labels=False,
+                    draw_order=1.0,
                 ),
                 static=True,
             )
+            # the distance axis: every 10 m, a named line's own label where there is one
+            marks = {round(s, 1): f"{s:.0f} {name.split()[0]}" for s, name in lines}
+            for s in np.arange(-comm, self._top_m, 10.0):
+                if all(abs(s - m) > 5.0 for m in marks):
+                    marks[float(s)] = f"{s:.0f}"
+            # and the legend, in the same entity: every static entity costs the viewer a chunk
+            pos = [(x0 - 11.0, -s) for s in marks] + [(x0 + 58.0, comm + 2.5)]
+            log(
+                f"charts/frame/lanes/{lane}/axis",
+                rr.Points2D(
+                    pos,
+                    radii=0.01,
+                    colors=[_FRAME] * len(marks) + [(60, 60, 60)],
+                    labels=[*marks.values(), "line: plan · dots: actual"],
+                    show_labels=True,
+                ),
+                static=True,
+            )
+        names = [f"P{i + 1} {self.points.name(i)}" for i in range(n)]
+        log(
+            "charts/frame/zones/rows",
+            rr.Points2D(
+                [(x0 - 19.0, (i + 0.5) * ROW_M) for i in range(n)],
+                radii=0.01,
+                colors=[_FRAME],
+                labels=names,
+                show_labels=True,
+            ),
+            static=True,
+        )
+        log(
+            "charts/frame/zones/grid",
+            rr.LineStrips2D(
+                [[(x0, i * ROW_M), (x1, i * ROW_M)] for i in range(n + 1)],
+                radii=0.04,
+                colors=[(225, 225, 225)],
+                draw_order=0.0,
+            ),
+            static=True,
+        )
+        log(
+            "charts/frame/zones/legend",
+            rr.Points2D(
+                [(x0 + 12.0, n * ROW_M + 2.5), (x0 + 55.0, n * ROW_M + 2.5)],
+                radii=[0.5, 0.5],
+                colors=[(60, 60, 60), _OVERRUN],
+                labels=["held, as reserved", "held outside its reservation"],
+                show_labels=True,
+            ),
+            static=True,
+        )
 
-    # -- confirmations -------------------------------------------------------
+    # -- confirmations and rejections ----------------------------------------
     def confirmed(
         self,
         vin: str,
@@ -323,13 +651,19 @@ class SpaceTimeRecorder:
         exit_time_s: float,
         *,
         now_s: float | None = None,
+        delay_s: float = math.nan,
+        rounds: int = -1,
+        margin_m: float | None = None,
+        time_pad_s: float = 0.0,
     ) -> None:
         """One confirmation, logged at ``now_s`` (default: the TSS's first time).
 
-        The planned footprint goes to the top view as a time series (one
-        column send for the whole future, cleared one step after the last
-        sample); the plan's distance-time line and its junction occupancy box
-        [entry, exit] x [0, cross length] go to the approach's chart.
+        Its plan goes to its lane's chart, the intervals in which it holds
+        each conflict point (from its DTOT, computed by the core) to the
+        conflict-point chart, and its reserved footprints with their margin to
+        the top view, step by step as the run reaches them. ``margin_m``: the
+        ICA's margin (default: the recorder's); ``time_pad_s``: the ICA's time
+        padding, which it adds to every interval on each side.
         """
         route = self._route(route_id)
         t = np.asarray(t_s, dtype=float)
@@ -337,55 +671,80 @@ class SpaceTimeRecorder:
         if n == 0 or not all(len(a) == n for a in (x_m, y_m, heading_rad)):
             raise ValueError(f"{vin}: TSS arrays must be non-empty and of equal length")
         now = float(t[0]) if now_s is None else float(now_s)
+        if self._start_s is None:
+            self._start_s = now
+        ridx = self._projector.index[route_id]
+        margin = self.margin_m if margin_m is None else float(margin_m)
+        dtot = dtot_of_tss(route, t, x_m, y_m, length_m, width_m, margin)
+        r = dtot.rects
+        half_m = margin / 2.0
+        band = _outlines(
+            r.centre[:, 0],
+            r.centre[:, 1],
+            r.heading[:, 0],
+            r.heading[:, 1],
+            np.full(len(r), r.half_length - half_m),
+            np.full(len(r), r.half_width - half_m),
+        ).astype(np.float32)
+        hold = holding(dtot, self.points)
+        if time_pad_s > 0.0:
+            hold = Holding(hold.point, hold.lb_s - time_pad_s, hold.ub_s + time_pad_s)
+        self._plans[vin] = _Plan(
+            now, ridx, route.cross_length_m + length_m, float(dtot.t_s[0]), band, hold
+        )
         color = self._color(vin)
-        part = rr.escape_entity_path_part(vin)
-
-        planned = f"junction/planned/{part}"
-        step = float(t[-1] - t[-2]) if n > 1 else 0.05
-        times = np.append(t, t[-1] + step)  # the extra, empty row clears the footprint
-        rects = rectangles(x_m, y_m, heading_rad, length_m, width_m)
-        self.rec.send_columns(
-            planned,
-            indexes=[rr.TimeColumn(TIMELINE, duration=times)],
-            columns=rr.LineStrips2D.columns(strips=rects).partition([1] * n + [0]),
-        )
-        self.rec.log(
-            planned,
-            rr.LineStrips2D.from_fields(colors=[color], radii=_STRIP_RADIUS_M),
-            static=True,
-        )
-
-        self.rec.set_time(TIMELINE, duration=now)
-        s, _ = route.project(np.stack([np.asarray(x_m), np.asarray(y_m)], axis=-1))
-        chart = f"spacetime/{self._approach_of_route[route_id]}"
-        self.rec.log(
-            f"{chart}/plan/{part}",
-            rr.LineStrips2D(
-                [np.stack([t * CHART_M_PER_S, -s], axis=-1)],
-                colors=[color],
-                labels=[vin],
-                show_labels=False,
-            ),
-        )
-        self.rec.log(
-            f"{chart}/occupancy/{part}",
-            rr.Boxes2D(
-                mins=[(entry_time_s * CHART_M_PER_S, -route.cross_length_m)],
-                sizes=[((exit_time_s - entry_time_s) * CHART_M_PER_S, route.cross_length_m)],
-                colors=[color & 0xFFFFFF00 | 90],  # translucent fill
-                labels=[vin],
-                show_labels=False,
-            ),
-        )
+        k = CHART_M_PER_S
+        s, _ = route.project(np.stack([np.asarray(x_m, float), np.asarray(y_m, float)], -1))
+        keep = np.unique(np.append(np.arange(0, n, CHART_EVERY), n - 1))
+        line = np.stack([t[keep] * k, -s[keep]], axis=-1).astype(np.float32)
+        plan = {
+            "strips": [line],
+            "colors": np.array([color & 0xFFFFFF00 | PLAN_ALPHA], dtype=np.uint32),
+            "labels": [f"{vin} plan"],
+        }
+        entity = f"charts/data/lanes/{route.in_lane}/plans"
+        self._row(entity, rr.LineStrips2D, now, 1, **plan)
+        self._again(float(t[-1]), now, entity, rr.LineStrips2D, 1, plan)
+        if len(hold):
+            centers = np.stack([(hold.lb_s + hold.ub_s) / 2 * k, (hold.point + 0.5) * ROW_M], -1)
+            halves = np.stack(
+                [(hold.ub_s - hold.lb_s) / 2 * k, np.full(len(hold), 0.4 * ROW_M)], -1
+            )
+            boxes = {
+                "centers": centers.astype(np.float32),
+                "half_sizes": halves.astype(np.float32),
+                "colors": np.full(len(hold), color, dtype=np.uint32),
+                "labels": [
+                    f"{vin} P{p + 1} {a:.2f}-{b:.2f} s"
+                    for p, a, b in zip(hold.point, hold.lb_s, hold.ub_s, strict=True)
+                ],
+            }
+            entity = "charts/data/zones/reserved"
+            self._row(entity, rr.Boxes2D, now, len(hold), **boxes)
+            self._again(float(hold.ub_s.max()), now, entity, rr.Boxes2D, len(hold), boxes)
         self._n_confirmed += 1
-        self.rec.log("counts/confirmed", rr.Scalars(self._n_confirmed))
-        self.rec.log(
-            "events",
-            rr.TextLog(
-                f"{vin} on {route_id}: enters {entry_time_s:.2f} s, "
-                f"leaves {exit_time_s:.2f} s (confirmed at {now:.2f} s)",
-                level="INFO",
-            ),
+        self._row("counts/confirmed", rr.Scalars, now, 1, scalars=np.array([self._n_confirmed]))
+        delay = f"{delay_s:6.2f}" if math.isfinite(delay_s) else "     -"
+        rounds_txt = f"{rounds:3d}" if rounds >= 0 else "  -"
+        self._row(
+            "tables/confirmed",
+            rr.TextLog,
+            now,
+            1,
+            text=[
+                f"{vin:<8} {route_id:<15} {entry_time_s:8.2f} {exit_time_s:8.2f} "
+                f"{delay} {rounds_txt}"
+            ],
+        )
+        self._maybe_flush(now)
+
+    def rejected(self, t_s: float, vin: str, reason: str, detail: str = "") -> None:
+        """One rejection: a row in the rejections table and the count."""
+        self._n_rejected += 1
+        text = f"{vin:<8} {reason:<17} {detail[:60]}".rstrip()
+        self._row("tables/rejected", rr.TextLog, float(t_s), 1, text=[text])
+        self._row(
+            "counts/rejected", rr.Scalars, float(t_s), 1, scalars=np.array([self._n_rejected])
         )
 
     # -- what really happened ------------------------------------------------
@@ -403,106 +762,354 @@ class SpaceTimeRecorder:
         """All vehicles of one SUMO step, in SUMO's frame (front bumper, degrees from north).
 
         Call it every step, even with no vehicles, so that vehicles that left
-        vanish from the top view. With ``route_ids`` (None or "" where the
-        route is not known yet) the distance along the route is projected from
-        the front bumper and recorded as :meth:`progress`.
+        vanish from the top view. ``route_ids`` (None or "" where the route is
+        not known yet) put a vehicle on its lane's chart and give it a state.
+        Only buffers: the drawing is done in batches (:meth:`flush`).
         """
         n = len(vins)
         x = np.asarray(x_m, dtype=float).reshape(-1)
         y = np.asarray(y_m, dtype=float).reshape(-1)
-        if not len(x) == len(y) == len(np.atleast_1d(angle_deg)) == n:
+        angle = np.asarray(angle_deg, dtype=float).reshape(-1)
+        if not len(x) == len(y) == len(angle) == n:
             raise ValueError("footprints: vins, x_m, y_m and angle_deg must have equal length")
-        colors = self._colors_of(vins)
-        strips = rectangles(x, y, sumo_heading_rad(angle_deg), length_m, width_m)
-        self._grid(float(t_s))
-        self._vehicles.add(float(t_s), n, strips=strips, colors=colors, labels=list(vins))
-        self._count.add(float(t_s), 1, scalars=np.array([float(n)]))
-        if route_ids is not None:
+        if route_ids is None:
+            ridx = np.full(n, -1)
+        else:
             if len(route_ids) != n:
                 raise ValueError("footprints: route_ids must have one entry per vehicle")
-            known = np.array([bool(r) for r in route_ids], dtype=bool)
-            ridx = self._route_indices([r for r in route_ids if r])
-            s, dist = self._projector.project(ridx, np.stack([x[known], y[known]], axis=-1))
-            self._add_progress(float(t_s), ridx, colors[known], s, dist)
-        self._step()
+            ridx = self._route_indices(route_ids)
+        length = np.broadcast_to(np.asarray(length_m, dtype=float), (n,))
+        width = np.broadcast_to(np.asarray(width_m, dtype=float), (n,))
+        t = float(t_s)
+        self._steps.append(_Step(t, list(vins), x, y, angle, length, width, ridx))
+        self._maybe_flush(t)
 
-    def progress(
-        self,
-        t_s: float,
-        vins: Sequence[str],
-        route_ids: Sequence[str],
-        s_m: np.ndarray,
-    ) -> None:
-        """Actual distance along the route [m] (0 = entry line), for callers that know it.
+    def _maybe_flush(self, t_s: float) -> None:
+        if t_s - self._buf_t0 >= self.flush_s:
+            self.flush()
+            self._buf_t0 = t_s
 
-        Use either this or ``footprints(..., route_ids=...)`` for a step, not both.
+    def flush(self, final: bool = False) -> None:
+        """Draw the buffered steps (done every ``flush_s`` of simulated time) and send
+        the rows of entities that have MAX_ROWS of them; ``final`` (on close), or a
+        live recording: send everything.
+
+        The recording starts at the first confirmation, so that a viewer opens
+        on it; steps before it are dropped. A run with no confirmation within
+        START_WAIT_S (a signalised baseline) starts at its first step.
         """
-        s = np.asarray(s_m, dtype=float).reshape(-1)
-        if not len(vins) == len(route_ids) == len(s):
-            raise ValueError("progress: vins, route_ids and s_m must have equal length")
-        ridx = self._route_indices(route_ids)
-        self._grid(float(t_s))
-        self._add_progress(float(t_s), ridx, self._colors_of(vins), s, np.zeros_like(s))
-        self._step()
-
-    def _grid(self, t_s: float) -> None:
-        """Every TICK_S of sim time, a time tick with its label and the entry lines
-        in each chart: a 2D view has no axes of its own."""
-        while t_s >= self._next_tick - 1e-9:
-            t0 = self._next_tick
-            x0, x1 = t0 * CHART_M_PER_S, (t0 + TICK_S) * CHART_M_PER_S
-            self.rec.set_time(TIMELINE, duration=t0)
-            comm = self.intersection.comm_length_m
-            for a, top in zip(self.approaches, self._chart_top_m, strict=True):
-                lines = [
-                    [(x0, comm), (x0, -top)],  # the tick
-                    [(x0, 0.0), (x1, 0.0)],  # the junction's entry line
-                    [(x0, comm), (x1, comm)],  # the communication region's
-                ]
-                self.rec.log(
-                    f"spacetime/{a}/grid",
-                    rr.LineStrips2D(lines, colors=[_GRID_COLOR], radii=0.05, draw_order=0.0),
-                )
-                self.rec.log(
-                    f"spacetime/{a}/grid_time",
-                    rr.Points2D(
-                        [(x0, comm)], radii=0.01, colors=[_GRID_COLOR], labels=[f"{t0:g} s"]
-                    ),
-                )
-            self._next_tick += TICK_S
-
-    def flush(self) -> None:
-        """Send the buffered rows now (also done every ``batch_steps`` steps and on close)."""
-        for rows in (self._vehicles, self._count, *self._actual.values()):
-            rows.send(self.rec)
-        self._pending = 0
+        steps = self._steps
+        if steps and self._start_s is None:
+            if not final and steps[-1].t_s - steps[0].t_s < START_WAIT_S:
+                return  # keep waiting for the first confirmation
+            self._start_s = steps[0].t_s
+        if steps:
+            start = self._start_s or 0.0
+            kept = [st for st in steps if st.t_s >= start - 1e-9]
+            if kept:
+                self._draw_steps(kept)
+            self._steps = []
+        for rows in self._rows.values():
+            if final or self.live or rows.n_rows >= MAX_ROWS:
+                rows.send(self.rec)
 
     def close(self) -> None:
         """Send what is buffered and finish the file (Rerun writes its footer on disconnect)."""
-        self.flush()
+        self.flush(final=True)
         self.rec.flush()
         self.rec.disconnect()
 
-    # -- helpers -------------------------------------------------------------
-    def _add_progress(
-        self, t_s: float, ridx: np.ndarray, colors: np.ndarray, s: np.ndarray, dist: np.ndarray
-    ) -> None:
-        """Points inside the chart's extent only: from the communication region's
-        entry line to the route's end, and on the route (not clamped onto its end)."""
-        in_chart = (s >= -self.intersection.comm_length_m) & (s < self._route_end_m[ridx])
-        keep = in_chart & (dist <= LANE_WIDTH_M)
-        appr = self._route_approach[ridx]
-        for i, a in enumerate(self.approaches):
-            sel = keep & (appr == i)
-            if sel.any():
-                x = np.full(int(sel.sum()), t_s * CHART_M_PER_S)
-                pts = np.stack([x, -s[sel]], axis=-1)
-                self._actual[a].add(t_s, len(pts), positions=pts, colors=_darker(colors[sel]))
+    # -- drawing a batch of steps --------------------------------------------
+    def _draw_steps(self, steps: list[_Step]) -> None:
+        counts = np.array([len(s.vins) for s in steps])
+        times = np.array([s.t_s for s in steps])
+        step_of = np.repeat(np.arange(len(steps)), counts)
+        vins = [v for s in steps for v in s.vins]
+        nrow = len(vins)
+        x = np.concatenate([s.x for s in steps]) if nrow else np.zeros(0)
+        y = np.concatenate([s.y for s in steps]) if nrow else np.zeros(0)
+        heading = sumo_heading_rad(np.concatenate([s.angle for s in steps])) if nrow else x
+        length = np.concatenate([s.length for s in steps]) if nrow else x
+        width = np.concatenate([s.width for s in steps]) if nrow else x
+        ridx = np.concatenate([s.routes for s in steps]) if nrow else np.zeros(0, int)
+        t_row = times[step_of]
 
-    def _step(self) -> None:
-        self._pending += 1
-        if self._pending >= self.batch_steps:
-            self.flush()
+        known = ridx >= 0
+        s = np.full(nrow, np.nan)
+        dist = np.full(nrow, np.inf)
+        if known.any():
+            s[known], dist[known] = self._projector.project(
+                ridx[known], np.stack([x[known], y[known]], -1)
+            )
+        plans = [self._plans.get(v) for v in vins]
+        confirmed = np.array(
+            [
+                p is not None and t >= p.t_confirmed_s - 1e-9
+                for p, t in zip(plans, t_row, strict=True)
+            ],
+            dtype=bool,
+        )
+        out_m = np.array([p.out_m if p is not None else np.inf for p in plans])
+        state = vehicle_states(confirmed, np.where(dist <= LANE_WIDTH_M, s, np.nan), out_m)
+
+        # top view: every TOP_EVERY steps
+        step_nos = self._step_no + np.arange(len(steps))
+        self._step_no += len(steps)
+        top_step = step_nos % TOP_EVERY == 0
+        top_idx = np.nonzero(top_step)[0]
+        top = np.nonzero(top_step[step_of])[0]
+        c, sn = np.cos(heading), np.sin(heading)
+        tc, ts, tl, tw = c[top], sn[top], length[top], width[top]
+        strips = _outlines(x[top] - tc * tl / 2, y[top] - ts * tl / 2, tc, ts, tl / 2, tw / 2)
+        self._send_rows(
+            "junction/vehicles",
+            rr.LineStrips2D,
+            times[top_idx],
+            counts[top_idx],
+            strips=strips.astype(np.float32),
+            colors=_STATE_RGBA[state[top]],
+        )
+        self._names(times, top_step, step_of, vins, ridx, s, dist, length)
+        self._reserved(times[top_idx])
+
+        # charts: every CHART_EVERY steps
+        chart_step = step_nos % CHART_EVERY == 0
+        k = CHART_M_PER_S
+        if chart_step.any():
+            ct = times[chart_step]
+            self._send_rows(
+                "counts/vehicles",
+                rr.Scalars,
+                ct,
+                np.ones(len(ct), int),
+                scalars=counts[chart_step].astype(float),
+            )
+            self._send_rows(
+                "charts/data",
+                rr.Transform3D,
+                ct,
+                np.ones(len(ct), int),
+                translation=np.stack([-k * ct, np.zeros_like(ct), np.zeros_like(ct)], -1),
+            )
+        self._ticks(times[-1] if len(times) else 0.0)
+        if len(times):
+            self._due(float(times[-1]))
+        at_chart = chart_step[step_of]
+        on_chart = (
+            at_chart
+            & known
+            & (dist <= LANE_WIDTH_M)
+            & (s >= -self.intersection.comm_length_m)
+            & (s < np.where(known, self._route_end_m[np.maximum(ridx, 0)], 0.0))
+        )
+        colors = self._colors_of(vins)
+        lane_of = np.where(known, self._route_lane[np.maximum(ridx, 0)], -1)
+        chart_steps = np.nonzero(chart_step)[0]
+        for li, lane in enumerate(self.lanes):
+            sel = on_chart & (lane_of == li)
+            if not sel.any():
+                continue
+            idx = np.nonzero(sel)[0]
+            per = np.bincount(
+                np.searchsorted(chart_steps, step_of[idx]), minlength=len(chart_steps)
+            )
+            self._send_rows(
+                f"charts/data/lanes/{lane}/actual",
+                rr.Points2D,
+                times[chart_steps],
+                per,
+                positions=np.stack([t_row[idx] * k, -s[idx]], -1).astype(np.float32),
+                colors=colors[idx],
+                labels=[vins[i] for i in idx],
+            )
+        self._held(
+            times,
+            chart_steps,
+            step_of,
+            vins,
+            plans,
+            confirmed & at_chart,
+            x,
+            y,
+            c,
+            sn,
+            length,
+            width,
+        )
+
+    def _names(self, times, top_step, step_of, vins, ridx, s, dist, length) -> None:
+        """Names beside the kerb, level with the vehicle, for vehicles in the approach."""
+        sel = (
+            top_step[step_of]
+            & (ridx >= 0)
+            & (dist <= LANE_WIDTH_M)
+            & (s < 0.0)
+            & (s >= -self.intersection.comm_length_m - 5.0)
+        )
+        idx = np.nonzero(sel)[0]
+        top_idx = np.nonzero(top_step)[0]
+        per = np.bincount(np.searchsorted(top_idx, step_of[idx]), minlength=len(top_idx))
+        pos = (
+            self._label_at.places(self._route_lane[ridx[idx]], s[idx] - length[idx] / 2)
+            if len(idx)
+            else np.zeros((0, 2))
+        )
+        self._send_rows(
+            "junction/names",
+            rr.Points2D,
+            times[top_idx],
+            per,
+            positions=(pos * _FLIP_Y).astype(np.float32),
+            labels=[vins[i] for i in idx],
+        )
+
+    def _reserved(self, times: np.ndarray) -> None:
+        """Reserved footprints (margin bands) of every plan whose DTOT spans a step."""
+        if not len(times):
+            return
+        lo, hi = float(times[0]) - 1e-6, float(times[-1]) + 1e-6
+        at_step: list[np.ndarray] = []
+        blocks: list[np.ndarray] = []
+        for vin in list(self._plans):
+            p = self._plans[vin]
+            t_end = p.t0_s + (len(p.band) - 1) * STEP_S
+            if t_end < lo - 120.0:
+                p.band = p.band[:0]  # long past: keep only what the charts still need
+                continue
+            if p.t0_s > hi or t_end < lo or len(p.band) == 0:
+                continue
+            j = np.rint((times - p.t0_s) / STEP_S).astype(int)
+            ok = (j >= 0) & (j < len(p.band))
+            if ok.any():
+                at_step.append(np.nonzero(ok)[0])
+                blocks.append(p.band[j[ok]])
+        if at_step:
+            step_idx = np.concatenate(at_step)
+            order = np.argsort(step_idx, kind="stable")
+            bands = np.concatenate(blocks)[order]
+            per = np.bincount(step_idx, minlength=len(times))
+        else:
+            bands, per = np.zeros((0, 5, 2), np.float32), np.zeros(len(times), int)
+        self._send_rows("junction/reserved", rr.LineStrips2D, times, per, strips=bands)
+
+    def _held(
+        self, times, chart_steps, step_of, vins, plans, sel, x, y, c, sn, length, width
+    ) -> None:
+        """Dots where a confirmed vehicle's real footprint covers a conflict point;
+        red where that is outside the interval reserved for it there."""
+        if len(self.points) == 0 or not len(chart_steps):
+            return
+        idx = np.nonzero(sel)[0]
+        cx, cy = x[idx] - c[idx] * length[idx] / 2, y[idx] - sn[idx] * length[idx] / 2
+        cov = covers(
+            np.stack([cx, cy], -1),
+            np.stack([c[idx], sn[idx]], -1),
+            length[idx] / 2,
+            width[idx] / 2,
+            self.points.xy,
+        )
+        rows, pts = np.nonzero(cov)
+        k = CHART_M_PER_S
+        t = times[step_of[idx[rows]]]
+        inside = np.zeros(len(rows), dtype=bool)
+        for n, (r, p) in enumerate(zip(rows, pts, strict=True)):
+            h = plans[idx[r]].hold
+            m = np.nonzero(h.point == p)[0]
+            inside[n] = bool(len(m)) and h.lb_s[m[0]] - 1e-9 <= t[n] <= h.ub_s[m[0]] + 1e-9
+        colors = self._colors_of([vins[idx[r]] for r in rows])
+        colors = np.where(inside, colors, np.uint32(_rgba(_OVERRUN)))
+        per = np.bincount(
+            np.searchsorted(chart_steps, step_of[idx[rows]]), minlength=len(chart_steps)
+        )
+        self._send_rows(
+            "charts/data/zones/held",
+            rr.Points2D,
+            times[chart_steps],
+            per,
+            positions=np.stack([t * k, (pts + 0.5) * ROW_M], -1).astype(np.float32),
+            colors=colors,
+            labels=[
+                f"{vins[idx[r]]} P{p + 1}{'' if ok else ' outside its reservation'}"
+                for r, p, ok in zip(rows, pts, inside, strict=True)
+            ],
+        )
+
+    def _ticks(self, t_s: float) -> None:
+        """A labelled time tick every TICK_S. A chart shows the rows of the last PAST_S,
+        so each tick is logged twice: when it enters the window (FUTURE_S ahead of
+        its time) and at its time; never later than the run has got."""
+        start = self._start_s or 0.0
+        while self._tick_enter <= t_s + FUTURE_S + 1e-9:
+            self._tick(self._tick_enter, max(self._tick_enter - FUTURE_S, start))
+            self._tick_enter += TICK_S
+        while self._tick_at <= t_s + 1e-9:
+            self._tick(self._tick_at, max(self._tick_at, start))
+            self._tick_at += TICK_S
+
+    def _tick(self, t0: float, at: float) -> None:
+        x = t0 * CHART_M_PER_S
+        n = max(len(self.points), 1)
+        self._row(
+            "charts/data/ticks/lines",
+            rr.LineStrips2D,
+            at,
+            1,
+            strips=[np.array([(x, -self._top_m - 2.0), (x, n * ROW_M + 60.0)], np.float32)],
+            colors=np.array([_rgba(_GRID)], np.uint32),
+        )
+        label = [f"{t0:g} s"]
+        self._row(
+            "charts/data/ticks/lane_labels",
+            rr.Points2D,
+            at,
+            1,
+            positions=np.array([(x, -self._top_m)], np.float32),
+            labels=label,
+        )
+        self._row(
+            "charts/data/ticks/zone_labels",
+            rr.Points2D,
+            at,
+            1,
+            positions=np.array([(x, -1.0)], np.float32),
+            labels=label,
+        )
+
+    # -- helpers -------------------------------------------------------------
+    def _again(
+        self, t_end: float, now: float, entity: str, archetype: Any, n: int, fields: dict
+    ) -> None:
+        """Log a row once more when what it draws ends, if that is later than now:
+        a chart shows the rows of the last PAST_S, and a plan or a reserved interval
+        must stay as long as any of it is in the window."""
+        if t_end > now + 1e-9:
+            self._later.append((t_end, entity, archetype, n, fields))
+
+    def _due(self, t_s: float) -> None:
+        """Emit the rows of :meth:`_again` that the run has reached."""
+        keep = []
+        for item in self._later:
+            if item[0] <= t_s + 1e-9:
+                t_end, entity, archetype, n, fields = item
+                self._row(entity, archetype, t_end, n, **fields)
+            else:
+                keep.append(item)
+        self._later = keep
+
+    def _row(self, entity: str, archetype: Any, t_s: float, n: int, **fields: Any) -> None:
+        rows = self._rows.get(entity)
+        if rows is None:
+            rows = self._rows[entity] = _Rows(entity, archetype, self._splat.get(entity))
+        rows.add(t_s, n, **fields)
+
+    def _send_rows(
+        self, entity: str, archetype: Any, times: np.ndarray, lengths: np.ndarray, **fields: Any
+    ) -> None:
+        """Many rows at once: ``lengths[i]`` instances at ``times[i]``."""
+        rows = self._rows.get(entity)
+        if rows is None:
+            rows = self._rows[entity] = _Rows(entity, archetype, self._splat.get(entity))
+        rows.add_many(times, lengths, **fields)
 
     def _route(self, route_id: str) -> Route:
         route = self.intersection.route_by_id(route_id)
@@ -512,7 +1119,7 @@ class SpaceTimeRecorder:
 
     def _route_indices(self, route_ids: Sequence[str | None]) -> np.ndarray:
         try:
-            return np.array([self._projector.index[r] for r in route_ids], dtype=int)
+            return np.array([self._projector.index[r] if r else -1 for r in route_ids], dtype=int)
         except KeyError as e:
             raise ValueError(f"unknown route {e.args[0]!r}") from None
 
@@ -526,19 +1133,118 @@ class SpaceTimeRecorder:
         return np.fromiter((self._color(v) for v in vins), dtype=np.uint32, count=len(vins))
 
 
-def _darker(rgba: np.ndarray) -> np.ndarray:
-    """The same colours (packed 0xRRGGBBAA), each channel scaled by _ACTUAL_SHADE."""
-    c = rgba.astype(np.uint32)
-    out = c & np.uint32(0xFF)
-    for shift in (8, 16, 24):
-        channel = (c >> np.uint32(shift)) & np.uint32(0xFF)
-        out |= (channel * _ACTUAL_SHADE).astype(np.uint32) << np.uint32(shift)
-    return out
+class _Rows:
+    """Rows of one entity, kept until they are sent as one column chunk."""
+
+    def __init__(self, entity: str, archetype: Any, splat: dict[str, Any] | None = None) -> None:
+        self.entity = entity
+        self.archetype = archetype
+        self.splat = splat or {}  # fields with one value for every row
+        self.times: list[np.ndarray] = []
+        self.lengths: list[np.ndarray] = []
+        self.fields: dict[str, list[Any]] = {}
+
+    def add(self, t_s: float, n: int, **fields: Any) -> None:
+        self.add_many(np.array([t_s]), np.array([n]), **fields)
+
+    @property
+    def n_rows(self) -> int:
+        return sum(len(t) for t in self.times)
+
+    def add_many(self, times: np.ndarray, lengths: np.ndarray, **fields: Any) -> None:
+        self.times.append(np.asarray(times, dtype=float))
+        self.lengths.append(np.asarray(lengths, dtype=int))
+        for k, v in fields.items():
+            self.fields.setdefault(k, []).append(v)
+
+    def send(self, rec: rr.RecordingStream) -> None:
+        if not self.times:
+            return
+        times = np.concatenate(self.times)
+        lengths = np.concatenate(self.lengths)
+        order = np.argsort(times, kind="stable")
+        data = {k: _joined(v) for k, v in self.fields.items()}
+        if not np.all(order == np.arange(len(order))):  # rows added out of time order
+            starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+            take = np.concatenate([np.arange(starts[i], starts[i] + lengths[i]) for i in order])
+            data = {k: _take(v, take) for k, v in data.items()}
+            times, lengths = times[order], lengths[order]
+        cols = list(self.archetype.columns(**data).partition(lengths))
+        if self.splat:
+            n = len(times)
+            each = {k: [v] * n for k, v in self.splat.items()}
+            cols += list(self.archetype.columns(**each).partition(np.ones(n, dtype=int)))
+        rec.send_columns(
+            self.entity, indexes=[rr.TimeColumn(TIMELINE, duration=times)], columns=cols
+        )
+        self.times, self.lengths, self.fields = [], [], {}
 
 
-def _clipped(route: Route, s_from: float) -> np.ndarray:
-    """The route's polyline from arc length ``s_from`` on."""
-    return np.vstack([route.points(s_from)[None], route.xy[route.s > s_from]])
+def _joined(parts: list[Any]) -> Any:
+    """Rows of one field as one batch; floats as float32, which Rerun converts twice as fast."""
+    if isinstance(parts[0], list):
+        return [x for part in parts for x in part]
+    joined = np.concatenate([np.asarray(p) for p in parts])
+    return joined.astype(np.float32) if joined.dtype == np.float64 else joined
+
+
+def _take(v: Any, take: np.ndarray) -> Any:
+    if isinstance(v, list):
+        return [v[i] for i in take]
+    return v[take]
+
+
+class _LabelPlaces:
+    """Where a vehicle's name goes: beside the kerb of its approach, level with it,
+    one column per lane, so a name never covers a vehicle."""
+
+    def __init__(self, inter: Intersection) -> None:
+        by_lane: dict[str, Route] = {}
+        for r in inter.routes:
+            by_lane.setdefault(r.in_lane, r)
+        lanes = inter.in_lanes
+        self.start = np.zeros((len(lanes), 2))
+        self.dir = np.zeros((len(lanes), 2))
+        self.right = np.zeros((len(lanes), 2))
+        self.offset = np.zeros(len(lanes))
+        for i, lane in enumerate(lanes):
+            r = by_lane[lane]
+            a, b = r.points(-inter.comm_length_m), r.points(0.0)
+            d = (b - a) / max(float(np.linalg.norm(b - a)), 1e-9)
+            self.start[i], self.dir[i] = b, d
+            self.right[i] = (d[1], -d[0])
+            index = int(lane.rsplit("_", 1)[1]) if lane.rsplit("_", 1)[1].isdigit() else 0
+            kerb = (index + 0.5) * LANE_WIDTH_M  # SUMO numbers lanes from the right
+            self.offset[i] = kerb + LABEL_GAP_M + index * 4.5
+
+    def places(self, lane_idx: np.ndarray, s_m: np.ndarray) -> np.ndarray:
+        """World (x, y) [m] of the names of vehicles at ``s_m`` (< 0) on these lanes."""
+        return (
+            self.start[lane_idx]
+            + self.dir[lane_idx] * s_m[:, None]
+            + self.right[lane_idx] * self.offset[lane_idx][:, None]
+        )
+
+
+def _frame_reach(inter: Intersection) -> float:
+    """Half the side of the top view's opening frame: the junction and 22 m around it."""
+    region = np.asarray(inter.region, dtype=float)
+    return float(np.abs(region).max()) + 22.0
+
+
+def _clipped(route: Route, s_from: float, s_to: float) -> np.ndarray:
+    """The route's polyline from arc length ``s_from`` to ``s_to``."""
+    inner = route.xy[(route.s > s_from) & (route.s < s_to)]
+    return np.vstack([route.points(s_from)[None], inner, route.points(s_to)[None]])
+
+
+def _offset(route: Route, s_from: float, s_to: float, left_m: float) -> np.ndarray:
+    """The route's polyline between two arc lengths, shifted sideways (viewer frame)."""
+    p = _clipped(route, s_from, s_to)
+    d = np.gradient(p, axis=0)
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
+    n = np.stack([-d[:, 1], d[:, 0]], -1)
+    return (p + n * left_m) * _FLIP_Y
 
 
 def _across(route: Route, s: float) -> np.ndarray:

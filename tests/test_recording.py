@@ -2,11 +2,13 @@
 
 Confirmations come from the real DICA core on the real chapter 4-5 junction;
 the "actual" vehicles fly exactly their confirmed TSS, so what the recording
-holds can be checked against numbers computed here independently.
+holds can be checked against numbers computed here independently (footprints
+with shapely, intervals with the core's exhaustive getOTI).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 import signal
@@ -21,37 +23,50 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 import pytest
+import shapely
 from rerun.chunk import RrdReader
 
 from ica.core.dica import Dica
+from ica.core.dtot import build_dtot
 from ica.core.intersection import Intersection
 from ica.core.proposal import propose
 from ica.core.request import Confirmation
+from ica.core.trajectory import Trajectory
+from ica.core.zones import ConflictTables, Shape
+from sim_gateway.conflict_points import covers, find_conflict_points
 from sim_gateway.recording import (
+    CHART_EVERY,
     CHART_M_PER_S,
+    PAST_S,
+    ROW_M,
+    STATE_STYLE,
+    TOP_EVERY,
     RouteProjector,
     SpaceTimeRecorder,
+    State,
     approach_of,
     rectangles,
     sumo_heading_rad,
 )
 from tools.cli import main as dica
 
-LENGTH_M, WIDTH_M = 5.0, 1.8
-N_STEPS = 40  # actual steps recorded, then one step with no vehicles
+LENGTH_M, WIDTH_M, MARGIN_M = 5.0, 1.8, 0.25
+N_STEPS = 120  # actual steps recorded, then one step with no vehicles
+K = CHART_M_PER_S
 
 
 def _confirmations(inter: Intersection) -> list[Confirmation]:
-    """One head vehicle per approach, through movements, confirmed by the real core."""
+    """Head vehicles going through from every approach, then turning left from every
+    approach, confirmed by the real core: they cross one another, so the core has to
+    order them."""
     ica = Dica(inter)
     out = []
-    for k, appr in enumerate(sorted({approach_of(r.in_lane) for r in inter.routes})):
-        route = next(
-            r for r in inter.routes if approach_of(r.in_lane) == appr and r.turn == "through"
-        )
-        vin = f"veh/{k}"  # a slash, to check the entity path is escaped
+    approaches = sorted({approach_of(r.in_lane) for r in inter.routes})
+    for k, (turn, appr) in enumerate((t, a) for t in ("through", "left") for a in approaches):
+        route = next(r for r in inter.routes if approach_of(r.in_lane) == appr and r.turn == turn)
+        vin = f"veh/{k}"  # a slash, to check names survive
         ica.detect(vin, route.in_lane, 0.0)
-        req = propose(route, vin=vin, seq=0, t0_s=0.0, dist_to_entry_m=40.0, speed_mps=12.0)
+        req = propose(route, vin=vin, seq=0, t0_s=0.0, dist_to_entry_m=20.0, speed_mps=12.0)
         conf = ica.handle(req, 0.0)
         assert isinstance(conf, Confirmation), conf
         out.append(conf)
@@ -62,33 +77,43 @@ def _sumo_angle_deg(heading_rad: np.ndarray) -> np.ndarray:
     return 90.0 - np.degrees(heading_rad)  # CCW from +x -> clockwise from north
 
 
+def _fly(rec: SpaceTimeRecorder, confs: list[Confirmation], n_steps: int) -> None:
+    """Every vehicle at its confirmed TSS sample, step by step (held at its last one)."""
+    for i in range(n_steps):
+        j = [min(i, len(c.tss) - 1) for c in confs]
+        rec.footprints(
+            round(i * 0.05, 10),
+            [c.vin for c in confs],
+            np.array([c.tss.x_m[k] for c, k in zip(confs, j, strict=True)]),
+            np.array([c.tss.y_m[k] for c, k in zip(confs, j, strict=True)]),
+            _sumo_angle_deg(
+                np.array([c.tss.heading_rad[k] for c, k in zip(confs, j, strict=True)])
+            ),
+            LENGTH_M,
+            WIDTH_M,
+            route_ids=[c.route_id for c in confs],
+        )
+
+
 @pytest.fixture(scope="module")
 def recorded(ch45: Intersection, tmp_path_factory: pytest.TempPathFactory):
     confs = _confirmations(ch45)
     path = tmp_path_factory.mktemp("rec") / "run.rrd"
-    rec = SpaceTimeRecorder(ch45, path, batch_steps=7)  # batches that do not divide N_STEPS
+    rec = SpaceTimeRecorder(ch45, path, flush_s=1.3)  # batches that do not divide the run
     rec.geometry()
     for c in confs:
         tss = c.tss
         rec.confirmed(
             c.vin, c.route_id, tss.t_s, tss.x_m, tss.y_m, tss.heading_rad,
             LENGTH_M, WIDTH_M, c.entry_time_s, c.exit_time_s,
+            delay_s=c.delay_s, rounds=c.iterations,
         )  # fmt: skip
-    vins = [c.vin for c in confs]
-    for i in range(N_STEPS):
-        rec.footprints(
-            float(confs[0].tss.t_s[i]),
-            vins,
-            np.array([c.tss.x_m[i] for c in confs]),
-            np.array([c.tss.y_m[i] for c in confs]),
-            _sumo_angle_deg(np.array([c.tss.heading_rad[i] for c in confs])),
-            LENGTH_M,
-            WIDTH_M,
-            route_ids=[c.route_id for c in confs],
-        )
+    rec.rejected(0.5, "veh/9", "not_head", "a vehicle ahead")
+    _fly(rec, confs, N_STEPS)
     rec.footprints(N_STEPS * 0.05, [], np.zeros(0), np.zeros(0), np.zeros(0), LENGTH_M, WIDTH_M)
+    points = rec.points
     rec.close()
-    return path, confs
+    return path, confs, points
 
 
 def _read(path: Path, blueprint: bool = False) -> dict[str, list[pa.RecordBatch]]:
@@ -110,185 +135,378 @@ def _rows(batches: list[pa.RecordBatch], column: str) -> list[tuple[float, objec
     return sorted(rows, key=lambda r: r[0])
 
 
-def _static(batches: list[pa.RecordBatch], column: str) -> object:
+def _static(batches: list[pa.RecordBatch], column: str) -> list:
     for b in batches:
         if column in b.schema.names and "sim_time" not in b.schema.names:
             return b.column(column).to_pylist()[0]
     raise AssertionError(f"no static {column}")
 
 
-def _esc(vin: str) -> str:
-    return vin.replace("/", "\\/")
+def _blueprint(path: Path) -> dict[str, dict[str, object]]:
+    """The blueprint's entities: path -> {component: first value}, components only."""
+    out: dict[str, dict[str, object]] = defaultdict(dict)
+    for entity, batches in _read(path, blueprint=True).items():
+        for b in batches:
+            for c in b.schema.names:
+                if ":" in c:
+                    out[entity][c.split(":", 1)[1]] = b.column(c).to_pylist()[0]
+    return out
+
+
+def _chart_views(path: Path) -> dict[str, dict[str, object]]:
+    """2D views by name, each with its own properties (bounds, time ranges) merged in."""
+    bp = _blueprint(path)
+    out = {}
+    for entity, fields in bp.items():
+        if entity.startswith("/view/") and entity.count("/") == 2:
+            props = {
+                k: v for e, f in bp.items() if e.startswith(entity + "/") for k, v in f.items()
+            }
+            out[fields["display_name"][0]] = {**fields, **props}
+    return out
 
 
 def test_files_hold_one_recording_and_its_blueprint(recorded):
-    path, _ = recorded
+    path, _, _ = recorded
     reader = RrdReader(path)
     assert len(reader.recordings()) == 1
     assert len(reader.blueprints()) == 1
-    origins = []
+    origins = set()
     for batches in _read(path, blueprint=True).values():
         for b in batches:
             if "ViewBlueprint:space_origin" in b.schema.names:
-                origins += b.column("ViewBlueprint:space_origin").to_pylist()
-    flat = {o if isinstance(o, str) else o[0] for o in origins}
-    assert {"junction", "counts/vehicles", "counts/confirmed", "events"} <= flat
-    assert {f"spacetime/{a}" for a in ("E_in", "N_in", "S_in", "W_in")} <= flat
+                origins |= {
+                    o if isinstance(o, str) else o[0]
+                    for o in b.column("ViewBlueprint:space_origin").to_pylist()
+                }
+    assert {"junction", "charts", "counts", "tables/confirmed", "tables/rejected"} <= origins
 
 
 def test_only_sim_time_is_recorded(recorded):
-    path, _ = recorded
+    path, _, _ = recorded
     for entity, batches in _read(path).items():
         for b in batches:
             idx = [f.name for f in b.schema if (f.metadata or {}).get(b"rerun:kind") == b"index"]
             assert idx in ([], ["sim_time"]), (entity, idx)
 
 
-def test_geometry_is_static_and_north_up(recorded, ch45):
-    path, _ = recorded
+def test_one_chart_per_lane_all_with_one_window_and_one_distance_scale(recorded, ch45):
+    path, _, _ = recorded
+    charts = _chart_views(path)
+    lanes = {
+        n.split(":")[0]: v for n, v in charts.items() if n.endswith("distance [m] vs time [s]")
+    }
+    assert set(lanes) == set(ch45.in_lanes)
+    bounds = {str(v["range"]) for v in lanes.values()}
+    ranges = {str(v["ranges"]) for v in lanes.values()}
+    assert len(bounds) == 1 and len(ranges) == 1  # one window, one scale, every chart
+    (r,) = lanes[ch45.in_lanes[0]]["ranges"]
+    assert r == {"timeline": "sim_time", "range": {"start": -int(PAST_S * 1e9), "end": 0}}
+    (box,) = lanes[ch45.in_lanes[0]]["range"]
+    assert box["x_range"][1] == pytest.approx(20.0 * K + 2.0)  # "now" is at x = 0
+    zones = charts["conflict points: reserved (box) and held (dots) vs time [s]"]
+    assert str(zones["ranges"]) == ranges.pop()
+
+
+def test_the_viewer_opens_paused_on_the_first_confirmation(ch45, tmp_path):
+    """Steps before the first confirmation are not recorded: a viewer opens at the
+    start of the timeline, and that is where the first plan is."""
+    (conf, *_) = _confirmations(ch45)
+    rec = SpaceTimeRecorder(ch45, tmp_path / "first.rrd", flush_s=0.5)
+    for i in range(60):  # 3 s, the confirmation at 1 s
+        if i == 20:
+            t = conf.tss
+            rec.confirmed(conf.vin, conf.route_id, t.t_s + 1.0, t.x_m, t.y_m, t.heading_rad,
+                          LENGTH_M, WIDTH_M, conf.entry_time_s + 1,
+                          conf.exit_time_s + 1)  # fmt: skip
+        rec.footprints(i * 0.05, [], np.zeros(0), np.zeros(0), np.zeros(0), LENGTH_M, WIDTH_M)
+    rec.close()
+    times = [
+        t / 1e9
+        for batches in _read(tmp_path / "first.rrd").values()
+        for b in batches
+        if "sim_time" in b.schema.names
+        for t in b.column("sim_time").cast(pa.int64()).to_pylist()
+    ]
+    assert min(times) == pytest.approx(1.0)
+    panel = _blueprint(tmp_path / "first.rrd")["/time_panel"]
+    assert panel["state"] in (2, [2])  # collapsed to its play bar
+    assert panel["play_state"] in (1, [1])  # paused
+
+
+def test_geometry_is_static_north_up_with_lane_edges_and_entry_lines(recorded, ch45):
+    path, _, _ = recorded
     data = _read(path)
     region = np.array(_static(data["/junction/region"], "LineStrips2D:strips")[0])
     expected = np.vstack([ch45.region, ch45.region[:1]]) * [1.0, -1.0]
     np.testing.assert_allclose(region, expected, atol=1e-4)
-    routes = _static(data["/junction/routes"], "LineStrips2D:strips")
-    assert len(routes) == len(ch45.routes)
-    assert len(_static(data["/junction/entry_lines"], "LineStrips2D:strips")) == len(ch45.in_lanes)
+    n_in, n_out = len(ch45.in_lanes), len(ch45.out_lanes)
+    assert len(_static(data["/junction/lane_edges"], "LineStrips2D:strips")) == 2 * (n_in + n_out)
+    assert len(_static(data["/junction/entry_lines"], "LineStrips2D:strips")) == n_in
+    legend = _static(data["/junction/legend/text"], "Points2D:labels")
+    for name, _ in STATE_STYLE.values():
+        assert any(label.startswith(name) for label in legend)
+    assert any("margin" in label for label in legend)
 
 
-def test_planned_footprints_follow_the_tss_and_clear_after_it(recorded, ch45):
-    path, confs = recorded
+def test_chart_lines_are_labelled_for_every_lane(recorded, ch45):
+    path, _, _ = recorded
     data = _read(path)
-    for c in confs:
-        rows = _rows(data[f"/junction/planned/{_esc(c.vin)}"], "LineStrips2D:strips")
-        assert len(rows) == len(c.tss) + 1
-        np.testing.assert_allclose([t for t, _ in rows[:-1]], c.tss.t_s, atol=1e-6)
-        assert rows[-1][1] == []  # the footprint vanishes one step after the plan ends
-        for i in (0, len(c.tss) // 2, len(c.tss) - 1):
-            strip = np.array(rows[i][1][0])
-            assert strip.shape == (5, 2)
-            np.testing.assert_allclose(strip[0], strip[-1])  # closed
-            h = c.tss.heading_rad[i]
-            centre = np.array([c.tss.x_m[i], c.tss.y_m[i]]) - LENGTH_M / 2 * np.array(
-                [math.cos(h), math.sin(h)]
-            )
-            np.testing.assert_allclose(strip[:4].mean(axis=0), centre * [1, -1], atol=1e-3)
-            sides = np.linalg.norm(np.diff(strip, axis=0), axis=1)
-            np.testing.assert_allclose(sorted(sides), [WIDTH_M] * 2 + [LENGTH_M] * 2, atol=1e-3)
-
-
-def test_space_time_plan_and_occupancy_box(recorded, ch45):
-    path, confs = recorded
-    data = _read(path)
-    for c in confs:
-        route = ch45.route_by_id(c.route_id)
-        chart = f"/spacetime/{approach_of(route.in_lane)}"
-        ((t_box, centers),) = _rows(data[f"{chart}/occupancy/{_esc(c.vin)}"], "Boxes2D:centers")
-        ((_, halves),) = _rows(data[f"{chart}/occupancy/{_esc(c.vin)}"], "Boxes2D:half_sizes")
-        mins = np.array(centers[0]) - halves[0]
-        sizes = 2 * np.array(halves[0])
-        k = CHART_M_PER_S  # chart metres per second
-        np.testing.assert_allclose(mins, [k * c.entry_time_s, -route.cross_length_m], atol=1e-3)
-        np.testing.assert_allclose(
-            sizes, [k * (c.exit_time_s - c.entry_time_s), route.cross_length_m], atol=1e-3
+    for lane in ch45.in_lanes:
+        labels = _static(data[f"/charts/frame/lanes/{lane}/lines"], "LineStrips2D:labels")
+        strips = _static(data[f"/charts/frame/lanes/{lane}/lines"], "LineStrips2D:strips")
+        assert labels[:2] == [f"region start {-ch45.comm_length_m:g} m", "entry 0 m"]
+        exits = sorted({round(r.cross_length_m, 1) for r in ch45.routes if r.in_lane == lane})
+        assert [float(lb.split()[-2]) for lb in labels[2:]] == exits
+        assert [-s[0][1] for s in strips] == pytest.approx(
+            [-ch45.comm_length_m, 0.0, *exits], abs=1e-3
         )
-        assert t_box == pytest.approx(c.tss.t_s[0])
-        ((_, strips),) = _rows(data[f"{chart}/plan/{_esc(c.vin)}"], "LineStrips2D:strips")
-        line = np.array(strips[0])
-        np.testing.assert_allclose(line[:, 0], k * c.tss.t_s, atol=1e-4)
-        assert -line[0, 1] == pytest.approx(-40.0, abs=0.05)  # requested 40 m before entry
-        s_at_entry = -np.interp(k * c.entry_time_s, line[:, 0], line[:, 1])
-        assert abs(s_at_entry) < 1.0  # the front bumper crosses s = 0 at the entry time
+        axis = _static(data[f"/charts/frame/lanes/{lane}/axis"], "Points2D:labels")
+        assert "0 entry" in axis and "-20" in axis  # distances on the axis, in metres
+    assert _static(data["/charts/frame/now/label"], "Points2D:labels") == ["now", "now"]
 
 
-def test_actual_vehicles_and_their_progress(recorded, ch45):
-    path, confs = recorded
+def _holding_oracle(conf: Confirmation, route, points) -> dict[int, tuple[float, float]]:
+    """Per conflict point: the union of exhaustive occupancy intervals whose (shapely)
+    footprint contains the point."""
+    s, _ = route.project(np.stack([conf.tss.x_m, conf.tss.y_m], -1))
+    traj = Trajectory(float(conf.tss.t_s[0]), 0.05, s)
+    d = build_dtot(route, Shape.of(LENGTH_M, WIDTH_M), traj, MARGIN_M)
+    polys = [shapely.Polygon(c) for c in d.rects.corners()]
+    out = {}
+    for p, xy in enumerate(points.xy):
+        pt = shapely.Point(xy)
+        hit = [k for k, poly in enumerate(polys) if poly.buffer(1e-9).contains(pt)]
+        if hit:
+            out[p] = (float(d.lb_s[hit].min()), float(d.ub_s[hit].max()))
+    return out
+
+
+def test_conflict_chart_has_one_bar_per_held_interval_and_none_overlap(recorded, ch45):
+    path, confs, points = recorded
+    data = _read(path)
+    rows = _rows(data["/charts/data/zones/reserved"], "Boxes2D:centers")
+    halves = _rows(data["/charts/data/zones/reserved"], "Boxes2D:half_sizes")
+    labels = _rows(data["/charts/data/zones/reserved"], "Boxes2D:labels")
+    bars = defaultdict(list)  # point -> [(lb, ub, vin)]
+    for (_, cs), (_, hs), (_, ls) in zip(rows, halves, labels, strict=True):
+        for c, h, lb in zip(cs, hs, ls, strict=True):
+            p = round(c[1] / ROW_M - 0.5)
+            bar = ((c[0] - h[0]) / K, (c[0] + h[0]) / K, lb.split()[0])
+            if bar not in bars[p]:  # logged at the confirmation and again when it ends
+                bars[p].append(bar)
+    expected = defaultdict(list)
+    for c in confs:
+        for p, (lb, ub) in _holding_oracle(c, ch45.route_by_id(c.route_id), points).items():
+            expected[p].append((lb, ub, c.vin))
+    assert sum(len(v) for v in expected.values()) >= len(confs)
+    assert set(bars) == set(expected)
+    for p in expected:
+        got, want = sorted(bars[p]), sorted(expected[p])
+        assert [v for *_, v in got] == [v for *_, v in want]
+        np.testing.assert_allclose([g[:2] for g in got], [w[:2] for w in want], atol=1e-3)
+        for (_, ub, _), (lb, _, _) in itertools.pairwise(got):  # DICA: one vehicle at a time
+            assert ub <= lb + 1e-6, (p, got)
+    assert any(len(v) > 1 for v in bars.values())  # a point two of them share
+
+
+def test_a_real_run_has_no_two_bars_overlapping_at_any_conflict_point(tmp_path):
+    """SUMO, the vehicle machines and the core in one process: a collision-free run's
+    reservations never share a conflict point in time, and every vehicle holds its
+    points only while they are reserved for it."""
+    import json
+
+    out = tmp_path / "run"
+    args = ["run", "--volume", "500", "--duration", "60", "--seed", "5", "--quiet"]
+    assert dica([*args, "--record", "--out", str(out)]) == 0
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    data = _read(out / "spacetime.rrd")
+    rows = _rows(data["/charts/data/zones/reserved"], "Boxes2D:centers")
+    halves = _rows(data["/charts/data/zones/reserved"], "Boxes2D:half_sizes")
+    bars = defaultdict(list)
+    for (_, cs), (_, hs) in zip(rows, halves, strict=True):
+        for c, h in zip(cs, hs, strict=True):
+            bar = ((c[0] - h[0]) / K, (c[0] + h[0]) / K)
+            if bar not in bars[round(c[1] / ROW_M - 0.5)]:  # each is logged twice
+                bars[round(c[1] / ROW_M - 0.5)].append(bar)
+    assert sum(len(b) for b in bars.values()) > 25
+    for p, b in bars.items():
+        b.sort()
+        for (_, ub), (lb, _) in itertools.pairwise(b):
+            assert ub <= lb + 1e-4, (p, ub, lb)
+    held = [lb for _, ls in _rows(data["/charts/data/zones/held"], "Points2D:labels") for lb in ls]
+    assert len(held) > 25 and not any("outside" in lb for lb in held)
+
+
+def test_held_dots_sit_inside_the_reserved_bars_when_plans_are_flown(recorded):
+    path, _, _ = recorded
+    data = _read(path)
+    colors = [c for _, cs in _rows(data["/charts/data/zones/held"], "Points2D:colors") for c in cs]
+    labels = [
+        lb for _, ls in _rows(data["/charts/data/zones/held"], "Points2D:labels") for lb in ls
+    ]
+    assert len(colors) > 4
+    assert not any("outside" in lb for lb in labels)
+    assert 0xDC1E1EFF not in colors
+
+
+def test_an_actual_footprint_outside_its_reservation_is_red(ch45, tmp_path):
+    """A vehicle that holds a point late (it waited 2 s longer than planned) shows red."""
+    conf = _confirmations(ch45)[1]  # its real footprint covers two conflict points
+    rec = SpaceTimeRecorder(ch45, tmp_path / "late.rrd")
+    t = conf.tss
+    rec.confirmed(conf.vin, conf.route_id, t.t_s, t.x_m, t.y_m, t.heading_rad,
+                  LENGTH_M, WIDTH_M, conf.entry_time_s, conf.exit_time_s)  # fmt: skip
+    late = 40  # steps behind its plan
+    for i in range(len(t) + late):
+        j = min(max(i - late, 0), len(t) - 1)
+        rec.footprints(i * 0.05, [conf.vin], t.x_m[j : j + 1], t.y_m[j : j + 1],
+                       _sumo_angle_deg(t.heading_rad[j : j + 1]), LENGTH_M, WIDTH_M,
+                       route_ids=[conf.route_id])  # fmt: skip
+    rec.close()
+    labels = [
+        lb
+        for _, ls in _rows(
+            _read(tmp_path / "late.rrd")["/charts/data/zones/held"], "Points2D:labels"
+        )
+        for lb in ls
+    ]
+    assert any("outside its reservation" in lb for lb in labels)
+
+
+def test_reserved_footprints_are_margin_bands_of_the_dtot(recorded, ch45):
+    path, confs, _ = recorded
+    data = _read(path)
+    rows = _rows(data["/junction/reserved"], "LineStrips2D:strips")
+    c = confs[0]
+    route = ch45.route_by_id(c.route_id)
+    s, _ = route.project(np.stack([c.tss.x_m, c.tss.y_m], -1))
+    d = build_dtot(route, Shape.of(LENGTH_M, WIDTH_M), Trajectory(0.0, 0.05, s), MARGIN_M)
+    k = next(k for k in range(len(d)) if round(d.t_s[k] / 0.05) % TOP_EVERY == 0)
+    (strips,) = [v for t, v in rows if abs(t - d.t_s[k]) < 1e-6]
+    grown = shapely.Polygon(np.array(d.rects.corners()[k]) * [1, -1])
+    middle = grown.buffer(-MARGIN_M / 2, join_style="mitre")  # the band's middle line
+    assert min(shapely.Polygon(st).symmetric_difference(middle).area for st in strips) < 1e-3
+    radii = [r for _, rs in _rows(data["/junction/reserved"], "LineStrips2D:radii") for r in rs]
+    assert radii and all(r == pytest.approx(MARGIN_M / 2) for r in radii)  # one per row
+
+
+def test_actual_footprints_states_and_names(recorded, ch45):
+    path, confs, _ = recorded
     data = _read(path)
     rows = _rows(data["/junction/vehicles"], "LineStrips2D:strips")
-    labels = _rows(data["/junction/vehicles"], "LineStrips2D:labels")
-    assert len(rows) == N_STEPS + 1
+    classes = _rows(data["/junction/vehicles"], "LineStrips2D:colors")
+    rgba = {
+        st: (r << 24) | (g << 16) | (b << 8) | 0xFF for st, (_, (r, g, b)) in STATE_STYLE.items()
+    }
+    assert len(rows) == math.ceil((N_STEPS + 1) / TOP_EVERY)
     assert all(len(strips) == len(confs) for _, strips in rows[:-1])
     assert rows[-1][1] == []  # the empty step clears the view
-    assert labels[0][1] == [c.vin for c in confs]
-    # the footprint drawn from SUMO's frame equals the planned one at the same time
-    planned = _rows(data[f"/junction/planned/{_esc(confs[1].vin)}"], "LineStrips2D:strips")
-    np.testing.assert_allclose(rows[5][1][1], planned[5][1][0], atol=1e-3)
-    counts = _rows(data["/counts/vehicles"], "Scalars:scalars")
-    assert [v for _, v in counts] == [[len(confs)]] * N_STEPS + [[0]]
+    t, strips = rows[5]
+    i = round(t / 0.05)
+    c = confs[1]
+    np.testing.assert_allclose(
+        strips[1],
+        rectangles(
+            c.tss.x_m[i : i + 1],
+            c.tss.y_m[i : i + 1],
+            c.tss.heading_rad[i : i + 1],
+            LENGTH_M,
+            WIDTH_M,
+        )[0],
+        atol=1e-3,
+    )
+    for (t, ids), _ in zip(classes, rows, strict=True):
+        for cid, c in zip(ids or [], confs, strict=False):
+            i = min(round(t / 0.05), len(c.tss) - 1)
+            s = ch45.route_by_id(c.route_id).project(np.array([[c.tss.x_m[i], c.tss.y_m[i]]]))[0][0]
+            want = (
+                State.CONFIRMED
+                if s <= 0
+                else State.CROSSING
+                if s < ch45.route_by_id(c.route_id).cross_length_m + LENGTH_M
+                else State.CLEARED
+            )
+            assert cid == rgba[want], (t, c.vin, s)
+    names = _rows(data["/junction/names"], "Points2D:labels")
+    assert {n for _, ns in names for n in ns} <= {c.vin for c in confs}
+    assert any(ns for _, ns in names)
 
+
+def test_charts_move_with_time_and_show_plan_and_progress(recorded, ch45):
+    path, confs, _ = recorded
+    data = _read(path)
+    shift = _rows(data["/charts/data"], "Transform3D:translation")
+    assert shift and all(v[0][0] == pytest.approx(-K * t, abs=1e-3) for t, v in shift)
     for c in confs:
         route = ch45.route_by_id(c.route_id)
-        chart = f"/spacetime/{approach_of(route.in_lane)}"
-        actual = _rows(data[f"{chart}/actual"], "Points2D:positions")
-        assert len(actual) == N_STEPS
+        lane = route.in_lane
+        plans = _rows(data[f"/charts/data/lanes/{lane}/plans"], "LineStrips2D:strips")
+        names = _rows(data[f"/charts/data/lanes/{lane}/plans"], "LineStrips2D:labels")
+        mine = [
+            (t, st) for (t, st), (_, (n,)) in zip(plans, names, strict=True) if n == f"{c.vin} plan"
+        ]
+        # logged at the confirmation and again when the plan ends (if the run got there)
+        assert [t for t, _ in mine] == [0.0, pytest.approx(c.tss.t_s[-1])][: len(mine)]
+        line = np.array(mine[0][1][0])
         s_plan = route.project(np.stack([c.tss.x_m, c.tss.y_m], -1))[0]
-        for i, (t, pts) in enumerate(actual):
-            assert t == pytest.approx(c.tss.t_s[i])
-            np.testing.assert_allclose(
-                pts[0], [CHART_M_PER_S * c.tss.t_s[i], -s_plan[i]], atol=1e-3
-            )
+        keep = [*range(0, len(s_plan) - 1, CHART_EVERY), len(s_plan) - 1]  # and the last
+        np.testing.assert_allclose(line[:, 0] / K, c.tss.t_s[keep], atol=1e-4)
+        np.testing.assert_allclose(-line[:, 1], s_plan[keep], atol=1e-3)
+        actual = _rows(data[f"/charts/data/lanes/{lane}/actual"], "Points2D:positions")
+        names = _rows(data[f"/charts/data/lanes/{lane}/actual"], "Points2D:labels")
+        assert len(actual) == math.ceil((N_STEPS + 1) / CHART_EVERY)  # and the empty step
+        seen = 0
+        for (t, pts), (_, labels) in zip(actual, names, strict=True):
+            i = round(t / 0.05)
+            assert i % CHART_EVERY == 0
+            for p, name in zip(pts, labels, strict=True):
+                if name == c.vin:
+                    seen += 1
+                    np.testing.assert_allclose(
+                        p, [K * t, -s_plan[min(i, len(s_plan) - 1)]], atol=1e-3
+                    )
+        assert seen == math.ceil(N_STEPS / CHART_EVERY)
+    ticks = _rows(data["/charts/data/ticks/lane_labels"], "Points2D:labels")
+    # each tick is logged when it enters the window (FUTURE_S ahead) and again at its
+    # time, but never after the last step (6 s here)
+    got = sorted((t, lb) for t, (lb,) in ticks)
+    assert got == [(0.0, "0 s"), (0.0, "0 s"), (0.0, "10 s"), (0.0, "20 s")]
 
 
-def test_actual_progress_is_a_darker_shade_of_the_plan(recorded, ch45):
-    path, confs = recorded
+def test_tables_list_confirmations_and_rejections_as_columns(recorded):
+    path, confs, _ = recorded
     data = _read(path)
-    for c in confs:
-        chart = f"/spacetime/{approach_of(ch45.route_by_id(c.route_id).in_lane)}"
-        plan = _only_row(data[f"{chart}/plan/{_esc(c.vin)}"], "LineStrips2D:colors")
-        actual = _rows(data[f"{chart}/actual"], "Points2D:colors")[0][1][0]
-        rgb = [(plan >> k) & 0xFF for k in (24, 16, 8)]
-        assert [(actual >> k) & 0xFF for k in (24, 16, 8)] == [int(v * 0.55) for v in rgb]
-        assert actual & 0xFF == plan & 0xFF  # same opacity
+    rows = [text for _, (text,) in _rows(data["/tables/confirmed"], "TextLog:text")]
+    assert len(rows) == len(confs)
+    for c, row in zip(confs, rows, strict=True):
+        vin, route, entry, exit_, _delay, rounds = row.split()
+        assert (vin, route) == (c.vin, c.route_id)
+        assert float(entry) == pytest.approx(c.entry_time_s, abs=0.01)
+        assert float(exit_) == pytest.approx(c.exit_time_s, abs=0.01)
+        assert int(rounds) == c.iterations
+    (rej,) = [text for _, (text,) in _rows(data["/tables/rejected"], "TextLog:text")]
+    assert rej.split()[:2] == ["veh/9", "not_head"]
+    counts = _rows(data["/counts/confirmed"], "Scalars:scalars")
+    assert [v for _, (v,) in counts] == list(range(1, len(confs) + 1))
 
 
-def _only_row(batches: list[pa.RecordBatch], column: str) -> int:
-    ((_, colors),) = _rows(batches, column)
-    return colors[0]
-
-
-def test_charts_get_a_time_grid_every_ten_seconds(ch45, tmp_path):
-    """A 2D view has no axes: each chart gets a labelled tick every 10 s of sim
-    time, with the entry lines, logged at that time (so a moving window shows them)."""
-    rec = SpaceTimeRecorder(ch45, tmp_path / "g.rrd")
-    for k in range(0, 501):  # 0 .. 25 s
-        rec.footprints(k * 0.05, [], np.zeros(0), np.zeros(0), np.zeros(0), 5.0, 1.8)
-    rec.close()
-    data = _read(tmp_path / "g.rrd")
-    comm = ch45.comm_length_m
-    for a in ("E_in", "N_in", "S_in", "W_in"):
-        labels = _rows(data[f"/spacetime/{a}/grid_time"], "Points2D:labels")
-        assert labels == [(0.0, ["0 s"]), (10.0, ["10 s"]), (20.0, ["20 s"])]
-        grid = _rows(data[f"/spacetime/{a}/grid"], "LineStrips2D:strips")
-        t, (tick, entry, region) = grid[1]
-        assert t == 10.0
-        x10, x20 = 10.0 * CHART_M_PER_S, 20.0 * CHART_M_PER_S
-        assert [p[0] for p in tick] == [x10, x10] and tick[0][1] == pytest.approx(comm)
-        assert entry == [[x10, 0.0], [x20, 0.0]]
-        assert region == [[x10, pytest.approx(comm)], [x20, pytest.approx(comm)]]
-
-
-def test_charts_show_a_moving_window_and_the_time_panel_is_open(recorded):
-    """Each chart shows the last 40 s before the cursor, not the whole run
-    squeezed into one view; the time panel starts expanded."""
-    path, _ = recorded
-    blueprint = _read(path, blueprint=True)
-    ranges = [
-        b.column(c).to_pylist()
-        for batches in blueprint.values()
-        for b in batches
-        for c in b.schema.names
-        if c.endswith("VisibleTimeRanges:ranges")
-    ]
-    assert len(ranges) == 4  # one per chart
-    for (r,) in ranges:  # from 40 s before the cursor (relative, in ns) to the cursor
-        assert r == [{"timeline": "sim_time", "range": {"start": -40_000_000_000, "end": 0}}]
-    panels = {
-        e: b.column(c).to_pylist()[0][0]
-        for e, batches in blueprint.items()
-        for b in batches
-        for c in b.schema.names
-        if c.endswith("Blueprint:state")
-    }
-    assert panels == {"/time_panel": 3, "/blueprint_panel": 2, "/selection_panel": 2}  # 3 open
+def test_conflict_points_cover_what_shapely_covers(ch45):
+    points = find_conflict_points(ch45, ConflictTables(ch45, MARGIN_M), Shape(LENGTH_M, WIDTH_M))
+    assert 5 <= len(points) <= 30
+    rng = np.random.default_rng(3)
+    centre = rng.uniform(-15, 15, (200, 2))
+    ang = rng.uniform(-np.pi, np.pi, 200)
+    heading = np.stack([np.cos(ang), np.sin(ang)], -1)
+    got = covers(centre, heading, 2.75, 1.15, points.xy)
+    for n in range(200):
+        u, v = heading[n] * 2.75, np.array([-heading[n][1], heading[n][0]]) * 1.15
+        poly = shapely.Polygon(
+            [centre[n] + u + v, centre[n] - u + v, centre[n] - u - v, centre[n] + u - v]
+        )
+        want = [poly.buffer(1e-9).contains(shapely.Point(p)) for p in points.xy]
+        assert list(got[n]) == want
 
 
 def test_rectangles_in_sumo_frame_by_hand():
@@ -327,19 +545,7 @@ def test_caller_bugs_are_value_errors(ch45, tmp_path):
         with pytest.raises(ValueError, match="equal length"):
             rec.footprints(0.0, ["a", "b"], z, z, z, 5.0, 1.8)
         with pytest.raises(ValueError, match="unknown route"):
-            rec.progress(0.0, ["a"], ["nowhere"], np.zeros(1))
-
-
-# -- dica view ---------------------------------------------------------------------
-@pytest.mark.parametrize("case", ["missing", "empty", "not_rrd"])
-def test_view_without_a_recording_is_one_line_and_status_2(case, tmp_path, capsys):
-    target = {"missing": tmp_path / "nope", "empty": tmp_path, "not_rrd": tmp_path / "a.txt"}[case]
-    if case == "not_rrd":
-        target.write_text("x")
-    assert dica(["view", str(target)]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("dica: ") and err.count("\n") == 1, err
-    assert "Traceback" not in err
+            rec.footprints(0.0, ["a"], z[:1], z[:1], z[:1], 5.0, 1.8, route_ids=["nowhere"])
 
 
 def _free_port() -> int:
@@ -354,8 +560,45 @@ def _port_open(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
+def test_live_recording_serves_on_loopback_and_writes_the_same_file(ch45, tmp_path):
+    port = _free_port()
+    confs = _confirmations(ch45)[:1]
+    rec = SpaceTimeRecorder(ch45, tmp_path / "live.rrd", live_port=port)
+    rec.geometry()
+    assert _port_open(port)
+    c = confs[0]
+    rec.confirmed(c.vin, c.route_id, c.tss.t_s, c.tss.x_m, c.tss.y_m, c.tss.heading_rad,
+                  LENGTH_M, WIDTH_M, c.entry_time_s, c.exit_time_s)  # fmt: skip
+    _fly(rec, confs, 60)
+    rec.close()
+    deadline = time.monotonic() + 5
+    while _port_open(port) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _port_open(port)
+    data = _read(tmp_path / "live.rrd")
+    assert len(_rows(data["/junction/vehicles"], "LineStrips2D:strips")) == 60 // TOP_EVERY
+
+
+# -- dica view ---------------------------------------------------------------------
+@pytest.mark.parametrize("case", ["missing", "empty", "not_rrd", "live_nothing", "none"])
+def test_view_without_a_recording_is_one_line_and_status_2(case, tmp_path, capsys):
+    target = {"missing": tmp_path / "nope", "empty": tmp_path, "not_rrd": tmp_path / "a.txt"}
+    if case == "not_rrd":
+        target["not_rrd"].write_text("x")
+    if case == "live_nothing":
+        args = ["view", "--live", "--grpc-port", str(_free_port())]
+    elif case == "none":
+        args = ["view"]
+    else:
+        args = ["view", str(target[case])]
+    assert dica(args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("dica: ") and err.count("\n") == 1, err
+    assert "Traceback" not in err
+
+
 def test_view_web_serves_on_loopback_and_stops_its_viewer(recorded):
-    path, _ = recorded
+    path, _, _ = recorded
     port, grpc = _free_port(), _free_port()
     cmd = [sys.executable, "-m", "tools.cli", "view", "--web", "--port", str(port)]
     cmd += ["--grpc-port", str(grpc), str(path.parent)]
@@ -380,3 +623,45 @@ def test_view_web_serves_on_loopback_and_stops_its_viewer(recorded):
     while (_port_open(port) or _port_open(grpc)) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert not _port_open(port) and not _port_open(grpc), "the viewer outlived dica view"
+
+
+def test_view_live_web_points_the_page_at_the_live_observer(ch45, tmp_path):
+    live = _free_port()
+    rec = SpaceTimeRecorder(ch45, tmp_path / "live.rrd", live_port=live)
+    port = _free_port()
+    cmd = [sys.executable, "-m", "tools.cli", "view", "--live", "--web", "--port", str(port)]
+    cmd += ["--grpc-port", str(live)]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True
+    )
+    try:
+        line = proc.stdout.readline()
+        assert line.startswith(f"web viewer: http://127.0.0.1:{port}/"), line
+        assert f"rerun%2Bhttp%3A%2F%2F127.0.0.1%3A{live}%2Fproxy" in line
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/", timeout=10) as resp:
+            assert resp.status == 200
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=15)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+        rec.close()
+
+
+def test_time_padding_widens_every_reserved_box(ch45, tmp_path):
+    """With the ICA's time padding the boxes show what it reserved: that much wider."""
+    conf = _confirmations(ch45)[1]
+    widths = {}
+    for pad in (0.0, 0.5):
+        rec = SpaceTimeRecorder(ch45, tmp_path / f"pad{pad}.rrd")
+        t = conf.tss
+        rec.confirmed(conf.vin, conf.route_id, t.t_s, t.x_m, t.y_m, t.heading_rad,
+                      LENGTH_M, WIDTH_M, conf.entry_time_s, conf.exit_time_s,
+                      time_pad_s=pad)  # fmt: skip
+        rec.close()
+        data = _read(tmp_path / f"pad{pad}.rrd")
+        ((_, halves),) = _rows(data["/charts/data/zones/reserved"], "Boxes2D:half_sizes")[:1]
+        widths[pad] = np.array([2 * h[0] / K for h in halves])
+    np.testing.assert_allclose(widths[0.5], widths[0.0] + 1.0, atol=1e-4)

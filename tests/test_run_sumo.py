@@ -190,8 +190,11 @@ def test_rising_volume_keeps_arriving_until_the_end(tmp_path):
 
 def test_run_records_every_confirmation_and_footprint(tmp_path):
     import csv
+    import itertools
 
     from rerun.chunk import RrdReader
+
+    from sim_gateway.recording import TOP_EVERY
 
     out = tmp_path / "run"
     p = dica(*("run", "--volume", "500", "--duration", "40", "--seed", "21"),
@@ -202,13 +205,15 @@ def test_run_records_every_confirmation_and_footprint(tmp_path):
     drawn, steps = set(), set()
     for chunk in RrdReader(out / "spacetime.rrd").stream():
         path = str(chunk.entity_path)
-        if "/occupancy/" in path:
-            drawn.add(path.rsplit("/", 1)[-1])
         batch = chunk.to_record_batch()
+        if path == "/tables/confirmed" and "TextLog:text" in batch.schema.names:
+            drawn.update(row[0].split()[0] for row in batch.column("TextLog:text").to_pylist())
         if path == "/junction/vehicles" and "sim_time" in batch.schema.names:
             steps.update(batch.column("sim_time").cast("int64").to_pylist())
     assert drawn == confirmed and len(confirmed) > 10
-    assert len(steps) == round(40 / 0.05)
+    # the top view on every TOP_EVERY-th step from the first confirmation to the end
+    gaps = {round((b - a) / 1e9, 6) for a, b in itertools.pairwise(sorted(steps))}
+    assert gaps == {0.05 * TOP_EVERY} and max(steps) / 1e9 > 40 - 0.05 * TOP_EVERY
 
 
 UNCHECKED = """

@@ -1,14 +1,19 @@
-"""Benchmark: milliseconds per simulation step spent recording a run with Rerun.
+"""Benchmark: what recording costs a run, and what it writes.
 
-Vehicles drive along the chapter 4-5 junction's routes at constant speed; each
-step logs all their footprints and their distance along the route (the
-projection included), and one vehicle a second gets a confirmation (a real
-proposed TSS). The budget in STACK-NOTES is about 2 ms per step for 30 vehicles.
+Runs the same ``dica run`` (default junction, volume 500, 600 s, one seed)
+with and without ``--record``, alternating, ``--repeats`` times each, and
+compares the medians of the loop's wall time (the "simulated in" figure, which
+leaves out start-up that both share) and of the whole command. Prints the
+ratio (the target is at most 1.5), the file's size and its number of chunks.
+Figures on a shared machine move by 2x between runs; compare the ratio, which
+is taken within one run.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
+import subprocess
 import sys
 import tempfile
 import time
@@ -16,78 +21,52 @@ from pathlib import Path
 
 import numpy as np
 
-from ica.core.proposal import propose
-from ica.netfile import load_intersection
-from sim_gateway.recording import SpaceTimeRecorder
-from sim_gateway.scenario import default_scenario
+ROOT = Path(__file__).resolve().parent.parent
+LOOP = re.compile(r"simulated in ([0-9.]+) s")
 
-STEP_S = 0.05  # [s]
+
+def one_run(out: Path, record: bool, volume: int, duration_s: float) -> tuple[float, float]:
+    """(loop seconds, whole command seconds) of one ``dica run``."""
+    cmd = [sys.executable, "-m", "tools.cli", "run", "--volume", str(volume)]
+    cmd += ["--duration", str(duration_s), "--out", str(out)]
+    if record:
+        cmd.append("--record")
+    t0 = time.perf_counter()
+    p = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, check=True)
+    whole = time.perf_counter() - t0
+    m = LOOP.search(p.stdout + p.stderr)
+    if m is None:
+        raise RuntimeError("dica run printed no 'simulated in' figure")
+    return float(m.group(1)), whole
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="bench_recording", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--vehicles", type=int, default=30)
-    ap.add_argument("--steps", type=int, default=2000, help="0.05 s steps (default 2000)")
-    ap.add_argument("--out", type=Path, help=".rrd to write (default: a temporary file)")
+    ap.add_argument("--volume", type=int, default=500)
+    ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds")
+    ap.add_argument("--repeats", type=int, default=3)
     args = ap.parse_args(argv)
-    if args.vehicles < 1 or args.steps < 2:
-        print("bench_recording: need --vehicles >= 1 and --steps >= 2", file=sys.stderr)
+    if args.repeats < 1 or args.duration <= 0:
+        print("bench_recording: need --repeats >= 1 and --duration > 0", file=sys.stderr)
         return 2
-
-    sc = default_scenario("ch45")
-    inter = load_intersection(sc.net_path, sc.junction_id)
-    rng = np.random.default_rng(1)
-    routes = [inter.routes[i % len(inter.routes)] for i in range(args.vehicles)]
-    s0 = rng.uniform(-inter.comm_length_m, 0.0, args.vehicles)
-    speed = rng.uniform(5.0, 15.0, args.vehicles)
-    vins = [f"veh{i}" for i in range(args.vehicles)]
-    rids = [r.id for r in routes]
-    proposals = [
-        propose(r, vin=f"c{i}", seq=0, t0_s=0.0, dist_to_entry_m=40.0, speed_mps=12.0)
-        for i, r in enumerate(inter.routes)
-    ]
-
+    plain, rec = [], []
     with tempfile.TemporaryDirectory() as tmp:
-        path = args.out or Path(tmp) / "bench.rrd"
-        rec = SpaceTimeRecorder(inter, path)
-        rec.geometry()
-        step_times, conf_times = [], []
-        for k in range(args.steps):
-            t = k * STEP_S
-            s = s0 + speed * t
-            s = (s + inter.comm_length_m) % (inter.comm_length_m + 30.0) - inter.comm_length_m
-            xy = np.array([r.points(si) for r, si in zip(routes, s, strict=True)])
-            ahead = np.array([r.points(si + 0.5) for r, si in zip(routes, s, strict=True)])
-            d = ahead - xy
-            angle = np.degrees(np.arctan2(d[:, 0], d[:, 1]))  # SUMO: from north, clockwise
-            t0 = time.perf_counter()
-            rec.footprints(t, vins, xy[:, 0], xy[:, 1], angle, 5.0, 1.8, route_ids=rids)
-            step_times.append(time.perf_counter() - t0)
-            if k % round(1.0 / STEP_S) == 0:
-                req = proposals[(k // 20) % len(proposals)]
-                tss = req.tss
-                route = inter.route(req.in_lane, req.out_lane)
-                assert route is not None
-                t0 = time.perf_counter()
-                rec.confirmed(
-                    f"c{k}", route.id, tss.t_s + t, tss.x_m, tss.y_m, tss.heading_rad,
-                    5.0, 1.8, float(tss.t_s[0] + t + 2.0), float(tss.t_s[-1] + t),
-                )  # fmt: skip
-                conf_times.append(time.perf_counter() - t0)
-        t0 = time.perf_counter()
-        rec.close()
-        close_s = time.perf_counter() - t0
-        size = path.stat().st_size
+        for i in range(args.repeats):
+            plain.append(one_run(Path(tmp) / f"p{i}", False, args.volume, args.duration))
+            rec.append(one_run(Path(tmp) / f"r{i}", True, args.volume, args.duration))
+        rrd = Path(tmp) / "r0" / "spacetime.rrd"
+        size_mb = rrd.stat().st_size / 1e6
+        from rerun.chunk import RrdReader
 
-    ms = np.array(step_times) * 1e3
+        n_chunks = sum(1 for _ in RrdReader(rrd).stream())
+    p_loop, p_whole = np.median(plain, axis=0)
+    r_loop, r_whole = np.median(rec, axis=0)
+    print(f"dica run, {args.duration:g} s at volume {args.volume}, median of {args.repeats}:")
+    print(f"  loop:  {p_loop:.1f} s plain, {r_loop:.1f} s with --record: {r_loop / p_loop:.2f}x")
     print(
-        f"{args.vehicles} vehicles, {args.steps} steps: footprints+progress "
-        f"median {np.median(ms):.3f} ms/step, mean {ms.mean():.3f}, p99 {np.percentile(ms, 99):.3f}"
+        f"  whole: {p_whole:.1f} s plain, {r_whole:.1f} s with --record: {r_whole / p_whole:.2f}x"
     )
-    print(
-        f"confirmed(): median {np.median(conf_times) * 1e3:.3f} ms per confirmation "
-        f"({len(conf_times)} logged); close {close_s * 1e3:.0f} ms; file {size / 1e6:.2f} MB"
-    )
+    print(f"  recording: {size_mb:.2f} MB in {n_chunks} chunks")
     return 0
 
 

@@ -240,13 +240,28 @@ def cmd_observer(args: argparse.Namespace) -> int:
     session, log = _session(args, "observer")
     from sim_gateway.observer import Observer
 
-    try:
-        obs = Observer(session, inter, args.rrd, log)
-    except OSError as e:
+    if not 1 <= args.grpc_port <= 65535:
         session.close()
-        raise UsageError(f"cannot write {args.rrd}: {e}") from None
+        raise UsageError("--grpc-port must be between 1 and 65535")
+    live = args.grpc_port if args.live else None
+    try:
+        obs = Observer(
+            session,
+            inter,
+            args.rrd,
+            log,
+            margin_m=args.margin,
+            time_pad_s=args.time_pad,
+            live_port=live,
+        )
+    except (OSError, RuntimeError) as e:
+        session.close()
+        what = f"port {live} on 127.0.0.1" if live else args.rrd
+        raise UsageError(f"cannot write {what}: {e}") from None
     obs.inbox.stop_on_signals()
     log.info("recording junction %s into %s", inter.junction_id, args.rrd)
+    if live:
+        log.info("live on rerun+http://127.0.0.1:%d/proxy (watch: dica view --live)", live)
     try:
         obs.run()
     finally:
@@ -338,10 +353,30 @@ def add_role_parsers(sub) -> None:
         "observer",
         help="record vehicle footprints and confirmed DTOTs into a Rerun .rrd",
         description="Listens to the vehicle states and the ICA's confirmations and writes a "
-        "space-time recording (open it with dica view). Stops at the run's end or on SIGTERM.",
+        "space-time recording (open it with dica view). With --live it also serves the "
+        "recording over gRPC on 127.0.0.1 while it writes, for dica view --live. Stops at the "
+        "run's end or on SIGTERM.",
     )
     add_net_args(o)
     o.add_argument("--rrd", type=Path, required=True, help="the .rrd file to write")
+    o.add_argument("--margin", type=float, default=0.25, help="the ICA's margin [m]")
+    o.add_argument(
+        "--time-pad",
+        type=float,
+        default=0.0,
+        help="the ICA's time padding [s]: reserved intervals are drawn that much wider",
+    )
+    o.add_argument(
+        "--live",
+        action="store_true",
+        help="also serve the recording on 127.0.0.1 as it is made (watch: dica view --live)",
+    )
+    o.add_argument(
+        "--grpc-port",
+        type=int,
+        default=9876,
+        help="port of the live recording on 127.0.0.1 (with --live; default 9876)",
+    )
     _add_link_args(o)
     o.set_defaults(func=cmd_observer)
 

@@ -32,6 +32,8 @@ scenario and roles:
                         realtime: paced to the wall clock (default lockstep)
   --speed F             realtime clock speed factor (default 1)
   --no-record           no Rerun observer and no .rrd
+  --live                the observer also serves the recording on 127.0.0.1:9876
+                        as it is made; watch with: .venv/bin/dica view --live [--web]
   --secure              TLS, log-ins and per-role access rules on the router, with
                         fresh secrets in RUN_DIR/zenoh/ (see dica secure-config --help)
 
@@ -69,7 +71,7 @@ number() { [[ "$2" =~ ^[0-9]+([.][0-9]+)?$ ]] || die "$1 wants a non-negative nu
 prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1 must be at most 0.9, got $2"; }
 
 layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
-agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0
+agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
 delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
 max_age="" restart=1
 extra=()
@@ -87,6 +89,7 @@ while [ $# -gt 0 ]; do
     --clock) clock="$2"; shift 2 ;;
     --speed) speed="$2"; shift 2 ;;
     --no-record) record=0; shift ;;
+    --live) live=(--live); shift ;;
     --secure) secure=1; shift ;;
     --delay) delay="$2"; shift 2 ;;
     --jitter) jitter="$2"; shift 2 ;;
@@ -278,7 +281,8 @@ start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" \
   --time-pad "$time_pad" --max-age "$max_age" "${role_link[@]}"
 if [ "$record" = 1 ]; then
   link_for observer observer
-  start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" "${role_link[@]}"
+  start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" --time-pad "$time_pad" \
+    "${live[@]}" "${role_link[@]}"
 fi
 for i in $(seq "$agents"); do
   link_for "agent-$i" "agent-$i"

@@ -20,14 +20,16 @@ from pathlib import Path
 from types import FrameType
 from urllib.parse import quote
 
-DESCRIPTION = """Open the Rerun recording (.rrd) of a run directory.
+DESCRIPTION = """Open the Rerun recording (.rrd) of a run directory, or watch a run live.
 
 Without --web, starts Rerun's desktop viewer on the recording. With --web,
 serves the web viewer on 127.0.0.1 only (for a headless host: forward the
 ports, e.g. ssh -L 9090:127.0.0.1:9090 -L 9876:127.0.0.1:9876 HOST) and prints
 the URL to open; Ctrl-C stops the viewer. Every .rrd directly in RUN_DIR is
-opened (RUN_DIR may also be an .rrd file). Exit status 2 when there is no
-recording to open."""
+opened (RUN_DIR may also be an .rrd file). With --live (no RUN_DIR), attaches
+to an observer started with --live (run_cluster.sh --live) on
+127.0.0.1:--grpc-port and shows the run as it happens; the observer writes the
+same .rrd meanwhile. Exit status 2 when there is no recording to open."""
 
 READY_TIMEOUT_S = 20.0  # [s] until the web viewer's port must accept connections
 STOP_GRACE_S = 3.0  # [s] between SIGTERM and SIGKILL of the viewer's group
@@ -81,9 +83,13 @@ def viewer_command(files: list[Path], web: bool, port: int, grpc_port: int) -> l
     return cmd + [str(f) for f in files]
 
 
+def live_source(grpc_port: int) -> str:
+    """Where a live observer serves its recording."""
+    return f"rerun+http://127.0.0.1:{grpc_port}/proxy"
+
+
 def web_url(port: int, grpc_port: int) -> str:
-    proxy = f"rerun+http://127.0.0.1:{grpc_port}/proxy"
-    return f"http://127.0.0.1:{port}/?url={quote(proxy, safe='')}"
+    return f"http://127.0.0.1:{port}/?url={quote(live_source(grpc_port), safe='')}"
 
 
 def _port_open(port: int) -> bool:
@@ -106,13 +112,35 @@ def stop_group(proc: subprocess.Popen[bytes]) -> None:
         proc.wait()
 
 
-def run(files: list[Path], web: bool, port: int, grpc_port: int) -> int:
-    """Start the viewer, wait for it to end or for Ctrl-C/SIGTERM, and stop its group."""
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def run(files: list[Path], web: bool, port: int, grpc_port: int, live: bool = False) -> int:
+    """Start the viewer, wait for it to end or for Ctrl-C/SIGTERM, and stop its group.
+
+    ``live``: the data comes from an observer's gRPC server on ``grpc_port``;
+    the web viewer's own (empty) server then takes a free port.
+    """
+    if live and not _port_open(grpc_port):
+        raise ViewError(
+            f"nothing serves a live recording on 127.0.0.1:{grpc_port}; start the run "
+            "with run_cluster.sh --live (or dica observer --live)"
+        )
+    own_grpc = free_port() if live else grpc_port
     if web:
-        busy = [p for p in (port, grpc_port) if _port_open(p)]
+        busy = [p for p in (port, own_grpc) if _port_open(p)]
         if busy:
             raise ViewError(f"port {busy[0]} on 127.0.0.1 is in use; choose another with --port")
-    proc = subprocess.Popen(viewer_command(files, web, port, grpc_port), start_new_session=True)
+    if live and web:  # the page connects to the observer itself (see web_url)
+        cmd = viewer_command([], True, port, own_grpc)
+    elif live:
+        cmd = [rerun_binary(), live_source(grpc_port)]
+    else:
+        cmd = viewer_command(files, web, port, grpc_port)
+    proc = subprocess.Popen(cmd, start_new_session=True)
 
     def on_term(signum: int, frame: FrameType | None) -> None:
         raise KeyboardInterrupt
@@ -137,8 +165,15 @@ def run(files: list[Path], web: bool, port: int, grpc_port: int) -> int:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("run_dir", type=Path, metavar="RUN_DIR", help="run directory (or an .rrd)")
+    p.add_argument(
+        "run_dir", type=Path, nargs="?", metavar="RUN_DIR", help="run directory (or an .rrd)"
+    )
     p.add_argument("--web", action="store_true", help="serve the web viewer on 127.0.0.1")
+    p.add_argument(
+        "--live",
+        action="store_true",
+        help="watch a running observer (started with --live) instead of a file",
+    )
     p.add_argument(
         "--port", type=int, default=9090, help="web viewer HTTP port (with --web; default 9090)"
     )
@@ -146,7 +181,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--grpc-port",
         type=int,
         default=9876,
-        help="port the web viewer streams the recording from (with --web; default 9876)",
+        help="port the web viewer streams the recording from (with --web), or the live "
+        "observer's port (with --live); default 9876",
     )
 
 
@@ -157,5 +193,11 @@ def main(args: argparse.Namespace) -> int:
             raise ViewError(f"--{name.replace('_', '-')} must be between 1 and 65535")
     if args.web and args.port == args.grpc_port:
         raise ViewError("--port and --grpc-port must differ")
+    if args.live:
+        if args.run_dir is not None:
+            raise ViewError("--live watches a running observer; give no RUN_DIR with it")
+        return run([], args.web, args.port, args.grpc_port, live=True)
+    if args.run_dir is None:
+        raise ViewError("give a RUN_DIR (or an .rrd), or --live")
     files = find_recordings(args.run_dir)
     return run(files, args.web, args.port, args.grpc_port)

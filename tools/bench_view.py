@@ -1,0 +1,84 @@
+"""Benchmark: size of a recording and the time Rerun's web viewer takes to show all of it.
+
+Makes a 10-minute recording at volume 500 with ``dica run --record`` (or takes
+``--rrd``), serves it with ``rerun --serve-web`` on 127.0.0.1 and opens it in
+Debian's headless Chromium with software WebGL (``tools/install_chromium.sh``
+installs it). "Shown" means: the viewer has the recording up to its last time
+(read from the viewer's own state) and has drawn a frame. The clock starts when
+the page is asked for, so it includes loading the viewer itself; an almost empty
+recording is measured the same way in the same run, and the difference is the
+cost of the data.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def shown_after_s(rrd: Path, timeout_s: float) -> float:
+    """Seconds from opening the page until the whole recording is drawn."""
+    from tools.webshot import Browser, Viewer, last_time_ns, wait_loaded
+
+    end = last_time_ns(rrd)
+    with Viewer([rrd]) as viewer, Browser() as browser:
+        t0 = time.monotonic()
+        browser.open(viewer.url)
+        wait_loaded(browser, end, timeout_s)
+        return time.monotonic() - t0
+
+
+def empty_recording(path: Path) -> Path:
+    import rerun as rr
+
+    rec = rr.RecordingStream("dica")
+    rec.save(path)
+    rec.set_time("sim_time", duration=1.0)
+    rec.log("counts/vehicles", rr.Scalars(0.0))
+    rec.disconnect()
+    return path
+
+
+def chunks(rrd: Path) -> int:
+    from rerun.chunk import RrdReader
+
+    return sum(1 for _ in RrdReader(rrd).stream())
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="bench_view", description=__doc__.split("\n\n")[0])
+    ap.add_argument("--rrd", type=Path, help="measure this recording instead of making one")
+    ap.add_argument("--volume", type=int, default=500)
+    ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds")
+    ap.add_argument("--timeout", type=float, default=900.0, help="[s] before giving up")
+    args = ap.parse_args(argv)
+    if args.rrd is not None and not args.rrd.is_file():
+        print(f"bench_view: no recording {args.rrd}", file=sys.stderr)
+        return 2
+    subprocess.run(["bash", str(ROOT / "tools" / "install_chromium.sh")], check=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        rrd = args.rrd
+        if rrd is None:
+            out = Path(tmp) / "run"
+            cmd = [sys.executable, "-m", "tools.cli", "run", "--volume", str(args.volume)]
+            cmd += ["--duration", str(args.duration), "--record", "--quiet", "--out", str(out)]
+            subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
+            rrd = out / "spacetime.rrd"
+        base = shown_after_s(empty_recording(Path(tmp) / "empty.rrd"), args.timeout)
+        full = shown_after_s(rrd, args.timeout)
+        size_mb = rrd.stat().st_size / 1e6
+        n_chunks = chunks(rrd)
+    print(f"recording: {size_mb:.2f} MB in {n_chunks} chunks")
+    print(f"web viewer, whole recording shown after {full:.1f} s "
+          f"(an empty recording: {base:.1f} s; the data: {full - base:.1f} s)")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
