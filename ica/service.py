@@ -18,6 +18,12 @@ Repeats and loss: a repeated request (same VIN and sequence number) gets the
 same confirmation, never a second reservation; an older one is refused; a
 newer one means the vehicle did not fly the one it holds, which is then freed.
 
+Whose vehicle: the first agent to announce a vehicle (its DETECT, on the
+agent's own key) speaks for it from then on; another agent's DETECT, REQUEST
+or CANCEL for it is refused, unless the gateway's vehicle feed says the
+vehicle was handed to that agent (its first agent died). So one agent's
+credentials cannot take back, or ask over, another agent's reservations.
+
 Crashes: with a journal, every DETECT taken, confirmation given and
 reservation freed is written to disk before it is answered, and a restarted
 ICA replays it before it serves, so no confirmation after a restart conflicts
@@ -44,8 +50,8 @@ from ica.journal import Journal, Replayed, replay
 from schemas import keys
 from schemas.codec import DecodeError, decode, encode, now_ns
 from schemas.convert import reject_from_core, request_to_core, response_from_core
-from schemas.link import Inbox, Item, put, reply
-from schemas.messages import Ack, Cancel, Clock, Detect, Reject, Request, Stats
+from schemas.link import Inbox, Item, note_refused, put, refused, reply
+from schemas.messages import Ack, Cancel, Clock, Detect, Reject, Request, State, Stats
 
 HOLD_S = 2.0  # [s wall] longest a request may wait for the clock to reach its time
 STATS_EVERY_S = 5.0  # [s wall] how often the statistics file is rewritten
@@ -62,6 +68,8 @@ class ServiceStats:
     bad_messages: int = 0
     acks: int = 0
     ignored_clocks: int = 0
+    not_theirs: int = 0  # asked about another agent's vehicle
+    handovers: int = 0  # vehicles the gateway handed to another agent
     rejections: dict[str, int] = field(default_factory=dict)
     compute_s: list[float] = field(default_factory=list)
     journal_replayed: dict | None = None
@@ -78,10 +86,13 @@ class ServiceStats:
             "bad_messages": self.bad_messages,
             "acks": self.acks,
             "ignored_clocks": self.ignored_clocks,
+            "not_theirs": self.not_theirs,
+            "handovers": self.handovers,
             "rejections": dict(self.rejections),
             "compute_median_ms": float(np.median(rt) * 1e3),
             "compute_p99_ms": float(np.percentile(rt, 99) * 1e3),
             "journal_replayed": self.journal_replayed,
+            "refused_unsealed": refused(),
         }
 
 
@@ -109,6 +120,8 @@ class IcaService:
         self._held: list[tuple[float, Item]] = []
         self._published: set[tuple[str, int]] = set()
         self._clock_key = keys.clock(junction)
+        self._vehicles_key = keys.vehicles(junction)
+        self._owner: dict[str, str] = {}  # VIN -> the agent that speaks for it
         self._decls: list = []
         self._token = None
 
@@ -153,6 +166,7 @@ class IcaService:
             self.session.declare_queryable(keys.ica_stats(j), self.inbox.query_cb("stats")),
             self.session.declare_subscriber(self._clock_key, self.inbox.sample_cb("clock")),
             self.session.declare_subscriber(keys.ack(j), self.inbox.sample_cb("ack")),
+            self.session.declare_subscriber(self._vehicles_key, self.inbox.sample_cb("vehicles")),
         ]
         self._token = self.session.liveliness().declare_token(keys.ica_alive(j))
 
@@ -163,8 +177,10 @@ class IcaService:
         while not self.inbox.stopping.is_set() and not self.ended:
             item = self.inbox.get(timeout=0.1)
             self._expire_held()
-            if stats_path is not None and time.monotonic() - written > STATS_EVERY_S:
-                write_stats(stats_path, self.stats)
+            if time.monotonic() - written > STATS_EVERY_S:
+                note_refused(self.log)
+                if stats_path is not None:
+                    write_stats(stats_path, self.stats)
                 written = time.monotonic()
             if item is None:
                 if idle_exit_s is not None and time.monotonic() - last > idle_exit_s:
@@ -197,6 +213,8 @@ class IcaService:
             self._on_detect(item)
         elif item.what == "cancel":
             self._on_cancel(item)
+        elif item.what == "vehicles":
+            self._on_vehicles(item)
         elif item.what == "stats":
             body = json.dumps(self.stats.as_dict())
             reply(item.query, item.key, encode(Stats("ica", self.junction, body, now_ns())))
@@ -230,6 +248,28 @@ class IcaService:
             self._on_request(h, since)
         self.ended = clock.end
 
+    def _on_vehicles(self, item: Item) -> None:
+        """The gateway's word on who hosts each vehicle (it changes when an agent dies)."""
+        if item.key != self._vehicles_key:
+            return
+        try:
+            state = decode(item.payload, State)
+        except DecodeError as e:
+            self._bad(item, e)
+            return
+        for v in state.vehicles:
+            before = self._owner.get(v.vin)
+            if v.owner and before != v.owner:
+                self._owner[v.vin] = v.owner
+                self.stats.handovers += before is not None
+            if v.exited:
+                self._owner.pop(v.vin, None)
+
+    def _speaks_for(self, item: Item, vin: str) -> bool:
+        """Whether the agent that asked (its key's last chunk) may speak for ``vin``."""
+        owner = self._owner.get(vin)
+        return owner is None or owner == keys.last(item.key)
+
     def _on_request(self, item: Item, since: float | None = None) -> None:
         try:
             msg = decode(item.payload, Request)
@@ -239,6 +279,10 @@ class IcaService:
             return
         if not _is_chunk(msg.vin):
             self._reject(item.query, "?", msg.seq, Reason.BAD_STATE, "VIN has key characters")
+            return
+        if not self._speaks_for(item, msg.vin):
+            self.stats.not_theirs += 1
+            self._reject(item.query, msg.vin, msg.seq, Reason.BAD_STATE, "another agent's vehicle")
             return
         if msg.t_obs_s > self.now_s + 1e-9:
             # observed at a time the ICA's clock has not reached: the CLOCK for it
@@ -280,6 +324,10 @@ class IcaService:
         if not _is_chunk(msg.vin):
             self._reject(item.query, "?", -1, Reason.BAD_STATE, "VIN has key characters")
             return
+        if not self._speaks_for(item, msg.vin):
+            self.stats.not_theirs += 1
+            self._reject(item.query, msg.vin, -1, Reason.BAD_STATE, "another agent's vehicle")
+            return
         known = msg.vin in self.ica._lane_of
         try:
             self.ica.detect(msg.vin, msg.lane, msg.t_s)
@@ -287,6 +335,7 @@ class IcaService:
             self._count(Rejection(msg.vin, -1, e.reason, e.detail))
             self._reject(item.query, msg.vin, -1, e.reason, e.detail)
             return
+        self._owner.setdefault(msg.vin, keys.last(item.key))
         if self.journal is not None and not known:
             self.journal.detect(msg.vin, msg.lane, msg.t_s)
         reply(item.query, item.key, encode(Ack(msg.vin, -1, Detect.KIND, now_ns())))
@@ -297,6 +346,10 @@ class IcaService:
         except DecodeError as e:
             self._bad(item, e)
             self._reject(item.query, "?", -1, Reason.BAD_MESSAGE, f"{e.why.value}: {e.detail}")
+            return
+        if not self._speaks_for(item, msg.vin):
+            self.stats.not_theirs += 1
+            self._reject(item.query, msg.vin, msg.seq, Reason.BAD_STATE, "another agent's vehicle")
             return
         if self.ica.cancel(msg.vin, msg.seq):
             self.stats.cancels += 1
@@ -357,7 +410,7 @@ def write_stats(path: Path, stats: ServiceStats) -> None:
     runs.append(mine)
     total: dict = {"incarnations": runs}
     for k in ("requests", "confirmed", "repeated", "superseded", "detects", "cancels",
-              "bad_messages", "acks", "ignored_clocks"):  # fmt: skip
+              "bad_messages", "acks", "ignored_clocks", "not_theirs", "handovers"):  # fmt: skip
         total[k] = sum(int(r.get(k, 0)) for r in runs)
     rej: dict[str, int] = {}
     for r in runs:

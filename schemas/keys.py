@@ -95,3 +95,34 @@ def last(key: str) -> str:
 
 def _one(name: str) -> str:
     return name if name == "*" else chunk(name)
+
+
+def writer_of(key: str, action: str) -> str | None:
+    """The one role (or agent) that may write a message on ``key``.
+
+    ``action`` is ``put`` (a publication), ``query`` (asking) or ``reply``
+    (answering a query on that key). None: nobody may; in particular a key with
+    a wildcard or an unknown layout has no writer.
+    """
+    parts = key.split("/")
+    if len(parts) not in (3, 4) or not all(_CHUNK.match(p) for p in parts):
+        return None
+    space, _junction, kind, *rest = parts
+    name = rest[0] if rest else None
+    if space == "sim":
+        if (kind in ("clock", "vehicles") and name is None) or (kind == "state" and name):
+            return "gateway" if action == "put" else None
+        if kind == "command" and name:
+            return name if action == "put" else None
+        if kind == "stats" and name:
+            return {"query": "gateway", "reply": name}.get(action)
+    elif space == "dica":
+        if kind in ("request", "detect", "cancel") and name:
+            return {"query": name, "reply": "ica"}.get(action)
+        if kind == "ack" and name:
+            return name if action == "put" else None
+        if kind in ("confirmed", "revoke") and name:
+            return "ica" if action == "put" else None
+        if kind == "stats" and name is None:
+            return {"query": "gateway", "reply": "ica"}.get(action)
+    return None

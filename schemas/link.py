@@ -21,7 +21,36 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from schemas import keys, seal
+
 DEFAULT_CLIENT_CONFIG = Path(__file__).resolve().parent.parent / "deploy" / "zenoh" / "client.json5"
+
+# what this process seals what it sends with and opens what it acts on with (schemas.seal);
+# an open site passes everything through
+GUARD = seal.NONE
+
+
+def use_guard(guard: seal.Guard) -> None:
+    global GUARD
+    GUARD = guard
+
+
+def refused() -> dict[str, int]:
+    """The messages this process refused so far, by why (see :func:`note_refused`)."""
+    return GUARD.refused()
+
+
+_told: dict[str, int] = {}
+
+
+def note_refused(log: logging.Logger) -> None:
+    """Log the messages refused since the last call: forged, unsealed, or sealed by a
+    writer the key does not belong to (an attack, or a misconfigured site)."""
+    now = GUARD.refused()
+    new = {k: n - _told.get(k, 0) for k, n in now.items() if n > _told.get(k, 0)}
+    if new:
+        log.warning("refused messages not sealed by their key's writer: %s", new)
+        _told.update(now)
 
 
 class LinkError(Exception):
@@ -90,15 +119,27 @@ class Inbox:
         self.stopping = threading.Event()
 
     def sample_cb(self, what: str):
+        """Publications, each only if its key's writer sealed it (on a secured site)."""
+
         def cb(sample) -> None:
-            self._q.put(Item(what, sample.payload.to_bytes(), str(sample.key_expr)))
+            key = str(sample.key_expr)
+            body = GUARD.take(sample.payload.to_bytes(), keys.writer_of(key, "put"))
+            if body is not None:
+                self._q.put(Item(what, body, key))
 
         return cb
 
     def query_cb(self, what: str):
+        """Queries, each only if its key's asker sealed it; refused ones go unanswered."""
+
         def cb(query) -> None:
+            key = str(query.key_expr)
             payload = query.payload.to_bytes() if query.payload is not None else b""
-            self._q.put(Item(what, payload, str(query.key_expr), query))
+            body = GUARD.take(payload, keys.writer_of(key, "query"))
+            if body is None:
+                query.drop()
+                return
+            self._q.put(Item(what, body, key, query))
 
         return cb
 
@@ -144,29 +185,61 @@ class Inbox:
         signal.signal(signal.SIGINT, handler)
 
 
-def publisher(session, key: str):
-    """A publisher that never drops (Zenoh's default for puts is to drop under
-    congestion, which would stall a lockstep step) and sends without batching."""
-    import zenoh
+class Publisher:
+    """A Zenoh publisher that never drops (Zenoh's default for puts is to drop under
+    congestion, which would stall a lockstep step), sends without batching, and
+    seals what it sends on a secured site."""
 
-    return session.declare_publisher(
-        key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
-    )
+    def __init__(self, session, key: str) -> None:
+        import zenoh
+
+        self._pub = session.declare_publisher(
+            key, congestion_control=zenoh.CongestionControl.BLOCK, express=True
+        )
+
+    def put(self, payload: bytes) -> None:
+        self._pub.put(GUARD.out(payload))
+
+    @property
+    def matching_status(self):
+        return self._pub.matching_status
+
+    def undeclare(self) -> None:
+        self._pub.undeclare()
+
+
+def publisher(session, key: str) -> Publisher:
+    return Publisher(session, key)
 
 
 def put(session, key: str, payload: bytes) -> None:
     """A one-off publication that is never dropped under congestion."""
     import zenoh
 
-    session.put(key, payload, congestion_control=zenoh.CongestionControl.BLOCK, express=True)
+    session.put(
+        key, GUARD.out(payload), congestion_control=zenoh.CongestionControl.BLOCK, express=True
+    )
 
 
 def reply(query, key: str, payload: bytes) -> None:
     """Answer a query once and finish it (the querier then stops waiting at once)."""
     try:
-        query.reply(key, payload, express=True)
+        query.reply(key, GUARD.out(payload), express=True)
     finally:
         query.drop()
+
+
+def reply_body(reply_, key: str) -> bytes | None:
+    """The payload of a query's reply, if it is one to act on: on the exact key asked,
+    and (on a secured site) sealed by the one who may answer on it."""
+    if reply_.ok is None or str(reply_.ok.key_expr) != key:
+        return None
+    return GUARD.take(reply_.ok.payload.to_bytes(), keys.writer_of(key, "reply"))
+
+
+def query_payload(payload: bytes) -> bytes:
+    """What a query carries: sealed on a secured site."""
+    return GUARD.out(payload)
 
 
 def setup_logging(role: str, verbose: bool = False) -> logging.Logger:

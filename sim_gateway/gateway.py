@@ -41,7 +41,7 @@ import numpy as np
 
 from schemas import keys
 from schemas.codec import DecodeError, decode, encode, now_ns
-from schemas.link import Inbox, Item, publisher
+from schemas.link import Inbox, Item, note_refused, publisher, query_payload, refused, reply_body
 from schemas.messages import Clock, Command, State, Stats, VehicleState
 from sim_gateway.embedded import ica_config, schedule_for
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
@@ -180,11 +180,12 @@ class ZenohDrivers:
         for name, key in targets:
             for _ in range(3):  # a lossy link may eat the query or the answer
                 got = None
-                for r in self.session.get(key, timeout=timeout_s):
-                    if r.ok is None or str(r.ok.key_expr) != key:
+                for r in self.session.get(key, payload=query_payload(b""), timeout=timeout_s):
+                    body = reply_body(r, key)
+                    if body is None:
                         continue
                     try:
-                        got = json.loads(decode(r.ok.payload.to_bytes(), Stats).json)
+                        got = json.loads(decode(body, Stats).json)
                     except (DecodeError, ValueError):
                         continue
                 if got is not None:
@@ -203,10 +204,12 @@ class ZenohDrivers:
         for item in self.inbox.drain():
             self._take(item, None, out)  # liveliness news, and realtime's commands
         self._k += 1
+        if self._k % 200 == 0:
+            note_refused(self.log)
         k = self._k
         self._clock_pub.put(encode(Clock(k, t, self.clock, self.speed, False, now_ns())))
         stamp = now_ns()
-        if self._vehicles_pub.matching_status.matching:  # an observer listens
+        if self._vehicles_pub.matching_status.matching:  # the ICA or an observer listens
             everyone = tuple(self._vehicle_state(s) for s in seen)
             self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
         if self.clock == "lockstep":
@@ -494,6 +497,7 @@ class ZenohDrivers:
             "resent_states": self.resent_states,
             "stale_commands": self.stale_commands,
             "dropped_setpoints": self.dropped_setpoints,
+            "refused_unsealed": refused(),
             "step_wait_median_ms": float(np.median(w) * 1e3),
             "step_wait_p99_ms": float(np.percentile(w, 99) * 1e3),
             "command_age_ms": {

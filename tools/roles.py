@@ -28,13 +28,28 @@ def _add_link_args(p: argparse.ArgumentParser) -> None:
         "--connect",
         help="router endpoint(s), comma-separated, e.g. tcp/10.0.0.2:7447 (replaces the config's)",
     )
+    p.add_argument(
+        "--keyring",
+        type=Path,
+        help="a secured site's keyring.json: act only on messages sealed by the one role "
+        "that may write each key (see dica secure-config)",
+    )
+    p.add_argument(
+        "--seal", type=Path, help="this role's signing key (NAME.seal): seal what it sends"
+    )
     p.add_argument("--verbose", action="store_true", help="debug logging")
 
 
-def _session(args: argparse.Namespace, role: str):
-    from schemas.link import LinkError, open_session, setup_logging
+def _session(args: argparse.Namespace, role: str, signer: str | None = None):
+    """The role's logger and Zenoh session; on a secured site its seal and keyring first."""
+    from schemas.link import LinkError, open_session, setup_logging, use_guard
+    from schemas.seal import SealError, load_guard
 
     log = setup_logging(role, args.verbose)
+    try:
+        use_guard(load_guard(signer or role, args.seal, args.keyring))
+    except SealError as e:
+        raise UsageError(str(e)) from None
     try:
         return open_session(args.zenoh_config, args.connect), log
     except LinkError as e:
@@ -131,7 +146,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
         config = controller_config("enhanced", args.margin)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    session, log = _session(args, f"agent {args.id}")
+    session, log = _session(args, f"agent {args.id}", signer=args.id)
     try:
         agent = Agent(
             session,

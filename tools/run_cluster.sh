@@ -274,7 +274,11 @@ PY
 fi
 link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to the router
   role_link=(--connect "${endpoint[$1]}")
-  if [ "$secure" = 1 ]; then role_link=(--zenoh-config "$out/zenoh/$2.json5" "${role_link[@]}"); fi
+  if [ "$secure" = 1 ]; then  # its log-in, and the keys it seals with and checks against
+    role_link=(--zenoh-config "$out/zenoh/$2.json5" --keyring "$out/zenoh/keyring.json"
+      "${role_link[@]}")
+    if [ -f "$out/zenoh/$2.seal" ]; then role_link+=(--seal "$out/zenoh/$2.seal"); fi
+  fi
 }
 link_for ica ica
 start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" \

@@ -16,7 +16,12 @@ only its owner can read:
   with its credentials and the site's CA certificate inside, for
   ``--zenoh-config``;
 * ``ca.pem``: that CA certificate, for other tools;
-* ``site.json``: the junctions the site serves, for issuing agents later.
+* ``site.json``: the junctions the site serves, for issuing agents later;
+* ``ica.seal``, ``gateway.seal`` and ``<agent>.seal``: each writer's own
+  signing key, and ``keyring.json``: every writer's public key, which every
+  role checks what it acts on against (``--seal`` and ``--keyring``, see
+  :mod:`schemas.seal`): a message a role may not write is refused even if the
+  router's rules let it through.
 
 Each file stands alone: copy a role's file to the host that runs it. The
 CA's private key signs the router's certificate and is then thrown away, so
@@ -46,7 +51,12 @@ ROOT = Path(__file__).resolve().parents[1]
 ROUTER_TEMPLATE = ROOT / "deploy" / "zenoh" / "secure" / "router.json5"
 CLIENT_TEMPLATE = ROOT / "deploy" / "zenoh" / "client.json5"
 ROLES = ("ica", "gateway", "observer")  # one identity each; agents have one apiece
-FILES = ("users.txt", "router.json5", "ca.pem", "site.json", *(f"{r}.json5" for r in ROLES))
+SIGNERS = ("ica", "gateway")  # roles that write (the observer only listens); agents too
+KEYRING = "keyring.json"
+FILES = (
+    "users.txt", "router.json5", "ca.pem", "site.json", KEYRING,
+    *(f"{r}.json5" for r in ROLES), *(f"{r}.seal" for r in SIGNERS),
+)  # fmt: skip
 AGENT = "@agent"  # the template's stand-ins (verbatim key chunks, which match no real key)
 JUNCTION = "@j"
 DEFAULT_HOSTS = ("127.0.0.1", "localhost")
@@ -135,7 +145,8 @@ def write_secure_configs(
     out = out.resolve()
     earlier = _users(out / "users.txt") if (out / "users.txt").is_file() else {}
     stale = [f"{u}.json5" for u in earlier if u not in ROLES]
-    clash = [f for f in (*FILES, *stale, *(f"{a}.json5" for a in agents)) if (out / f).exists()]
+    mine = (*FILES, *stale, *(f"{a}.json5" for a in agents), *(f"{a}.seal" for a in agents))
+    clash = [f for f in mine if (out / f).exists()]
     if clash and not force:
         raise SecureConfigError(f"{out} already holds {', '.join(clash)} (--force replaces them)")
     ca_pem, key_pem, cert_pem = _certificates(hosts, days)
@@ -149,6 +160,7 @@ def write_secure_configs(
     }
     for user in passwords:
         texts[f"{user}.json5"] = _client_text(user, passwords[user], endpoint, ca_pem, hosts)
+    texts.update(_seals((*SIGNERS, *agents), {}))
     try:
         out.mkdir(parents=True, exist_ok=True)
         out.chmod(0o700)
@@ -157,6 +169,7 @@ def write_secure_configs(
         for name in stale:
             if name not in texts:
                 (out / name).unlink(missing_ok=True)
+                (out / name.replace(".json5", ".seal")).unlink(missing_ok=True)
     except OSError as e:
         raise SecureConfigError(f"cannot write {e.filename or out}: {e.strerror}") from None
     return {name: out / name for name in texts}
@@ -179,6 +192,7 @@ def add_agents(out: Path, agents: str | Sequence[str], force: bool = False) -> d
         passwords[name] = _password()
     texts = {f"{a}.json5": _client_text(a, passwords[a], endpoint, ca_pem, hosts) for a in new}
     texts.update(_site_texts(out, passwords, tls, hosts, junctions))
+    texts.update(_seals(new, _keyring(out)))
     _write(out, texts)
     return {a: out / f"{a}.json5" for a in new}
 
@@ -196,9 +210,13 @@ def revoke_agents(out: Path, agents: str | Sequence[str]) -> tuple[str, ...]:
         raise SecureConfigError(f"the site in {out} has no agent {', '.join(unknown)}")
     for name in gone:
         del passwords[name]
-    _write(out, _site_texts(out, passwords, tls, hosts, junctions))
+    keyring = {k: v for k, v in _keyring(out).items() if k not in gone}
+    texts = _site_texts(out, passwords, tls, hosts, junctions)
+    texts[KEYRING] = json.dumps(keyring, indent=2) + "\n"
+    _write(out, texts)
     for name in gone:
         (out / f"{name}.json5").unlink(missing_ok=True)
+        (out / f"{name}.seal").unlink(missing_ok=True)
     return tuple(u for u in passwords if u not in ROLES)
 
 
@@ -414,6 +432,25 @@ def _password() -> str:
 
 def _b64(pem: bytes) -> str:
     return base64.b64encode(pem).decode()
+
+
+def _seals(names: Sequence[str], keyring: dict[str, str]) -> dict[str, str]:
+    """A fresh signing key for each of ``names``, and the keyring with them added."""
+    from schemas.seal import new_key
+
+    texts = {}
+    keyring = dict(keyring)
+    for name in names:
+        texts[f"{name}.seal"], keyring[name] = new_key()
+    texts[KEYRING] = json.dumps(keyring, indent=2) + "\n"
+    return texts
+
+
+def _keyring(out: Path) -> dict[str, str]:
+    try:
+        return dict(json.loads((out / KEYRING).read_text()))
+    except (OSError, ValueError) as e:
+        raise SecureConfigError(f"cannot read {out / KEYRING}: {e}") from None
 
 
 def _write(out: Path, texts: dict[str, str]) -> None:

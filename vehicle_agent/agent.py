@@ -41,7 +41,17 @@ from ica.core.request import Reason, Rejection, Request
 from schemas import keys
 from schemas.codec import DecodeError, decode, encode, now_ns
 from schemas.convert import reject_to_core, request_from_core, response_to_core
-from schemas.link import Inbox, Item, publisher, put, reply
+from schemas.link import (
+    Inbox,
+    Item,
+    note_refused,
+    publisher,
+    put,
+    query_payload,
+    refused,
+    reply,
+    reply_body,
+)
 from schemas.messages import (
     Ack,
     Cancel,
@@ -123,13 +133,14 @@ class ZenohLink:
         self.session.get(
             self._keys["cancel"],
             zenoh.handlers.Callback(lambda _r: None),
-            payload=encode(Cancel(vin, seq, now_ns())),
+            payload=query_payload(encode(Cancel(vin, seq, now_ns()))),
             timeout=self.timeout_s,
         )
 
     # -- answers ----------------------------------------------------------------
     def _ask(self, what: str, vin: str, seq: int, payload: bytes):
         key = self._keys[what]
+        payload = query_payload(payload)
         self.timing.queries += 1
         t = time.perf_counter()
         if self.blocking:
@@ -183,16 +194,17 @@ class ZenohLink:
         return 1 if self.loss < 0.05 else 2 if self.loss < 0.25 else 3
 
     def _take(self, what: str, key: str, r, t: float):
-        """One reply, if it is one to act on: an answer on the exact key asked."""
+        """One reply, if it is one to act on: on the exact key asked, from the ICA."""
         if r.ok is None:
             return None
-        if str(r.ok.key_expr) != key:
+        body = reply_body(r, key)
+        if body is None:
             self.timing.bad_replies += 1
             self.log.warning("ignored a reply on %s to a query on %s", r.ok.key_expr, key)
             return None
         kinds = (Ack, Reject) if what != "request" else (Response, Reject)
         try:
-            msg = decode(r.ok.payload.to_bytes(), *kinds)
+            msg = decode(body, *kinds)
         except DecodeError as e:
             self.timing.bad_replies += 1
             self.log.warning("bad reply on %s: %s", key, e)
@@ -280,6 +292,7 @@ class Agent:
             item = self.inbox.get(timeout=0.1)
             if item is None:
                 self._forget_silent()
+                note_refused(self.log)
                 continue
             if self.realtime:
                 self._realtime(item)
@@ -499,4 +512,5 @@ class Agent:
             "query_copies": self.link.copies(),
             "lead_s": self._lead() if self.realtime else 0.0,
             "rejections": dict(self.rejections),
+            "refused_unsealed": refused(),
         }
