@@ -35,6 +35,11 @@ def use_guard(guard: seal.Guard) -> None:
     GUARD = guard
 
 
+def known_writer(name: str) -> bool:
+    """Whether ``name`` holds a key of this site (every name, on an open site)."""
+    return GUARD.knows(name)
+
+
 def refused() -> dict[str, int]:
     """The messages this process refused so far, by why (see :func:`note_refused`)."""
     return GUARD.refused()
@@ -235,6 +240,16 @@ def reply_body(reply_, key: str) -> bytes | None:
     if reply_.ok is None or str(reply_.ok.key_expr) != key:
         return None
     return GUARD.take(reply_.ok.payload.to_bytes(), keys.writer_of(key, "reply"))
+
+
+def every_answer() -> dict:
+    """Query options that deliver every reply from every queryable: Zenoh's default
+    keeps one reply per key, which a second (rogue) queryable answering first on the
+    same key would then hide from the asker; this way the asker sees both and keeps
+    the one sealed by the key's writer."""
+    import zenoh
+
+    return {"consolidation": zenoh.ConsolidationMode.NONE, "target": zenoh.QueryTarget.ALL}
 
 
 def query_payload(payload: bytes) -> bytes:

@@ -160,6 +160,14 @@ class Guard:
     def refused(self) -> dict[str, int]:
         return dict(self.keyring.refused) if self.keyring is not None else {}
 
+    def knows(self, name: str) -> bool:
+        """Whether ``name`` is one of the site's writers (always, on an open site)."""
+        if self.keyring is None:
+            return True
+        with self.keyring._lock:
+            self.keyring._load()
+            return name in self.keyring._keys
+
 
 NONE = Guard(None, None)
 

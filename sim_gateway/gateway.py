@@ -41,7 +41,17 @@ import numpy as np
 
 from schemas import keys
 from schemas.codec import DecodeError, decode, encode, now_ns
-from schemas.link import Inbox, Item, note_refused, publisher, query_payload, refused, reply_body
+from schemas.link import (
+    Inbox,
+    Item,
+    every_answer,
+    known_writer,
+    note_refused,
+    publisher,
+    query_payload,
+    refused,
+    reply_body,
+)
 from schemas.messages import Clock, Command, State, Stats, VehicleState
 from sim_gateway.embedded import ica_config, schedule_for
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
@@ -106,6 +116,7 @@ class ZenohDrivers:
         self.news: dict[str, float] = {}  # realtime: vehicles to keep naming until this time
         self.exits: list[Seen] = []  # lockstep: exit notices not yet delivered
         self.dropped_setpoints = 0
+        self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
         self.age_ms: list[float] = []
         self.wait_s: list[float] = []
         self.step_s = ica_config(cfg).step_s
@@ -180,7 +191,9 @@ class ZenohDrivers:
         for name, key in targets:
             for _ in range(3):  # a lossy link may eat the query or the answer
                 got = None
-                for r in self.session.get(key, payload=query_payload(b""), timeout=timeout_s):
+                for r in self.session.get(
+                    key, payload=query_payload(b""), timeout=timeout_s, **every_answer()
+                ):
                     body = reply_body(r, key)
                     if body is None:
                         continue
@@ -436,6 +449,11 @@ class ZenohDrivers:
         up = item.payload == b"+"
         name = keys.last(item.key)
         if item.what == "agent" and item.key.startswith(self._agent_key):
+            if not _is_name(name) or not known_writer(name):
+                if up:
+                    self.fake_tokens += 1
+                    self.log.warning("ignored a token for %r: not an agent of this site", name)
+                return
             if up:
                 self.alive.add(name)
             elif name in self.alive and not self.ended:
@@ -450,6 +468,8 @@ class ZenohDrivers:
                 for vin in gone:
                     self.known.discard(vin)
         elif item.what == "observer" and item.key.startswith(self._observer_key):
+            if not _is_name(name):
+                return
             (self.observers.add if up else self.observers.discard)(name)
         elif item.what == "ica" and item.key == self._ica_key:
             if self.ica_alive and not up and not self.ended:
@@ -498,6 +518,7 @@ class ZenohDrivers:
             "stale_commands": self.stale_commands,
             "dropped_setpoints": self.dropped_setpoints,
             "refused_unsealed": refused(),
+            "fake_tokens": self.fake_tokens,
             "step_wait_median_ms": float(np.median(w) * 1e3),
             "step_wait_p99_ms": float(np.percentile(w, 99) * 1e3),
             "command_age_ms": {
@@ -510,6 +531,14 @@ class ZenohDrivers:
                 },
             },
         }
+
+
+def _is_name(name: str) -> bool:
+    try:
+        keys.chunk(name)
+    except keys.KeyChunkError:
+        return False
+    return True
 
 
 def run_gateway(

@@ -64,6 +64,7 @@ def cmd_router(args: argparse.Namespace) -> int:
 
     log = setup_logging("router", args.verbose)
     path = args.config or Path(__file__).resolve().parent.parent / "deploy/zenoh/router.json5"
+    say_ready = _log_refused(log) if args.log_refused else _say_ready
     try:
         conf = zenoh.Config.from_file(str(path))
         if args.listen:
@@ -74,12 +75,68 @@ def cmd_router(args: argparse.Namespace) -> int:
     inbox = Inbox()
     inbox.stop_on_signals()
     log.info("router %s listening on %s", session.info.zid(), args.listen or f"(from {path})")
-    print("ready", flush=True)
+    say_ready()
     while not inbox.stopping.wait(0.5):
         pass
     session.close()
     log.info("router stopped")
     return 0
+
+
+def _say_ready() -> None:
+    print("ready", flush=True)
+
+
+def _log_refused(log):
+    """Log the messages the router's access rules refuse, with the user that sent them.
+
+    Zenoh reports each decision of its access control at trace level, on
+    standard output, allowed ones too; this keeps the refusals (as warnings on
+    standard error) and says "ready" on the real standard output. When a
+    client declares a key, Zenoh weighs that key once against every kind of
+    message (put, query, reply), so a well-behaved client is "refused" once for
+    each such kind it never sends: those are logged from their second time on;
+    a refused declaration (a subscriber, a queryable, a token) at once; then
+    every hundredth time, and every refusal seen more than once is listed when
+    the router stops.
+    """
+    import atexit
+    import os
+    import re
+    import threading
+    from collections import Counter
+
+    import zenoh
+
+    real = os.dup(1)
+    r, w = os.pipe()
+    os.dup2(w, 1)
+    ansi = re.compile(r"\x1b\[[0-9;]*m")
+    who = re.compile(r"Username\(([^)]*)\).* is unauthorized to (.*)$")
+
+    seen: Counter[tuple[str, str]] = Counter()
+
+    def keep() -> None:
+        with os.fdopen(r, errors="replace") as lines:
+            for line in lines:
+                m = who.search(ansi.sub("", line))
+                if not m:
+                    continue
+                what = (m.group(1), m.group(2).strip())
+                seen[what] += 1
+                first = 1 if what[1].startswith(("Declare", "Liveliness")) else 2
+                if seen[what] == first or seen[what] % 100 == 0:
+                    log.warning("refused %s: %s (%d times so far)", *what, seen[what])
+
+    def summary() -> None:
+        repeated = {f"{u}: {w}": n for (u, w), n in seen.items() if n > 1}
+        if repeated:
+            log.warning("refused, more than once: %s", json.dumps(repeated))
+
+    threading.Thread(target=keep, daemon=True).start()
+    atexit.register(summary)
+    zenoh.init_log_from_env_or("error,zenoh::net::routing::interceptor::access_control=trace")
+    return lambda: os.write(real, b"ready\n")
 
 
 # -- ica -----------------------------------------------------------------------
@@ -294,6 +351,12 @@ def add_role_parsers(sub) -> None:
     )
     r.add_argument("--config", type=Path, help="router JSON5 (default deploy/zenoh/router.json5)")
     r.add_argument("--listen", help="endpoint(s) to listen on, e.g. tcp/127.0.0.1:7447")
+    r.add_argument(
+        "--log-refused",
+        action="store_true",
+        help="log every message its access rules refuse, with the user who sent it (costs "
+        "some CPU: Zenoh traces every decision, and the router keeps the refusals)",
+    )
     r.add_argument("--verbose", action="store_true")
     r.set_defaults(func=cmd_router)
 

@@ -34,8 +34,12 @@ scenario and roles:
   --no-record           no Rerun observer and no .rrd
   --live                the observer also serves the recording on 127.0.0.1:9876
                         as it is made; watch with: .venv/bin/dica view --live [--web]
-  --secure              TLS, log-ins and per-role access rules on the router, with
-                        fresh secrets in RUN_DIR/zenoh/ (see dica secure-config --help)
+  --secure              TLS, log-ins and per-role access rules on the router, and every
+                        message sealed by its writer, with fresh secrets in RUN_DIR/zenoh/
+                        (see dica secure-config --help)
+  --no-router-rules     with --secure: the router lets every logged-in client do anything,
+                        so only the roles' own checks of each message's seal hold (to test
+                        them)
 
 imperfect links (a user-space emulator between the chosen roles and the router;
 change them while running with: dica link set RUN_DIR/link --role R --delay MS ...):
@@ -73,7 +77,7 @@ prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1
 layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
 delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
-max_age="" restart=1
+max_age="" restart=1 router_rules=1
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -101,6 +105,7 @@ while [ $# -gt 0 ]; do
     --lead) lead="$2"; shift 2 ;;
     --max-age) max_age="$2"; shift 2 ;;
     --no-restart) restart=0; shift ;;
+    --no-router-rules) router_rules=0; shift ;;
     --port) port="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
@@ -130,6 +135,7 @@ done
 lossy=$(awk -v a="$loss" -v b="$dup" -v c="$reorder" 'BEGIN { print (a + b + c > 0) ? 1 : 0 }')
 faults=$(awk -v a="$delay" -v b="$jitter" 'BEGIN { print (a + b > 0) ? 1 : 0 }')
 [ "$lossy" = 1 ] && faults=1
+[ "$router_rules" = 0 ] && [ "$secure" = 0 ] && die "--no-router-rules goes with --secure"
 [ "$secure" = 1 ] && [ "$lossy" = 1 ] &&
   die "--secure links are TLS streams the emulator cannot read message by message: use --delay and --jitter only"
 if [ -z "$time_pad" ]; then
@@ -174,7 +180,22 @@ scheme=tcp
 router_conf=()
 if [ "$secure" = 1 ]; then
   "$dica" secure-config --force --out "$out/zenoh" --agents "$agents" --junction "$junction" >/dev/null
-  router_conf=(--config "$out/zenoh/router.json5")
+  router_conf=(--config "$out/zenoh/router.json5" --log-refused)
+  if [ "$router_rules" = 0 ]; then
+    "$py" - "$out/zenoh/router.json5" <<'PY'
+import json, os, sys
+path = sys.argv[1]
+text = open(path).read()
+head = "".join(l for l in text.splitlines(True) if l.startswith("//"))
+conf = json.loads("".join(l for l in text.splitlines(True) if not l.startswith("//")))
+conf["access_control"]["enabled"] = False
+with open(path + ".tmp", "w") as f:
+    f.write(head + "// Access rules switched off (run_cluster.sh --no-router-rules).\n")
+    f.write(json.dumps(conf, indent=1))
+os.chmod(path + ".tmp", 0o600)
+os.replace(path + ".tmp", path)
+PY
+  fi
   scheme=tls
 fi
 listen="$scheme/127.0.0.1:$port"

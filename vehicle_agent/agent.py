@@ -44,6 +44,7 @@ from schemas.convert import reject_to_core, request_from_core, response_to_core
 from schemas.link import (
     Inbox,
     Item,
+    every_answer,
     note_refused,
     publisher,
     put,
@@ -135,6 +136,7 @@ class ZenohLink:
             zenoh.handlers.Callback(lambda _r: None),
             payload=query_payload(encode(Cancel(vin, seq, now_ns()))),
             timeout=self.timeout_s,
+            **every_answer(),
         )
 
     # -- answers ----------------------------------------------------------------
@@ -145,7 +147,9 @@ class ZenohLink:
         t = time.perf_counter()
         if self.blocking:
             found = None
-            for r in self.session.get(key, payload=payload, timeout=self.timeout_s):
+            for r in self.session.get(
+                key, payload=payload, timeout=self.timeout_s, **every_answer()
+            ):
                 found = found or self._take(what, key, r, t)
             self._outcome(found is not None)
             return self._answer(what, vin, seq, found)
@@ -182,6 +186,7 @@ class ZenohLink:
                 payload=payload,
                 timeout=self.timeout_s,
                 express=True,
+                **every_answer(),
             )
         return PENDING
 
