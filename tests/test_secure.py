@@ -62,7 +62,7 @@ ATTACKERS = ("ica", "gateway", "observer", B)
 def test_configs_are_private_and_never_silently_replaced(tmp_path):
     paths = write_secure_configs(tmp_path / "z", agents=2)
     assert stat.S_IMODE((tmp_path / "z").stat().st_mode) == 0o700
-    assert set(paths) == {*FILES, f"{A}.json5", f"{B}.json5"}
+    assert set(paths) == {*FILES, f"{A}.json5", f"{B}.json5", f"{A}.seal", f"{B}.seal"}
     for path in paths.values():
         assert stat.S_IMODE(path.stat().st_mode) == 0o600, path.name
     users = paths["users.txt"].read_text().split()
@@ -75,6 +75,8 @@ def test_configs_are_private_and_never_silently_replaced(tmp_path):
     assert paths["users.txt"].read_text().split() != users  # fresh passwords
     assert site_agents(tmp_path / "z") == ("car-17",)
     assert not paths[f"{A}.json5"].exists()  # the earlier site's agents are gone with it
+    assert not paths[f"{A}.seal"].exists()
+    assert set(json.loads(paths["keyring.json"].read_text())) == {"ica", "gateway", "car-17"}
 
 
 def test_agents_are_issued_and_revoked_in_place(tmp_path):
@@ -88,8 +90,12 @@ def test_agents_are_issued_and_revoked_in_place(tmp_path):
         assert (out / name).read_text() == before[name]
     with pytest.raises(SecureConfigError, match="already has agent car-19"):
         add_agents(out, ["car-19"])
+    assert "car-19" in json.loads((out / "keyring.json").read_text())  # it may seal now
     assert revoke_agents(out, "car-17") == ("car-18", "car-19")
     assert not (out / "car-17.json5").exists()
+    assert not (out / "car-17.seal").exists()
+    keyring = json.loads((out / "keyring.json").read_text())
+    assert "car-17" not in keyring and "car-18" in keyring  # its seal opens nothing any more
     assert "car-17" not in (out / "router.json5").read_text()  # no rules left for it
     router_tls = json.loads(before["router.json5"].split("\n", 2)[2])["transport"]["link"]["tls"]
     now = json.loads((out / "router.json5").read_text().split("\n", 2)[2])
