@@ -196,7 +196,7 @@ class ZenohLink:
 
     def copies(self) -> int:
         """How many copies of each query: more the more of them go unanswered."""
-        return 1 if self.loss < 0.05 else 2 if self.loss < 0.25 else 3
+        return 1 if self.loss < 0.05 else 2 if self.loss < 0.2 else 3
 
     def _take(self, what: str, key: str, r, t: float):
         """One reply, if it is one to act on: on the exact key asked, from the ICA."""
@@ -237,7 +237,7 @@ class ZenohLink:
     def adapt(self) -> None:
         """Query timeouts from the round trips measured lately."""
         t = self.timing
-        self.timeout_s = min(max(2.5 * t.q(t.rtt_s, 90, 0.4) + 0.05, MIN_TIMEOUT_S), MAX_TIMEOUT_S)
+        self.timeout_s = min(max(1.5 * t.q(t.rtt_s, 90, 0.4) + 0.05, MIN_TIMEOUT_S), MAX_TIMEOUT_S)
 
 
 class Agent:
