@@ -111,7 +111,109 @@ def run_netconvert(
     ]
     if connections_xml is not None:
         cmd += ["--connection-files", str(connections_xml)]
-    cmd += [*NETCONVERT_FLAGS, *extra_args, "--output-file", str(out_net)]
+    _netconvert([*cmd, *NETCONVERT_FLAGS, *extra_args, "--output-file", str(out_net)], out_net)
+
+
+def junction_type(net_path: Path, junction_id: str) -> str | None:
+    """The ``type`` SUMO's net file gives the junction, or None if it has no such junction."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        for _, el in ET.iterparse(net_path, events=("end",)):
+            if el.tag == "junction" and el.get("id") == junction_id:
+                return el.get("type")
+            if el.tag in ("edge", "junction", "connection"):
+                el.clear()
+    except (OSError, ET.ParseError) as exc:
+        raise ScenarioError(f"cannot read {net_path}: {exc}") from exc
+    return None
+
+
+def signalise(net_path: Path, junction_id: str, tls: str, out_dir: Path) -> Path:
+    """A copy of the net with ``junction_id`` signalised by netconvert (``--tls.set``).
+
+    netconvert builds its own phase plan for the junction; the light baselines
+    then set its clearance and timing (:mod:`sim_gateway.signals`).
+    """
+    _check_tls(tls)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    out_net = out_dir / f"{Path(net_path).name.removesuffix('.net.xml')}-tls-{tls}.net.xml"
+    cmd = [
+        netconvert_binary(),
+        "--sumo-net-file",
+        str(net_path),
+        "--tls.set",
+        junction_id,
+        "--tls.default-type",
+        tls,
+        *NETCONVERT_FLAGS,
+        "--output-file",
+        str(out_net),
+    ]
+    _netconvert(cmd, out_net)
+    return out_net
+
+
+def tls_program_type(net_path: Path, tls_id: str) -> str | None:
+    """The ``type`` of the net's first program for traffic light ``tls_id`` (None: none)."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        for _, el in ET.iterparse(net_path, events=("end",)):
+            if el.tag == "tlLogic" and el.get("id") == tls_id:
+                return el.get("type", "static")
+            if el.tag in ("edge", "junction", "connection"):
+                el.clear()
+    except (OSError, ET.ParseError) as exc:
+        raise ScenarioError(f"cannot read {net_path}: {exc}") from exc
+    return None
+
+
+def light_net(net_path: Path, junction_id: str, tls: str, out_dir: Path) -> tuple[Path, str | None]:
+    """A net whose ``junction_id`` carries a ``tls`` light (static or actuated), and a
+    line saying what was built, or None when the net already has one.
+
+    A junction without a light is signalised with netconvert; one whose
+    program is static while an actuated light is wanted has the net's lights
+    rebuilt as actuated (netconvert cannot change one junction's type).
+    Either net is written to ``out_dir``.
+    """
+    _check_tls(tls)
+    kind = junction_type(Path(net_path), junction_id)
+    if kind is None:
+        raise ScenarioError(f"junction {junction_id!r} not in {net_path}")
+    if not kind.startswith("traffic_light"):
+        out = signalise(Path(net_path), junction_id, tls, out_dir)
+        return (
+            out,
+            f"junction {junction_id} had no traffic light: signalised by netconvert in {out}",
+        )
+    program = tls_program_type(Path(net_path), junction_id)
+    if tls == "actuated" and program != "actuated":
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        out = out_dir / f"{Path(net_path).name.removesuffix('.net.xml')}-tls-actuated.net.xml"
+        cmd = [
+            netconvert_binary(),
+            "--sumo-net-file",
+            str(net_path),
+            "--tls.rebuild",
+            "--tls.default-type",
+            "actuated",
+            *NETCONVERT_FLAGS,
+            "--output-file",
+            str(out),
+        ]
+        _netconvert(cmd, out)
+        return out, (
+            f"junction {junction_id}'s light was {program or 'of no known type'}: "
+            f"rebuilt actuated by netconvert in {out}"
+        )
+    return Path(net_path), None
+
+
+def _netconvert(cmd: list[str], out_net: Path) -> None:
     try:
         proc = subprocess.run(
             cmd, capture_output=True, text=True, timeout=NETCONVERT_TIMEOUT_S, check=False

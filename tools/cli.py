@@ -187,7 +187,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         try:
             rrd = out / "spacetime.rrd" if args.record else None
-            result = run(cfg, inter, progress=tick, rrd_path=rrd)
+            result = run(cfg, inter, progress=tick, rrd_path=rrd, run_dir=out)
         except RunError as e:
             raise UsageError(str(e)) from None
     write_outputs(out, cfg, result)
