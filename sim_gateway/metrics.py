@@ -1,10 +1,24 @@
-"""The dissertation's metrics, from what the simulation reports about each trip.
+"""The dissertation's metrics, and the whole delay, from what the simulation
+reports about each trip.
 
-Trip time tau: from entering the communication region until fully out of the
-intersection. Throughput rho = crossed / generated; stopped rate eta =
-stopped / crossed; effective mean trip time tau_e = mean tau / rho. Delay is
-a trip's time over its free-flow time (the fastest plan from the speed it
-entered the region with, alone at the junction).
+Where each clock starts:
+
+* trip time tau (the dissertation's): from the front crossing the
+  communication region's entry line until the rear leaves the junction.
+  Throughput rho = crossed / generated (generated: scheduled to reach the
+  region by the end); stopped rate eta = stopped in the region / crossed;
+  effective mean trip time tau_e = mean tau / rho. Delay: tau over the
+  free-flow time (the fastest plan from the speed it entered the region with,
+  alone at the junction).
+* time in the system: from the vehicle's *scheduled* arrival at the region's
+  entry line until its rear leaves the junction. It also counts the wait in a
+  queue upstream of the region (SUMO drives vehicles there from up to a few
+  hundred metres upstream) and a wait for room to enter SUMO at all, which
+  tau does not see. Delay from the scheduled arrival: that time over the
+  free-flow time from the scheduled entry speed.
+* vehicles not yet in the region at the end: generated but still upstream
+  (or not even in SUMO); the means above leave them out, so the report gives
+  their number beside them.
 """
 
 from __future__ import annotations
@@ -20,12 +34,24 @@ class Trip:
     vin: str
     route_id: str
     turn: str
-    depart_s: float  # scheduled arrival at the communication region
+    depart_s: float  # scheduled arrival at the communication region's entry line
     entered_s: float | None = None  # front crossed the communication region's entry line
     exited_s: float | None = None  # rear left the junction
-    free_flow_s: float | None = None
+    free_flow_s: float | None = None  # from the entry line at the speed it entered with
     stopped: bool = False
     confirmed_s: float | None = None
+    inserted_s: float | None = None  # SUMO placed it on the road, upstream of the region
+    free_flow_scheduled_s: float | None = None  # from the entry line at its scheduled speed
+
+    @property
+    def system_time_s(self) -> float | None:
+        """From the scheduled arrival at the region's entry line until out of the junction."""
+        return None if self.exited_s is None else self.exited_s - self.depart_s
+
+    @property
+    def system_delay_s(self) -> float | None:
+        st, ff = self.system_time_s, self.free_flow_scheduled_s
+        return None if st is None or ff is None else st - ff
 
 
 @dataclass(slots=True)
@@ -70,6 +96,20 @@ def summarize(log: TripLog, end_s: float) -> dict[str, float | int | None]:
         "stopped_rate": (sum(tr.stopped for tr in crossed) / len(crossed)) if crossed else math.nan,
         "effective_mean_trip_time_s": mean / rho if rho > 0 else math.nan,
         "mean_delay_s": float(delay.mean()) if len(delay) else math.nan,
+    }
+    system = np.array([tr.system_time_s for tr in crossed], dtype=float)
+    system_delay = np.array(
+        [tr.system_delay_s for tr in crossed if tr.system_delay_s is not None], dtype=float
+    )
+    out |= {
+        "mean_system_time_s": float(system.mean()) if len(system) else math.nan,
+        "max_system_time_s": float(system.max()) if len(system) else math.nan,
+        "mean_system_delay_s": float(system_delay.mean()) if len(system_delay) else math.nan,
+        "p95_system_delay_s": float(np.percentile(system_delay, 95))
+        if len(system_delay)
+        else math.nan,
+        "not_in_region_at_end": sum(tr.entered_s is None for tr in gen),
+        "not_inserted_at_end": sum(tr.inserted_s is None for tr in gen),
     }
     for turn in ("left", "through", "right"):
         sel = np.array([tr.exited_s - tr.entered_s for tr in crossed if tr.turn == turn])

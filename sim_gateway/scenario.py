@@ -1,14 +1,26 @@
-"""The dissertation's two intersections, built from plain XML with ``netconvert``.
+"""The dissertation's two intersections and two of our own, built from plain XML
+with ``netconvert``.
 
-Both are a 4-way junction ``C`` at the origin with straight approaches along
-the axes (``N_in``, ``N_out``, ``E_in``, ...; ``_in`` drives towards ``C``).
-Only the movements listed in an explicit connections file exist, so the ICA
-sees exactly the routes of the reference layouts:
+The dissertation's are a 4-way junction ``C`` at the origin with straight
+approaches along the axes (``N_in``, ``N_out``, ``E_in``, ...; ``_in`` drives
+towards ``C``). Only the movements listed in an explicit connections file
+exist, so the ICA sees exactly the routes of the reference layouts:
 
 - ``ch3``: 2 incoming lanes, 1 outgoing lane; lane 0 turns right or goes
   through, lane 1 goes through or turns left.
 - ``ch45``: 3 incoming lanes, 2 outgoing lanes; lane 0 right and through to
   out lane 0, lane 1 through to out lane 1, lane 2 left only to out lane 1.
+
+Ours, for heavy traffic on junctions the dissertation did not try, leave the
+movements to netconvert's guess (2 lanes each way on every arm):
+
+- ``skewed``: a west-east road crossed at 60 degrees (arms ``W``, ``E``,
+  ``A`` to the north-east, ``B`` to the south-west);
+- ``tee``: a west-east road with a road from the south ending at ``C``.
+
+Every approach is ``APPROACH_M`` long, so vehicles enter SUMO a few hundred
+metres before the 50 m communication region and a queue longer than the
+region is one SUMO drives.
 
 The junction type is ``priority``: with speed mode 32 on every vehicle SUMO
 leaves right of way to the ICA but still reports junction collisions. For the
@@ -19,6 +31,7 @@ junction, ``static`` (its phases are re-timed at run time) or ``actuated``
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import subprocess
@@ -29,9 +42,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-LAYOUTS: tuple[str, ...] = ("ch3", "ch45")
+DISSERTATION_LAYOUTS: tuple[str, ...] = ("ch3", "ch45")
+OWN_LAYOUTS: tuple[str, ...] = ("skewed", "tee")
+LAYOUTS: tuple[str, ...] = DISSERTATION_LAYOUTS + OWN_LAYOUTS
 JUNCTION_ID = "C"
 ROAD_SPEED_MPS = 70.0 / 3.6
+APPROACH_M = 400.0  # [m] junction centre to the far end of every arm
 
 # Flags every network of this project is built with (see STACK-NOTES): keep the
 # junction at the origin, no U-turns, no traffic lights, smooth internal lanes.
@@ -59,6 +75,11 @@ _LAYOUT_SPEC: dict[str, tuple[int, int, tuple[tuple[int, str, int], ...]]] = {
     "ch45": (3, 2, ((0, "right", 0), (0, "through", 0), (1, "through", 1), (2, "left", 1))),
 }
 _TURN_OFFSET = {"right": -1, "through": 2, "left": 1}
+# our layouts: arm -> (bearing [deg, counter-clockwise from east], lanes each way, priority)
+_OWN_ARMS: dict[str, tuple[tuple[str, float, int, int], ...]] = {
+    "skewed": (("W", 180.0, 2, 2), ("E", 0.0, 2, 2), ("A", 60.0, 2, 1), ("B", 240.0, 2, 1)),
+    "tee": (("W", 180.0, 2, 2), ("E", 0.0, 2, 2), ("S", 270.0, 2, 1)),
+}
 
 
 class ScenarioError(Exception):
@@ -241,7 +262,7 @@ def _tail(text: str) -> str:
 
 
 def _check_layout(layout: str) -> None:
-    if layout not in _LAYOUT_SPEC:
+    if layout not in LAYOUTS:
         raise ScenarioError(f"unknown layout {layout!r}; known layouts: {', '.join(LAYOUTS)}")
 
 
@@ -257,17 +278,41 @@ def _stem(layout: str, tls: str | None) -> str:
     return layout if tls is None else f"{layout}-tls-{tls}"
 
 
+def _doc(root: str, lines: list[str]) -> str:
+    return (
+        f'<?xml version="1.0" encoding="UTF-8"?>\n<{root}>\n' + "\n".join(lines) + f"\n</{root}>\n"
+    )
+
+
+def _own_xml(layout: str, approach_length_m: float, kind: str) -> dict[str, str]:
+    nodes = [f'    <node id="{JUNCTION_ID}" x="0.00" y="0.00" type="{kind}"/>']
+    edges = []
+    for arm, bearing, lanes, prio in _OWN_ARMS[layout]:
+        x = approach_length_m * math.cos(math.radians(bearing))
+        y = approach_length_m * math.sin(math.radians(bearing))
+        nodes.append(f'    <node id="{arm}" x="{x:.2f}" y="{y:.2f}" type="dead_end"/>')
+        for name, a, b in ((f"{arm}_in", arm, JUNCTION_ID), (f"{arm}_out", JUNCTION_ID, arm)):
+            edges.append(
+                f'    <edge id="{name}" from="{a}" to="{b}" numLanes="{lanes}" '
+                f'speed="{ROAD_SPEED_MPS:.6f}" priority="{prio}"/>'
+            )
+    return {"nod": _doc("nodes", nodes), "edg": _doc("edges", edges)}
+
+
 def plain_xml(
-    layout: str, approach_length_m: float = 250.0, tls: str | None = None
+    layout: str, approach_length_m: float = APPROACH_M, tls: str | None = None
 ) -> dict[str, str]:
-    """Node, edge and connection files of a layout, keyed by suffix (``nod``, ``edg``, ``con``)."""
+    """Node, edge and (for the dissertation's) connection files of a layout, keyed by
+    suffix (``nod``, ``edg``, ``con``)."""
     _check_layout(layout)
     _check_tls(tls)
     if not approach_length_m > 30.0:
         raise ScenarioError(f"approach_length_m must exceed 30 m, got {approach_length_m}")
+    kind = "priority" if tls is None else "traffic_light"
+    if layout in OWN_LAYOUTS:
+        return _own_xml(layout, approach_length_m, kind)
     n_in, n_out, movements = _LAYOUT_SPEC[layout]
 
-    kind = "priority" if tls is None else "traffic_light"
     nodes = [f'    <node id="{JUNCTION_ID}" x="0.00" y="0.00" type="{kind}"/>']
     for a in APPROACHES:
         ux, uy = _FAR_NODE_UNIT[a]
@@ -294,24 +339,17 @@ def plain_xml(
                 f'fromLane="{from_lane}" toLane="{to_lane}"/>'
             )
 
-    def doc(root: str, lines: list[str]) -> str:
-        return (
-            f'<?xml version="1.0" encoding="UTF-8"?>\n<{root}>\n'
-            + "\n".join(lines)
-            + f"\n</{root}>\n"
-        )
-
     return {
-        "nod": doc("nodes", nodes),
-        "edg": doc("edges", edges),
-        "con": doc("connections", conns),
+        "nod": _doc("nodes", nodes),
+        "edg": _doc("edges", edges),
+        "con": _doc("connections", conns),
     }
 
 
 def build_scenario(
-    layout: str, out_dir: Path, *, approach_length_m: float = 250.0, tls: str | None = None
+    layout: str, out_dir: Path, *, approach_length_m: float = APPROACH_M, tls: str | None = None
 ) -> Scenario:
-    """Write ``<stem>.{nod,edg,con}.xml`` and build ``<stem>.net.xml`` in ``out_dir``.
+    """Write ``<stem>.{nod,edg[,con]}.xml`` and build ``<stem>.net.xml`` in ``out_dir``.
 
     The stem is the layout, or ``<layout>-tls-<type>`` with a traffic light.
     """
@@ -324,7 +362,9 @@ def build_scenario(
         paths[kind].write_text(text, encoding="utf-8")
     net = out_dir / f"{stem}.net.xml"
     extra = [] if tls is None else ["--tls.default-type", tls]
-    run_netconvert(paths["nod"], paths["edg"], net, connections_xml=paths["con"], extra_args=extra)
+    run_netconvert(
+        paths["nod"], paths["edg"], net, connections_xml=paths.get("con"), extra_args=extra
+    )
     return Scenario(layout=layout, net_path=net, junction_id=JUNCTION_ID)
 
 
