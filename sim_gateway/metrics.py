@@ -19,6 +19,10 @@ Where each clock starts:
 * vehicles not yet in the region at the end: generated but still upstream
   (or not even in SUMO); the means above leave them out, so the report gives
   their number beside them.
+* delay from the scheduled arrival by thirds of the run (by scheduled
+  arrival), counting a vehicle still in the system at the end with its delay
+  so far (a lower bound): stable traffic keeps the last third near the
+  middle one, an oversaturated junction does not (see ``tools/report.py``).
 """
 
 from __future__ import annotations
@@ -111,10 +115,12 @@ def summarize(log: TripLog, end_s: float) -> dict[str, float | int | None]:
         "not_in_region_at_end": sum(tr.entered_s is None for tr in gen),
         "not_inserted_at_end": sum(tr.inserted_s is None for tr in gen),
     }
+    thirds = _delay_thirds(gen, end_s)
     for turn in ("left", "through", "right"):
         sel = np.array([tr.exited_s - tr.entered_s for tr in crossed if tr.turn == turn])
         out[f"mean_trip_time_{turn}_s"] = float(sel.mean()) if len(sel) else math.nan
     result = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in out.items()}
+    result["system_delay_by_third_s"] = thirds
     by_approach: dict[str, list[float]] = {}
     for tr in crossed:
         approach = tr.route_id.split(">")[0].rsplit("_", 1)[0]
@@ -123,3 +129,21 @@ def summarize(log: TripLog, end_s: float) -> dict[str, float | int | None]:
         a: float(np.mean(v)) for a, v in sorted(by_approach.items())
     }
     return result
+
+
+def _delay_thirds(gen: list[Trip], end_s: float) -> list[float | None]:
+    """Mean delay from the scheduled arrival per third of the run; a vehicle not out
+    by ``end_s`` counts with its delay so far."""
+    if not gen or not math.isfinite(end_s):
+        return [None, None, None]
+    start = min(tr.depart_s for tr in gen)
+    span = max(end_s - start, 1e-9)
+    parts: list[list[float]] = [[], [], []]
+    for tr in gen:
+        out = tr.exited_s if tr.exited_s is not None else max(end_s, tr.depart_s)
+        delay = out - tr.depart_s - (tr.free_flow_scheduled_s or 0.0)
+        if tr.exited_s is None:
+            delay = max(delay, 0.0)
+        k = min(int(3 * (tr.depart_s - start) / span), 2)
+        parts[k].append(delay)
+    return [float(np.mean(p)) if p else None for p in parts]

@@ -164,7 +164,9 @@ def test_experiment_grid_resumes_and_report_draws(tmp_path):
         "--algorithms",
         "enhanced,fixed",
         "--volumes",
-        "300",
+        "300,900",
+        "--ramps",
+        "100-600",
         "--seeds",
         "12",
         "--duration",
@@ -177,15 +179,18 @@ def test_experiment_grid_resumes_and_report_draws(tmp_path):
     ]
     p = dica(*args)
     assert p.returncode == 0, p.stdout + p.stderr
-    assert "2 to run" in p.stdout
+    assert "6 to run" in p.stdout
+    assert (grid / "ch45" / "fixed" / "r100-600" / "s12" / "metrics.json").is_file()
     again = dica(*args)
-    assert "2 already done, 0 to run" in again.stdout
+    assert "6 already done, 0 to run" in again.stdout
     r = dica("report", str(grid))
     assert r.returncode == 0, r.stderr
     md = (grid / "report" / "report.md").read_text()
     assert "| enhanced | 300 |" in md and "| fixed | 300 |" in md
+    assert "## Saturation" in md and "| ch45 | enhanced |" in md
+    assert "## ch45 (to 600)" in md
     pngs = list((grid / "report").glob("*.png"))
-    assert len(pngs) == 2 and all(p.stat().st_size > 10_000 for p in pngs)
+    assert len(pngs) == 4 and all(p.stat().st_size > 10_000 for p in pngs)
     bad = dica("report", str(tmp_path / "nothing"))
     assert bad.returncode == 2 and "no such directory" in bad.stderr
 

@@ -4,6 +4,17 @@ Every ``metrics.json`` below DIR (with its ``config.json``) is one run. Runs
 are grouped by layout, algorithm, volume and demand shape and averaged over
 seeds, as the dissertation reports them. Collisions are summed, the minimum
 gap is the smallest seen.
+
+Beside the dissertation's trip time (from the region's entry line) the
+tables give the time in the system and the delay counted from the scheduled
+arrival at that line, and the vehicles not yet in the region at the end.
+
+The saturation volume of a controller is the highest volume of the grid up
+to which every volume keeps throughput at or above ``SATURATION_RHO`` and
+its delay bounded: the mean delay from the scheduled arrival of the last
+third of the run (vehicles still in the system counted with their delay so
+far) at most ``GROWTH`` times the middle third's plus ``SLACK_S``. Above
+saturation queues grow all run long, and so does that delay.
 """
 
 from __future__ import annotations
@@ -25,7 +36,13 @@ FIELDS = [
     ("stopped_rate", "eta", "{:.3f}"),
     ("effective_mean_trip_time_s", "tau_e [s]", "{:.2f}"),
     ("mean_delay_s", "delay [s]", "{:.2f}"),
+    ("mean_system_time_s", "time in system [s]", "{:.2f}"),
+    ("mean_system_delay_s", "delay from schedule [s]", "{:.2f}"),
+    ("not_in_region_at_end", "not in region at end", "{:.1f}"),
 ]
+SATURATION_RHO = 0.95
+GROWTH = 1.5
+SLACK_S = 5.0
 
 
 def load_runs(root: Path) -> list[dict]:
@@ -81,9 +98,77 @@ def aggregate(runs: list[dict]) -> dict[tuple, dict]:
             for a, v in (r["metrics"].get("mean_trip_time_by_approach_s") or {}).items():
                 per[a].append(v)
         row["by_approach"] = {a: float(np.mean(v)) for a, v in sorted(per.items())}
+        thirds = [r["metrics"].get("system_delay_by_third_s") or [None] * 3 for r in rs]
+        row["delay_by_third_s"] = [_mean([t[k] for t in thirds]) for k in range(3)]
         row["runs"] = rs
         out[key] = row
     return out
+
+
+def bounded(row: dict) -> bool:
+    """Delay from the schedule not growing through the run (see the module docstring)."""
+    _, middle, last = row["delay_by_third_s"]
+    return middle is not None and last is not None and last <= GROWTH * middle + SLACK_S
+
+
+def saturation(agg: dict[tuple, dict]) -> dict[tuple, dict]:
+    """Per (layout, algorithm) of the steady-volume runs: the saturation volume and its row.
+
+    ``volume`` is None when even the lowest volume is saturated; ``above`` is
+    True when no volume of the grid was.
+    """
+    series: dict[tuple, list[tuple[float, dict]]] = defaultdict(list)
+    for (layout, shape, alg, vol), row in agg.items():
+        if not shape:
+            series[(layout, alg)].append((vol, row))
+    out = {}
+    for key, pts in sorted(series.items()):
+        pts.sort(key=lambda p: p[0])
+        best = None
+        for vol, row in pts:
+            if row["throughput"] is None or row["throughput"] < SATURATION_RHO or not bounded(row):
+                break
+            best = (vol, row)
+        out[key] = {
+            "volume": best[0] if best else None,
+            "row": best[1] if best else None,
+            "above": best is not None and best[0] == pts[-1][0],
+            "volumes": [v for v, _ in pts],
+        }
+    return out
+
+
+def _saturation_lines(sat: dict[tuple, dict]) -> list[str]:
+    lines = ["## Saturation", ""]
+    lines.append(
+        f"Highest volume up to which throughput stays >= {SATURATION_RHO} and the delay from "
+        f"the schedule bounded (last third <= {GROWTH} x middle third + {SLACK_S:g} s)."
+    )
+    lines.append("")
+    head = ["layout", "algorithm", "saturation volume", "rho", "eta", "tau [s]", "tau_e [s]"]
+    head += ["time in system [s]", "delay from schedule [s]", "volumes tried"]
+    lines.append("| " + " | ".join(head) + " |")
+    lines.append("|" + "---|" * len(head))
+    for (layout, alg), s in sat.items():
+        row = s["row"]
+        if s["volume"] is None:
+            vol = f"< {s['volumes'][0]:g}"
+        else:
+            vol = (">= " if s["above"] else "") + f"{s['volume']:g}"
+        cells = [layout, alg, vol]
+        for k, fmt in (
+            ("throughput", "{:.3f}"),
+            ("stopped_rate", "{:.3f}"),
+            ("mean_trip_time_s", "{:.2f}"),
+            ("effective_mean_trip_time_s", "{:.2f}"),
+            ("mean_system_time_s", "{:.2f}"),
+            ("mean_system_delay_s", "{:.2f}"),
+        ):
+            cells.append("-" if row is None else _fmt(fmt, row[k]))
+        cells.append(",".join(f"{v:g}" for v in s["volumes"]))
+        lines.append("| " + " | ".join(cells) + " |")
+    lines.append("")
+    return lines
 
 
 def _fmt(fmt: str, v: float | None) -> str:
@@ -92,6 +177,9 @@ def _fmt(fmt: str, v: float | None) -> str:
 
 def markdown(agg: dict[tuple, dict], images: list[str]) -> str:
     lines = ["# Run report", ""]
+    sat = saturation(agg)
+    if any(len(s["volumes"]) > 1 for s in sat.values()):
+        lines += _saturation_lines(sat)
     by_table: dict[tuple, list] = defaultdict(list)
     for key, row in agg.items():
         by_table[(key[0], key[1])].append((key, row))
@@ -99,8 +187,6 @@ def markdown(agg: dict[tuple, dict], images: list[str]) -> str:
         lines += [f"## {layout}" + (f" ({shape})" if shape else ""), ""]
         head = ["algorithm", "volume", *[h for _, h, _ in FIELDS]]
         head += ["collisions", "SUMO collisions", "min gap [m]", "wall [s]", "seeds"]
-        if shape:
-            head.append("mean tau by approach [s]")
         if shape:
             head.append("mean tau by approach [s]")
         lines.append("| " + " | ".join(head) + " |")
@@ -228,6 +314,12 @@ def main(argv: list[str] | None = None) -> int:
     images = plots(agg, out)
     (out / "report.md").write_text(markdown(agg, images))
     if args.json:
+        sat = [
+            {"layout": k[0], "algorithm": k[1], "saturation_volume": s["volume"], **s}
+            for k, s in saturation(agg).items()
+        ]
+        for s in sat:
+            s.pop("row")
         rows = [
             {
                 "layout": k[0],
@@ -238,7 +330,9 @@ def main(argv: list[str] | None = None) -> int:
             }
             for k, row in agg.items()
         ]
-        (out / "report.json").write_text(json.dumps(rows, indent=2))
+        (out / "report.json").write_text(
+            json.dumps({"groups": rows, "saturation": sat}, indent=2, default=str)
+        )
     print(f"{len(runs)} runs in {len(agg)} groups; wrote {out}/report.md and {len(images)} plots")
     return 0
 
