@@ -224,7 +224,8 @@ class World:
         present = set(ls.vehicle.getIDList())
         for vid in ls.simulation.getDepartedIDList():
             ls.vehicle.setLaneChangeMode(vid, 0)
-            # SUMO's driver keeps the scheduled speed, or less behind a slower vehicle
+            # until the region, SUMO's driver keeps the scheduled speed (the speed the
+            # vehicle keeps when free), or less behind a slower vehicle
             ls.vehicle.setSpeed(vid, self.cars[vid].entry_speed_mps)
             self.log.trips[vid].inserted_s = t
             _Reads.subscribe(ls, vid, self.want_xy)
@@ -255,6 +256,8 @@ class World:
                 d = self._lane_len.get(lane, math.inf) - vw.getLanePosition(c.vin)
                 if lane == c.route.in_lane and d <= comm:
                     self._detect(c, d, vw.getSpeed(c.vin), t)
+                    if self.signalised:  # in the region SUMO's driver drives as it likes
+                        ls.vehicle.setSpeed(c.vin, RELEASE)
                 else:
                     continue
             if not c.entered and lane != c.route.in_lane:
