@@ -5,9 +5,10 @@ from __future__ import annotations
 from tools.report import GROWTH, SATURATION_RHO, SLACK_S, bounded, saturation
 
 
-def row(rho: float, middle: float, last: float) -> dict:
+def row(rho: float, middle: float, last: float, settled: float | None = None) -> dict:
     return {
         "throughput": rho,
+        "settled_throughput": rho if settled is None else settled,
         "delay_by_third_s": [1.0, middle, last],
         "stopped_rate": 0.1,
         "mean_trip_time_s": 6.0,
@@ -41,3 +42,10 @@ def test_saturation_is_the_last_volume_before_the_first_failure():
     assert sat[("L", "light")]["volume"] is None
     assert sat[("L", "other")]["volume"] == 600.0 and sat[("L", "other")]["above"]
     assert sat[("L", "other")]["volumes"] == [300.0, 600.0]
+
+
+def test_settled_throughput_forgives_the_vehicles_still_waiting_at_the_end():
+    """A light with a long cycle: rho under 0.95 from end effects, queues not growing."""
+    agg = {("L", "", "light", v): row(0.92, 20.0, 22.0, settled=0.99) for v in (300.0, 500.0)}
+    assert saturation(agg)[("L", "light")]["volume"] is None
+    assert saturation(agg, "settled_throughput")[("L", "light")]["volume"] == 500.0
