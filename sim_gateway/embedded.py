@@ -8,7 +8,10 @@ instead of a Zenoh query. It is the fast default for experiments.
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -22,7 +25,8 @@ from ica.core.intersection import Intersection
 from ica.core.request import Confirmation, Rejection, Request, RequestError
 from sim_gateway.demand import DemandSpec, expected_lane_flows, make_arrivals
 from sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
-from sim_gateway.signals import retime
+from sim_gateway.scenario import ScenarioError, light_net
+from sim_gateway.signals import SignalLink, phases_of, retime, with_clearance
 from sim_gateway.world import Seen, World, import_libsumo, start_sumo
 from vehicle_agent.machine import Command, Vehicle
 
@@ -132,20 +136,51 @@ def run(
     inter: Intersection,
     progress: Callable[[float, int, int], None] | None = None,
     rrd_path: Path | None = None,
+    run_dir: Path | None = None,
 ) -> RunResult:
     """Run one simulation to the end and return its metrics and safety report.
 
     With ``rrd_path`` the run is also recorded as Rerun space-time visuals
-    (the same recorder the cluster's observer uses).
+    (the same recorder the cluster's observer uses). A light baseline on a
+    junction without a light of its kind gets one from netconvert, in
+    ``run_dir`` (a temporary directory if None), with a line on stderr.
     """
+    with tempfile.TemporaryDirectory(prefix="dica-light-") as scratch:
+        return _run(cfg, inter, progress, rrd_path, Path(run_dir or scratch))
+
+
+def _run(
+    cfg: RunConfig,
+    inter: Intersection,
+    progress: Callable[[float, int, int], None] | None,
+    rrd_path: Path | None,
+    run_dir: Path,
+) -> RunResult:
     ls = import_libsumo()
     light = cfg.algorithm in LIGHTS
     ica_cfg = ica_config(cfg)
     ica = make_controller("fifo" if light else cfg.algorithm, inter, ica_cfg, cfg.tile_m)
     schedule, spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
-    cmd = start_sumo(ls, cfg, ica_cfg.step_s)
+    built = None
+    if light:
+        try:
+            net, built = light_net(
+                Path(cfg.net_path),
+                inter.junction_id,
+                "actuated" if cfg.algorithm == "actuated" else "static",
+                run_dir,
+            )
+        except ScenarioError as e:
+            raise RunError(str(e)) from None
+        if built is not None:
+            print(built, file=sys.stderr)
+        cmd = start_sumo(ls, dataclasses.replace(cfg, net_path=str(net)), ica_cfg.step_s)
+    else:
+        cmd = start_sumo(ls, cfg, ica_cfg.step_s)
     try:
         signal = _setup_signal(ls, cfg, inter, spec) if light else None
+        if signal is not None and built is not None:
+            signal["built"] = built
         recorder = _recorder(inter, rrd_path)
         world = World(
             ls, cfg, inter, ica_cfg, schedule, horizon, signalised=light, want_xy=bool(recorder)
@@ -249,27 +284,60 @@ def _record(
 
 
 def _setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> dict:
-    """Check the junction is signalised; re-time a fixed program to the expected demand."""
-    if inter.junction_id not in ls.trafficlight.getIDList():
-        raise RunError(
-            f"junction {inter.junction_id} has no traffic light; the light baselines need a "
-            "signalised net (the built-in layouts are built with one automatically)"
-        )
+    """Clearance from the formulas on the junction's program; for the fixed light,
+    greens from the cycle model on top (:mod:`sim_gateway.signals`)."""
     tls = inter.junction_id
-    logic = ls.trafficlight.getAllProgramLogics(tls)[0]
-    if cfg.algorithm == "actuated":
-        return {"type": "actuated", "phases": [(p.duration, p.state) for p in logic.phases]}
-    links = ls.trafficlight.getControlledLinks(tls)
-    link_lanes = [group[0][0] if group else "" for group in links]
-    states = [p.state for p in logic.phases]
-    durations, timing = retime(states, link_lanes, expected_lane_flows(inter, spec))
-    for p, d in zip(logic.phases, durations, strict=True):
-        p.duration = p.minDur = p.maxDur = d
+    if tls not in ls.trafficlight.getIDList():
+        raise RunError(f"junction {tls} has no traffic light of its own id in the signalised net")
+    logic = _current_logic(ls, tls)
+    links = _signal_links(ls, tls)
+    phases = phases_of(
+        [p.duration for p in logic.phases],
+        [p.state for p in logic.phases],
+        [p.minDur for p in logic.phases],
+        [p.maxDur for p in logic.phases],
+    )
+    phases = with_clearance(phases, links, cfg.length_m)
+    out: dict = {"type": cfg.algorithm}
+    if cfg.algorithm == "fixed":
+        lanes = [ln.in_lane if ln is not None else "" for ln in links]
+        phases, timing = retime(phases, lanes, expected_lane_flows(inter, spec))
+        out |= {"cycle_s": timing.cycle_s, "flow_ratio_sum": timing.flow_ratio_sum}
+    make = ls.trafficlight.Phase
+    logic.phases = tuple(make(p.duration_s, p.state, p.min_s, p.max_s) for p in phases)
+    # a program of its own: replacing the running actuated one in place crashed SUMO 1.28
+    logic.programID = "dica"
+    logic.currentPhaseIndex = 0
+    if cfg.algorithm == "fixed":
+        logic.type = ls.constants.TRAFFICLIGHT_TYPE_STATIC
     ls.trafficlight.setProgramLogic(tls, logic)
     ls.trafficlight.setProgram(tls, logic.programID)
-    return {
-        "type": "fixed",
-        "cycle_s": timing.cycle_s,
-        "flow_ratio_sum": timing.flow_ratio_sum,
-        "phases": list(zip(durations, states, strict=True)),
-    }
+    out["phases"] = [(round(p.duration_s, 3), p.state, p.kind) for p in phases]
+    return out
+
+
+def _current_logic(ls, tls: str):
+    program = ls.trafficlight.getProgram(tls)
+    logics = ls.trafficlight.getAllProgramLogics(tls)
+    return next((lg for lg in logics if lg.programID == program), logics[0])
+
+
+def _signal_links(ls, tls: str) -> list[SignalLink | None]:
+    """Per signal index: the incoming lane, its speed limit, and the way through
+    the junction (the chain of internal lanes to the outgoing lane)."""
+    out: list[SignalLink | None] = []
+    for group in ls.trafficlight.getControlledLinks(tls):
+        if not group:
+            out.append(None)
+            continue
+        in_lane, out_lane, via = group[0]
+        v_in = ls.lane.getMaxSpeed(in_lane)
+        length, v_min = 0.0, v_in
+        for _ in range(16):  # SUMO chains a handful of internal lanes at most
+            if not via.startswith(":"):
+                break
+            length += ls.lane.getLength(via)
+            v_min = min(v_min, ls.lane.getMaxSpeed(via))
+            via = next((lk[4] for lk in ls.lane.getLinks(via) if lk[0] == out_lane), "")
+        out.append(SignalLink(in_lane, v_in, length, v_min))
+    return out

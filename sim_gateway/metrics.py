@@ -1,10 +1,28 @@
-"""The dissertation's metrics, from what the simulation reports about each trip.
+"""The dissertation's metrics, and the whole delay, from what the simulation
+reports about each trip.
 
-Trip time tau: from entering the communication region until fully out of the
-intersection. Throughput rho = crossed / generated; stopped rate eta =
-stopped / crossed; effective mean trip time tau_e = mean tau / rho. Delay is
-a trip's time over its free-flow time (the fastest plan from the speed it
-entered the region with, alone at the junction).
+Where each clock starts:
+
+* trip time tau (the dissertation's): from the front crossing the
+  communication region's entry line until the rear leaves the junction.
+  Throughput rho = crossed / generated (generated: scheduled to reach the
+  region by the end); stopped rate eta = stopped in the region / crossed;
+  effective mean trip time tau_e = mean tau / rho. Delay: tau over the
+  free-flow time (the fastest plan from the speed it entered the region with,
+  alone at the junction).
+* time in the system: from the vehicle's *scheduled* arrival at the region's
+  entry line until its rear leaves the junction. It also counts the wait in a
+  queue upstream of the region (SUMO drives vehicles there from up to a few
+  hundred metres upstream) and a wait for room to enter SUMO at all, which
+  tau does not see. Delay from the scheduled arrival: that time over the
+  free-flow time from the scheduled entry speed.
+* vehicles not yet in the region at the end: generated but still upstream
+  (or not even in SUMO); the means above leave them out, so the report gives
+  their number beside them.
+* delay from the scheduled arrival by thirds of the run (by scheduled
+  arrival), counting a vehicle still in the system at the end with its delay
+  so far (a lower bound): stable traffic keeps the last third near the
+  middle one, an oversaturated junction does not (see ``tools/report.py``).
 """
 
 from __future__ import annotations
@@ -20,12 +38,24 @@ class Trip:
     vin: str
     route_id: str
     turn: str
-    depart_s: float  # scheduled arrival at the communication region
+    depart_s: float  # scheduled arrival at the communication region's entry line
     entered_s: float | None = None  # front crossed the communication region's entry line
     exited_s: float | None = None  # rear left the junction
-    free_flow_s: float | None = None
+    free_flow_s: float | None = None  # from the entry line at the speed it entered with
     stopped: bool = False
     confirmed_s: float | None = None
+    inserted_s: float | None = None  # SUMO placed it on the road, upstream of the region
+    free_flow_scheduled_s: float | None = None  # from the entry line at its scheduled speed
+
+    @property
+    def system_time_s(self) -> float | None:
+        """From the scheduled arrival at the region's entry line until out of the junction."""
+        return None if self.exited_s is None else self.exited_s - self.depart_s
+
+    @property
+    def system_delay_s(self) -> float | None:
+        st, ff = self.system_time_s, self.free_flow_scheduled_s
+        return None if st is None or ff is None else st - ff
 
 
 @dataclass(slots=True)
@@ -71,10 +101,26 @@ def summarize(log: TripLog, end_s: float) -> dict[str, float | int | None]:
         "effective_mean_trip_time_s": mean / rho if rho > 0 else math.nan,
         "mean_delay_s": float(delay.mean()) if len(delay) else math.nan,
     }
+    system = np.array([tr.system_time_s for tr in crossed], dtype=float)
+    system_delay = np.array(
+        [tr.system_delay_s for tr in crossed if tr.system_delay_s is not None], dtype=float
+    )
+    out |= {
+        "mean_system_time_s": float(system.mean()) if len(system) else math.nan,
+        "max_system_time_s": float(system.max()) if len(system) else math.nan,
+        "mean_system_delay_s": float(system_delay.mean()) if len(system_delay) else math.nan,
+        "p95_system_delay_s": float(np.percentile(system_delay, 95))
+        if len(system_delay)
+        else math.nan,
+        "not_in_region_at_end": sum(tr.entered_s is None for tr in gen),
+        "not_inserted_at_end": sum(tr.inserted_s is None for tr in gen),
+    }
+    thirds = _delay_thirds(gen, end_s)
     for turn in ("left", "through", "right"):
         sel = np.array([tr.exited_s - tr.entered_s for tr in crossed if tr.turn == turn])
         out[f"mean_trip_time_{turn}_s"] = float(sel.mean()) if len(sel) else math.nan
     result = {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in out.items()}
+    result["system_delay_by_third_s"] = thirds
     by_approach: dict[str, list[float]] = {}
     for tr in crossed:
         approach = tr.route_id.split(">")[0].rsplit("_", 1)[0]
@@ -83,3 +129,21 @@ def summarize(log: TripLog, end_s: float) -> dict[str, float | int | None]:
         a: float(np.mean(v)) for a, v in sorted(by_approach.items())
     }
     return result
+
+
+def _delay_thirds(gen: list[Trip], end_s: float) -> list[float | None]:
+    """Mean delay from the scheduled arrival per third of the run; a vehicle not out
+    by ``end_s`` counts with its delay so far."""
+    if not gen or not math.isfinite(end_s):
+        return [None, None, None]
+    start = min(tr.depart_s for tr in gen)
+    span = max(end_s - start, 1e-9)
+    parts: list[list[float]] = [[], [], []]
+    for tr in gen:
+        out = tr.exited_s if tr.exited_s is not None else max(end_s, tr.depart_s)
+        delay = out - tr.depart_s - (tr.free_flow_scheduled_s or 0.0)
+        if tr.exited_s is None:
+            delay = max(delay, 0.0)
+        k = min(int(3 * (tr.depart_s - start) / span), 2)
+        parts[k].append(delay)
+    return [float(np.mean(p)) if p else None for p in parts]

@@ -1,4 +1,12 @@
-"""A run's files: metrics.json, vehicles.csv, timeseries.csv and config.json."""
+"""A run's files: metrics.json, vehicles.csv, timeseries.csv and config.json.
+
+vehicles.csv times are seconds of simulation time: ``depart_s`` the scheduled
+arrival at the region's entry line, ``inserted_s`` when SUMO placed the
+vehicle upstream, ``entered_s`` when it crossed the entry line, ``exited_s``
+when its rear left the junction; ``trip_time_s`` (the dissertation's tau)
+counts from ``entered_s``, ``system_time_s`` and ``system_delay_s`` from
+``depart_s`` (see :mod:`sim_gateway.metrics`).
+"""
 
 from __future__ import annotations
 
@@ -55,11 +63,14 @@ def write_outputs(
                 "route",
                 "turn",
                 "depart_s",
+                "inserted_s",
                 "entered_s",
                 "confirmed_s",
                 "exited_s",
                 "trip_time_s",
                 "free_flow_s",
+                "system_time_s",
+                "system_delay_s",
                 "stopped",
             ]
         )
@@ -71,11 +82,14 @@ def write_outputs(
                     tr.route_id,
                     tr.turn,
                     f"{tr.depart_s:.2f}",
+                    _f(tr.inserted_s),
                     _f(tr.entered_s),
                     _f(tr.confirmed_s),
                     _f(tr.exited_s),
                     _f(tau),
                     _f(tr.free_flow_s),
+                    _f(tr.system_time_s),
+                    _f(tr.system_delay_s),
                     int(tr.stopped),
                 ]
             )

@@ -1,14 +1,26 @@
-"""The dissertation's two intersections, built from plain XML with ``netconvert``.
+"""The dissertation's two intersections and two of our own, built from plain XML
+with ``netconvert``.
 
-Both are a 4-way junction ``C`` at the origin with straight approaches along
-the axes (``N_in``, ``N_out``, ``E_in``, ...; ``_in`` drives towards ``C``).
-Only the movements listed in an explicit connections file exist, so the ICA
-sees exactly the routes of the reference layouts:
+The dissertation's are a 4-way junction ``C`` at the origin with straight
+approaches along the axes (``N_in``, ``N_out``, ``E_in``, ...; ``_in`` drives
+towards ``C``). Only the movements listed in an explicit connections file
+exist, so the ICA sees exactly the routes of the reference layouts:
 
 - ``ch3``: 2 incoming lanes, 1 outgoing lane; lane 0 turns right or goes
   through, lane 1 goes through or turns left.
 - ``ch45``: 3 incoming lanes, 2 outgoing lanes; lane 0 right and through to
   out lane 0, lane 1 through to out lane 1, lane 2 left only to out lane 1.
+
+Ours, for heavy traffic on junctions the dissertation did not try, leave the
+movements to netconvert's guess (2 lanes each way on every arm):
+
+- ``skewed``: a west-east road crossed at 60 degrees (arms ``W``, ``E``,
+  ``A`` to the north-east, ``B`` to the south-west);
+- ``tee``: a west-east road with a road from the south ending at ``C``.
+
+Every approach is ``APPROACH_M`` long, so vehicles enter SUMO a few hundred
+metres before the 50 m communication region and a queue longer than the
+region is one SUMO drives.
 
 The junction type is ``priority``: with speed mode 32 on every vehicle SUMO
 leaves right of way to the ICA but still reports junction collisions. For the
@@ -19,6 +31,7 @@ junction, ``static`` (its phases are re-timed at run time) or ``actuated``
 
 from __future__ import annotations
 
+import math
 import os
 import shutil
 import subprocess
@@ -29,9 +42,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
-LAYOUTS: tuple[str, ...] = ("ch3", "ch45")
+DISSERTATION_LAYOUTS: tuple[str, ...] = ("ch3", "ch45")
+OWN_LAYOUTS: tuple[str, ...] = ("skewed", "tee")
+LAYOUTS: tuple[str, ...] = DISSERTATION_LAYOUTS + OWN_LAYOUTS
 JUNCTION_ID = "C"
 ROAD_SPEED_MPS = 70.0 / 3.6
+APPROACH_M = 400.0  # [m] junction centre to the far end of every arm
 
 # Flags every network of this project is built with (see STACK-NOTES): keep the
 # junction at the origin, no U-turns, no traffic lights, smooth internal lanes.
@@ -59,6 +75,11 @@ _LAYOUT_SPEC: dict[str, tuple[int, int, tuple[tuple[int, str, int], ...]]] = {
     "ch45": (3, 2, ((0, "right", 0), (0, "through", 0), (1, "through", 1), (2, "left", 1))),
 }
 _TURN_OFFSET = {"right": -1, "through": 2, "left": 1}
+# our layouts: arm -> (bearing [deg, counter-clockwise from east], lanes each way, priority)
+_OWN_ARMS: dict[str, tuple[tuple[str, float, int, int], ...]] = {
+    "skewed": (("W", 180.0, 2, 2), ("E", 0.0, 2, 2), ("A", 60.0, 2, 1), ("B", 240.0, 2, 1)),
+    "tee": (("W", 180.0, 2, 2), ("E", 0.0, 2, 2), ("S", 270.0, 2, 1)),
+}
 
 
 class ScenarioError(Exception):
@@ -111,7 +132,109 @@ def run_netconvert(
     ]
     if connections_xml is not None:
         cmd += ["--connection-files", str(connections_xml)]
-    cmd += [*NETCONVERT_FLAGS, *extra_args, "--output-file", str(out_net)]
+    _netconvert([*cmd, *NETCONVERT_FLAGS, *extra_args, "--output-file", str(out_net)], out_net)
+
+
+def junction_type(net_path: Path, junction_id: str) -> str | None:
+    """The ``type`` SUMO's net file gives the junction, or None if it has no such junction."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        for _, el in ET.iterparse(net_path, events=("end",)):
+            if el.tag == "junction" and el.get("id") == junction_id:
+                return el.get("type")
+            if el.tag in ("edge", "junction", "connection"):
+                el.clear()
+    except (OSError, ET.ParseError) as exc:
+        raise ScenarioError(f"cannot read {net_path}: {exc}") from exc
+    return None
+
+
+def signalise(net_path: Path, junction_id: str, tls: str, out_dir: Path) -> Path:
+    """A copy of the net with ``junction_id`` signalised by netconvert (``--tls.set``).
+
+    netconvert builds its own phase plan for the junction; the light baselines
+    then set its clearance and timing (:mod:`sim_gateway.signals`).
+    """
+    _check_tls(tls)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    out_net = out_dir / f"{Path(net_path).name.removesuffix('.net.xml')}-tls-{tls}.net.xml"
+    cmd = [
+        netconvert_binary(),
+        "--sumo-net-file",
+        str(net_path),
+        "--tls.set",
+        junction_id,
+        "--tls.default-type",
+        tls,
+        *NETCONVERT_FLAGS,
+        "--output-file",
+        str(out_net),
+    ]
+    _netconvert(cmd, out_net)
+    return out_net
+
+
+def tls_program_type(net_path: Path, tls_id: str) -> str | None:
+    """The ``type`` of the net's first program for traffic light ``tls_id`` (None: none)."""
+    import xml.etree.ElementTree as ET
+
+    try:
+        for _, el in ET.iterparse(net_path, events=("end",)):
+            if el.tag == "tlLogic" and el.get("id") == tls_id:
+                return el.get("type", "static")
+            if el.tag in ("edge", "junction", "connection"):
+                el.clear()
+    except (OSError, ET.ParseError) as exc:
+        raise ScenarioError(f"cannot read {net_path}: {exc}") from exc
+    return None
+
+
+def light_net(net_path: Path, junction_id: str, tls: str, out_dir: Path) -> tuple[Path, str | None]:
+    """A net whose ``junction_id`` carries a ``tls`` light (static or actuated), and a
+    line saying what was built, or None when the net already has one.
+
+    A junction without a light is signalised with netconvert; one whose
+    program is static while an actuated light is wanted has the net's lights
+    rebuilt as actuated (netconvert cannot change one junction's type).
+    Either net is written to ``out_dir``.
+    """
+    _check_tls(tls)
+    kind = junction_type(Path(net_path), junction_id)
+    if kind is None:
+        raise ScenarioError(f"junction {junction_id!r} not in {net_path}")
+    if not kind.startswith("traffic_light"):
+        out = signalise(Path(net_path), junction_id, tls, out_dir)
+        return (
+            out,
+            f"junction {junction_id} had no traffic light: signalised by netconvert in {out}",
+        )
+    program = tls_program_type(Path(net_path), junction_id)
+    if tls == "actuated" and program != "actuated":
+        out_dir = Path(out_dir)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        out = out_dir / f"{Path(net_path).name.removesuffix('.net.xml')}-tls-actuated.net.xml"
+        cmd = [
+            netconvert_binary(),
+            "--sumo-net-file",
+            str(net_path),
+            "--tls.rebuild",
+            "--tls.default-type",
+            "actuated",
+            *NETCONVERT_FLAGS,
+            "--output-file",
+            str(out),
+        ]
+        _netconvert(cmd, out)
+        return out, (
+            f"junction {junction_id}'s light was {program or 'of no known type'}: "
+            f"rebuilt actuated by netconvert in {out}"
+        )
+    return Path(net_path), None
+
+
+def _netconvert(cmd: list[str], out_net: Path) -> None:
     try:
         proc = subprocess.run(
             cmd, capture_output=True, text=True, timeout=NETCONVERT_TIMEOUT_S, check=False
@@ -139,7 +262,7 @@ def _tail(text: str) -> str:
 
 
 def _check_layout(layout: str) -> None:
-    if layout not in _LAYOUT_SPEC:
+    if layout not in LAYOUTS:
         raise ScenarioError(f"unknown layout {layout!r}; known layouts: {', '.join(LAYOUTS)}")
 
 
@@ -155,17 +278,41 @@ def _stem(layout: str, tls: str | None) -> str:
     return layout if tls is None else f"{layout}-tls-{tls}"
 
 
+def _doc(root: str, lines: list[str]) -> str:
+    return (
+        f'<?xml version="1.0" encoding="UTF-8"?>\n<{root}>\n' + "\n".join(lines) + f"\n</{root}>\n"
+    )
+
+
+def _own_xml(layout: str, approach_length_m: float, kind: str) -> dict[str, str]:
+    nodes = [f'    <node id="{JUNCTION_ID}" x="0.00" y="0.00" type="{kind}"/>']
+    edges = []
+    for arm, bearing, lanes, prio in _OWN_ARMS[layout]:
+        x = approach_length_m * math.cos(math.radians(bearing))
+        y = approach_length_m * math.sin(math.radians(bearing))
+        nodes.append(f'    <node id="{arm}" x="{x:.2f}" y="{y:.2f}" type="dead_end"/>')
+        for name, a, b in ((f"{arm}_in", arm, JUNCTION_ID), (f"{arm}_out", JUNCTION_ID, arm)):
+            edges.append(
+                f'    <edge id="{name}" from="{a}" to="{b}" numLanes="{lanes}" '
+                f'speed="{ROAD_SPEED_MPS:.6f}" priority="{prio}"/>'
+            )
+    return {"nod": _doc("nodes", nodes), "edg": _doc("edges", edges)}
+
+
 def plain_xml(
-    layout: str, approach_length_m: float = 250.0, tls: str | None = None
+    layout: str, approach_length_m: float = APPROACH_M, tls: str | None = None
 ) -> dict[str, str]:
-    """Node, edge and connection files of a layout, keyed by suffix (``nod``, ``edg``, ``con``)."""
+    """Node, edge and (for the dissertation's) connection files of a layout, keyed by
+    suffix (``nod``, ``edg``, ``con``)."""
     _check_layout(layout)
     _check_tls(tls)
     if not approach_length_m > 30.0:
         raise ScenarioError(f"approach_length_m must exceed 30 m, got {approach_length_m}")
+    kind = "priority" if tls is None else "traffic_light"
+    if layout in OWN_LAYOUTS:
+        return _own_xml(layout, approach_length_m, kind)
     n_in, n_out, movements = _LAYOUT_SPEC[layout]
 
-    kind = "priority" if tls is None else "traffic_light"
     nodes = [f'    <node id="{JUNCTION_ID}" x="0.00" y="0.00" type="{kind}"/>']
     for a in APPROACHES:
         ux, uy = _FAR_NODE_UNIT[a]
@@ -192,24 +339,17 @@ def plain_xml(
                 f'fromLane="{from_lane}" toLane="{to_lane}"/>'
             )
 
-    def doc(root: str, lines: list[str]) -> str:
-        return (
-            f'<?xml version="1.0" encoding="UTF-8"?>\n<{root}>\n'
-            + "\n".join(lines)
-            + f"\n</{root}>\n"
-        )
-
     return {
-        "nod": doc("nodes", nodes),
-        "edg": doc("edges", edges),
-        "con": doc("connections", conns),
+        "nod": _doc("nodes", nodes),
+        "edg": _doc("edges", edges),
+        "con": _doc("connections", conns),
     }
 
 
 def build_scenario(
-    layout: str, out_dir: Path, *, approach_length_m: float = 250.0, tls: str | None = None
+    layout: str, out_dir: Path, *, approach_length_m: float = APPROACH_M, tls: str | None = None
 ) -> Scenario:
-    """Write ``<stem>.{nod,edg,con}.xml`` and build ``<stem>.net.xml`` in ``out_dir``.
+    """Write ``<stem>.{nod,edg[,con]}.xml`` and build ``<stem>.net.xml`` in ``out_dir``.
 
     The stem is the layout, or ``<layout>-tls-<type>`` with a traffic light.
     """
@@ -222,7 +362,9 @@ def build_scenario(
         paths[kind].write_text(text, encoding="utf-8")
     net = out_dir / f"{stem}.net.xml"
     extra = [] if tls is None else ["--tls.default-type", tls]
-    run_netconvert(paths["nod"], paths["edg"], net, connections_xml=paths["con"], extra_args=extra)
+    run_netconvert(
+        paths["nod"], paths["edg"], net, connections_xml=paths.get("con"), extra_args=extra
+    )
     return Scenario(layout=layout, net_path=net, junction_id=JUNCTION_ID)
 
 

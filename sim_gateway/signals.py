@@ -1,25 +1,67 @@
-"""Traffic-light baselines: re-timing a fixed-cycle program to the demand.
+"""Traffic-light baselines: clearance times that are safe on any net, and the
+dissertation's fixed-cycle re-timing on top.
 
-The optimised fixed-cycle light of the dissertation uses the exponential
-cycle-length model C0 = 1.5 L e^(1.8 Y) (Cheng et al.), with 4 s of lost
-time per phase (L = 4 s x phases) and 3 s of yellow. Y is the sum over the
-green phases of each phase's critical flow ratio: the largest demand over
-saturation flow among the lanes the phase serves with priority ('G').
-The effective green C0 - L is shared in proportion to those ratios.
+Clearance (the usual traffic-engineering formulas, per link losing right of
+way; the longest link of a phase decides):
+
+* yellow = reaction time + v / (2 x comfortable deceleration), v the approach
+  lane's speed limit: a vehicle too close to stop at that deceleration when
+  the yellow starts reaches the stop line before it ends;
+* all-red = (way through the junction + vehicle length) / v, v the slowest
+  speed limit on that way (turns are driven slower than the approach): a
+  vehicle that crossed the stop line at the end of the yellow is out of the
+  junction before a conflicting link turns green.
+
+Neither is ever shorter than the net's own program. netconvert's programs
+have no all-red phase, so one is inserted after each yellow (the yellow's
+state with its 'y' links red; links that stay green through the change stay
+green).
+
+The optimised fixed-cycle light of the dissertation then uses the
+exponential cycle-length model C0 = 1.5 L e^(1.8 Y) (Cheng et al.). Y is the
+sum over the green phases of each phase's critical flow ratio: the largest
+demand over saturation flow among the lanes the phase serves with priority
+('G'). L is the lost time, 4 s per green phase as in the dissertation, or
+that phase's clearance (yellow plus all-red) where longer. The effective
+green C0 - L is shared in proportion to the ratios.
 
 The phase plan itself is the one netconvert builds for the junction, so the
-same code re-times any signalised SUMO junction, not just ours.
+same code times any signalised SUMO junction, not just ours.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-LOST_PER_PHASE_S = 4.0
-YELLOW_S = 3.0
+LOST_PER_PHASE_S = 4.0  # [s] the dissertation's lost time per green phase
 SATURATION_VEH_H = 1800.0  # per lane
 MIN_GREEN_S = 5.0
+REACTION_S = 1.0  # [s] perception-reaction time of the yellow formula
+COMFORT_DECEL_MPS2 = 3.0  # [m/s^2] comfortable deceleration of the yellow formula
+
+GREEN, YELLOW, ALL_RED = "green", "yellow", "all-red"
+
+
+@dataclass(frozen=True, slots=True)
+class SignalLink:
+    """One controlled link: the lane it leaves and its way through the junction."""
+
+    in_lane: str
+    approach_speed_mps: float  # speed limit of the incoming lane
+    crossing_m: float  # length of the internal lanes from stop line to exit [m]
+    crossing_speed_mps: float  # slowest speed limit on the approach and that way
+
+
+@dataclass(frozen=True, slots=True)
+class Phase:
+    """One phase of a program; ``min_s``/``max_s`` matter to actuated lights only."""
+
+    duration_s: float
+    state: str
+    kind: str  # GREEN, YELLOW or ALL_RED
+    min_s: float
+    max_s: float
 
 
 @dataclass(frozen=True, slots=True)
@@ -34,40 +76,118 @@ def cycle_length_s(lost_s: float, y: float) -> float:
     return 1.5 * lost_s * math.exp(1.8 * y)
 
 
-def retime(
-    states: list[str],
-    link_lanes: list[str],
-    lane_flow_veh_h: dict[str, float],
-) -> tuple[list[float], Timing]:
-    """Durations for each phase state of a program.
+def yellow_time_s(approach_speed_mps: float) -> float:
+    """Reaction time + v / (2 x comfortable deceleration)."""
+    return REACTION_S + approach_speed_mps / (2.0 * COMFORT_DECEL_MPS2)
 
-    ``states`` are the phase strings of the program, ``link_lanes[i]`` the
-    incoming lane of signal link i. Green phases (no 'y') get their share of
-    the effective green plus the difference between lost time and yellow;
-    yellow phases get ``YELLOW_S``; anything else (all red) keeps 1 s.
+
+def all_red_time_s(crossing_m: float, vehicle_length_m: float, speed_mps: float) -> float:
+    """(Way through the junction + vehicle length) / v."""
+    return (crossing_m + vehicle_length_m) / max(speed_mps, 0.1)
+
+
+def phases_of(durations_s: list[float], states: list[str], mins_s=None, maxs_s=None) -> list[Phase]:
+    """A net's program as phases: yellow where a link shows 'y', all-red where a
+    phase right after a yellow only holds red what the yellow ended, else green."""
+    n = len(states)
+    mins_s = list(durations_s) if mins_s is None else mins_s
+    maxs_s = list(durations_s) if maxs_s is None else maxs_s
+    out = []
+    for k, st in enumerate(states):
+        before = states[k - 1] if n > 1 else ""
+        if "y" in st.lower():
+            kind = YELLOW
+        elif "y" in before.lower() and _only_clears(st, before):
+            kind = ALL_RED
+        else:
+            kind = GREEN
+        out.append(Phase(durations_s[k], st, kind, mins_s[k], maxs_s[k]))
+    return out
+
+
+def _only_clears(state: str, yellow: str) -> bool:
+    """Every link red, or green as it was through the yellow."""
+    return all(c in "rR" or (y in "Gg" and c == y) for c, y in zip(state, yellow, strict=True))
+
+
+def with_clearance(
+    phases: list[Phase], links: list[SignalLink | None], vehicle_length_m: float
+) -> list[Phase]:
+    """The program with every yellow and all-red at least as long as the formulas ask.
+
+    ``links[i]`` describes signal index i (None where no lane is controlled).
+    A yellow not followed by an all-red phase gets one inserted after it.
     """
-    greens = [k for k, s in enumerate(states) if "y" not in s.lower() and ("G" in s or "g" in s)]
-    ratios = []
+    need_red: dict[int, float] = {}
+    out: list[Phase] = []
+    n = len(phases)
+    for k, ph in enumerate(phases):
+        if ph.kind == ALL_RED and k - 1 in need_red:
+            d = max(ph.duration_s, need_red[k - 1])
+            out.append(replace(ph, duration_s=d, min_s=d, max_s=d))
+            continue
+        if ph.kind == ALL_RED and k == 0 and phases[-1].kind == YELLOW:
+            continue  # lengthened below, once the last yellow is seen
+        if ph.kind != YELLOW:
+            out.append(ph)
+            continue
+        ending = [links[i] for i, c in enumerate(ph.state) if c in "yY" and links[i] is not None]
+        y = max([ph.duration_s] + [yellow_time_s(ln.approach_speed_mps) for ln in ending])
+        out.append(replace(ph, duration_s=y, min_s=y, max_s=y))
+        red = max(
+            [0.0]
+            + [
+                all_red_time_s(ln.crossing_m, vehicle_length_m, ln.crossing_speed_mps)
+                for ln in ending
+            ]
+        )
+        need_red[k] = red
+        nxt = phases[(k + 1) % n]
+        if nxt.kind != ALL_RED and red > 0.0:
+            state = "".join("r" if c in "yY" else c for c in ph.state)
+            out.append(Phase(red, state, ALL_RED, red, red))
+    if n > 1 and phases[0].kind == ALL_RED and phases[-1].kind == YELLOW:
+        d = max(phases[0].duration_s, need_red[n - 1])
+        out.insert(0, replace(phases[0], duration_s=d, min_s=d, max_s=d))
+    return out
+
+
+def retime(
+    phases: list[Phase], link_lanes: list[str], lane_flow_veh_h: dict[str, float]
+) -> tuple[list[Phase], Timing]:
+    """The fixed-cycle program: green durations from the cycle model, clearances kept.
+
+    ``link_lanes[i]`` is the incoming lane of signal link i. A green phase's
+    lost time is ``LOST_PER_PHASE_S`` or the clearance phases after it, where
+    longer; its displayed green is its share of the effective green plus the
+    part of its lost time the clearance does not take.
+    """
+    greens = [k for k, ph in enumerate(phases) if ph.kind == GREEN]
+    if not greens:
+        raise ValueError("the signal program has no green phase")
+    ratios, lost = [], []
     for k in greens:
-        lanes = {link_lanes[i] for i, c in enumerate(states[k]) if c == "G"}
+        lanes = {link_lanes[i] for i, c in enumerate(phases[k].state) if c == "G"}
         ratios.append(
             max((lane_flow_veh_h.get(ln, 0.0) / SATURATION_VEH_H for ln in lanes), default=0.0)
         )
+        clear = 0.0
+        j = (k + 1) % len(phases)
+        while phases[j].kind != GREEN and j != k:
+            clear += phases[j].duration_s
+            j = (j + 1) % len(phases)
+        lost.append((max(LOST_PER_PHASE_S, clear), clear))
     y = sum(ratios)
-    lost = LOST_PER_PHASE_S * len(greens)
+    lost_s = sum(total for total, _ in lost)
     if y >= 0.95:
         y = 0.95  # oversaturated: the model's cycle would explode; cap it
-    cycle = cycle_length_s(lost, y)
-    durations = []
+    cycle = cycle_length_s(lost_s, y)
+    out = list(phases)
     green_s = []
-    for k, s in enumerate(states):
-        if k in greens:
-            share = ratios[greens.index(k)] / y if y > 0 else 1.0 / len(greens)
-            g = max(MIN_GREEN_S, (cycle - lost) * share + (LOST_PER_PHASE_S - YELLOW_S))
-            durations.append(g)
-            green_s.append(g)
-        elif "y" in s.lower():
-            durations.append(YELLOW_S)
-        else:
-            durations.append(1.0)
-    return durations, Timing(sum(durations), y, tuple(green_s))
+    for q, k in enumerate(greens):
+        share = ratios[q] / y if y > 0 else 1.0 / len(greens)
+        total, clear = lost[q]
+        g = max(MIN_GREEN_S, (cycle - lost_s) * share + (total - clear))
+        out[k] = replace(phases[k], duration_s=g, min_s=g, max_s=g)
+        green_s.append(g)
+    return out, Timing(sum(ph.duration_s for ph in out), y, tuple(green_s))

@@ -1,7 +1,11 @@
 """The SUMO side of a run, shared by the embedded runner and the cluster gateway.
 
-The world inserts the scheduled vehicles at the communication region's entry
-line, steps SUMO, notes each vehicle's detection and exit, observes it for its
+The world inserts each scheduled vehicle at the communication region's entry
+line at its arrival time and speed; if SUMO finds no room there (the
+vehicles ahead have not moved on), the vehicle joins the tail of its lane's
+queue upstream, which SUMO drives, so a spill-back is a queue on the road
+(the approaches are a few hundred metres long) and not a waiting list. The
+world steps SUMO, notes each vehicle's detection and exit, observes it for its
 driver, applies the drivers' commands, and feeds the independent safety
 monitor and the trip log. Who decides the commands (vehicle machines in this
 process, or vehicle-agent processes over Zenoh) is not its business, so both
@@ -24,6 +28,7 @@ gives a second opinion.
 
 from __future__ import annotations
 
+import bisect
 import math
 import time
 from collections.abc import Callable, Iterable
@@ -55,7 +60,8 @@ VTYPE = "cav"
 # [m] how far from its plan's first position a vehicle may be when the plan starts; within
 # it the position loop catches up in a few steps and the ICA's margin covers the gap
 START_TOL_M = 0.1
-MIN_GAP_M = 2.5  # [m] the standstill gap a vehicle short of the line keeps to the one ahead
+MIN_GAP_M = 2.5  # [m] SUMO's standstill gap of our vehicle type, also kept short of the line
+HEADWAY_S = 1.0  # [s] SUMO's desired time headway (Krauss tau), kept behind a queue's tail
 
 
 def import_libsumo():
@@ -219,10 +225,20 @@ class World:
             # is stopping short of the line slow down early, off its predictable stop law
             for lane in {v for r in inter.routes for v in r.via_lanes}:
                 ls.lane.setMaxSpeed(lane, self.ica_cfg.caps.road_mps)
+        comm = inter.comm_length_m
         for v in self.schedule:
             lane_index = int(v.route.in_lane.rsplit("_", 1)[1])
             self.cars[v.vin] = Car(v.vin, v.route, lane_index, v.speed_mps)
-            self.log.trips[v.vin] = Trip(v.vin, v.route.id, v.route.turn.value, v.arrival_s)
+            self.log.trips[v.vin] = Trip(
+                v.vin,
+                v.route.id,
+                v.route.turn.value,
+                v.arrival_s,
+                free_flow_scheduled_s=self._free_flow_s(v.route, comm, v.speed_mps),
+            )
+        self._arrivals = [v.arrival_s for v in self.schedule]
+        self._blocked: list[Car] = []  # SUMO found no room at the entry line last step
+        self._tails: dict[str, tuple[float, float]] = {}  # lane: its last car's position, speed
         self.monitor = SafetyMonitor(inter.region, watch_margin_m=2.0)
         junction_xy = np.asarray(ls.junction.getPosition(inter.junction_id))
         reach = float(np.max(np.linalg.norm(inter.region - junction_xy, axis=1)))
@@ -242,31 +258,41 @@ class World:
             for c in self.active
             if not c.exited and (c.vin in self._present or math.isnan(c.detected_s))
         ]
+        for c in self._blocked:
+            self._join_queue(c)
+        fresh = []
         while self._next < len(self.schedule) and self.schedule[self._next].arrival_s <= (
             self.t + 1e-9
         ):
             c = self.cars[self.schedule[self._next].vin]
             ln = self._lane_len[c.route.in_lane]
-            ls.vehicle.add(
-                c.vin,
-                self._edge_routes[_edges(c.route)],
-                typeID=VTYPE,
-                depart="now",
-                departLane=str(c.lane_index),
-                departPos=str(max(ln - comm - 0.05, 0.0)),
-                departSpeed=str(c.entry_speed_mps),
-            )
+            self._add(c, max(ln - comm - 0.05, 0.0), c.entry_speed_mps)
             self.active.append(c)
+            fresh.append(c)
             self._next += 1
 
         ls.simulation.step()
+        pending = set(ls.simulation.getPendingVehicles()) if fresh else set()
+        self._blocked = [c for c in fresh if c.vin in pending]
         t = self.t = ls.simulation.getTime()
         self.sumo_collisions += len(ls.simulation.getCollisions())
         present = set(ls.vehicle.getIDList())
         for vid in ls.simulation.getDepartedIDList():
             ls.vehicle.setLaneChangeMode(vid, 0)
+            # until the region, SUMO's driver keeps the scheduled speed (the speed the
+            # vehicle keeps when free), or less behind a slower vehicle
+            ls.vehicle.setSpeed(vid, self.cars[vid].entry_speed_mps)
+            self.log.trips[vid].inserted_s = t
             _Reads.subscribe(ls, vid, self.want_xy)
         vw = _Reads(ls)
+
+        self._tails = {}
+        for c in self.active:
+            if c.vin in present and vw.getLaneID(c.vin) == c.route.in_lane:
+                pos = vw.getLanePosition(c.vin)
+                tail = self._tails.get(c.route.in_lane)
+                if tail is None or pos < tail[0]:
+                    self._tails[c.route.in_lane] = (pos, vw.getSpeed(c.vin))
 
         heads: dict[str, tuple[float, str]] = {}
         for c in self.active:
@@ -285,6 +311,8 @@ class World:
                 d = self._lane_len.get(lane, math.inf) - vw.getLanePosition(c.vin)
                 if lane == c.route.in_lane and d <= comm:
                     self._detect(c, d, vw.getSpeed(c.vin), t)
+                    if self.signalised:  # in the region SUMO's driver drives as it likes
+                        ls.vehicle.setSpeed(c.vin, RELEASE)
                 else:
                     continue
             speed = vw.getSpeed(c.vin)
@@ -433,7 +461,8 @@ class World:
         gateway runs it while the agents are deciding."""
         _observe(self.ls, self.monitor, self._watch, self.t)
         if self.t - self._last_sample >= 1.0 - 1e-9:
-            self.log.sample(self.t, self.waiting, self.crossed, self._next)
+            generated = bisect.bisect_right(self._arrivals, self.t + 1e-9)
+            self.log.sample(self.t, self.waiting, self.crossed, generated)
             self._last_sample = self.t
         if progress is not None:
             progress(self.t, self.waiting, self.crossed)
@@ -486,23 +515,61 @@ class World:
                 out["lost"] += 1  # gone from SUMO without leaving the junction: never
         return out
 
+    # -- insertion -------------------------------------------------------------
+    def _add(self, c: Car, pos_m: float, speed_mps: float) -> None:
+        self.ls.vehicle.add(
+            c.vin,
+            self._edge_routes[_edges(c.route)],
+            typeID=VTYPE,
+            depart="now",
+            departLane=str(c.lane_index),
+            departPos=str(pos_m),
+            departSpeed=str(speed_mps),
+        )
+
+    def _join_queue(self, c: Car) -> None:
+        """Place a vehicle SUMO had no room for at the entry line behind its lane's last one.
+
+        It keeps SUMO's standstill gap and a second's headway behind the tail
+        at the tail's speed (or its own, if lower). With no room left on the
+        lane it waits at the lane's start, where SUMO inserts it when it can.
+        """
+        self.ls.vehicle.remove(c.vin)  # from SUMO's insertion queue
+        entry = max(self._lane_len[c.route.in_lane] - self.inter.comm_length_m - 0.05, 0.0)
+        tail = self._tails.get(c.route.in_lane)
+        if tail is None:  # the blocker has left the lane already: the entry line again
+            self._add(c, entry, c.entry_speed_mps)
+            return
+        pos, v_tail = tail
+        v = min(c.entry_speed_mps, v_tail)
+        behind = min(pos - self.cfg.length_m - MIN_GAP_M - HEADWAY_S * v - 0.5, entry)
+        if behind < 0.0:
+            self._add(c, 0.0, 0.0)
+        else:
+            self._add(c, behind, v)
+            self._tails[c.route.in_lane] = (behind, v)  # the next one goes behind this one
+
     # -- bookkeeping -----------------------------------------------------------
     def _detect(self, c: Car, d: float, v: float, t: float) -> None:
         comm = self.inter.comm_length_m
         trip = self.log.trips[c.vin]
         trip.entered_s = t - (comm - d) / v if v > 0.1 else t
         c.detected_s = trip.entered_s
+        trip.free_flow_s = self._free_flow_s(c.route, comm, v)
+
+    def _free_flow_s(self, route: Route, comm_m: float, v_mps: float) -> float | None:
+        """From the region's entry line at ``v_mps`` until fully out, alone at the junction."""
         length = self.cfg.length_m
         pl = Planner(
-            comm,
-            v,
+            comm_m,
+            v_mps,
             self.ica_cfg.caps.road_mps,
-            c.route.speed_cap_mps,
-            c.route.cross_length_m + length,
+            route.speed_cap_mps,
+            route.cross_length_m + length,
             self.ica_cfg.kinematics,
         )
         p = pl.fastest()
-        trip.free_flow_s = p.time_at(c.route.cross_length_m + length) if p else None
+        return p.time_at(route.cross_length_m + length) if p else None
 
     def _left_junction(self, vw: _Reads, c: Car, t: float) -> bool:
         """Rear past the exit line: note the time (interpolated) and mark the car exited."""

@@ -13,7 +13,7 @@ from tools.audit import conflicts, kinematic_violations
 from tools.stream import StreamResult, StreamSpec, flown, run_stream
 
 JUNCTIONS = ["ch3", "ch45", "tee", "skewed"]
-VARIANTS = ["basic", "enhanced", "t1", "t2", "t3", "t4", "t2+4"]
+VARIANTS = ["basic", "enhanced", "t1", "t2", "t3", "t4", "t2+4", "t1+2+3+4"]
 
 PROPERTY = settings(
     max_examples=3,
@@ -54,10 +54,11 @@ def test_random_streams_are_conflict_free(request, junction, variant, seed, volu
     check_stream(run_stream(inter, cfg, spec), cfg)
 
 
-@pytest.mark.parametrize("variant", ["t1", "t2", "t4", "t2+4", "t1+2+4"])
+@pytest.mark.parametrize("variant", ["t1", "t2", "t4", "t2+4", "t1+2+4", "enhanced"])
 @pytest.mark.parametrize("junction", ["ch45", "skewed"])
 def test_exact_techniques_decide_like_basic(request, junction, variant):
-    """Techniques 1, 2 and 4 only skip work: the confirmations are identical."""
+    """Techniques 1, 2 and 4 only skip work, and enhanced DICA's technique 3
+    finds the exhaustive intervals: the confirmations are identical."""
     inter = request.getfixturevalue(junction)
     spec = StreamSpec(volume_per_10min=900.0, n_vehicles=25, seed=66)
     base = run_stream(inter, IcaConfig(techniques=BASIC), spec)

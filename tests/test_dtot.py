@@ -1,4 +1,4 @@
-"""Offline tables and estimated intervals are never less safe than the exhaustive ones."""
+"""Offline tables and technique 3's intervals are never less safe than the exhaustive ones."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from ica.core.dtot import build_dtot
-from ica.core.occupancy import footprints, overlap_matrix
+from ica.core.occupancy import footprints, overlap_matrix, overlap_pairs
 from ica.core.planner import Kinematics, Planner
-from ica.core.trajectory import sample
+from ica.core.trajectory import Trajectory, sample
 from ica.core.zones import ConflictTables, Shape
 
 SHAPES = [Shape.of(5.0, 1.8), Shape.of(7.3, 2.2), Shape.of(3.6, 1.6)]
@@ -35,8 +35,10 @@ def trajectories(route, shape, seed):
 
 @pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])
 def test_estimated_intervals_contain_exhaustive(request, junction):
+    """The dissertation's technique 3: never narrower, and wider somewhere."""
     inter = request.getfixturevalue(junction)
-    tables = ConflictTables(inter, margin_m=0.25)
+    tables = ConflictTables(inter, margin_m=0.25, exact_oti=False)
+    wider = 0
     for k, route in enumerate(inter.routes):
         for shape in SHAPES:
             for traj in trajectories(route, shape, k):
@@ -46,6 +48,65 @@ def test_estimated_intervals_contain_exhaustive(request, junction):
                 )
                 assert (est.lb_s <= exact.lb_s + 1e-12).all()
                 assert (est.ub_s >= exact.ub_s - 1e-12).all()
+                wider += int((est.ub_s - est.lb_s > exact.ub_s - exact.lb_s).any())
+    assert wider > 0
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])
+def test_exact_grid_intervals_are_the_exhaustive_ones(request, junction):
+    """Enhanced DICA's technique 3 finds getOTI's intervals exactly, also a rounding
+    error off monotone and at a standstill inside the junction."""
+    inter = request.getfixturevalue(junction)
+    tables = ConflictTables(inter, margin_m=0.25)
+    rng = np.random.default_rng(5)
+    for k, route in enumerate(inter.routes):
+        for shape in SHAPES:
+            grid = tables.grid(route, shape)
+            trajs = list(trajectories(route, shape, k))
+            for traj in trajs[:2]:
+                s = traj.s_m.copy()
+                j = int(rng.integers(1, len(s) - 1))
+                s[j] = np.nextafter(s[j - 1], -np.inf)
+                trajs.append(Trajectory(traj.t0_s, traj.step_s, s))
+                inside = np.flatnonzero((s > 1.0) & (s < route.cross_length_m))
+                if len(inside):  # stands still for a second somewhere inside
+                    q = int(inside[len(inside) // 2])
+                    held = np.concatenate([s[:q], np.full(20, s[q]), s[q:]])
+                    trajs.append(Trajectory(traj.t0_s, traj.step_s, held))
+            for traj in trajs:
+                exact = build_dtot(route, shape, traj, 0.25)
+                fast = build_dtot(route, shape, traj, 0.25, grid, estimated=True)
+                assert np.array_equal(fast.lb_s, exact.lb_s)
+                assert np.array_equal(fast.ub_s, exact.ub_s)
+
+
+@pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])
+def test_skip_distances_only_skip_overlapping_footprints(request, junction):
+    """Off the grid, any two footprints within the exact tables' skip distance
+    overlap, and any two beyond the dissertation's do not."""
+    inter = request.getfixturevalue(junction)
+    sure = ConflictTables(inter, margin_m=0.25)
+    clear = ConflictTables(inter, margin_m=0.25, exact_oti=False)
+    rng = np.random.default_rng(9)
+    for route in inter.routes:
+        for shape in SHAPES[:2]:
+            g_sure, g_clear = sure.grid(route, shape), clear.grid(route, shape)
+            lo, hi = g_sure.s0_m, g_sure.s0_m + g_sure.ds_m * (len(g_sure.fwd_m) - 1)
+            s = rng.uniform(lo, hi, 400)  # a DTOT lies on the grid
+            here = footprints(route, s, shape.length_m, shape.width_m, 0.25)
+            for sign, sure_m, clear_m in (
+                (-1.0, g_sure.skip_behind_m(s), g_clear.skip_behind_m(s)),
+                (1.0, g_sure.skip_ahead_m(s), g_clear.skip_ahead_m(s)),
+            ):
+                assert (sure_m < clear_m).all()
+                near = s + sign * sure_m * rng.uniform(0.0, 1.0, len(s))
+                far = s + sign * (clear_m + rng.uniform(0.0, 3.0, len(s)))
+                for other, want in ((near, True), (far, False)):
+                    on = np.flatnonzero((other >= lo) & (other <= hi))
+                    there = footprints(route, other[on], shape.length_m, shape.width_m, 0.25)
+                    hit = overlap_pairs(here, on, there, np.arange(len(on)))
+                    assert (hit == want).all()
+            assert (g_sure.fwd_m > 3.0).sum() > len(g_sure.fwd_m) // 2  # it does skip
 
 
 @pytest.mark.parametrize("junction", ["ch45", "skewed"])

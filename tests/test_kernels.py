@@ -11,7 +11,7 @@ import ica.core.dica
 from ica.core import validate
 from ica.core.config import IcaConfig
 from ica.core.conflict import follow_conflict, follow_conflict_reference
-from ica.core.dtot import build_dtot, estimated_intervals
+from ica.core.dtot import build_dtot, grid_intervals
 from ica.core.kernels import _searchsorted
 from ica.core.occupancy import footprints
 from ica.core.planner import Kinematics, Planner
@@ -41,10 +41,11 @@ def test_searchsorted_is_numpys_even_on_unsorted_input(right):
         assert np.array_equal(out, np.searchsorted(a, keys, side=side))
 
 
+@pytest.mark.parametrize("exact", [True, False])
 @pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])
-def test_estimated_dtot_is_the_numpy_one(request, junction):
+def test_grid_dtot_is_the_numpy_one(request, junction, exact):
     inter = request.getfixturevalue(junction)
-    tables = ConflictTables(inter, margin_m=0.25)
+    tables = ConflictTables(inter, margin_m=0.25, exact_oti=exact)
     rng = np.random.default_rng(11)
     for k, route in enumerate(inter.routes):
         for shape in SHAPES:
@@ -58,7 +59,7 @@ def test_estimated_dtot_is_the_numpy_one(request, junction):
             for traj in trajs:
                 fast = build_dtot(route, shape, traj, 0.25, grid, estimated=True)
                 rects = footprints(route, fast.s_m, shape.length_m, shape.width_m, 0.25)
-                lb, ub = estimated_intervals(fast.t_s, fast.s_m, grid)
+                lb, ub = grid_intervals(fast.t_s, fast.s_m, rects, grid)
                 assert np.array_equal(fast.rects.centre, rects.centre)
                 assert np.array_equal(fast.rects.heading, rects.heading)
                 assert fast.rects.half_length == rects.half_length

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import pytest
 
+from ica.core.baselines import controller_config, make_controller
 from ica.core.config import IcaConfig, Techniques
 from ica.core.dica import Dica
 from ica.core.planner import Planner
@@ -38,12 +39,20 @@ def _resolve(resolve, ica: Dica, compiled: bool, args: tuple):
 
 
 @pytest.mark.parametrize(
-    ("junction", "volume", "seed"),
-    [("ch45", 3000.0, 3), ("ch45", 6000.0, 12), ("skewed", 2500.0, 7), ("tee", 2500.0, 9)],
+    ("junction", "volume", "seed", "variant"),
+    [
+        ("ch45", 3000.0, 3, "enhanced"),
+        ("ch45", 6000.0, 12, "enhanced"),
+        ("skewed", 2500.0, 7, "enhanced"),
+        ("tee", 2500.0, 9, "enhanced"),
+        ("ch45", 6000.0, 12, "t1+2+3+4"),
+        ("skewed", 2500.0, 7, "t1+2+3+4"),
+    ],
 )
-def test_compiled_rounds_equal_python_rounds(request, monkeypatch, junction, volume, seed):
+def test_compiled_rounds_equal_python_rounds(request, monkeypatch, junction, volume, seed, variant):
     """Every request of a heavy stream is resolved both ways, from the same
-    state: same plan, DTOT, rounds and earliest entry, or the same rejection."""
+    state: same plan, DTOT, rounds and earliest entry, or the same rejection.
+    Both kinds of technique 3's intervals: exact, and the dissertation's."""
     inter = request.getfixturevalue(junction)
     python_loop = Dica._resolve
     seen = {"requests": 0, "rounds": 0, "raised": 0, "stops": 0}
@@ -75,7 +84,7 @@ def test_compiled_rounds_equal_python_rounds(request, monkeypatch, junction, vol
         length_range_m=(3.5, 7.5),
         width_range_m=(1.6, 2.3),
     )
-    res = run_stream(inter, IcaConfig(), spec)
+    res = run_stream(inter, IcaConfig(techniques=Techniques.parse(variant)), spec)
     assert len(res.confirmed) == len(res.vehicles)
     assert seen["stops"] > 0  # plans of the stop family too
     assert seen["requests"] >= 60
@@ -84,5 +93,14 @@ def test_compiled_rounds_equal_python_rounds(request, monkeypatch, junction, vol
 
 def test_compiled_rounds_only_for_enhanced(ch45):
     assert Dica(ch45, IcaConfig())._compiled_rounds()
+    assert Dica(ch45, IcaConfig(techniques=Techniques.parse("t1+2+3+4")))._compiled_rounds()
     for variant in ("basic", "t1", "t2", "t3", "t4", "t2+4", "t1+2+4"):
         assert not Dica(ch45, IcaConfig(techniques=Techniques.parse(variant)))._compiled_rounds()
+
+
+def test_controllers_get_tables_of_their_interval_kind(ch45):
+    """make_controller hands each DICA variant offline tables of its kind of intervals."""
+    for name, exact in (("enhanced", True), ("basic", True), ("t3", False), ("t1+2+3+4", False)):
+        ica = make_controller(name, ch45, controller_config(name, 0.25))
+        assert ica.tables.exact_oti is exact
+        assert ica.config.techniques.exact_oti is exact

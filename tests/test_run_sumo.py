@@ -20,6 +20,9 @@ KEYS = {
     "stopped_rate",
     "effective_mean_trip_time_s",
     "mean_delay_s",
+    "mean_system_time_s",
+    "mean_system_delay_s",
+    "not_in_region_at_end",
     "collisions",
     "min_gap_m",
 }
@@ -74,7 +77,9 @@ def test_run_is_collision_free_and_writes_metrics(tmp_path, layout, algorithm, v
     assert m["unconfirmed_entries"] == 0
     if algorithm not in ("fixed", "actuated"):  # SUMO's own car following under lights
         assert m["min_gap_m"] > 2 * 0.25 - 1e-6  # never closer than the ICA's two margins
-    assert m["crossed"] > (0.2 if algorithm == "fifo" else 0.7) * m["generated"] > 0
+    # in 150 s a light runs one or two cycles of about 90 s (safe clearance is long)
+    least = {"fifo": 0.2, "fixed": 0.5, "actuated": 0.5}.get(algorithm, 0.7)
+    assert m["crossed"] > least * m["generated"] > 0
     assert m["mean_trip_time_s"] > 0
     assert m["requests"]["rejections"] == {}
     if algorithm == "fixed":
@@ -85,6 +90,30 @@ def test_run_is_collision_free_and_writes_metrics(tmp_path, layout, algorithm, v
     assert cfg["run"]["algorithm"] == algorithm
     assert (out / "vehicles.csv").read_text().count("\n") > m["generated"]
     assert (out / "timeseries.csv").exists()
+
+
+def test_the_whole_delay_counts_the_queue_before_the_region(tmp_path):
+    """A light's queue spills back past the 50 m region: the vehicles join it on
+    the road upstream, and the time counted from the scheduled arrival sees the
+    wait that the dissertation's trip time (from the region's entry) does not."""
+    import csv
+
+    out = tmp_path / "run"
+    p = dica(*("run", "--algorithm", "fixed", "--volume", "900", "--duration", "150"),
+             *("--seed", "12", "--out", str(out), "--quiet"))  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    with (out / "vehicles.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    entered = [r for r in rows if r["entered_s"]]
+    waited = [r for r in entered if float(r["entered_s"]) > float(r["depart_s"]) + 5.0]
+    assert len(waited) > 5  # joined the queue before the region and waited there
+    crossed = [r for r in entered if r["exited_s"]]
+    for r in crossed:
+        assert float(r["entered_s"]) >= float(r["depart_s"]) - 0.1  # never entered early
+        assert float(r["system_time_s"]) >= float(r["trip_time_s"]) - 0.1
+    assert m["mean_system_delay_s"] > m["mean_delay_s"]
+    assert m["not_in_region_at_end"] > 10  # still queued upstream at the end
 
 
 def test_until_left_runs_until_every_vehicle_has_left(tmp_path):
@@ -135,7 +164,9 @@ def test_experiment_grid_resumes_and_report_draws(tmp_path):
         "--algorithms",
         "enhanced,fixed",
         "--volumes",
-        "300",
+        "300,900",
+        "--ramps",
+        "100-600",
         "--seeds",
         "12",
         "--duration",
@@ -148,15 +179,18 @@ def test_experiment_grid_resumes_and_report_draws(tmp_path):
     ]
     p = dica(*args)
     assert p.returncode == 0, p.stdout + p.stderr
-    assert "2 to run" in p.stdout
+    assert "6 to run" in p.stdout
+    assert (grid / "ch45" / "fixed" / "r100-600" / "s12" / "metrics.json").is_file()
     again = dica(*args)
-    assert "2 already done, 0 to run" in again.stdout
+    assert "6 already done, 0 to run" in again.stdout
     r = dica("report", str(grid))
     assert r.returncode == 0, r.stderr
     md = (grid / "report" / "report.md").read_text()
     assert "| enhanced | 300 |" in md and "| fixed | 300 |" in md
+    assert "## Saturation" in md and "| ch45 | enhanced |" in md
+    assert "## ch45 (to 600)" in md
     pngs = list((grid / "report").glob("*.png"))
-    assert len(pngs) == 2 and all(p.stat().st_size > 10_000 for p in pngs)
+    assert len(pngs) == 4 and all(p.stat().st_size > 10_000 for p in pngs)
     bad = dica("report", str(tmp_path / "nothing"))
     assert bad.returncode == 2 and "no such directory" in bad.stderr
 

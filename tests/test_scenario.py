@@ -1,4 +1,4 @@
-"""The dissertation's layouts, built with the real netconvert and read back with sumolib."""
+"""The built-in layouts, built with the real netconvert and read back with sumolib."""
 
 from __future__ import annotations
 
@@ -11,7 +11,9 @@ import pytest
 import sumolib
 
 from sim_gateway.scenario import (
-    LAYOUTS,
+    APPROACH_M,
+    DISSERTATION_LAYOUTS,
+    OWN_LAYOUTS,
     ROAD_SPEED_MPS,
     Scenario,
     ScenarioError,
@@ -50,7 +52,7 @@ def test_netconvert_binary_is_executable() -> None:
     assert os.access(path, os.X_OK)
 
 
-@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("layout", DISSERTATION_LAYOUTS)
 def test_layout_builds_with_plain_xml_next_to_net(nets: dict[str, Scenario], layout: str) -> None:
     sc = nets[layout]
     assert sc.layout == layout
@@ -61,7 +63,7 @@ def test_layout_builds_with_plain_xml_next_to_net(nets: dict[str, Scenario], lay
         assert (sc.net_path.parent / f"{layout}.{kind}.xml").is_file()
 
 
-@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("layout", DISSERTATION_LAYOUTS)
 def test_junction_and_edges(nets: dict[str, Scenario], layout: str) -> None:
     net = _read(nets[layout])
     node = net.getNode("C")
@@ -78,14 +80,14 @@ def test_junction_and_edges(nets: dict[str, Scenario], layout: str) -> None:
             # netconvert writes 2 decimals: 19.44 m/s.
             assert lane.getSpeed() == pytest.approx(ROAD_SPEED_MPS, abs=0.005)
             assert lane.getWidth() == pytest.approx(3.2)
-        # Straight along the axes, far node 250 m from the centre.
+        # Straight along the axes, far node APPROACH_M from the centre.
         shape = np.asarray(e_in.getLanes()[0].getShape())
-        assert np.linalg.norm(shape[0]) == pytest.approx(250.0, abs=8.1)
+        assert np.linalg.norm(shape[0]) == pytest.approx(APPROACH_M, abs=8.1)
         axis = np.abs(shape[-1] - shape[0])
         assert min(axis) == pytest.approx(0.0, abs=1e-9)
 
 
-@pytest.mark.parametrize("layout", LAYOUTS)
+@pytest.mark.parametrize("layout", DISSERTATION_LAYOUTS)
 def test_only_the_listed_connections_exist(nets: dict[str, Scenario], layout: str) -> None:
     net = _read(nets[layout])
     for a in "NESW":
@@ -98,6 +100,24 @@ def test_only_the_listed_connections_exist(nets: dict[str, Scenario], layout: st
         assert seen == EXPECTED_MOVES[layout], a
 
 
+@pytest.mark.parametrize("layout", OWN_LAYOUTS)
+def test_own_layouts_build_with_guessed_movements(tmp_path: Path, layout: str) -> None:
+    """The skewed and T junctions: netconvert's movements, long 2-lane arms, a light on demand."""
+    from ica.netfile import load_intersection
+
+    sc = build_scenario(layout, tmp_path)
+    assert not (tmp_path / f"{layout}.con.xml").exists()
+    inter = load_intersection(sc.net_path, sc.junction_id)
+    arms = {"skewed": 4, "tee": 3}[layout]
+    assert len(inter.in_lanes) == 2 * arms
+    assert {r.turn.value for r in inter.routes} >= {"left", "through", "right"}
+    net = _read(sc)
+    for lane in inter.in_lanes:
+        assert net.getLane(lane).getLength() > APPROACH_M - 30.0  # room to queue upstream
+    lit = build_scenario(layout, tmp_path, tls="static")
+    assert _read(lit).getNode("C").getType() == "traffic_light"
+
+
 def test_approach_length_is_configurable(tmp_path: Path) -> None:
     sc = build_scenario("ch3", tmp_path, approach_length_m=120.0)
     lane = _read(sc).getEdge("W_in").getLanes()[0]
@@ -105,7 +125,7 @@ def test_approach_length_is_configurable(tmp_path: Path) -> None:
 
 
 def test_unknown_layout(tmp_path: Path) -> None:
-    with pytest.raises(ScenarioError, match=r"unknown layout 'ch9'.*ch3, ch45"):
+    with pytest.raises(ScenarioError, match=r"unknown layout 'ch9'.*ch3, ch45, skewed, tee"):
         build_scenario("ch9", tmp_path)
     with pytest.raises(ScenarioError, match="unknown layout"):
         default_scenario("nope", cache_dir=tmp_path)

@@ -187,7 +187,7 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         try:
             rrd = out / "spacetime.rrd" if args.record else None
-            result = run(cfg, inter, progress=tick, rrd_path=rrd)
+            result = run(cfg, inter, progress=tick, rrd_path=rrd, run_dir=out)
         except RunError as e:
             raise UsageError(str(e)) from None
     write_outputs(out, cfg, result)
@@ -282,12 +282,13 @@ def parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    from sim_gateway.scenario import LAYOUTS
     from tools.view import DESCRIPTION as VIEW_DESCRIPTION
     from tools.view import add_arguments as view_arguments
 
-    sc = sub.add_parser("scenario", help="build a dissertation intersection with netconvert")
+    sc = sub.add_parser("scenario", help="build a built-in intersection with netconvert")
     sc.add_argument("action", choices=["build"])
-    sc.add_argument("--layout", choices=["ch3", "ch45"], default="ch45")
+    sc.add_argument("--layout", choices=LAYOUTS, default="ch45")
     sc.add_argument(
         "--out", type=Path, required=True, help="directory for the .net.xml and plain XML"
     )

@@ -2,8 +2,11 @@
 
 Each cell (algorithm x volume x seed) is one ``dica run`` in its own process
 (libsumo runs one simulation per process) writing to
-``OUT/<layout>/<algorithm>/v<volume>/s<seed>/``. A cell whose ``metrics.json``
-exists is skipped, so an interrupted grid picks up where it stopped.
+``OUT/<layout>/<algorithm>/v<volume>/s<seed>/``; a ramp from volume A to B
+over the run writes to ``.../r<A>-<B>/s<seed>/``. A cell whose
+``metrics.json`` exists is skipped, so an interrupted grid picks up where it
+stopped. Volumes go up to 2000 per 10 minutes; ``dica report`` finds each
+controller's saturation volume in a grid of volumes.
 """
 
 from __future__ import annotations
@@ -38,15 +41,38 @@ _floats = _list_of(float, "numbers")
 _ints = _list_of(int, "integers")
 
 
+def _ramp(text: str) -> tuple[float, float]:
+    a, sep, b = text.partition("-")
+    if not sep:
+        raise ValueError(text)
+    return float(a), float(b)
+
+
+_ramps = _list_of(_ramp, "ramps FROM-TO (volumes)")
+
+
 def parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="dica experiment",
         description="Run a grid of SUMO simulations (algorithms x volumes x seeds) in parallel. "
         "Cells already done are skipped; run `dica report OUT` afterwards.",
     )
-    p.add_argument("--layout", choices=["ch3", "ch45"], default="ch45")
+    from sim_gateway.scenario import LAYOUTS
+
+    p.add_argument("--layout", choices=LAYOUTS, default="ch45")
     p.add_argument("--algorithms", default="enhanced,fixed,actuated", help="comma-separated")
-    p.add_argument("--volumes", type=_floats, default=[100, 200, 300, 400, 500])
+    p.add_argument(
+        "--volumes",
+        type=_floats,
+        default=[100, 200, 300, 400, 500],
+        help="vehicles per 10 min, comma-separated (past the dissertation's: 600,800,1000)",
+    )
+    p.add_argument(
+        "--ramps",
+        type=_ramps,
+        default=[],
+        help="also volumes rising linearly over the run, FROM-TO comma-separated (100-1000)",
+    )
     p.add_argument("--seeds", type=_ints, default=[12, 21, 66])
     p.add_argument("--duration", type=float, default=600.0)
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel runs")
@@ -66,9 +92,14 @@ def main(argv: list[str] | None = None) -> int:
         print("dica experiment: --jobs must be at least 1", file=sys.stderr)
         return 2
     algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
+    shapes = [(f"v{v:g}", v, ()) for v in args.volumes]
+    shapes += [
+        (f"r{a:g}-{b:g}", a, ("--volume-end", f"{b:g}", "--ramp", f"{args.duration:g}"))
+        for a, b in args.ramps
+    ]
     cells = []
-    for alg, vol, seed in product(algorithms, args.volumes, args.seeds):
-        cell = args.out / args.layout / alg / f"v{vol:g}" / f"s{seed}"
+    for alg, (name, vol, ramp), seed in product(algorithms, shapes, args.seeds):
+        cell = args.out / args.layout / alg / name / f"s{seed}"
         cmd = [
             sys.executable,
             "-m",
@@ -87,6 +118,7 @@ def main(argv: list[str] | None = None) -> int:
             "--out",
             str(cell),
             "--quiet",
+            *ramp,
             *shlex.split(args.extra),
         ]
         cells.append((cell, cmd))

@@ -4,6 +4,23 @@ Every ``metrics.json`` below DIR (with its ``config.json``) is one run. Runs
 are grouped by layout, algorithm, volume and demand shape and averaged over
 seeds, as the dissertation reports them. Collisions are summed, the minimum
 gap is the smallest seen.
+
+Beside the dissertation's trip time (from the region's entry line) the
+tables give the time in the system and the delay counted from the scheduled
+arrival at that line, and the vehicles not yet in the region at the end.
+
+The saturation volume of a controller is the highest volume of the grid up
+to which every volume keeps throughput at or above ``SATURATION_RHO`` and
+its delay bounded: the mean delay from the scheduled arrival of the last
+third of the run (vehicles still in the system counted with their delay so
+far) at most ``GROWTH`` times the middle third's plus ``SLACK_S``. Above
+saturation queues grow all run long, and so does that delay. The
+dissertation's rho counts every vehicle due by the end, so in a 10-minute
+run a light whose cycle is long has up to a red phase's arrivals still
+waiting and rho under 0.95 at volumes its queues keep up with; the report
+therefore also gives the saturation volume by the settled throughput:
+crossed over generated among the vehicles due at least ``SETTLE_S`` before
+the end.
 """
 
 from __future__ import annotations
@@ -25,7 +42,14 @@ FIELDS = [
     ("stopped_rate", "eta", "{:.3f}"),
     ("effective_mean_trip_time_s", "tau_e [s]", "{:.2f}"),
     ("mean_delay_s", "delay [s]", "{:.2f}"),
+    ("mean_system_time_s", "time in system [s]", "{:.2f}"),
+    ("mean_system_delay_s", "delay from schedule [s]", "{:.2f}"),
+    ("not_in_region_at_end", "not in region at end", "{:.1f}"),
 ]
+SATURATION_RHO = 0.95
+SETTLE_S = 120.0  # [s] a vehicle due this long before the end has had time to cross
+GROWTH = 1.5
+SLACK_S = 5.0
 
 
 def load_runs(root: Path) -> list[dict]:
@@ -45,6 +69,7 @@ def load_runs(root: Path) -> list[dict]:
         layout = Path(cfg["net_path"]).name.split(".")[0].split("-tls")[0]
         runs.append(
             {
+                "settled_throughput": _settled_throughput(m.parent, cfg),
                 "dir": m.parent,
                 "layout": layout,
                 "algorithm": cfg["algorithm"],
@@ -55,6 +80,17 @@ def load_runs(root: Path) -> list[dict]:
             }
         )
     return runs
+
+
+def _settled_throughput(run: Path, cfg: dict) -> float | None:
+    """Crossed / generated among the vehicles due at least SETTLE_S before the end."""
+    path = run / "vehicles.csv"
+    if cfg.get("until_left") or not path.exists():
+        return None
+    cut = float(cfg["duration_s"]) - SETTLE_S
+    with path.open() as fh:
+        due = [r for r in csv.DictReader(fh) if float(r["depart_s"]) <= cut]
+    return sum(bool(r["exited_s"]) for r in due) / len(due) if due else None
 
 
 def _mean(values: list) -> float | None:
@@ -70,6 +106,7 @@ def aggregate(runs: list[dict]) -> dict[tuple, dict]:
     for key, rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2], kv[0][3])):
         row = {f: _mean([r["metrics"].get(f) for r in rs]) for f, _, _ in FIELDS}
         row["generated"] = _mean([r["metrics"]["generated"] for r in rs])
+        row["settled_throughput"] = _mean([r["settled_throughput"] for r in rs])
         row["collisions"] = sum(r["metrics"]["collisions"] for r in rs)
         row["sumo_collisions"] = sum(r["metrics"].get("sumo_collisions", 0) for r in rs)
         gaps = [r["metrics"]["min_gap_m"] for r in rs if r["metrics"]["min_gap_m"] is not None]
@@ -81,9 +118,85 @@ def aggregate(runs: list[dict]) -> dict[tuple, dict]:
             for a, v in (r["metrics"].get("mean_trip_time_by_approach_s") or {}).items():
                 per[a].append(v)
         row["by_approach"] = {a: float(np.mean(v)) for a, v in sorted(per.items())}
+        thirds = [r["metrics"].get("system_delay_by_third_s") or [None] * 3 for r in rs]
+        row["delay_by_third_s"] = [_mean([t[k] for t in thirds]) for k in range(3)]
         row["runs"] = rs
         out[key] = row
     return out
+
+
+def bounded(row: dict) -> bool:
+    """Delay from the schedule not growing through the run (see the module docstring)."""
+    _, middle, last = row["delay_by_third_s"]
+    return middle is not None and last is not None and last <= GROWTH * middle + SLACK_S
+
+
+def saturation(agg: dict[tuple, dict], rho: str = "throughput") -> dict[tuple, dict]:
+    """Per (layout, algorithm) of the steady-volume runs: the saturation volume and its row,
+    by the throughput ``rho`` ("throughput" or "settled_throughput").
+
+    ``volume`` is None when even the lowest volume is saturated; ``above`` is
+    True when no volume of the grid was.
+    """
+    series: dict[tuple, list[tuple[float, dict]]] = defaultdict(list)
+    for (layout, shape, alg, vol), row in agg.items():
+        if not shape:
+            series[(layout, alg)].append((vol, row))
+    out = {}
+    for key, pts in sorted(series.items()):
+        pts.sort(key=lambda p: p[0])
+        best = None
+        for vol, row in pts:
+            if row[rho] is None or row[rho] < SATURATION_RHO or not bounded(row):
+                break
+            best = (vol, row)
+        out[key] = {
+            "volume": best[0] if best else None,
+            "row": best[1] if best else None,
+            "above": best is not None and best[0] == pts[-1][0],
+            "volumes": [v for v, _ in pts],
+        }
+    return out
+
+
+def _saturation_lines(agg: dict[tuple, dict]) -> list[str]:
+    by_rho = saturation(agg)
+    by_settled = saturation(agg, "settled_throughput")
+    lines = ["## Saturation", ""]
+    lines.append(
+        f"Highest volume up to which throughput stays >= {SATURATION_RHO} and the delay from "
+        f"the schedule bounded (last third <= {GROWTH} x middle third + {SLACK_S:g} s); "
+        f"by the dissertation's rho, and by the settled throughput (vehicles due "
+        f"{SETTLE_S:g} s or more before the end). Figures at the first."
+    )
+    lines.append("")
+    head = ["layout", "algorithm", "saturation volume", "by settled throughput", "rho", "eta"]
+    head += ["tau [s]", "tau_e [s]", "time in system [s]", "delay from schedule [s]"]
+    head.append("volumes tried")
+    lines.append("| " + " | ".join(head) + " |")
+    lines.append("|" + "---|" * len(head))
+    for (layout, alg), s in by_rho.items():
+        row = s["row"]
+        cells = [layout, alg, _volume(s), _volume(by_settled[(layout, alg)])]
+        for k, fmt in (
+            ("throughput", "{:.3f}"),
+            ("stopped_rate", "{:.3f}"),
+            ("mean_trip_time_s", "{:.2f}"),
+            ("effective_mean_trip_time_s", "{:.2f}"),
+            ("mean_system_time_s", "{:.2f}"),
+            ("mean_system_delay_s", "{:.2f}"),
+        ):
+            cells.append("-" if row is None else _fmt(fmt, row[k]))
+        cells.append(",".join(f"{v:g}" for v in s["volumes"]))
+        lines.append("| " + " | ".join(cells) + " |")
+    lines.append("")
+    return lines
+
+
+def _volume(s: dict) -> str:
+    if s["volume"] is None:
+        return f"< {s['volumes'][0]:g}"
+    return (">= " if s["above"] else "") + f"{s['volume']:g}"
 
 
 def _fmt(fmt: str, v: float | None) -> str:
@@ -92,6 +205,8 @@ def _fmt(fmt: str, v: float | None) -> str:
 
 def markdown(agg: dict[tuple, dict], images: list[str]) -> str:
     lines = ["# Run report", ""]
+    if any(len(s["volumes"]) > 1 for s in saturation(agg).values()):
+        lines += _saturation_lines(agg)
     by_table: dict[tuple, list] = defaultdict(list)
     for key, row in agg.items():
         by_table[(key[0], key[1])].append((key, row))
@@ -99,8 +214,6 @@ def markdown(agg: dict[tuple, dict], images: list[str]) -> str:
         lines += [f"## {layout}" + (f" ({shape})" if shape else ""), ""]
         head = ["algorithm", "volume", *[h for _, h, _ in FIELDS]]
         head += ["collisions", "SUMO collisions", "min gap [m]", "wall [s]", "seeds"]
-        if shape:
-            head.append("mean tau by approach [s]")
         if shape:
             head.append("mean tau by approach [s]")
         lines.append("| " + " | ".join(head) + " |")
@@ -228,6 +341,19 @@ def main(argv: list[str] | None = None) -> int:
     images = plots(agg, out)
     (out / "report.md").write_text(markdown(agg, images))
     if args.json:
+        settled = saturation(agg, "settled_throughput")
+        sat = [
+            {
+                "layout": k[0],
+                "algorithm": k[1],
+                "saturation_volume": s["volume"],
+                "above": s["above"],
+                "volumes": s["volumes"],
+                "saturation_volume_settled": settled[k]["volume"],
+                "above_settled": settled[k]["above"],
+            }
+            for k, s in saturation(agg).items()
+        ]
         rows = [
             {
                 "layout": k[0],
@@ -238,7 +364,9 @@ def main(argv: list[str] | None = None) -> int:
             }
             for k, row in agg.items()
         ]
-        (out / "report.json").write_text(json.dumps(rows, indent=2))
+        (out / "report.json").write_text(
+            json.dumps({"groups": rows, "saturation": sat}, indent=2, default=str)
+        )
     print(f"{len(runs)} runs in {len(agg)} groups; wrote {out}/report.md and {len(images)} plots")
     return 0
 

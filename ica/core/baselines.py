@@ -29,6 +29,7 @@ from ica.core.dica import Dica
 from ica.core.dtot import Dtot
 from ica.core.intersection import Intersection
 from ica.core.occupancy import Rects, overlap_matrix
+from ica.core.zones import ConflictTables
 
 
 class Fifo(Dica):
@@ -135,7 +136,9 @@ def make_controller(
         return Concurrent(intersection, config)
     if name == "tiles":
         return Tiles(intersection, config, tile_m)
-    return Dica(intersection, config)
+    # the kind of technique 3's intervals lives in the offline tables
+    tables = ConflictTables(intersection, config.margin_m, exact_oti=config.techniques.exact_oti)
+    return Dica(intersection, config, tables)
 
 
 def controller_config(algorithm: str, margin_m: float, time_pad_s: float = 0.0) -> IcaConfig:

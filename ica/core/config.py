@@ -16,22 +16,39 @@ class Techniques:
        crossing interval does not overlap the requester's.
     2. ``conflict_zones``: test only occupancies inside the offline conflict
        zone of the two routes.
-    3. ``estimated_oti``: occupancy time intervals from offline overlap
-       distances instead of the exhaustive search.
+    3. ``estimated_oti``: occupancy time intervals from the route's offline
+       skip distances in one compiled pass instead of the exhaustive search.
+       With ``exact_oti`` (enhanced DICA) the distances are those within which
+       footprints surely overlap, and the exact test finds the nearest clear
+       sample beyond: the exhaustive intervals, bit for bit. Without it, the
+       dissertation's technique: the distances beyond which footprints surely
+       do not overlap, an estimate never narrower than the exhaustive interval
+       and often wider, which delays vehicles more.
     4. ``bisection``: for each occupancy of a confirmed vehicle, find the
        requester's occupancies whose intervals can overlap by binary search.
 
-    All off is basic DICA (Algorithms 1-2); all on is enhanced DICA.
+    All off is basic DICA (Algorithms 1-2); all on with exact intervals is
+    enhanced DICA, which decides exactly as basic DICA does. ``t1+2+3+4`` is
+    the dissertation's enhanced DICA, ``t3`` its technique 3 alone. The kind of
+    interval travels with the ICA's offline tables
+    (:func:`ica.core.zones.ConflictTables` ``exact_oti``), so an ICA built
+    with another kind must be given matching tables
+    (:func:`ica.core.baselines.make_controller` does).
     """
 
     reduced_set: bool = True
     conflict_zones: bool = True
     estimated_oti: bool = True
     bisection: bool = True
+    exact_oti: bool = True
 
     @staticmethod
     def parse(name: str) -> Techniques:
-        """'basic', 'enhanced', or 't' plus technique numbers joined by '+' ('t2+4')."""
+        """'basic', 'enhanced', or 't' plus technique numbers joined by '+' ('t2+4').
+
+        A name with technique 3 is the dissertation's technique 3 (estimated
+        intervals); 'enhanced' has all four with exact intervals.
+        """
         if name == "basic":
             return BASIC
         if name == "enhanced":
@@ -44,12 +61,14 @@ class Techniques:
             raise ValueError(f"unknown DICA variant {name!r}") from None
         if not nums or not nums <= {1, 2, 3, 4}:
             raise ValueError(f"unknown DICA variant {name!r}: techniques are 1 to 4")
-        names = [f.name for f in fields(Techniques)]
-        return Techniques(**{n: (i + 1) in nums for i, n in enumerate(names)})
+        names = [f.name for f in fields(Techniques)][:4]
+        on = {n: (i + 1) in nums for i, n in enumerate(names)}
+        return Techniques(**on, exact_oti=3 not in nums)
 
 
 BASIC = Techniques(False, False, False, False)
 ENHANCED = Techniques()
+DISSERTATION_ENHANCED = Techniques(exact_oti=False)
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.kernels import dtot_span, estimated_dtot
-from ica.core.occupancy import Rects, footprints, overlap_matrix
+from ica.core.kernels import dtot_span, grid_dtot
+from ica.core.occupancy import Rects, footprints, overlap_matrix, separated
 from ica.core.route import Route
 from ica.core.trajectory import Trajectory
 from ica.core.zones import RouteGrid, Shape
@@ -71,18 +71,20 @@ def build_dtot(
     grid: RouteGrid | None = None,
     estimated: bool = False,
 ) -> Dtot:
-    """Occupancies of ``traj``; intervals exhaustively, or from ``grid`` if ``estimated``.
+    """Occupancies of ``traj``; intervals exhaustively, or with ``grid`` (technique 3) if
+    ``estimated``.
 
-    The exhaustive intervals follow the dissertation's getOTI; the grid ones
-    (enhanced DICA, technique 3) are never narrower than the exhaustive ones.
-    The estimated path is one compiled call (:func:`ica.core.kernels.estimated_dtot`)
-    with exactly the results of :func:`footprints`, :func:`estimated_intervals`
-    and ``grid.index``.
+    The exhaustive intervals follow the dissertation's getOTI in numpy. With
+    the grid (one compiled call, :func:`ica.core.kernels.grid_dtot`, with
+    exactly the results of :func:`footprints`, :func:`grid_intervals` and
+    ``grid.index``) they are the same intervals when the grid's tables are
+    exact, and the dissertation's estimate, never narrower, when not.
     """
     s_end = route.cross_length_m + shape.length_m
+    half_l, half_w = shape.length_m / 2.0 + margin_m, shape.width_m / 2.0 + margin_m
     if estimated:
         if grid is None:
-            raise ValueError("estimated intervals need the route's offline grid")
+            raise ValueError("technique 3 needs the route's offline grid")
         s_all = np.ascontiguousarray(traj.s_m, dtype=float)
         k0, k1 = dtot_span(s_all, s_end)
         s = s_all[k0 : k1 + 1]
@@ -90,7 +92,7 @@ def build_dtot(
         t = traj.t0_s + traj.step_s * np.arange(k0, k1 + 1)
         centre, heading = np.empty((n, 2)), np.empty((n, 2))
         lb, ub, g = np.empty(n), np.empty(n), np.empty(n, np.int64)
-        estimated_dtot(
+        grid_dtot(
             route.s,
             grid.route_x,
             grid.route_y,
@@ -100,6 +102,8 @@ def build_dtot(
             grid.ds_m,
             grid.fwd_m,
             grid.back_m,
+            half_l,
+            half_w,
             centre,
             heading,
             t,
@@ -107,7 +111,6 @@ def build_dtot(
             ub,
             g,
         )
-        half_l, half_w = shape.length_m / 2.0 + margin_m, shape.width_m / 2.0 + margin_m
         rects = Rects(centre, heading, half_l, half_w)
         return Dtot(route, shape, traj, k0, t, s, rects, lb, ub, g)
     k0 = traj.entry_index()
@@ -132,22 +135,54 @@ def exhaustive_intervals(t: np.ndarray, rects: Rects) -> tuple[np.ndarray, np.nd
     return lb, ub
 
 
-def estimated_intervals(
-    t: np.ndarray, s: np.ndarray, grid: RouteGrid
+def grid_intervals(
+    t: np.ndarray, s: np.ndarray, rects: Rects, grid: RouteGrid
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Intervals from the route's overlap distances and a search of the own samples.
+    """Technique 3: intervals from the route's skip distances and the exact test beyond them.
 
     The reference version: :func:`build_dtot` computes the same in one
     compiled call.
 
-    For occupancy k the earlier clear sample is the last one at least
-    ``clear_behind(s_k)`` behind; every sample that far back is clear of it, so
-    the nearest clear one is no earlier and the interval is never narrower than
-    the exhaustive one. O(N log N) for all N occupancies.
+    For occupancy k the samples whose fronts lie within ``grid.skip_behind_m``
+    behind it (``skip_ahead_m`` ahead) are taken to overlap it; beyond them
+    the nearest sample the exact test finds clear bounds the interval. With
+    exact tables the skipped samples do overlap, so this is the exhaustive
+    interval after a few tests; with the dissertation's, every sample beyond
+    is clear, so the first one tested is the answer, never nearer than the
+    exhaustive one.
     """
     n = len(t)
-    behind = np.searchsorted(s, s - grid.clear_behind_m(s), side="right") - 1
-    ahead = np.searchsorted(s, s + grid.clear_ahead_m(s), side="left")
-    lb = np.where(behind >= 0, t[np.clip(behind, 0, n - 1)], t[0])
-    ub = np.where(ahead < n, t[np.clip(ahead, 0, n - 1)], t[-1])
+    behind = s - grid.skip_behind_m(s)
+    ahead = s + grid.skip_ahead_m(s)
+    ordered = bool(np.all(s[:-1] <= s[1:]))
+    lb, ub = np.empty(n), np.empty(n)
+
+    def overlaps(k: int, j: int) -> bool:
+        d = rects.centre[j] - rects.centre[k]
+        return not bool(
+            separated(
+                d[0],
+                d[1],
+                rects.heading[k],
+                rects.heading[j],
+                rects.half_length,
+                rects.half_width,
+                rects.half_length,
+                rects.half_width,
+            )
+        )
+
+    for k in range(n):
+        j = k - 1
+        if ordered:
+            j = min(int(np.searchsorted(s, behind[k], side="right")) - 1, j)
+        while j >= 0 and (behind[k] < s[j] <= s[k] or overlaps(k, j)):
+            j -= 1
+        lb[k] = t[j] if j >= 0 else t[0]
+        j = k + 1
+        if ordered:
+            j = max(int(np.searchsorted(s, ahead[k], side="left")), j)
+        while j < n and (s[k] <= s[j] < ahead[k] or overlaps(k, j)):
+            j += 1
+        ub[k] = t[j] if j < n else t[n - 1]
     return lb, ub

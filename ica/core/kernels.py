@@ -5,17 +5,18 @@ almost nothing in arithmetic; with numpy it is dozens of calls, each paying
 its own overhead. These loops do the same arithmetic, in the same order, in
 one call each:
 
-* :func:`estimated_dtot`: footprint centres and headings from the front and
-  rear points, the grid index and technique 3's intervals
-  (:func:`ica.core.dtot.estimated_intervals`, :func:`ica.core.occupancy.footprints`);
+* :func:`grid_dtot`: footprint centres and headings from the front and
+  rear points, the grid index and technique 3's intervals, exact or the
+  dissertation's estimate, as the grid's tables say
+  (:func:`ica.core.dtot.grid_intervals`, :func:`ica.core.occupancy.footprints`);
 * :func:`batch_conflicts`: getCV with techniques 1, 2 and 4 over every
   confirmed vehicle (:func:`ica.core.conflict.get_cv_batch`).
 
 Floating-point results equal numpy's exactly: the expressions are written
 in numpy's order, numba does not fuse multiply-adds without ``fastmath``,
 and the binary search is numpy's own, so it gives numpy's answer even on
-unsorted input. ``tests/test_batch.py`` and ``tests/test_dtot.py`` hold the
-numpy versions beside these as oracles.
+unsorted input. ``tests/test_batch.py``, ``tests/test_kernels.py`` and
+``tests/test_dtot.py`` hold the numpy versions beside these as oracles.
 
 The functions are compiled when this module is first imported (explicit
 signatures) and cached on disk by numba next to the module, like byte code;
@@ -163,14 +164,43 @@ def dtot_span(s: np.ndarray, s_end_m: float) -> tuple[int, int]:
     return k0, k1
 
 
+@njit(cache=True, nogil=True)
+def _self_overlap(
+    centre: np.ndarray, heading: np.ndarray, la: float, wa: float, k: int, j: int
+) -> bool:
+    """``overlap_matrix(rects, rects)[k, j]``: the separating-axis test of
+    :func:`ica.core.occupancy.separated`, term for term."""
+    ax, ay = heading[k, 0], heading[k, 1]
+    bx, by = heading[j, 0], heading[j, 1]
+    dx = centre[j, 0] - centre[k, 0]
+    dy = centre[j, 1] - centre[k, 1]
+    cs = abs(ax * bx + ay * by)
+    sn = abs(ax * by - ay * bx)
+    if abs(dx * ax + dy * ay) > la + la * cs + wa * sn + _EPS_SAT:
+        return False
+    if abs(dy * ax - dx * ay) > wa + la * sn + wa * cs + _EPS_SAT:
+        return False
+    if abs(dx * bx + dy * by) > la + la * cs + wa * sn + _EPS_SAT:
+        return False
+    return not abs(dy * bx - dx * by) > wa + la * sn + wa * cs + _EPS_SAT
+
+
+@njit(cache=True, nogil=True)
+def _nondecreasing(a: np.ndarray) -> bool:
+    for k in range(len(a) - 1):  # noqa: SIM110 (a plain loop compiles best)
+        if not a[k] <= a[k + 1]:
+            return False
+    return True
+
+
 @njit(
     "void(float64[::1], float64[::1], float64[::1], float64, float64[::1], float64,"
-    " float64, float64[::1], float64[::1],"
+    " float64, float64[::1], float64[::1], float64, float64,"
     " float64[:, ::1], float64[:, ::1], float64[::1], float64[::1], float64[::1], int64[::1])",
     cache=True,
     nogil=True,
 )
-def estimated_dtot(
+def grid_dtot(
     route_s: np.ndarray,
     route_x: np.ndarray,
     route_y: np.ndarray,
@@ -180,6 +210,8 @@ def estimated_dtot(
     ds_m: float,
     fwd_m: np.ndarray,
     back_m: np.ndarray,
+    half_l: float,
+    half_w: float,
     centre: np.ndarray,
     heading: np.ndarray,
     t: np.ndarray,
@@ -187,11 +219,15 @@ def estimated_dtot(
     ub: np.ndarray,
     g: np.ndarray,
 ) -> None:
-    """Footprints, grid index and estimated intervals of occupancies at ``s``, times ``t``.
+    """Footprints, grid index and technique 3's intervals of occupancies at ``s``, times ``t``.
 
     :func:`ica.core.occupancy.footprints` (front and rear points by
     ``np.interp`` on the route polyline), ``RouteGrid.index`` and
-    :func:`ica.core.dtot.estimated_intervals`, into the out arrays.
+    :func:`ica.core.dtot.grid_intervals`, into the out arrays: for each
+    occupancy, the samples within the grid's skip distances are taken to
+    overlap it, and beyond them the nearest one the exact test finds clear
+    bounds its interval. With exact tables that is the exhaustive interval;
+    with the dissertation's the first sample tested is already clear.
     """
     n = len(s)
     last = len(fwd_m) - 1
@@ -217,17 +253,30 @@ def estimated_dtot(
         i = np.int64(np.rint((s[k] - s0_m) / ds_m))
         i = min(max(i, 0), last)
         g[k] = i
-        behind[k] = s[k] - (back_m[i] + ds_m)
-        ahead[k] = s[k] + (fwd_m[i] + ds_m)
-    kb = np.empty(n, np.int64)
-    ka = np.empty(n, np.int64)
-    _searchsorted(s, behind, True, kb)
-    _searchsorted(s, ahead, False, ka)
+        behind[k] = s[k] - back_m[i]
+        ahead[k] = s[k] + fwd_m[i]
+    # where s rises, the skipped samples are one range found by binary search;
+    # else (a rounding error off monotone) they are skipped one by one
+    sorted_s = _nondecreasing(s)
     for k in range(n):
-        b = kb[k] - 1
-        lb[k] = t[min(max(b, 0), n - 1)] if b >= 0 else t[0]
-        a = ka[k]
-        ub[k] = t[min(max(a, 0), n - 1)] if a < n else t[n - 1]
+        j = k - 1
+        if sorted_s:
+            j = min(_search(s, behind[k], True) - 1, j)
+        while j >= 0:
+            if behind[k] < s[j] <= s[k] or _self_overlap(centre, heading, half_l, half_w, k, j):
+                j -= 1
+            else:
+                break
+        lb[k] = t[j] if j >= 0 else t[0]
+        j = k + 1
+        if sorted_s:
+            j = max(_search(s, ahead[k], False), j)
+        while j < n:
+            if s[k] <= s[j] < ahead[k] or _self_overlap(centre, heading, half_l, half_w, k, j):
+                j += 1
+            else:
+                break
+        ub[k] = t[j] if j < n else t[n - 1]
 
 
 @njit(
@@ -994,7 +1043,7 @@ def resolve_rounds(
     m_s, row_s, lo_s, hi_s = m_idx[order], row[order], row_lo[order], row_hi[order]
     s = s_init
     for it in range(1, max_iterations + 1):
-        # the estimated DTOT (ica.core.dtot.build_dtot)
+        # the DTOT (ica.core.dtot.build_dtot with the grid)
         k0, k1 = dtot_span(s, s_end)
         sd = s[k0 : k1 + 1].copy()
         n = len(sd)
@@ -1006,9 +1055,9 @@ def resolve_rounds(
         lb = np.empty(n)
         ub = np.empty(n)
         g = np.empty(n, np.int64)
-        estimated_dtot(
+        grid_dtot(
             route_s, route_x, route_y, length_m, sd, grid_s0, grid_ds, fwd_m, back_m,
-            centre, heading, t, lb, ub, g,
+            half_l, half_w, centre, heading, t, lb, ub, g,
         )  # fmt: skip
         # the lane leader, then getCV, and the first conflict as Dica._resolve
         # sorts them (the leader after the others on a tie)

@@ -7,10 +7,15 @@ computed once per vehicle shape, on a grid of front positions every ``ds``:
   a footprint on a can touch some footprint on b. Empty means the routes are
   compatible (technique 1) and the zone bounds the occupancies worth testing
   (technique 2).
-* **overlap distances** along one route: how far the front must move forward
-  (or back) before the footprint stops touching its earlier self. With the
-  vehicle's own samples they give occupancy time intervals by a search in
-  O(log N) instead of the exhaustive O(N) scan (technique 3).
+* **skip distances** along one route (technique 3): how far ahead of (or
+  behind) a footprint another footprint on the same route is taken to
+  overlap it without a test. The exact tables hold the distance within which
+  the two surely overlap (from shrunk footprints), so the nearest clear
+  sample, found by the exact test beyond it, gives exactly the exhaustive
+  intervals after a handful of tests. The dissertation's tables hold the
+  distance beyond which the footprints surely do not overlap (from grown
+  footprints): the sample there is the answer, an estimate never narrower
+  than the exhaustive interval, found in O(log N).
 
 Grid tables are made safe for any position in between: the footprints used
 to build them are longer by ``ds`` and wider by ``pad_m``, so a footprint at any
@@ -55,26 +60,30 @@ class RouteGrid:
     ds_m: float
     rects: Rects
     inner: Rects  # shrunk footprints: inside the real one at any nearest position
-    fwd_m: np.ndarray  # distance ahead beyond which the footprint is clear of itself
-    back_m: np.ndarray  # distance behind beyond which it is clear of itself
+    # skip distances (see the module docstring): a footprint at s is taken to
+    # overlap those of the same route with fronts in (s - back_m, s] and
+    # [s, s + fwd_m), per nearest grid point of s
+    fwd_m: np.ndarray
+    back_m: np.ndarray
     route_x: np.ndarray  # the route's vertices, x and y as contiguous arrays
     route_y: np.ndarray
+    exact: bool = True  # skip distances of surely overlapping footprints (else surely clear)
 
     def index(self, s: np.ndarray) -> np.ndarray:
         """Nearest grid index per position (clipped to the grid)."""
         k = np.rint((np.asarray(s) - self.s0_m) / self.ds_m).astype(np.int64)
         return np.minimum(np.maximum(k, 0), len(self.rects) - 1)
 
-    def clear_ahead_m(self, s: np.ndarray) -> np.ndarray:
-        """Conservative distance ahead after which a footprint at ``s`` is clear of it."""
-        return self.fwd_m[self.index(s)] + self.ds_m
+    def skip_ahead_m(self, s: np.ndarray) -> np.ndarray:
+        """Distance ahead of a footprint at ``s`` within which no test is made."""
+        return self.fwd_m[self.index(s)]
 
-    def clear_behind_m(self, s: np.ndarray) -> np.ndarray:
-        return self.back_m[self.index(s)] + self.ds_m
+    def skip_behind_m(self, s: np.ndarray) -> np.ndarray:
+        return self.back_m[self.index(s)]
 
 
 def _route_grid(
-    route: Route, shape: Shape, margin_m: float, ds_m: float, pad_m: float
+    route: Route, shape: Shape, margin_m: float, ds_m: float, pad_m: float, exact: bool
 ) -> RouteGrid:
     s0 = -2.0
     s1 = route.cross_length_m + shape.length_m + 2.0
@@ -87,16 +96,62 @@ def _route_grid(
         max(base.half_length - ds_m / 2, 0.0),
         max(base.half_width - pad_m, 0.0),
     )
-    self_overlap = overlap_matrix(rects, rects)
-    idx = np.arange(len(s))
-    ahead = np.where(self_overlap & (idx[None, :] >= idx[:, None]), idx[None, :], -1).max(axis=1)
-    behind = np.where(self_overlap & (idx[None, :] <= idx[:, None]), idx[None, :], len(s)).min(
-        axis=1
-    )
-    fwd = (ahead - idx + 1) * ds_m
-    back = (idx - behind + 1) * ds_m
+    if exact:
+        fwd, back = _sure_overlap_m(inner, ds_m)
+    else:
+        fwd, back = _sure_clear_m(rects, ds_m)
     x, y = np.ascontiguousarray(route.xy[:, 0]), np.ascontiguousarray(route.xy[:, 1])
-    return RouteGrid(route, shape, s0, ds_m, rects, inner, fwd, back, x, y)
+    return RouteGrid(route, shape, s0, ds_m, rects, inner, fwd, back, x, y, exact)
+
+
+SURE_SLACK_M = 0.01  # [m] the shrunk footprints shrink once more, so "surely" survives rounding
+
+
+def _sure_clear_m(grown: Rects, ds_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Distances ahead and behind beyond which a footprint surely no longer overlaps itself.
+
+    From the grown footprints (each holds the real one at any position nearest
+    its grid point): the last grid point ahead that still touches, plus a grid
+    step for the position between grid points.
+    """
+    n = len(grown)
+    self_overlap = overlap_matrix(grown, grown)
+    idx = np.arange(n)
+    ahead = np.where(self_overlap & (idx[None, :] >= idx[:, None]), idx[None, :], -1).max(axis=1)
+    behind = np.where(self_overlap & (idx[None, :] <= idx[:, None]), idx[None, :], n).min(axis=1)
+    return (ahead - idx + 2) * ds_m, (idx - behind + 2) * ds_m
+
+
+def _sure_overlap_m(inner: Rects, ds_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Distances ahead and behind within which a footprint surely overlaps itself.
+
+    A real footprint at ``s`` holds the shrunk one of the grid point nearest
+    ``s``. If the shrunk footprint at grid point i overlaps those at i - 1, ...,
+    i - c (run of c), every real footprint nearest i overlaps every real one
+    nearest those points, which covers the fronts from ``s - (c - 1/2) ds`` to
+    ``s`` (the half step keeps a rounding of the nearest point off the
+    boundary). The first and last grid points also hold the positions beyond
+    the grid, so they get, and lend, nothing.
+    """
+    shrunk = Rects(
+        inner.centre,
+        inner.heading,
+        max(inner.half_length - SURE_SLACK_M, 0.0),
+        max(inner.half_width - SURE_SLACK_M, 0.0),
+    )
+    n = len(shrunk)
+    touch = overlap_matrix(shrunk, shrunk)
+    fwd, back = np.zeros(n), np.zeros(n)
+    for i in range(1, n - 1):
+        c = 0
+        while i - c - 1 >= 1 and touch[i, i - c - 1]:
+            c += 1
+        back[i] = max(c - 0.5, 0.0) * ds_m
+        c = 0
+        while i + c + 1 <= n - 2 and touch[i, i + c + 1]:
+            c += 1
+        fwd[i] = max(c - 0.5, 0.0) * ds_m
+    return fwd, back
 
 
 APART, MAYBE, TOUCH = 0, 1, 2
@@ -141,6 +196,7 @@ class ConflictTables:
     margin_m: float
     ds_m: float = 0.25
     pad_m: float = 0.1
+    exact_oti: bool = True  # skip distances for exact intervals; False: the dissertation's
     _grids: dict[tuple[str, Shape], RouteGrid] = field(default_factory=dict)
     _pairs: dict[tuple[str, Shape, str, Shape], np.ndarray] = field(default_factory=dict)
     _zones: dict[tuple[str, Shape, str, Shape], np.ndarray] = field(default_factory=dict)
@@ -151,7 +207,7 @@ class ConflictTables:
         key = (route.id, shape)
         g = self._grids.get(key)
         if g is None:
-            g = _route_grid(route, shape, self.margin_m, self.ds_m, self.pad_m)
+            g = _route_grid(route, shape, self.margin_m, self.ds_m, self.pad_m, self.exact_oti)
             self._grids[key] = g
         return g
 

@@ -1,0 +1,51 @@
+"""The report's saturation volume: the highest volume up to which throughput and delay hold."""
+
+from __future__ import annotations
+
+from tools.report import GROWTH, SATURATION_RHO, SLACK_S, bounded, saturation
+
+
+def row(rho: float, middle: float, last: float, settled: float | None = None) -> dict:
+    return {
+        "throughput": rho,
+        "settled_throughput": rho if settled is None else settled,
+        "delay_by_third_s": [1.0, middle, last],
+        "stopped_rate": 0.1,
+        "mean_trip_time_s": 6.0,
+        "effective_mean_trip_time_s": 6.0 / rho,
+        "mean_system_time_s": 7.0,
+        "mean_system_delay_s": 2.0,
+    }
+
+
+def test_bounded_delay_is_the_last_third_against_the_middle_one():
+    assert bounded(row(0.99, 10.0, GROWTH * 10.0 + SLACK_S))
+    assert not bounded(row(0.99, 10.0, GROWTH * 10.0 + SLACK_S + 0.01))
+    assert not bounded(row(0.99, 10.0, None))
+
+
+def test_saturation_is_the_last_volume_before_the_first_failure():
+    ok, slow, jammed = row(0.99, 2.0, 2.5), row(SATURATION_RHO - 0.01, 2.0, 2.5), row(0.97, 5, 40)
+    agg = {
+        ("L", "", "dica", 300.0): ok,
+        ("L", "", "dica", 600.0): ok,
+        ("L", "", "dica", 800.0): jammed,  # the delay grows: saturated
+        ("L", "", "dica", 1000.0): ok,  # a lucky run above it does not count
+        ("L", "", "light", 300.0): slow,
+        ("L", "", "light", 600.0): ok,
+        ("L", "", "other", 300.0): ok,
+        ("L", "", "other", 600.0): ok,
+        ("L", "to 900", "other", 100.0): jammed,  # a ramp is not a steady volume
+    }
+    sat = saturation(agg)
+    assert sat[("L", "dica")]["volume"] == 600.0 and not sat[("L", "dica")]["above"]
+    assert sat[("L", "light")]["volume"] is None
+    assert sat[("L", "other")]["volume"] == 600.0 and sat[("L", "other")]["above"]
+    assert sat[("L", "other")]["volumes"] == [300.0, 600.0]
+
+
+def test_settled_throughput_forgives_the_vehicles_still_waiting_at_the_end():
+    """A light with a long cycle: rho under 0.95 from end effects, queues not growing."""
+    agg = {("L", "", "light", v): row(0.92, 20.0, 22.0, settled=0.99) for v in (300.0, 500.0)}
+    assert saturation(agg)[("L", "light")]["volume"] is None
+    assert saturation(agg, "settled_throughput")[("L", "light")]["volume"] == 500.0
