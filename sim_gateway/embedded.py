@@ -19,12 +19,13 @@ from ica.core.baselines import controller_config, make_controller
 from ica.core.config import IcaConfig
 from ica.core.dica import Dica
 from ica.core.intersection import Intersection
+from ica.core.reactive import ReactiveConfig, ReactiveDica
 from ica.core.request import Confirmation, Rejection, Request, RequestError
-from sim_gateway.demand import DemandSpec, expected_lane_flows, make_arrivals
+from sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, make_arrivals
 from sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
-from sim_gateway.signals import retime
+from sim_gateway.signals import HOLD, Preemption, reactive_durations, retime
 from sim_gateway.world import Seen, World, import_libsumo, start_sumo
-from vehicle_agent.machine import Command, Vehicle
+from vehicle_agent.machine import Command, Phase, Vehicle
 
 __all__ = ["LIGHTS", "RunConfig", "RunError", "RunResult", "run", "schedule_for"]
 
@@ -35,13 +36,29 @@ class LocalLink:
     def __init__(self, ica: Dica) -> None:
         self.ica = ica
         self.compute_s: list[float] = []
+        # what the region's detector reads as a vehicle passes it: EV or not, and its speed
+        self.detector: dict[str, tuple[bool, float]] = {}
+        self.revoked: list[str] = []  # reactive DICA: revoked this step, and their new plans
+        self.revised: dict[str, Confirmation] = {}
 
     def detect(self, vin: str, lane: str, t_s: float) -> Rejection | None:
         try:
-            self.ica.detect(vin, lane, t_s)
+            if isinstance(self.ica, ReactiveDica):
+                ev, speed = self.detector.get(vin, (False, None))
+                self.ica.detect(vin, lane, t_s, emergency=ev, speed_mps=speed)
+                self._revoke(self.ica)
+            else:
+                self.ica.detect(vin, lane, t_s)
         except RequestError as e:
             return Rejection(vin, -1, e.reason, e.detail)
         return None
+
+    def _revoke(self, ica: ReactiveDica) -> None:
+        """In process a revocation reaches its vehicle at once: acknowledge it now."""
+        for r in ica.take_reorders():
+            self.revoked += r.revoked
+            for vin in r.revoked:
+                self.revised.update((c.vin, c) for c in ica.acknowledge(vin))
 
     def request(self, req: Request, now_s: float) -> Confirmation | Rejection:
         t_c = time.perf_counter()
@@ -79,11 +96,30 @@ class LocalDrivers:
                 )
                 v.rejections = self.rejections  # one tally for the run
                 self.vehicles[c.vin] = v
+            if v.phase is Phase.APPROACHING:
+                self.link.detector[c.vin] = (s.car.ev, s.obs.speed_mps)
             cmd = v.step(s.obs, self.link)
             if cmd is not None:
                 out.append(cmd)
             if s.obs.exited:
                 del self.vehicles[s.car.vin]
+                self.link.detector.pop(s.car.vin, None)
+        if isinstance(self.ica, ReactiveDica):
+            out += self._revise(self.ica, t)
+        return out
+
+    def _revise(self, ica: ReactiveDica, t: float) -> list[Command]:
+        """The revoked vehicles of this step fly their new plans (or, without one,
+        brake and ask again): the machines learn of revocation and replacement at once."""
+        link = self.link
+        ica.settle()
+        link.revised.update((c.vin, c) for c in ica.take_confirmations())
+        out = []
+        for vin in link.revoked:
+            v = self.vehicles.get(vin)
+            if v is not None:
+                out.append(v.replace(link.revised.get(vin), t))
+        link.revoked, link.revised = [], {}
         return out
 
     def requests(self) -> dict:
@@ -110,6 +146,7 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
         approach_weights=cfg.approach_weights,
         volume_end_per_10min=cfg.volume_end_per_10min,
         ramp_s=cfg.ramp_s,
+        ev_prob=cfg.ev_prob,
     )
     try:
         schedule = make_arrivals(inter, spec, step_s)
@@ -128,20 +165,31 @@ def run(
     inter: Intersection,
     progress: Callable[[float, int, int], None] | None = None,
     rrd_path: Path | None = None,
+    schedule: list[Arrival] | None = None,
 ) -> RunResult:
     """Run one simulation to the end and return its metrics and safety report.
 
     With ``rrd_path`` the run is also recorded as Rerun space-time visuals
-    (the same recorder the cluster's observer uses).
+    (the same recorder the cluster's observer uses). ``schedule`` replaces the
+    random demand with given arrivals (scripted scenarios).
     """
     ls = import_libsumo()
     light = cfg.algorithm in LIGHTS
     ica_cfg = ica_config(cfg)
-    ica = make_controller("fifo" if light else cfg.algorithm, inter, ica_cfg, cfg.tile_m)
-    schedule, spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
+    if cfg.algorithm == "rdica":
+        ica: Dica = ReactiveDica(
+            inter, ica_cfg, reactive=ReactiveConfig(solver=cfg.solver, seed=cfg.seed)
+        )
+    else:
+        ica = make_controller("fifo" if light else cfg.algorithm, inter, ica_cfg, cfg.tile_m)
+    planned, spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
+    if schedule is not None:
+        planned = sorted(schedule, key=lambda a: a.arrival_s)
+    schedule = planned
     cmd = start_sumo(ls, cfg, ica_cfg.step_s)
     try:
         signal = _setup_signal(ls, cfg, inter, spec) if light else None
+        preempt = _ReactiveLight(ls, inter) if cfg.algorithm == "reactive-light" else None
         recorder = _recorder(inter, rrd_path)
         world = World(
             ls, cfg, inter, ica_cfg, schedule, horizon, signalised=light, want_xy=bool(recorder)
@@ -152,6 +200,8 @@ def run(
                 seen = world.step()
                 if not light:
                     world.apply(drivers.step(world.t, seen))
+                elif preempt is not None:
+                    preempt.step(world.t, seen)
                 if recorder is not None:
                     _record(recorder, drivers, seen, cfg, world.t)
                 world.end_step(progress)
@@ -162,6 +212,10 @@ def run(
                 recorder.close()
         result = world.result(drivers.requests(), cmd)
         result.signal = signal
+        if isinstance(ica, ReactiveDica):
+            result.extra["reactive"] = _reactive_summary(ica)
+        if preempt is not None:
+            result.extra["preemption"] = preempt.summary()
         return result
     finally:
         ls.close()
@@ -222,6 +276,8 @@ def _setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> 
         )
     tls = inter.junction_id
     logic = ls.trafficlight.getAllProgramLogics(tls)[0]
+    if cfg.algorithm == "reactive-light":
+        return _setup_reactive_light(ls, tls, logic)
     if cfg.algorithm == "actuated":
         return {"type": "actuated", "phases": [(p.duration, p.state) for p in logic.phases]}
     links = ls.trafficlight.getControlledLinks(tls)
@@ -238,3 +294,130 @@ def _setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> 
         "flow_ratio_sum": timing.flow_ratio_sum,
         "phases": list(zip(durations, states, strict=True)),
     }
+
+
+# -- reactive DICA's log ------------------------------------------------------------------
+def _reactive_summary(ica: ReactiveDica) -> dict:
+    out = ica.summary()
+    out["events_log"] = [
+        {
+            "ev": e.ev,
+            "detected_s": round(e.detected_s, 3),
+            "candidates": len(e.reorder.order) if e.reorder else 0,
+            "revoked": len(e.reorder.revoked) if e.reorder else 0,
+            "solve_ms": round(e.reorder.solve_s * 1e3, 3) if e.reorder else None,
+            "prepare_ms": round(e.reorder.prepare_s * 1e3, 3) if e.reorder else None,
+            "unplanned": len(e.unplanned),
+            "refused": e.reorder.refused if e.reorder else "",
+            "ev_entry_model_before_s": _r(e.reorder.ev_entry_before_s) if e.reorder else None,
+            "ev_entry_model_after_s": _r(e.reorder.ev_entry_after_s) if e.reorder else None,
+            "ev_entry_s": _r(e.ev_entry_s),
+            "replan_failed": len(e.failed),
+        }
+        for e in ica.events
+    ]
+    return out
+
+
+def _r(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(x, 3)
+
+
+# -- the reactive light ---------------------------------------------------------------------
+def _setup_reactive_light(ls, tls: str, logic) -> dict:
+    """The dissertation's 31 s green / 13 s yellow / 83 s red program on netconvert's plan."""
+    states = [p.state for p in logic.phases]
+    durations = reactive_durations(states)
+    for p, d in zip(logic.phases, durations, strict=True):
+        p.duration = p.minDur = p.maxDur = d
+    ls.trafficlight.setProgramLogic(tls, logic)
+    ls.trafficlight.setProgram(tls, logic.programID)
+    return {
+        "type": "reactive",
+        "cycle_s": sum(durations),
+        "phases": list(zip(durations, states, strict=True)),
+    }
+
+
+class _ReactiveLight:
+    """Pre-emption for one emergency vehicle at a time (:class:`sim_gateway.signals.Preemption`).
+
+    The first EV seen in the region gets its movements green as soon as the
+    program's clearances allow; the green is held until its front has passed
+    the stop line, then the program resumes where it stands.
+    """
+
+    _FOREVER_S = 1e6
+
+    def __init__(self, ls, inter: Intersection) -> None:
+        self.ls = ls
+        self.tls = inter.junction_id
+        logic = ls.trafficlight.getAllProgramLogics(self.tls)[0]
+        self.program = Preemption(
+            [p.state for p in logic.phases], [p.duration for p in logic.phases]
+        )
+        self.links = ls.trafficlight.getControlledLinks(self.tls)
+        self.ev: str | None = None
+        self.steps: list[tuple[int, float | None]] = []
+        self.step_end_s = math.inf
+        self.served = 0
+        self.kinds: dict[str, int] = {"extend": 0, "return": 0, "cut": 0}
+
+    def _ev_links(self, s: Seen) -> list[int]:
+        r = s.car.route
+        return [
+            i
+            for i, group in enumerate(self.links)
+            if any(ln[0] == r.in_lane and ln[1] == r.out_lane for ln in group)
+        ]
+
+    def step(self, t: float, seen: list[Seen]) -> None:
+        tl = self.ls.trafficlight
+        if self.ev is None:
+            for s in seen:
+                waiting = s.obs.lane == s.car.route.in_lane and not math.isnan(s.obs.detected_s)
+                if s.car.ev and waiting:
+                    links = self._ev_links(s)
+                    if not links:
+                        continue
+                    phase = tl.getPhase(self.tls)
+                    remaining = tl.getNextSwitch(self.tls) - t
+                    self.steps = self.program.steps(phase, remaining, links)
+                    kind = "cut" if len(self.steps) > 1 else (
+                        "extend" if self.steps[0][0] == phase else "return"
+                    )  # fmt: skip
+                    self.kinds[kind] += 1
+                    self.ev = s.car.vin
+                    self._begin(t, first=True)
+                    break
+            return
+        ev = next((s for s in seen if s.car.vin == self.ev), None)
+        entered = ev is None or ev.obs.lane != ev.car.route.in_lane or ev.obs.exited
+        k, duration = self.steps[0]
+        if duration is HOLD:
+            if entered:
+                self._resume(t, k)
+            return
+        if t >= self.step_end_s - 1e-6:
+            self.steps.pop(0)
+            self._begin(t, first=False)
+
+    def _begin(self, t: float, first: bool) -> None:
+        tl = self.ls.trafficlight
+        k, duration = self.steps[0]
+        if not (first and tl.getPhase(self.tls) == k):
+            tl.setPhase(self.tls, k)
+        # SUMO must not move on by itself: every switch is ours until the EV has entered
+        tl.setPhaseDuration(self.tls, self._FOREVER_S)
+        self.step_end_s = math.inf if duration is HOLD else t + duration
+
+    def _resume(self, t: float, k: int) -> None:
+        tl = self.ls.trafficlight
+        spent = tl.getSpentDuration(self.tls)
+        tl.setPhaseDuration(self.tls, max(self.program.durations[k] - spent, 0.05))
+        self.ev = None
+        self.steps = []
+        self.served += 1
+
+    def summary(self) -> dict:
+        return {"served": self.served, **self.kinds}

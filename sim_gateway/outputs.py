@@ -7,6 +7,7 @@ import dataclasses
 import json
 from pathlib import Path
 
+from sim_gateway.metrics import summarize_ev
 from sim_gateway.runconfig import RunConfig, RunResult
 
 
@@ -24,6 +25,9 @@ def write_outputs(out: Path, cfg: RunConfig, result: RunResult, mode: str = "emb
     metrics["real_time_factor"] = result.sim_time_s / result.wall_s if result.wall_s > 0 else None
     metrics["mode"] = mode
     metrics.update(result.extra)
+    if cfg.ev_prob > 0:  # emergency vehicles and the others apart
+        end = result.sim_time_s if cfg.until_left else cfg.duration_s
+        metrics.update(summarize_ev(result.trips, end))
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     config = {
         "mode": mode,
@@ -32,6 +36,8 @@ def write_outputs(out: Path, cfg: RunConfig, result: RunResult, mode: str = "emb
         "signal": result.signal,
     }
     (out / "config.json").write_text(json.dumps(config, indent=2, default=list))
+    # runs without emergency vehicles keep the file exactly as it was (no "ev" column)
+    with_ev = cfg.ev_prob > 0
     with (out / "vehicles.csv").open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(
@@ -47,6 +53,7 @@ def write_outputs(out: Path, cfg: RunConfig, result: RunResult, mode: str = "emb
                 "free_flow_s",
                 "stopped",
             ]
+            + (["ev"] if with_ev else [])
         )
         for tr in result.trips.trips.values():
             tau = tr.exited_s - tr.entered_s if tr.exited_s and tr.entered_s is not None else None
@@ -63,6 +70,7 @@ def write_outputs(out: Path, cfg: RunConfig, result: RunResult, mode: str = "emb
                     _f(tr.free_flow_s),
                     int(tr.stopped),
                 ]
+                + ([int(tr.ev)] if with_ev else [])
             )
     with (out / "timeseries.csv").open("w", newline="") as fh:
         w = csv.writer(fh)

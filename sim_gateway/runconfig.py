@@ -6,9 +6,11 @@ from dataclasses import dataclass, field
 
 from ica.core.baselines import BASELINES
 from ica.core.config import Techniques
+from ica.core.ordering import SOLVERS
 from sim_gateway.metrics import TripLog
 
-LIGHTS = ("fixed", "actuated")  # SUMO drives; the junction is signalised
+LIGHTS = ("fixed", "actuated", "reactive-light")  # SUMO drives; the junction is signalised
+REACTIVE = ("rdica",)  # reactive DICA: emergency vehicles first (--solver)
 
 
 class RunError(Exception):
@@ -35,6 +37,8 @@ class RunConfig:
     approach_weights: tuple[tuple[str, float], ...] = ()
     volume_end_per_10min: float | None = None
     ramp_s: float = 1200.0
+    ev_prob: float = 0.0  # each arrival an emergency-vehicle candidate with this probability
+    solver: str = "exact"  # reactive DICA's ordering solver
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.volume_per_10min <= 2000.0:
@@ -45,18 +49,22 @@ class RunConfig:
             raise RunError("duration must be positive")
         if self.until_left is not None and self.until_left < 1:
             raise RunError("--until-left must be at least 1")
-        if self.algorithm not in BASELINES + LIGHTS:
+        if self.algorithm not in BASELINES + LIGHTS + REACTIVE:
             try:
                 Techniques.parse(self.algorithm)
             except ValueError:
                 raise RunError(
                     f"unknown algorithm {self.algorithm!r}: use basic, enhanced, t1..t4 (t2+4), "
-                    + ", ".join(BASELINES + LIGHTS)
+                    + ", ".join(BASELINES + LIGHTS + REACTIVE)
                 ) from None
         if self.volume_end_per_10min is not None and not 1.0 <= self.volume_end_per_10min <= 2000:
             raise RunError("--volume-end is out of range: 1 to 2000 vehicles per 10 min")
         if not 0.1 <= self.tile_m <= 10.0:
             raise RunError("--tile-size must be between 0.1 and 10 m")
+        if not 0.0 <= self.ev_prob <= 1.0:
+            raise RunError(f"--ev-prob {self.ev_prob:g} is not a probability (0 to 1)")
+        if self.solver not in SOLVERS:
+            raise RunError(f"unknown solver {self.solver!r}: use {', '.join(SOLVERS)}")
 
 
 @dataclass(slots=True)

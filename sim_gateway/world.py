@@ -32,6 +32,8 @@ from sim_gateway.safety import SafetyMonitor
 from vehicle_agent.machine import MODE_CONFIRMED, RELEASE, Command, Observation
 
 VTYPE = "cav"
+EV_VTYPE = "cav_emergency"  # same size and limits, SUMO vClass emergency
+EV_COLOR = (230, 30, 30, 255)  # red, as in the dissertation's screenshots
 
 
 def import_libsumo():
@@ -91,6 +93,7 @@ class Car:
     entered: bool = False
     command: Command | None = None
     speed_mode: int = -1
+    ev: bool = False  # inserted as an emergency vehicle
 
 
 @dataclass(slots=True)
@@ -156,6 +159,10 @@ class World:
             ("setImperfection", 0.0),
         ):
             getattr(ls.vehicletype, setter)(VTYPE, value)
+        if any(v.ev for v in self.schedule):
+            ls.vehicletype.copy(VTYPE, EV_VTYPE)
+            ls.vehicletype.setVehicleClass(EV_VTYPE, "emergency")
+            ls.vehicletype.setColor(EV_VTYPE, EV_COLOR)
         self._edge_routes: dict[tuple[str, str], str] = {}
         for r in inter.routes:
             key = _edges(r)
@@ -189,12 +196,16 @@ class World:
         while self._next < len(self.schedule) and self.schedule[self._next].arrival_s <= (
             self.t + 1e-9
         ):
-            c = self.cars[self.schedule[self._next].vin]
+            arrival = self.schedule[self._next]
+            c = self.cars[arrival.vin]
             ln = self._lane_len[c.route.in_lane]
+            # an EV candidate is an EV only if no other EV is in the region (inserted, not out)
+            c.ev = arrival.ev and not any(o.ev and not o.exited for o in self.active)
+            self.log.trips[c.vin].ev = c.ev
             ls.vehicle.add(
                 c.vin,
                 self._edge_routes[_edges(c.route)],
-                typeID=VTYPE,
+                typeID=EV_VTYPE if c.ev else VTYPE,
                 depart="now",
                 departLane=str(c.lane_index),
                 departPos=str(max(ln - comm - 0.05, 0.0)),

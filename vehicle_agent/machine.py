@@ -120,6 +120,35 @@ class Vehicle:
             self.phase = Phase.CROSSING
         return None
 
+    def replace(self, confirmation: Confirmation | None, now_s: float) -> Command:
+        """The ICA revoked this vehicle's confirmation (reactive DICA) and, unless
+        ``confirmation`` is None, gave it a new one that starts from where its old
+        plan has it. Fly the new plan (the old one until the new one starts), or
+        without one brake to stop before the line and ask again. In-process
+        runners call this; the revocation arrives with the call.
+        """
+        h = self.config.step_s
+        old = self.confirmation
+        if confirmation is None:
+            self.confirmation = None
+            self.phase = Phase.REQUESTING
+            self.next_request_s = now_s
+            d, v = _on_plan(self.route, old, now_s, h) if old is not None else (0.0, 0.0)
+            obs = Observation(now_s, self.route.in_lane, d, v, False, now_s, False)
+            cmd = self._brake(obs, wake_s=now_s)
+            return Command(self.vin, cmd.t0_s, cmd.speeds, MODE_DEFAULT, now_s)
+        self.confirmation = confirmation
+        self.phase = Phase.CONFIRMED
+        speeds = _speeds(self.route, confirmation, h)
+        t0 = float(confirmation.tss.t_s[0])
+        if old is not None and t0 > now_s + 1e-9:
+            before = _speeds(self.route, old, h)
+            k0 = round((now_s - float(old.tss.t_s[0])) / h)
+            k1 = round((t0 - float(old.tss.t_s[0])) / h)
+            speeds = np.concatenate([before[max(k0, 0) : max(k1, 0)], speeds])
+            t0 = now_s
+        return Command(self.vin, t0, speeds, MODE_CONFIRMED)
+
     def _request(self, obs: Observation, link: IcaLink) -> Command | None:
         cfg = self.config
         try:
@@ -177,3 +206,19 @@ class Vehicle:
 
     def _count(self, reason: str) -> None:
         self.rejections[reason] = self.rejections.get(reason, 0) + 1
+
+
+def _speeds(route: Route, conf: Confirmation, step_s: float) -> np.ndarray:
+    """Speed per step of a confirmed TSS, as the actuator flies it."""
+    tss = conf.tss
+    s, _ = route.project(np.stack([tss.x_m, tss.y_m], -1))
+    return np.diff(np.maximum.accumulate(s)) / step_s
+
+
+def _on_plan(route: Route, conf: Confirmation, t_s: float, step_s: float) -> tuple[float, float]:
+    """Distance to the entry line and speed at ``t_s`` on a confirmed plan."""
+    tss = conf.tss
+    s, _ = route.project(np.stack([tss.x_m, tss.y_m], -1))
+    k = min(max(round((t_s - float(tss.t_s[0])) / step_s), 0), len(s) - 1)
+    v = (s[k] - s[k - 1]) / step_s if k >= 1 else 0.0
+    return float(-s[k]), float(max(v, 0.0))
