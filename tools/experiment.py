@@ -4,6 +4,12 @@ Each cell (algorithm x volume x seed) is one ``dica run`` in its own process
 (libsumo runs one simulation per process) writing to
 ``OUT/<layout>/<algorithm>/v<volume>/s<seed>/``. A cell whose ``metrics.json``
 exists is skipped, so an interrupted grid picks up where it stopped.
+
+Reactive DICA is named with its solver, ``rdica-exact``, ``rdica-ga`` or
+``rdica-exhaustive`` (``rdica`` alone is ``rdica-exact``). Chapter 5's grid:
+
+    dica experiment --algorithms enhanced,rdica-exact,rdica-ga,rdica-exhaustive,reactive-light \
+        --duration 3600 --extra "--ev-prob 0.02" --out runs/ch5
 """
 
 from __future__ import annotations
@@ -45,7 +51,11 @@ def parser() -> argparse.ArgumentParser:
         "Cells already done are skipped; run `dica report OUT` afterwards.",
     )
     p.add_argument("--layout", choices=["ch3", "ch45"], default="ch45")
-    p.add_argument("--algorithms", default="enhanced,fixed,actuated", help="comma-separated")
+    p.add_argument(
+        "--algorithms",
+        default="enhanced,fixed,actuated",
+        help="comma-separated; reactive DICA as rdica-exact, rdica-ga or rdica-exhaustive",
+    )
     p.add_argument("--volumes", type=_floats, default=[100, 200, 300, 400, 500])
     p.add_argument("--seeds", type=_ints, default=[12, 21, 66])
     p.add_argument("--duration", type=float, default=600.0)
@@ -66,8 +76,13 @@ def main(argv: list[str] | None = None) -> int:
         print("dica experiment: --jobs must be at least 1", file=sys.stderr)
         return 2
     algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
+    try:
+        named = [(alg, *_algorithm(alg)) for alg in algorithms]
+    except ValueError as e:
+        print(f"dica experiment: {e}", file=sys.stderr)
+        return 2
     cells = []
-    for alg, vol, seed in product(algorithms, args.volumes, args.seeds):
+    for (alg, algorithm, solver), vol, seed in product(named, args.volumes, args.seeds):
         cell = args.out / args.layout / alg / f"v{vol:g}" / f"s{seed}"
         cmd = [
             sys.executable,
@@ -77,7 +92,8 @@ def main(argv: list[str] | None = None) -> int:
             "--layout",
             args.layout,
             "--algorithm",
-            alg,
+            algorithm,
+            *(["--solver", solver] if solver else []),
             "--volume",
             f"{vol:g}",
             "--seed",
@@ -121,6 +137,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dica experiment: {line}", file=sys.stderr)
     print(f"done; `dica report {args.out}` writes the tables and plots")
     return 1 if failed else 0
+
+
+def _algorithm(name: str) -> tuple[str, str | None]:
+    """A grid name as (``--algorithm``, ``--solver`` or None)."""
+    if name == "rdica":
+        return "rdica", "exact"
+    if name.startswith("rdica-"):
+        solver = name[len("rdica-") :]
+        if solver not in ("exact", "ga", "exhaustive"):
+            raise ValueError(
+                f"unknown solver in {name!r}: use rdica-exact, rdica-ga, rdica-exhaustive"
+            )
+        return "rdica", solver
+    return name, None
 
 
 if __name__ == "__main__":
