@@ -31,6 +31,8 @@ EXAMPLES = """examples:
   dica experiment --layout ch45 --algorithms enhanced,fixed,actuated --out runs/ch4
   dica report runs/ch4
   dica bench ica --json
+  dica run --algorithm rdica --solver exact --volume 300 --ev-prob 0.02
+  dica bench ordering
   dica view runs/run-enhanced-20250101-120000 --web --port 9090
 """
 
@@ -335,9 +337,10 @@ def parser() -> argparse.ArgumentParser:
     b = sub.add_parser(
         "bench",
         help="benchmarks: ica (seconds per REQUEST per DICA variant), run (real-time factor), "
-        "cluster (Zenoh round trip, lockstep real-time factor)",
+        "cluster (Zenoh round trip, lockstep real-time factor), ordering (the EV ordering "
+        "solvers)",
     )
-    b.add_argument("what", choices=["ica", "run", "cluster"])
+    b.add_argument("what", choices=["ica", "run", "cluster", "ordering"])
     b.add_argument(
         "rest",
         nargs=argparse.REMAINDER,
@@ -357,10 +360,15 @@ def main(argv: list[str] | None = None) -> int:
             return (experiment if argv[0] == "experiment" else report).main(argv[1:])
         except KeyboardInterrupt:
             return 130
-    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in ("ica", "run", "cluster"):
-        from tools import bench_cluster, bench_ica, bench_run
+    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in ("ica", "run", "cluster", "ordering"):
+        from tools import bench_cluster, bench_ica, bench_ordering, bench_run
 
-        bench = {"ica": bench_ica, "run": bench_run, "cluster": bench_cluster}[argv[1]]
+        bench = {
+            "ica": bench_ica,
+            "run": bench_run,
+            "cluster": bench_cluster,
+            "ordering": bench_ordering,
+        }[argv[1]]
         try:
             return bench.main(argv[2:])
         except KeyboardInterrupt:

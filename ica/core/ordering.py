@@ -310,7 +310,7 @@ def _grow1b(a: np.ndarray, cap: int) -> np.ndarray:
 
 @njit(
     "Tuple((int64[::1], float64, int64))(float64[::1], float64[:, ::1], int64, int64[:, ::1], "
-    "int64[::1], int64[::1], float64, float64, int64, boolean)",
+    "int64[::1], int64[::1], float64, float64, int64, int64)",
     cache=True,
 )
 def _exact(
@@ -323,12 +323,12 @@ def _exact(
     ev_bound: float,
     ub_delay: float,
     max_labels: int,
-    one_per_state: bool,
+    beam: int,
 ) -> tuple[np.ndarray, float, int]:
     """Labels per state of lane progress; returns (order, delay, labels made).
 
-    With ``one_per_state`` each state keeps only its least-delay label: not
-    exact, but a quick and usually tight bound for the exact pass.
+    With ``beam`` > 0 each state keeps only its ``beam`` least-delay labels:
+    not exact, but a quick and usually tight bound for the exact pass.
 
     A label holds the entries of the vehicles taken so far that can still bind a
     later vehicle (others set to -inf: they can never exceed the last entry), the
@@ -455,6 +455,11 @@ def _exact(
                             tm = t
                         if prev >= 0 and prev_t + sep[prev, m] > tm:
                             tm = prev_t + sep[prev, m]
+                        if p == c2:  # the lane's next vehicle: everyone taken holds it back
+                            for j in range(n):
+                                v = e_new[j] + sep[j, m]
+                                if v > tm:
+                                    tm = v
                         if m != ev:
                             lb += tm - release[m]
                         prev, prev_t = m, tm
@@ -464,13 +469,20 @@ def _exact(
                 nxt = sid + stride[li]
                 dominated = False
                 r = head[nxt]
+                if beam > 0:
+                    alive, worst = 0, -1
+                    while r >= 0:
+                        if not lab_dead[r]:
+                            alive += 1
+                            if worst < 0 or lab_delay[r] > lab_delay[worst]:
+                                worst = r
+                        r = lab_next[r]
+                    if alive >= beam:
+                        if lab_delay[worst] <= delay:
+                            continue
+                        lab_dead[worst] = True
                 while r >= 0:
-                    if one_per_state and not lab_dead[r]:
-                        if lab_delay[r] <= delay:
-                            dominated = True
-                            break
-                        lab_dead[r] = True
-                    elif not lab_dead[r]:
+                    if not lab_dead[r]:
                         a_le = lab_last[r] <= t and lab_ev[r] <= ev_t and lab_delay[r] <= delay
                         b_le = t <= lab_last[r] and ev_t <= lab_ev[r] and delay <= lab_delay[r]
                         j = 0
@@ -530,6 +542,7 @@ def _exact(
 
 
 MAX_LABELS = 1 << 22  # the exact solver's memory guard (about 1 GB at 30 candidates)
+QUICK_BEAM = 3  # labels per state in the quick pass that bounds the exact one
 
 
 def exact(problem: Problem) -> Solution:
@@ -539,10 +552,10 @@ def exact(problem: Problem) -> Solution:
     _, _, ub = evaluate(problem, greedy(problem))
     args = (problem.release_s, problem.sep_s, problem.ev, members, sizes, slot)
     bound = ev_bound_s(problem)
-    quick, _, quick_work = _exact(*args, bound, ub, MAX_LABELS, True)
+    quick, _, quick_work = _exact(*args, bound, ub, MAX_LABELS, QUICK_BEAM)
     if len(quick):
         ub = min(ub, evaluate(problem, quick)[2])
-    order, _, work = _exact(*args, bound, ub, MAX_LABELS, False)
+    order, _, work = _exact(*args, bound, ub, MAX_LABELS, 0)
     work += max(quick_work, 0)
     if work < 0:
         raise OrderingError(f"the exact solver ran past {MAX_LABELS} labels")
