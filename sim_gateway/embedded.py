@@ -80,6 +80,8 @@ class LocalDrivers:
 
     def step(self, t: float, seen: list[Seen]) -> list[Command]:
         self.ica.advance(t)
+        if isinstance(self.ica, ReactiveDica):
+            self.link._revoke(self.ica)  # an EV event may start as the clock moves
         out = []
         for s in seen:
             v = self.vehicles.get(s.car.vin)

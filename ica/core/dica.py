@@ -409,14 +409,12 @@ class Dica:
         speed_mps: float,
         not_before_s: float,
         leader_vin: str | None,
-        key: str | None = None,
     ) -> Confirmation:
         """Confirm ``vin`` anew from a state it will be in (a revised confirmation).
 
         The same conflict search as a REQUEST's, against the whole confirmed set,
         starting from the plan that enters soonest at or after ``not_before_s``.
-        The reservation is stored under ``key`` (default ``vin``). Raises
-        RequestError as a REQUEST would.
+        Raises RequestError as a REQUEST would.
         """
         cfg = self.config
         s_end = route.cross_length_m + shape.length_m
@@ -448,10 +446,9 @@ class Dica:
             delay_s=max(0.0, entry - earliest),
             iterations=iterations,
         )
-        key = vin if key is None else key
-        done = Confirmed(key, dtot, conf, pack(dtot))
-        self._confirmed[key] = done
-        self._rows.add(key, dtot, done.packed)
+        done = Confirmed(vin, dtot, conf, pack(dtot))
+        self._confirmed[vin] = done
+        self._rows.add(vin, dtot, done.packed)
         self._version += 1
         return conf
 

@@ -1,14 +1,17 @@
 """Reactive DICA (chapter 5): an emergency vehicle (EV) crosses as early as it can.
 
 Plain DICA until an EV is detected at the communication region's entry line.
-Then, once per EV (an *event*):
+The EV's *event* starts once no unconfirmed vehicle is ahead of it in its
+lane (``max_ahead``; the dissertation starts at the detection, but until then
+the EV can only follow its lane's queue, and holding everyone else meanwhile
+cost the other vehicles more than it gained the EV, see docs/results.md):
 
 1. Requests of vehicles that could take the EV's room are held (REJECT
-   ``held``) until the EV holds a confirmation: vehicles detected after the
-   EV, and any other unconfirmed vehicle, unless it is one of the EV's lane
-   ahead of it or its route cannot touch any route of the EV's lane. Once the
-   EV holds its reservation DICA protects it, so the hold ends there rather
-   than when the EV leaves (the dissertation's choice), sparing the others.
+   ``held``) until the EV holds a confirmation: every unconfirmed vehicle
+   except those ahead of the EV in its lane and those whose route cannot
+   touch any route of the EV's lane. Once the EV holds its reservation DICA
+   protects it, so the hold ends there rather than when the EV leaves (the
+   dissertation's choice), sparing the others.
 2. The **modifiable set**: confirmed vehicles that have not entered and can
    still stop before the entry line at the time a revocation takes effect
    (judged on their confirmed plan, with the planner's 4.5 m/s^2), every
@@ -17,24 +20,30 @@ Then, once per EV (an *event*):
 3. They are ordered with a solver of :mod:`ica.core.ordering`: the EV's entry
    first, the others' delay second, every lane's order kept. Release times:
    a confirmed vehicle's earliest entry from its state on its plan; for an
-   unconfirmed one (its state is unknown here) the earliest entry from where
-   and how fast it was detected. Vehicles that cannot change any more fold
-   into the releases through their separations (:mod:`ica.core.separation`).
+   unconfirmed one (its state is not known here) the earliest entry from
+   where and how fast it was detected. Vehicles that cannot change any more
+   fold into the releases through their separations (:mod:`ica.core.separation`).
 4. Every modifiable confirmed vehicle is **revoked**: its reservation stays in
    the confirmed set, set aside, until :meth:`ReactiveDica.acknowledge` says
    the vehicle knows; nobody gets its room before that.
-5. When the last of them has acknowledged, they are **re-confirmed in the
-   order**, each by DICA's own conflict search against the whole confirmed
-   set, from its state on its old plan at the effective time. Those after the
-   EV are planned to enter no earlier than the order's entry time for them,
-   which keeps the EV's room free until it asks.
-6. The EV requests when head of its lane and is confirmed by plain DICA. The
-   event closes when it has left the junction; a second EV detected meanwhile
-   waits for its own event.
+5. Once all have acknowledged, they are **re-confirmed in the order**, each by
+   DICA's own conflict search against the whole confirmed set, from its state
+   on its old plan at the effective time. If the EV is head of its lane (it is
+   about to ask), it is planned first, by its own REQUEST, and the revoked
+   vehicles then around its real plan; those ordered ahead of it take any
+   room before it that costs it nothing.
+6. If the EV has not asked by :meth:`ReactiveDica.settle` (it is behind a
+   queue), those ordered ahead of it are re-confirmed, and those behind it get
+   no plan: they stop before the line and ask again, held until the EV has
+   its plan (a guess at the EV's plan that is early would let them take its
+   room, a late one would make them wait for nothing).
+7. The event closes when the EV has left the junction; a second EV detected
+   meanwhile waits for its own event.
 
 What must happen is handed out as plain data (:class:`Reorder`, and the
-confirmations :meth:`ReactiveDica.acknowledge` returns); carrying it to the
-vehicles is the caller's business. No I/O here.
+confirmations :meth:`ReactiveDica.acknowledge` and
+:meth:`ReactiveDica.take_confirmations` return); carrying it to the vehicles
+is the caller's business. No I/O here.
 """
 
 from __future__ import annotations
@@ -64,7 +73,6 @@ from ica.core.separation import SeparationModel
 from ica.core.zones import ConflictTables, Shape
 
 _ASIDE = "~revoked"  # suffix of a revoked reservation's key while it awaits acknowledgement
-_GHOST = "~expected"  # key infix of the EV's expected plans while the others are re-planned
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,6 +85,9 @@ class ReactiveConfig:
     ga: GaParams = field(default_factory=GaParams)
     exhaustive_limit: int = EXHAUSTIVE_LIMIT
     revoke_latency_s: float = 0.0
+    # the event starts once at most this many unconfirmed vehicles are ahead of the EV
+    # in its lane (None: at its detection, as in the dissertation)
+    max_ahead: int | None = 0
 
     def __post_init__(self) -> None:
         if self.solver not in SOLVERS:
@@ -160,6 +171,7 @@ class ReactiveDica(Dica):
         )  # fmt: skip
         self._now = -math.inf
         self._detected: dict[str, tuple[int, float, float | None]] = {}  # number, t, speed
+        self._detections = 0  # detections so far: a vehicle's number says who came first
         self._lane_confirmed: dict[str, list[str]] = {ln: [] for ln in intersection.in_lanes}
         self._event: EvEvent | None = None
         self._waiting_evs: list[tuple[str, str, float]] = []
@@ -193,28 +205,34 @@ class ReactiveDica(Dica):
 
         When the last vehicle of a reorder has acknowledged, the revoked
         vehicles ordered ahead of the EV are re-confirmed in the order and
-        their new confirmations returned. Those behind it are re-confirmed when
-        the EV is (so that their plans go around its real one) or at
-        :meth:`settle`, whichever comes first (see :meth:`take_confirmations`).
+        their new confirmations returned, unless the EV is head of its lane:
+        then everyone revoked is re-confirmed when the EV is (around its real
+        plan), or at :meth:`settle` (see :meth:`take_confirmations`).
         """
         key = self._pending.pop(vin, None)
         if key is not None:
             self._drop(key)
         if self._pending:
             return []
+        ev = self._event
+        if ev is not None and ev.ev_confirmed_s is None and self._lanes[ev.lane][:1] == [ev.ev]:
+            return []  # the EV is head of its lane and about to ask: it is planned first
         replans, self._before = self._before, []
-        if replans:
-            self._expect_ev()
         return self._replan(replans)
 
     def settle(self) -> None:
-        """The EV has not asked (it is behind a queue): its plan is not known, and a
-        guess that is early lets the vehicles behind it take its room, a late one
-        makes them wait for nothing. So the vehicles ordered behind it get no new
-        plan: they stop before the line and ask again, and are held until the EV
-        has its plan. Call it once the acknowledgements are in."""
-        self._forget_expected()
-        if self._pending or not self._after:
+        """The EV has not asked: its plan is not known. Those ordered ahead of it are
+        re-confirmed now; those behind it get no new plan (a guess at the EV's that
+        is early lets them take its room, a late one makes them wait for nothing):
+        they stop before the line and ask again, held until the EV has its plan.
+        Call it once the acknowledgements are in and the EV has had its chance to
+        ask (the embedded runner: at the end of each step)."""
+        if self._pending:
+            return
+        if self._before:
+            replans, self._before = self._before, []
+            self._late += self._replan(replans)
+        if not self._after:
             return
         replans, self._after = self._after, []
         for r in replans:
@@ -293,7 +311,8 @@ class ReactiveDica(Dica):
         detector reads it), ``speed_mps`` is its speed there if measured."""
         super().detect(vin, lane, t_s)
         if vin not in self._detected:
-            self._detected[vin] = (len(self._detected), t_s, speed_mps)
+            self._detected[vin] = (self._detections, t_s, speed_mps)
+            self._detections += 1
             if emergency:
                 self._waiting_evs.append((vin, lane, t_s))
                 if self._event is None:
@@ -316,6 +335,7 @@ class ReactiveDica(Dica):
         if ev is not None and ev.ev in gone:
             ev.closed_s = now_s
             self._event = None
+        if self._event is None:
             self._next_event(now_s)
         return gone
 
@@ -333,21 +353,18 @@ class ReactiveDica(Dica):
                 Reason.HELD, f"{req.vin} waits: emergency vehicle {ev.ev} crosses first"
             )
         known = req.vin in self._confirmed if well_typed else True
-        if ev is not None and req.vin == ev.ev:
-            self._forget_expected()
         conf = super()._handle(req, now_s)
         if not known:
             self._lane_confirmed[req.in_lane].append(req.vin)
         if ev is not None and req.vin == ev.ev and ev.ev_confirmed_s is None:
             ev.ev_confirmed_s = now_s
             ev.ev_entry_s = conf.entry_time_s
-            if self._after and not self._pending and not self._before:
-                # behind the EV: now around its real plan, in the order, from the
+            waiting = self._before + self._after
+            if waiting and not self._pending and abs(now_s - waiting[0].t0_s) < 1e-6:
+                # the revoked vehicles, in the order, around the EV's real plan, from the
                 # states they had at the effective time (no time has passed in between)
-                t_eff = self._after[0].t0_s
-                if abs(now_s - t_eff) < 1e-6:
-                    replans, self._after = self._after, []
-                    self._late += self._replan(replans)
+                self._before, self._after = [], []
+                self._late += self._replan(waiting)
         return conf
 
     # -- the event ----------------------------------------------------------------------
@@ -371,9 +388,16 @@ class ReactiveDica(Dica):
 
     def _next_event(self, now_s: float) -> None:
         while self._waiting_evs and self._event is None:
-            vin, lane, t_det = self._waiting_evs.pop(0)
+            vin, lane, t_det = self._waiting_evs[0]
             if vin in self._confirmed or vin not in self._lane_of:
+                self._waiting_evs.pop(0)
                 continue  # already confirmed (or gone): nothing left to reorder for it
+            limit = self.reactive.max_ahead
+            queue = self._lanes[lane]
+            ahead = [v for v in queue[: queue.index(vin)] if v not in self._confirmed]
+            if limit is not None and len(ahead) > limit:
+                return  # far back in a queue: plain DICA until it has moved up
+            self._waiting_evs.pop(0)
             self._event = EvEvent(vin, lane, t_det, now_s)
             self.events.append(self._event)
             self._reorder(self._event, now_s)
@@ -551,39 +575,6 @@ class ReactiveDica(Dica):
             route = self._confirmed[vin].dtot.route
             t = max(t, entry + self._sep((route,), v_e, c.routes, c.entry_mps))
         return t
-
-    def _expect_ev(self) -> None:
-        """Reserve the plans the EV will ask for, while the vehicles ordered ahead of
-        it are re-planned, so that none of them takes its room.
-
-        Only when the EV is head of its lane and was detected just now: then it
-        asks from the state the detector saw, and DICA, asked first, would give it
-        exactly this plan on whichever route of its lane it takes.
-        """
-        ev = self._event
-        if ev is None or ev.ev_confirmed_s is not None or self._lanes[ev.lane][:1] != [ev.ev]:
-            return
-        _, t_det, v_det = self._detected.get(ev.ev, (0, math.nan, None))
-        now = self._now
-        if v_det is None or not math.isfinite(t_det) or now - t_det > self.config.step_s + 1e-9:
-            return
-        d = self.intersection.comm_length_m - v_det * (now - t_det)
-        tail = self._lane_tail.get(ev.lane)
-        for r in self.intersection.routes_from(ev.lane):
-            try:
-                self._confirm_from(
-                    ev.ev, -1, r, self._shape, now, d, v_det, -math.inf,
-                    tail if tail in self._confirmed else None, key=_GHOST.join((ev.ev, r.id)),
-                )  # fmt: skip
-            except RequestError:
-                continue
-
-    def _forget_expected(self) -> None:
-        ev = self._event
-        if ev is None:
-            return
-        for r in self.intersection.routes_from(ev.lane):
-            self._drop(_GHOST.join((ev.ev, r.id)))
 
     def _leader_of(self, vin: str, lane: str) -> str | None:
         """The vehicle confirmed from ``vin``'s lane just before it (still confirmed)."""
