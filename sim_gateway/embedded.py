@@ -20,7 +20,7 @@ from ica.core.config import IcaConfig
 from ica.core.dica import Dica
 from ica.core.intersection import Intersection
 from ica.core.reactive import ReactiveConfig, ReactiveDica
-from ica.core.request import Confirmation, Rejection, Request, RequestError
+from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, make_arrivals
 from sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
 from sim_gateway.signals import HOLD, Preemption, reactive_durations, retime
@@ -53,16 +53,29 @@ class LocalLink:
             return Rejection(vin, -1, e.reason, e.detail)
         return None
 
-    def _revoke(self, ica: ReactiveDica) -> None:
-        """In process a revocation reaches its vehicle at once: acknowledge it now."""
+    def _revoke(self, ica: ReactiveDica) -> bool:
+        """In process a revocation reaches its vehicle at once: acknowledge it now.
+        True if anything was revoked."""
+        revoked = False
         for r in ica.take_reorders():
             self.revoked += r.revoked
+            revoked = revoked or bool(r.revoked)
             for vin in r.revoked:
                 self.revised.update((c.vin, c) for c in ica.acknowledge(vin))
+        return revoked
 
     def request(self, req: Request, now_s: float) -> Confirmation | Rejection:
         t_c = time.perf_counter()
         answer = self.ica.handle(req, now_s)
+        if (
+            isinstance(self.ica, ReactiveDica)
+            and self._revoke(self.ica)
+            and isinstance(answer, Rejection)
+            and answer.reason is Reason.HELD
+        ):
+            # an EV's request started its event; the revocations have reached their
+            # vehicles (in process, at once), so the EV asks again straight away
+            answer = self.ica.handle(req, now_s)
         self.compute_s.append(time.perf_counter() - t_c)
         return answer
 

@@ -15,8 +15,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Two cars from the west are confirmed while two cars queue on the north approach;
-# then an EV arrives behind that queue. The west cars can still stop when it does.
+# An EV arrives behind two cars queued on the north approach; while it waits, two cars
+# from the west are confirmed. They can still stop when the EV heads its lane and asks.
 SCRIPTED = textwrap.dedent(
     """
     import json, sys
@@ -34,8 +34,8 @@ SCRIPTED = textwrap.dedent(
         arr("n1", ("N_in_1", "S_out_1"), 0.0, 9.0),
         arr("n2", ("N_in_1", "S_out_1"), 2.0, 9.0),
         arr("ev", ("N_in_1", "S_out_1"), 4.0, 9.0, ev=True),
-        arr("w1", ("W_in_1", "E_out_1"), 3.0, 11.0),
-        arr("w2", ("W_in_0", "E_out_0"), 3.5, 12.0),
+        arr("w1", ("W_in_1", "E_out_1"), 5.5, 11.0),
+        arr("w2", ("W_in_0", "E_out_0"), 6.0, 12.0),
     ]
     cfg = RunConfig(str(sc.net_path), sc.junction_id, algorithm=sys.argv[1], duration_s=30.0,
                     ev_prob=0.02)

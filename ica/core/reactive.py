@@ -2,9 +2,13 @@
 
 Plain DICA until an EV is detected at the communication region's entry line.
 The EV's *event* starts once no unconfirmed vehicle is ahead of it in its
-lane (``max_ahead``; the dissertation starts at the detection, but until then
-the EV can only follow its lane's queue, and holding everyone else meanwhile
-cost the other vehicles more than it gained the EV, see docs/results.md):
+lane (it is next to go: holds begin), and the vehicles are reordered when it
+asks as head of its lane (``start_at="head"``). The dissertation does both at
+the detection (``start_at="detection"``), but until the EV is next in its lane
+it can only follow the queue, and holding everyone else meanwhile cost the
+other vehicles more than it gained the EV (see docs/results.md). The EV's
+REQUEST that reorders is answered ``held`` if confirmations had to be revoked:
+the EV asks again once they are acknowledged (in process, at once).
 
 1. Requests of vehicles that could take the EV's room are held (REJECT
    ``held``) until the EV holds a confirmation: every unconfirmed vehicle
@@ -85,15 +89,17 @@ class ReactiveConfig:
     ga: GaParams = field(default_factory=GaParams)
     exhaustive_limit: int = EXHAUSTIVE_LIMIT
     revoke_latency_s: float = 0.0
-    # the event starts once at most this many unconfirmed vehicles are ahead of the EV
-    # in its lane (None: at its detection, as in the dissertation)
-    max_ahead: int | None = 0
+    # when an EV's event starts: "head", when the EV asks as head of its lane;
+    # "detection", as soon as it is detected (the dissertation's choice)
+    start_at: str = "head"
 
     def __post_init__(self) -> None:
         if self.solver not in SOLVERS:
             raise ValueError(f"unknown solver {self.solver!r}: use {', '.join(SOLVERS)}")
         if self.revoke_latency_s < 0:
             raise ValueError("revoke_latency_s must not be negative")
+        if self.start_at not in ("head", "detection"):
+            raise ValueError(f"start_at must be 'head' or 'detection', not {self.start_at!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -315,7 +321,7 @@ class ReactiveDica(Dica):
             self._detections += 1
             if emergency:
                 self._waiting_evs.append((vin, lane, t_s))
-                if self._event is None:
+                if self._event is None and self.reactive.start_at == "detection":
                     self._next_event(max(self._now, t_s))
 
     def advance(self, now_s: float) -> list[str]:
@@ -336,12 +342,33 @@ class ReactiveDica(Dica):
             ev.closed_s = now_s
             self._event = None
         if self._event is None:
-            self._next_event(now_s)
+            if self.reactive.start_at == "detection":
+                self._next_event(now_s)
+            else:
+                self._next_hold(now_s)
         return gone
 
     def _handle(self, req: Request, now_s: float) -> Confirmation:
-        ev = self._event
         well_typed = all(isinstance(x, str) for x in (req.vin, req.in_lane, req.out_lane))
+        ev = self._event
+        if (
+            well_typed
+            and req.vin not in self._confirmed
+            and (ev is None or (ev.ev == req.vin and ev.reorder is None))
+            and any(w[0] == req.vin for w in self._waiting_evs) == (ev is None)
+            and self.is_head(req.vin, now_s)
+        ):
+            # an EV asks as head of its lane: the vehicles are reordered for it now
+            if ev is None:
+                self._next_event(now_s, first=req.vin, reorder=False)
+            self._reorder(self._event, now_s)
+            if self._pending:
+                raise RequestError(
+                    Reason.HELD,
+                    f"{req.vin}: confirmations are being revoked for it; ask again once "
+                    "they are acknowledged",
+                )
+        ev = self._event
         if (
             ev is not None
             and ev.ev_confirmed_s is None
@@ -386,21 +413,32 @@ class ReactiveDica(Dica):
             for r in self.intersection.routes_from(ev.lane)
         )
 
-    def _next_event(self, now_s: float) -> None:
+    def _next_hold(self, now_s: float) -> None:
+        """Start holding for the first EV waiting once no unconfirmed vehicle is ahead
+        of it in its lane: it is next to go, and its request will reorder."""
         while self._waiting_evs and self._event is None:
-            vin, lane, t_det = self._waiting_evs[0]
+            vin, lane, _ = self._waiting_evs[0]
             if vin in self._confirmed or vin not in self._lane_of:
                 self._waiting_evs.pop(0)
-                continue  # already confirmed (or gone): nothing left to reorder for it
-            limit = self.reactive.max_ahead
+                continue
             queue = self._lanes[lane]
-            ahead = [v for v in queue[: queue.index(vin)] if v not in self._confirmed]
-            if limit is not None and len(ahead) > limit:
-                return  # far back in a queue: plain DICA until it has moved up
-            self._waiting_evs.pop(0)
+            if any(v not in self._confirmed for v in queue[: queue.index(vin)]):
+                return
+            self._next_event(now_s, reorder=False)
+
+    def _next_event(self, now_s: float, first: str | None = None, reorder: bool = True) -> None:
+        """Start the event of the next EV waiting (of ``first``, if given)."""
+        if first is not None:
+            i = next(i for i, w in enumerate(self._waiting_evs) if w[0] == first)
+            self._waiting_evs.insert(0, self._waiting_evs.pop(i))
+        while self._waiting_evs and self._event is None:
+            vin, lane, t_det = self._waiting_evs.pop(0)
+            if vin in self._confirmed or vin not in self._lane_of:
+                continue  # already confirmed (or gone): nothing left to reorder for it
             self._event = EvEvent(vin, lane, t_det, now_s)
             self.events.append(self._event)
-            self._reorder(self._event, now_s)
+            if reorder:
+                self._reorder(self._event, now_s)
 
     def _reorder(self, ev: EvEvent, now_s: float) -> None:
         t_prep = time.perf_counter()
