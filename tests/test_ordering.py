@@ -24,6 +24,8 @@ from ica.core.ordering import (
     exhaustive,
     feasible,
     ga,
+    greedy,
+    greedy_reference,
     solve,
 )
 
@@ -92,6 +94,12 @@ def test_compiled_evaluation_equals_the_python_oracle(p, rnd):
     assert list(e) == ref
     assert ev_e == ref[p.ev]
     assert delay == pytest.approx(ref_delay, abs=1e-12)
+
+
+@settings(max_examples=100, deadline=None)
+@given(problems(max_n=12, max_lanes=5))
+def test_compiled_greedy_equals_its_python_oracle(p):
+    assert list(greedy(p)) == list(greedy_reference(p))
 
 
 @settings(max_examples=100, deadline=None)

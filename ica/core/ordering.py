@@ -212,6 +212,12 @@ def evaluate(problem: Problem, order) -> tuple[np.ndarray, float, float]:
     return out, float(out[problem.ev]), float(delay)
 
 
+def _delay(problem: Problem, order: np.ndarray) -> float:
+    """The others' total delay of an order the solvers made (feasible by construction)."""
+    e = np.empty(problem.n)
+    return float(_entries(order, problem.release_s, problem.sep_s, problem.ev, e))
+
+
 def ev_bound_s(problem: Problem) -> float:
     """The EV's earliest entry: its lane's candidates ahead of it, taken alone."""
     q = next(q for q in problem.queues() if problem.ev in q)
@@ -230,7 +236,10 @@ def count_orders(problem: Problem) -> int:
 
 
 def _solution(problem: Problem, order: np.ndarray, work: int, t0: float) -> Solution:
-    e, ev_e, delay = evaluate(problem, order)
+    o = np.ascontiguousarray(order, dtype=np.int64)
+    e = np.empty(problem.n)
+    delay = _entries(o, problem.release_s, problem.sep_s, problem.ev, e)
+    ev_e = float(e[problem.ev])
     return Solution(
         tuple(int(k) for k in order), e, ev_e, delay, int(work), time.perf_counter() - t0
     )
@@ -252,7 +261,14 @@ def _lanes(problem: Problem) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def greedy(problem: Problem) -> np.ndarray:
     """A good order fast: the EV's lane up to the EV, then always the lane whose next
-    vehicle can enter first (the exact solver's starting bound)."""
+    vehicle can enter first, the lowest lane on ties (the exact solver's first bound).
+    Compiled; :func:`greedy_reference` is the same in Python."""
+    members, sizes, slot = _lanes(problem)
+    return _greedy(problem.release_s, problem.sep_s, problem.ev, members, sizes, slot)
+
+
+def greedy_reference(problem: Problem) -> np.ndarray:
+    """:func:`greedy` in plain Python (its oracle)."""
     members, sizes, slot = _lanes(problem)
     taken = np.zeros(len(sizes), dtype=np.int64)
     e = np.full(problem.n, _NEG)
@@ -277,6 +293,55 @@ def greedy(problem: Problem) -> np.ndarray:
         open_ = [li for li in range(len(sizes)) if taken[li] < sizes[li]]
         take(min(open_, key=lambda li: (entry(int(members[li, taken[li]])), li)))
     return np.array(order, dtype=np.int64)
+
+
+@njit(
+    "int64[::1](float64[::1], float64[:, ::1], int64, int64[:, ::1], int64[::1], int64[::1])",
+    cache=True,
+)
+def _greedy(
+    release: np.ndarray,
+    sep: np.ndarray,
+    ev: int,
+    members: np.ndarray,
+    sizes: np.ndarray,
+    slot: np.ndarray,
+) -> np.ndarray:
+    n = len(release)
+    taken = np.zeros(len(sizes), dtype=np.int64)
+    e = np.empty(n)
+    order = np.empty(n, dtype=np.int64)
+    done = 0
+    ev_done = False
+    while done < n:
+        if not ev_done:
+            li = slot[ev]
+        else:
+            li, best = -1, np.inf
+            for cand in range(len(sizes)):
+                if taken[cand] >= sizes[cand]:
+                    continue
+                k = members[cand, taken[cand]]
+                t = release[k]
+                for q in range(done):
+                    v = e[order[q]] + sep[order[q], k]
+                    if v > t:
+                        t = v
+                if t < best:
+                    li, best = cand, t
+        k = members[li, taken[li]]
+        t = release[k]
+        for q in range(done):
+            v = e[order[q]] + sep[order[q], k]
+            if v > t:
+                t = v
+        e[k] = t
+        order[done] = k
+        done += 1
+        taken[li] += 1
+        if k == ev:
+            ev_done = True
+    return order
 
 
 # -- exact: dynamic programme over lane progress --------------------------------------
@@ -549,12 +614,12 @@ def exact(problem: Problem) -> Solution:
     """The optimal order (EV entry first, the others' total delay second)."""
     t0 = time.perf_counter()
     members, sizes, slot = _lanes(problem)
-    _, _, ub = evaluate(problem, greedy(problem))
     args = (problem.release_s, problem.sep_s, problem.ev, members, sizes, slot)
+    ub = _delay(problem, _greedy(*args))
     bound = ev_bound_s(problem)
     quick, _, quick_work = _exact(*args, bound, ub, MAX_LABELS, QUICK_BEAM)
     if len(quick):
-        ub = min(ub, evaluate(problem, quick)[2])
+        ub = min(ub, _delay(problem, quick))
     order, _, work = _exact(*args, bound, ub, MAX_LABELS, 0)
     work += max(quick_work, 0)
     if work < 0:
