@@ -6,6 +6,12 @@ possibly ramped, split over approaches by weight, over turns by the
 left/through/right probabilities and uniformly over a turn's lanes. The same
 draw gives the expected flow per lane, which the light baselines are timed to.
 Both simulation modes and the request-stream tool take their vehicles from here.
+
+Each arrival is an emergency-vehicle candidate with probability ``ev_prob``,
+drawn from a random stream of its own, so the rest of the demand is the same
+with or without EVs. The world makes a candidate an EV only if no other EV is
+in the communication region when it arrives (the dissertation's "at most one
+EV at a time"), which depends on how fast the previous one got through.
 """
 
 from __future__ import annotations
@@ -34,6 +40,11 @@ class DemandSpec:
     # volume rising (or falling) linearly to this by ``ramp_s``, then held
     volume_end_per_10min: float | None = None
     ramp_s: float = 1200.0
+    ev_prob: float = 0.0  # each arrival an emergency-vehicle candidate with this probability
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.ev_prob <= 1.0:
+            raise ValueError(f"the EV probability {self.ev_prob:g} is not in [0, 1]")
 
 
 @dataclass(frozen=True, slots=True)
@@ -46,6 +57,7 @@ class Arrival:
     speed_mps: float
     length_m: float
     width_m: float
+    ev: bool = False  # an emergency-vehicle candidate (see the module's note)
 
 
 def approach_of(lane: str) -> str:
@@ -88,6 +100,8 @@ def make_arrivals(inter: Intersection, spec: DemandSpec, step_s: float) -> list[
         return (v0 + (v1 - v0) * min(t / spec.ramp_s, 1.0)) / 600.0
 
     rate_max = max(v0, v1) / 600.0
+    # EV candidates from a stream of their own: the others' draws never change
+    ev_draws = np.random.default_rng([spec.seed, 0xE7]).uniform(size=spec.n_vehicles)
     t = 0.0
     out: list[Arrival] = []
     for k in range(spec.n_vehicles):
@@ -108,6 +122,7 @@ def make_arrivals(inter: Intersection, spec: DemandSpec, step_s: float) -> list[
                 speed_mps=float(rng.uniform(*spec.speed_range)) * ROAD_LIMIT_MPS,
                 length_m=float(rng.uniform(*spec.length_range_m)),
                 width_m=float(rng.uniform(*spec.width_range_m)),
+                ev=bool(ev_draws[k] < spec.ev_prob),
             )
         )
     return out

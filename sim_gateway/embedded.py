@@ -22,13 +22,23 @@ from ica.core.baselines import controller_config, make_controller
 from ica.core.config import IcaConfig
 from ica.core.dica import Dica
 from ica.core.intersection import Intersection
-from ica.core.request import Confirmation, Rejection, Request, RequestError
-from sim_gateway.demand import DemandSpec, expected_lane_flows, make_arrivals
+from ica.core.reactive import ReactiveConfig, ReactiveDica
+from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
+from sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, make_arrivals
 from sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
 from sim_gateway.scenario import ScenarioError, light_net
-from sim_gateway.signals import SignalLink, phases_of, retime, with_clearance
+from sim_gateway.signals import (
+    HOLD,
+    Preemption,
+    SignalLink,
+    phases_of,
+    reactive_phases,
+    retime,
+    with_clearance,
+)
+from sim_gateway.signals import Phase as SignalPhase
 from sim_gateway.world import Seen, World, import_libsumo, start_sumo
-from vehicle_agent.machine import Command, Vehicle
+from vehicle_agent.machine import Command, Phase, Vehicle
 
 __all__ = ["LIGHTS", "RunConfig", "RunError", "RunResult", "run", "schedule_for"]
 
@@ -39,17 +49,46 @@ class LocalLink:
     def __init__(self, ica: Dica) -> None:
         self.ica = ica
         self.compute_s: list[float] = []
+        # what the region's detector reads as a vehicle passes it: EV or not, and its speed
+        self.detector: dict[str, tuple[bool, float]] = {}
+        self.revoked: list[str] = []  # reactive DICA: revoked this step, and their new plans
+        self.revised: dict[str, Confirmation] = {}
 
     def detect(self, vin: str, lane: str, t_s: float) -> Rejection | None:
         try:
-            self.ica.detect(vin, lane, t_s)
+            if isinstance(self.ica, ReactiveDica):
+                ev, speed = self.detector.get(vin, (False, None))
+                self.ica.detect(vin, lane, t_s, emergency=ev, speed_mps=speed)
+                self._revoke(self.ica)
+            else:
+                self.ica.detect(vin, lane, t_s)
         except RequestError as e:
             return Rejection(vin, -1, e.reason, e.detail)
         return None
 
+    def _revoke(self, ica: ReactiveDica) -> bool:
+        """In process a revocation reaches its vehicle at once: acknowledge it now.
+        True if anything was revoked."""
+        revoked = False
+        for r in ica.take_reorders():
+            self.revoked += r.revoked
+            revoked = revoked or bool(r.revoked)
+            for vin in r.revoked:
+                self.revised.update((c.vin, c) for c in ica.acknowledge(vin))
+        return revoked
+
     def request(self, req: Request, now_s: float) -> Confirmation | Rejection:
         t_c = time.perf_counter()
         answer = self.ica.handle(req, now_s)
+        if (
+            isinstance(self.ica, ReactiveDica)
+            and self._revoke(self.ica)
+            and isinstance(answer, Rejection)
+            and answer.reason is Reason.HELD
+        ):
+            # an EV's request started its event; the revocations have reached their
+            # vehicles (in process, at once), so the EV asks again straight away
+            answer = self.ica.handle(req, now_s)
         self.compute_s.append(time.perf_counter() - t_c)
         return answer
 
@@ -70,6 +109,8 @@ class LocalDrivers:
 
     def step(self, t: float, seen: list[Seen]) -> list[Command]:
         self.ica.advance(t)
+        if isinstance(self.ica, ReactiveDica):
+            self.link._revoke(self.ica)  # an EV event may start as the clock moves
         out = []
         for s in seen:
             v = self.vehicles.get(s.car.vin)
@@ -87,11 +128,30 @@ class LocalDrivers:
                 )
                 v.rejections = self.rejections  # one tally for the run
                 self.vehicles[c.vin] = v
+            if v.phase is Phase.APPROACHING:
+                self.link.detector[s.car.vin] = (s.car.ev, s.obs.speed_mps)
             cmd = v.step(s.obs, self.link)
             if cmd is not None:
                 out.append(cmd)
             if s.obs.exited:
                 del self.vehicles[s.car.vin]
+                self.link.detector.pop(s.car.vin, None)
+        if isinstance(self.ica, ReactiveDica):
+            out += self._revise(self.ica, t)
+        return out
+
+    def _revise(self, ica: ReactiveDica, t: float) -> list[Command]:
+        """The revoked vehicles of this step fly their new plans (or, without one,
+        brake and ask again): the machines learn of revocation and replacement at once."""
+        link = self.link
+        ica.settle()
+        link.revised.update((c.vin, c) for c in ica.take_confirmations())
+        out = []
+        for vin in link.revoked:
+            v = self.vehicles.get(vin)
+            if v is not None:
+                out.append(v.revoked(link.revised.get(vin), t))
+        link.revoked, link.revised = [], {}
         return out
 
     def requests(self) -> dict:
@@ -118,6 +178,7 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
         approach_weights=cfg.approach_weights,
         volume_end_per_10min=cfg.volume_end_per_10min,
         ramp_s=cfg.ramp_s,
+        ev_prob=cfg.ev_prob,
     )
     try:
         schedule = make_arrivals(inter, spec, step_s)
@@ -137,6 +198,7 @@ def run(
     progress: Callable[[float, int, int], None] | None = None,
     rrd_path: Path | None = None,
     run_dir: Path | None = None,
+    schedule: list[Arrival] | None = None,
 ) -> RunResult:
     """Run one simulation to the end and return its metrics and safety report.
 
@@ -144,9 +206,10 @@ def run(
     (the same recorder the cluster's observer uses). A light baseline on a
     junction without a light of its kind gets one from netconvert, in
     ``run_dir`` (a temporary directory if None), with a line on stderr.
+    ``schedule`` replaces the random demand with given arrivals (scripted scenarios).
     """
     with tempfile.TemporaryDirectory(prefix="dica-light-") as scratch:
-        return _run(cfg, inter, progress, rrd_path, Path(run_dir or scratch))
+        return _run(cfg, inter, progress, rrd_path, Path(run_dir or scratch), schedule)
 
 
 def _run(
@@ -155,12 +218,20 @@ def _run(
     progress: Callable[[float, int, int], None] | None,
     rrd_path: Path | None,
     run_dir: Path,
+    given: list[Arrival] | None = None,
 ) -> RunResult:
     ls = import_libsumo()
     light = cfg.algorithm in LIGHTS
     ica_cfg = ica_config(cfg)
-    ica = make_controller("fifo" if light else cfg.algorithm, inter, ica_cfg, cfg.tile_m)
+    if cfg.algorithm == "rdica":
+        ica: Dica = ReactiveDica(
+            inter, ica_cfg, reactive=ReactiveConfig(solver=cfg.solver, seed=cfg.seed)
+        )
+    else:
+        ica = make_controller("fifo" if light else cfg.algorithm, inter, ica_cfg, cfg.tile_m)
     schedule, spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
+    if given is not None:
+        schedule = sorted(given, key=lambda a: a.arrival_s)
     built = None
     if light:
         try:
@@ -181,6 +252,10 @@ def _run(
         signal = _setup_signal(ls, cfg, inter, spec) if light else None
         if signal is not None and built is not None:
             signal["built"] = built
+        preempt = None
+        if cfg.algorithm == "reactive-light":
+            program = [SignalPhase(d, st, kind, d, d) for d, st, kind in signal["phases"]]
+            preempt = _ReactiveLight(ls, inter, program)
         recorder = _recorder(inter, rrd_path)
         world = World(
             ls, cfg, inter, ica_cfg, schedule, horizon, signalised=light, want_xy=bool(recorder)
@@ -191,6 +266,8 @@ def _run(
                 seen = world.step()
                 if not light:
                     world.apply(drivers.step(world.t, seen))
+                elif preempt is not None:
+                    preempt.step(world.t, seen)
                 if recorder is not None:
                     _record(recorder, drivers, seen, cfg, world.t)
                 world.end_step(progress)
@@ -201,6 +278,10 @@ def _run(
                 recorder.close()
         result = world.result(drivers.requests(), cmd)
         result.signal = signal
+        if isinstance(ica, ReactiveDica):
+            result.extra["reactive"] = _reactive_summary(ica)
+        if preempt is not None:
+            result.extra["preemption"] = preempt.summary()
         return result
     finally:
         ls.close()
@@ -303,12 +384,15 @@ def _setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> 
         lanes = [ln.in_lane if ln is not None else "" for ln in links]
         phases, timing = retime(phases, lanes, expected_lane_flows(inter, spec))
         out |= {"cycle_s": timing.cycle_s, "flow_ratio_sum": timing.flow_ratio_sum}
+    elif cfg.algorithm == "reactive-light":
+        phases = reactive_phases(phases)
+        out["cycle_s"] = sum(p.duration_s for p in phases)
     make = ls.trafficlight.Phase
     logic.phases = tuple(make(p.duration_s, p.state, p.min_s, p.max_s) for p in phases)
     # a program of its own: replacing the running actuated one in place crashed SUMO 1.28
     logic.programID = "dica"
     logic.currentPhaseIndex = 0
-    if cfg.algorithm == "fixed":
+    if cfg.algorithm in ("fixed", "reactive-light"):
         logic.type = ls.constants.TRAFFICLIGHT_TYPE_STATIC
     ls.trafficlight.setProgramLogic(tls, logic)
     ls.trafficlight.setProgram(tls, logic.programID)
@@ -341,3 +425,112 @@ def _signal_links(ls, tls: str) -> list[SignalLink | None]:
             via = next((lk[4] for lk in ls.lane.getLinks(via) if lk[0] == out_lane), "")
         out.append(SignalLink(in_lane, v_in, length, v_min))
     return out
+
+
+# -- reactive DICA's log ------------------------------------------------------------------
+def _reactive_summary(ica: ReactiveDica) -> dict:
+    out = ica.summary()
+    out["events_log"] = [
+        {
+            "ev": e.ev,
+            "detected_s": round(e.detected_s, 3),
+            "candidates": len(e.reorder.order) if e.reorder else 0,
+            "revoked": len(e.reorder.revoked) if e.reorder else 0,
+            "solve_ms": round(e.reorder.solve_s * 1e3, 3) if e.reorder else None,
+            "prepare_ms": round(e.reorder.prepare_s * 1e3, 3) if e.reorder else None,
+            "unplanned": len(e.unplanned),
+            "refused": e.reorder.refused if e.reorder else "",
+            "ev_entry_model_before_s": _r(e.reorder.ev_entry_before_s) if e.reorder else None,
+            "ev_entry_model_after_s": _r(e.reorder.ev_entry_after_s) if e.reorder else None,
+            "ev_entry_s": _r(e.ev_entry_s),
+            "replan_failed": len(e.failed),
+        }
+        for e in ica.events
+    ]
+    return out
+
+
+def _r(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(x, 3)
+
+
+# -- the reactive light ---------------------------------------------------------------------
+class _ReactiveLight:
+    """Pre-emption for one emergency vehicle at a time (:class:`sim_gateway.signals.Preemption`).
+
+    The first EV seen in the region gets its movements green as soon as the
+    program's clearances allow; the green is held until its front has passed
+    the stop line, then the program resumes where it stands.
+    """
+
+    _FOREVER_S = 1e6
+
+    def __init__(self, ls, inter: Intersection, phases: list[SignalPhase]) -> None:
+        self.ls = ls
+        self.tls = inter.junction_id
+        self.program = Preemption(phases)
+        self.links = ls.trafficlight.getControlledLinks(self.tls)
+        self.ev: str | None = None
+        self.steps: list[tuple[int, float | None]] = []
+        self.step_end_s = math.inf
+        self.served = 0
+        self.kinds: dict[str, int] = {"extend": 0, "return": 0, "cut": 0}
+
+    def _ev_links(self, s: Seen) -> list[int]:
+        r = s.car.route
+        return [
+            i
+            for i, group in enumerate(self.links)
+            if any(ln[0] == r.in_lane and ln[1] == r.out_lane for ln in group)
+        ]
+
+    def step(self, t: float, seen: list[Seen]) -> None:
+        tl = self.ls.trafficlight
+        if self.ev is None:
+            for s in seen:
+                waiting = s.obs.lane == s.car.route.in_lane and not math.isnan(s.obs.detected_s)
+                if s.car.ev and waiting:
+                    links = self._ev_links(s)
+                    if not links:
+                        continue
+                    phase = tl.getPhase(self.tls)
+                    remaining = tl.getNextSwitch(self.tls) - t
+                    self.steps = self.program.steps(phase, remaining, links)
+                    kind = "cut" if len(self.steps) > 1 else (
+                        "extend" if self.steps[0][0] == phase else "return"
+                    )  # fmt: skip
+                    self.kinds[kind] += 1
+                    self.ev = s.car.vin
+                    self._begin(t, first=True)
+                    break
+            return
+        ev = next((s for s in seen if s.car.vin == self.ev), None)
+        entered = ev is None or ev.obs.lane != ev.car.route.in_lane or ev.obs.exited
+        k, duration = self.steps[0]
+        if duration is HOLD:
+            if entered:
+                self._resume(t, k)
+            return
+        if t >= self.step_end_s - 1e-6:
+            self.steps.pop(0)
+            self._begin(t, first=False)
+
+    def _begin(self, t: float, first: bool) -> None:
+        tl = self.ls.trafficlight
+        k, duration = self.steps[0]
+        if not (first and tl.getPhase(self.tls) == k):
+            tl.setPhase(self.tls, k)
+        # SUMO must not move on by itself: every switch is ours until the EV has entered
+        tl.setPhaseDuration(self.tls, self._FOREVER_S)
+        self.step_end_s = math.inf if duration is HOLD else t + duration
+
+    def _resume(self, t: float, k: int) -> None:
+        tl = self.ls.trafficlight
+        spent = tl.getSpentDuration(self.tls)
+        tl.setPhaseDuration(self.tls, max(self.program.durations[k] - spent, 0.05))
+        self.ev = None
+        self.steps = []
+        self.served += 1
+
+    def summary(self) -> dict:
+        return {"served": self.served, **self.kinds}

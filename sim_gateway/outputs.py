@@ -16,6 +16,7 @@ import json
 import os
 from pathlib import Path
 
+from sim_gateway.metrics import summarize_ev
 from sim_gateway.runconfig import RunConfig, RunResult
 
 
@@ -47,6 +48,9 @@ def write_outputs(
     metrics["real_time_factor"] = result.sim_time_s / result.wall_s if result.wall_s > 0 else None
     metrics["mode"] = mode
     metrics.update(result.extra)
+    if cfg.ev_prob > 0:  # emergency vehicles and the others apart
+        end = result.sim_time_s if cfg.until_left else cfg.duration_s
+        metrics.update(summarize_ev(result.trips, end))
     _atomic(out / "metrics.json", json.dumps(metrics, indent=2))
     config = {
         "mode": mode,
@@ -55,6 +59,8 @@ def write_outputs(
         "signal": result.signal,
     }
     _atomic(out / "config.json", json.dumps(config, indent=2, default=list))
+    # runs without emergency vehicles keep the file exactly as it was (no "ev" column)
+    with_ev = cfg.ev_prob > 0
     with _Replacing(out / "vehicles.csv") as fh:
         w = csv.writer(fh)
         w.writerow(
@@ -73,6 +79,7 @@ def write_outputs(
                 "system_delay_s",
                 "stopped",
             ]
+            + (["ev"] if with_ev else [])
         )
         for tr in result.trips.trips.values():
             tau = tr.exited_s - tr.entered_s if tr.exited_s and tr.entered_s is not None else None
@@ -92,6 +99,7 @@ def write_outputs(
                     _f(tr.system_delay_s),
                     int(tr.stopped),
                 ]
+                + ([int(tr.ev)] if with_ev else [])
             )
     with _Replacing(out / "timeseries.csv") as fh:
         w = csv.writer(fh)

@@ -6,9 +6,11 @@ from dataclasses import dataclass, field
 
 from ica.core.baselines import BASELINES
 from ica.core.config import Techniques
+from ica.core.ordering import SOLVERS
 from sim_gateway.metrics import TripLog
 
-LIGHTS = ("fixed", "actuated")  # SUMO drives; the junction is signalised
+LIGHTS = ("fixed", "actuated", "reactive-light")  # SUMO drives; the junction is signalised
+REACTIVE = ("rdica",)  # reactive DICA: emergency vehicles first (--solver)
 
 
 class RunError(Exception):
@@ -37,6 +39,8 @@ class RunConfig:
     ramp_s: float = 1200.0
     lead_s: float = 0.0  # [s] vehicles plan their REQUESTs this far ahead of what they observed
     time_pad_s: float = 0.0  # [s] the ICA's padding of every confirmed occupancy interval
+    ev_prob: float = 0.0  # each arrival an emergency-vehicle candidate with this probability
+    solver: str = "exact"  # reactive DICA's ordering solver
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.volume_per_10min <= 2000.0:
@@ -47,13 +51,13 @@ class RunConfig:
             raise RunError("duration must be positive")
         if self.until_left is not None and self.until_left < 1:
             raise RunError("--until-left must be at least 1")
-        if self.algorithm not in BASELINES + LIGHTS:
+        if self.algorithm not in BASELINES + LIGHTS + REACTIVE:
             try:
                 Techniques.parse(self.algorithm)
             except ValueError:
                 raise RunError(
                     f"unknown algorithm {self.algorithm!r}: use basic, enhanced, t1..t4 (t2+4), "
-                    + ", ".join(BASELINES + LIGHTS)
+                    + ", ".join(BASELINES + LIGHTS + REACTIVE)
                 ) from None
         if self.volume_end_per_10min is not None and not 1.0 <= self.volume_end_per_10min <= 2000:
             raise RunError("--volume-end is out of range: 1 to 2000 vehicles per 10 min")
@@ -67,6 +71,10 @@ class RunConfig:
             raise RunError(f"--time-pad must be between 0 and 5 s, got {self.time_pad_s:g}")
         if not 0.05 <= self.retry_s <= 60.0:
             raise RunError(f"retry must be between 0.05 and 60 s, got {self.retry_s:g}")
+        if not 0.0 <= self.ev_prob <= 1.0:
+            raise RunError(f"--ev-prob {self.ev_prob:g} is not a probability (0 to 1)")
+        if self.solver not in SOLVERS:
+            raise RunError(f"unknown solver {self.solver!r}: use {', '.join(SOLVERS)}")
 
 
 @dataclass(slots=True)

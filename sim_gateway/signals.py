@@ -191,3 +191,104 @@ def retime(
         out[k] = replace(phases[k], duration_s=g, min_s=g, max_s=g)
         green_s.append(g)
     return out, Timing(sum(ph.duration_s for ph in out), y, tuple(green_s))
+
+
+# -- the reactive light (chapter 5): a fixed program with EV pre-emption ----------------
+REACTIVE_GREEN_S = 31.0  # the dissertation's SUMO default program, as a through lane sees it
+REACTIVE_YELLOW_S = 13.0
+REACTIVE_RED_S = 83.0
+REACTIVE_MIN_GREEN_S = 5.0
+HOLD = None  # a step that lasts until the emergency vehicle has entered the junction
+
+
+def reactive_phases(phases: list[Phase]) -> list[Phase]:
+    """The program (with its safe clearance) timed as the dissertation's reactive light:
+    the main movements get 31 s of green, and a yellow 13 s where its own is shorter.
+
+    The main greens (the phases with the most priority links) get 31 s, the
+    other greens (protected turns) share what is left of the 127 s cycle, at
+    least 5 s each; all-reds keep their clearance.
+    """
+    greens = [k for k, ph in enumerate(phases) if ph.kind == GREEN]
+    if not greens:
+        raise ValueError("the signal program has no green phase")
+    most = max(phases[k].state.count("G") for k in greens)
+    main = [k for k in greens if phases[k].state.count("G") == most]
+    minor = [k for k in greens if k not in main]
+    out = []
+    for k, ph in enumerate(phases):
+        d = ph.duration_s
+        if ph.kind == YELLOW:
+            d = max(d, REACTIVE_YELLOW_S)
+        elif k in main:
+            d = REACTIVE_GREEN_S
+        out.append(replace(ph, duration_s=d, min_s=d, max_s=d))
+    cycle = REACTIVE_GREEN_S + REACTIVE_YELLOW_S + REACTIVE_RED_S
+    left = cycle - sum(ph.duration_s for k, ph in enumerate(out) if k not in minor)
+    minor_s = max(REACTIVE_MIN_GREEN_S, left / len(minor)) if minor else 0.0
+    return [
+        replace(ph, duration_s=minor_s, min_s=minor_s, max_s=minor_s) if k in minor else ph
+        for k, ph in enumerate(out)
+    ]
+
+
+class Preemption:
+    """What the light does for an emergency vehicle (EV) whose movements are ``links``.
+
+    :meth:`steps` answers, from the phase running now, the phases to run in
+    turn, each with its duration or :data:`HOLD` (until the EV has entered):
+
+    * the EV's movements are green: **extend** the green;
+    * they are yellow after their green: **return** to that green;
+    * otherwise **cut** the running green to its own yellow (a yellow or
+      all-red already running finishes), run the all-red phases that follow
+      it in the program with their full durations, then green the EV's lanes.
+
+    Yellow and all-red clearances are never shortened, so a cut is as safe as
+    the program's own phase change.
+    """
+
+    def __init__(self, phases: list[Phase]) -> None:
+        if not phases:
+            raise ValueError("the program has no phase")
+        self.states = [ph.state for ph in phases]
+        self.durations = [ph.duration_s for ph in phases]
+        self.kinds = [ph.kind for ph in phases]
+
+    def _green_for(self, phase: int, links: list[int]) -> bool:
+        s = self.states[phase]
+        return self.kinds[phase] == GREEN and all(s[i] in "Gg" for i in links)
+
+    def target(self, links: list[int]) -> int:
+        """The phase that gives the EV's movements priority green ('G'), else any green."""
+        for strict in (True, False):
+            for k, s in enumerate(self.states):
+                green = self.kinds[k] == GREEN
+                if green and all(s[i] == "G" if strict else s[i] in "Gg" for i in links):
+                    return k
+        raise ValueError(f"no phase gives links {links} green")
+
+    def steps(
+        self, phase: int, remaining_s: float, links: list[int]
+    ) -> list[tuple[int, float | None]]:
+        n = len(self.states)
+        if self._green_for(phase, links):
+            return [(phase, HOLD)]
+        prev = (phase - 1) % n
+        if self.kinds[phase] == YELLOW and self._green_for(prev, links):
+            return [(prev, HOLD)]
+        out: list[tuple[int, float | None]] = []
+        k = phase
+        if self.kinds[k] == GREEN:
+            k = (k + 1) % n
+            if self.kinds[k] != YELLOW:
+                raise ValueError(f"green phase {phase} is not followed by a yellow")
+            out.append((k, self.durations[k]))
+        else:
+            out.append((k, max(remaining_s, 0.0)))
+        k = (k + 1) % n
+        while self.kinds[k] == ALL_RED:
+            out.append((k, self.durations[k]))  # all-red clearance
+            k = (k + 1) % n
+        out.append((self.target(links), HOLD))
+        return out

@@ -62,6 +62,8 @@ VTYPE = "cav"
 START_TOL_M = 0.1
 MIN_GAP_M = 2.5  # [m] SUMO's standstill gap of our vehicle type, also kept short of the line
 HEADWAY_S = 1.0  # [s] SUMO's desired time headway (Krauss tau), kept behind a queue's tail
+EV_VTYPE = "cav_emergency"  # same size and limits, SUMO vClass emergency
+EV_COLOR = (230, 30, 30, 255)  # red, as in the dissertation's screenshots
 
 
 def import_libsumo():
@@ -140,6 +142,7 @@ class Car:
     speed_mps: float = 0.0
     odo_ref: float = math.nan  # SUMO's odometer at the last step on the incoming lane
     s_ref: float = math.nan  # the route position then
+    ev: bool = False  # inserted as an emergency vehicle
 
 
 @dataclass(slots=True)
@@ -211,6 +214,10 @@ class World:
             ("setSpeedDeviation", 0.0),
         ):
             getattr(ls.vehicletype, setter)(VTYPE, value)
+        if any(v.ev for v in self.schedule):
+            ls.vehicletype.copy(VTYPE, EV_VTYPE)
+            ls.vehicletype.setVehicleClass(EV_VTYPE, "emergency")
+            ls.vehicletype.setColor(EV_VTYPE, EV_COLOR)
         self._edge_routes: dict[tuple[str, str], str] = {}
         for r in inter.routes:
             key = _edges(r)
@@ -264,8 +271,12 @@ class World:
         while self._next < len(self.schedule) and self.schedule[self._next].arrival_s <= (
             self.t + 1e-9
         ):
-            c = self.cars[self.schedule[self._next].vin]
+            arrival = self.schedule[self._next]
+            c = self.cars[arrival.vin]
             ln = self._lane_len[c.route.in_lane]
+            # an EV candidate is an EV only if no other EV is in the region (inserted, not out)
+            c.ev = arrival.ev and not any(o.ev and not o.exited for o in self.active)
+            self.log.trips[c.vin].ev = c.ev
             self._add(c, max(ln - comm - 0.05, 0.0), c.entry_speed_mps)
             self.active.append(c)
             fresh.append(c)
@@ -371,7 +382,14 @@ class World:
         ls, t = self.ls, self.t
         for cmd in commands:
             c = self.cars.get(cmd.vin)
-            if c is None or not cmd.has_plan or c.entered or c.exited:
+            if c is None or c.entered or c.exited:
+                continue
+            if cmd.drop:  # revoked: stop short of the line (the stop law below)
+                if c.plan_seq != NO_PLAN and cmd.seq >= c.plan_seq:
+                    c.refused_seq = max(c.refused_seq, c.plan_seq)
+                    c.plan_seq, c.plan_s = NO_PLAN, None
+                continue
+            if not cmd.has_plan:
                 continue
             if cmd.seq <= max(c.plan_seq, c.refused_seq):
                 continue  # a repeat, or older than what the vehicle holds
@@ -520,7 +538,7 @@ class World:
         self.ls.vehicle.add(
             c.vin,
             self._edge_routes[_edges(c.route)],
-            typeID=VTYPE,
+            typeID=EV_VTYPE if c.ev else VTYPE,
             depart="now",
             departLane=str(c.lane_index),
             departPos=str(pos_m),

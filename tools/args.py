@@ -86,6 +86,8 @@ def run_config(args: argparse.Namespace):
             ramp_s=args.ramp if args.ramp is not None else args.duration,
             time_pad_s=args.time_pad,
             lead_s=getattr(args, "lead", 0.0),
+            ev_prob=_ev_prob(args),
+            solver=args.solver,
         )
     except RunError as e:
         raise UsageError(str(e)) from None
@@ -124,6 +126,13 @@ def _weights(text: str | None) -> tuple[tuple[str, float], ...]:
     return tuple(out)
 
 
+def _ev_prob(args: argparse.Namespace) -> float:
+    """--ev-prob, or the dissertation's 0.02 for the algorithms that act on EVs."""
+    if args.ev_prob is not None:
+        return args.ev_prob
+    return 0.02 if args.algorithm in ("rdica", "reactive-light") else 0.0
+
+
 def _num(x: float | None) -> str:
     return "n/a" if x is None else f"{x:.2f}"
 
@@ -134,8 +143,23 @@ def add_run_args(r: argparse.ArgumentParser) -> None:
     r.add_argument(
         "--algorithm",
         default="enhanced",
-        help="DICA: basic, enhanced, t1..t4 (t2+4); baselines: fifo, concurrent, tiles, "
-        "fixed (optimised fixed-cycle light), actuated (SUMO's actuated light)",
+        help="DICA: basic, enhanced, t1..t4 (t2+4); rdica (reactive DICA: emergency vehicles "
+        "first, see --solver); baselines: fifo, concurrent, tiles, fixed (optimised "
+        "fixed-cycle light), actuated (SUMO's actuated light), reactive-light (31/13/83 s "
+        "program with emergency-vehicle pre-emption)",
+    )
+    r.add_argument(
+        "--ev-prob",
+        type=float,
+        help="probability that an arriving vehicle is an emergency vehicle, at most one in the "
+        "region at a time (default 0.02 for rdica and reactive-light, else 0)",
+    )
+    r.add_argument(
+        "--solver",
+        choices=("exact", "ga", "exhaustive"),
+        default="exact",
+        help="rdica's ordering solver: exact (dynamic programme, default), ga (the "
+        "dissertation's genetic algorithm) or exhaustive (every order, refuses large sets)",
     )
     r.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
     r.add_argument(

@@ -31,6 +31,8 @@ EXAMPLES = """examples:
   dica experiment --layout ch45 --algorithms enhanced,fixed,actuated --out runs/ch4
   dica report runs/ch4
   dica bench ica --json
+  dica run --algorithm rdica --solver exact --volume 300 --ev-prob 0.02
+  dica bench ordering
   dica view runs/run-enhanced-20250101-120000 --web --port 9090
 """
 
@@ -417,9 +419,10 @@ def parser() -> argparse.ArgumentParser:
         "bench",
         help="benchmarks: ica (seconds per REQUEST per DICA variant), run (real-time factor), "
         "cluster (Zenoh round trip, lockstep real-time factor), timing (the real-time "
-        "cluster under delay, jitter, loss, duplication and reordering)",
+        "cluster under delay, jitter, loss, duplication and reordering), ordering (the EV "
+        "ordering solvers)",
     )
-    b.add_argument("what", choices=["ica", "run", "cluster", "timing"])
+    b.add_argument("what", choices=["ica", "run", "cluster", "timing", "ordering"])
     b.add_argument(
         "rest",
         nargs=argparse.REMAINDER,
@@ -446,14 +449,16 @@ def main(argv: list[str] | None = None) -> int:
             return linkem.main(argv[1:])
         except KeyboardInterrupt:
             return 130
-    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in ("ica", "run", "cluster", "timing"):
-        from tools import bench_cluster, bench_ica, bench_run, bench_timing
+    benches = ("ica", "run", "cluster", "timing", "ordering")
+    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in benches:
+        from tools import bench_cluster, bench_ica, bench_ordering, bench_run, bench_timing
 
         bench = {
             "ica": bench_ica,
             "run": bench_run,
             "cluster": bench_cluster,
             "timing": bench_timing,
+            "ordering": bench_ordering,
         }[argv[1]]
         try:
             return bench.main(argv[2:])

@@ -7,6 +7,12 @@ over the run writes to ``.../r<A>-<B>/s<seed>/``. A cell whose
 ``metrics.json`` exists is skipped, so an interrupted grid picks up where it
 stopped. Volumes go up to 2000 per 10 minutes; ``dica report`` finds each
 controller's saturation volume in a grid of volumes.
+
+Reactive DICA is named with its solver, ``rdica-exact``, ``rdica-ga`` or
+``rdica-exhaustive`` (``rdica`` alone is ``rdica-exact``). Chapter 5's grid:
+
+    dica experiment --algorithms enhanced,rdica-exact,rdica-ga,rdica-exhaustive,reactive-light \
+        --duration 3600 --extra "--ev-prob 0.02" --out runs/ch5
 """
 
 from __future__ import annotations
@@ -60,7 +66,11 @@ def parser() -> argparse.ArgumentParser:
     from sim_gateway.scenario import LAYOUTS
 
     p.add_argument("--layout", choices=LAYOUTS, default="ch45")
-    p.add_argument("--algorithms", default="enhanced,fixed,actuated", help="comma-separated")
+    p.add_argument(
+        "--algorithms",
+        default="enhanced,fixed,actuated",
+        help="comma-separated; reactive DICA as rdica-exact, rdica-ga or rdica-exhaustive",
+    )
     p.add_argument(
         "--volumes",
         type=_floats,
@@ -92,13 +102,18 @@ def main(argv: list[str] | None = None) -> int:
         print("dica experiment: --jobs must be at least 1", file=sys.stderr)
         return 2
     algorithms = [a.strip() for a in args.algorithms.split(",") if a.strip()]
+    try:
+        named = [(alg, *_algorithm(alg)) for alg in algorithms]
+    except ValueError as e:
+        print(f"dica experiment: {e}", file=sys.stderr)
+        return 2
     shapes = [(f"v{v:g}", v, ()) for v in args.volumes]
     shapes += [
         (f"r{a:g}-{b:g}", a, ("--volume-end", f"{b:g}", "--ramp", f"{args.duration:g}"))
         for a, b in args.ramps
     ]
     cells = []
-    for alg, (name, vol, ramp), seed in product(algorithms, shapes, args.seeds):
+    for (alg, algorithm, solver), (name, vol, ramp), seed in product(named, shapes, args.seeds):
         cell = args.out / args.layout / alg / name / f"s{seed}"
         cmd = [
             sys.executable,
@@ -108,7 +123,8 @@ def main(argv: list[str] | None = None) -> int:
             "--layout",
             args.layout,
             "--algorithm",
-            alg,
+            algorithm,
+            *(["--solver", solver] if solver else []),
             "--volume",
             f"{vol:g}",
             "--seed",
@@ -153,6 +169,20 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dica experiment: {line}", file=sys.stderr)
     print(f"done; `dica report {args.out}` writes the tables and plots")
     return 1 if failed else 0
+
+
+def _algorithm(name: str) -> tuple[str, str | None]:
+    """A grid name as (``--algorithm``, ``--solver`` or None)."""
+    if name == "rdica":
+        return "rdica", "exact"
+    if name.startswith("rdica-"):
+        solver = name[len("rdica-") :]
+        if solver not in ("exact", "ga", "exhaustive"):
+            raise ValueError(
+                f"unknown solver in {name!r}: use rdica-exact, rdica-ga, rdica-exhaustive"
+            )
+        return "rdica", solver
+    return name, None
 
 
 if __name__ == "__main__":

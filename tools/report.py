@@ -21,6 +21,11 @@ waiting and rho under 0.95 at volumes its queues keep up with; the report
 therefore also gives the saturation volume by the settled throughput:
 crossed over generated among the vehicles due at least ``SETTLE_S`` before
 the end.
+
+Runs with emergency vehicles (``--ev-prob``) form their own tables and get a
+chapter 5 table: EVs' and normal vehicles' trip times apart, and reactive
+DICA's solver time per EV event and per run. Reactive DICA is listed by its
+solver (``rdica-exact``, ``rdica-ga``, ``rdica-exhaustive``).
 """
 
 from __future__ import annotations
@@ -66,13 +71,18 @@ def load_runs(root: Path) -> list[dict]:
             shape.append("weights " + ",".join(f"{a}={w:g}" for a, w in weights))
         if cfg.get("volume_end_per_10min") is not None:
             shape.append(f"to {cfg['volume_end_per_10min']:g}")
+        if cfg.get("ev_prob"):
+            shape.append(f"p_EV {cfg['ev_prob']:g}")
         layout = Path(cfg["net_path"]).name.split(".")[0].split("-tls")[0]
+        algorithm = cfg["algorithm"]
+        if algorithm == "rdica":
+            algorithm = f"rdica-{cfg.get('solver', 'exact')}"
         runs.append(
             {
                 "settled_throughput": _settled_throughput(m.parent, cfg),
                 "dir": m.parent,
                 "layout": layout,
-                "algorithm": cfg["algorithm"],
+                "algorithm": algorithm,
                 "volume": cfg["volume_per_10min"],
                 "shape": "; ".join(shape),
                 "seed": cfg["seed"],
@@ -120,6 +130,7 @@ def aggregate(runs: list[dict]) -> dict[tuple, dict]:
         row["by_approach"] = {a: float(np.mean(v)) for a, v in sorted(per.items())}
         thirds = [r["metrics"].get("system_delay_by_third_s") or [None] * 3 for r in rs]
         row["delay_by_third_s"] = [_mean([t[k] for t in thirds]) for k in range(3)]
+        row["ev"] = _ev_row(rs)
         row["runs"] = rs
         out[key] = row
     return out
@@ -199,6 +210,43 @@ def _volume(s: dict) -> str:
     return (">= " if s["above"] else "") + f"{s['volume']:g}"
 
 
+EV_FIELDS = [
+    ("ev_count", "EVs", "{:.0f}"),
+    ("ev_mean", "EV mean tau [s]", "{:.2f}"),
+    ("ev_from_arrival", "EV mean from arrival [s]", "{:.2f}"),
+    ("ev_max", "EV max tau [s]", "{:.1f}"),
+    ("normal_mean", "normal mean tau [s]", "{:.2f}"),
+    ("normal_max", "normal max tau [s]", "{:.1f}"),
+    ("solve_ms_event", "solver [ms / event]", "{:.2f}"),
+    ("solve_s_run", "solver [s / run]", "{:.3f}"),
+    ("refused", "refused events", "{:.0f}"),
+]
+
+
+def _ev_row(rs: list[dict]) -> dict | None:
+    """Chapter 5's figures of a group: EVs and normal vehicles apart, solver time."""
+    if not any("ev" in r["metrics"] for r in rs):
+        return None
+
+    def group(name: str, key: str) -> float | None:
+        return _mean([(r["metrics"].get(name) or {}).get(key) for r in rs])
+
+    reactive = [r["metrics"]["reactive"] for r in rs if "reactive" in r["metrics"]]
+    events = sum(x["events"] for x in reactive)
+    solve = sum(x["solve_s_total"] for x in reactive)
+    return {
+        "ev_count": float(sum((r["metrics"].get("ev") or {}).get("crossed", 0) for r in rs)),
+        "ev_mean": group("ev", "mean_trip_time_s"),
+        "ev_from_arrival": group("ev", "mean_trip_time_from_arrival_s"),
+        "ev_max": group("ev", "max_trip_time_s"),
+        "normal_mean": group("normal", "mean_trip_time_s"),
+        "normal_max": group("normal", "max_trip_time_s"),
+        "solve_ms_event": solve / events * 1e3 if events else None,
+        "solve_s_run": solve / len(reactive) if reactive else None,
+        "refused": float(sum(x["refused"] for x in reactive)) if reactive else None,
+    }
+
+
 def _fmt(fmt: str, v: float | None) -> str:
     return "-" if v is None else fmt.format(v)
 
@@ -231,9 +279,61 @@ def markdown(agg: dict[tuple, dict], images: list[str]) -> str:
                 cells.append(", ".join(f"{a} {v:.2f}" for a, v in row["by_approach"].items()))
             lines.append("| " + " | ".join(cells) + " |")
         lines.append("")
+        lines += _ev_table(rows)
     if images:
         lines += ["## Plots", ""] + [f"![{Path(i).stem}]({i})" for i in images] + [""]
     return "\n".join(lines)
+
+
+def _ev_table(rows: list[tuple[tuple, dict]]) -> list[str]:
+    """Chapter 5: EVs and normal vehicles apart, and the targets' ratios."""
+    rows = [(k, r) for k, r in rows if r.get("ev") is not None]
+    if not rows:
+        return []
+    lines = [
+        "### Emergency vehicles and the others (chapter 5)",
+        "",
+        "Trip times from the region's entry line (the dissertation's clock); the EV mean "
+        "from the scheduled arrival also counts any wait to get into the region.",
+        "",
+    ]
+    head = ["algorithm", "volume", *[h for _, h, _ in EV_FIELDS]]
+    lines.append("| " + " | ".join(head) + " |")
+    lines.append("|" + "---|" * len(head))
+    for key, row in rows:
+        ev = row["ev"]
+        cells = [key[2], f"{key[3]:g}"] + [_fmt(f, ev[k]) for k, _, f in EV_FIELDS]
+        lines.append("| " + " | ".join(cells) + " |")
+    lines.append("")
+    by = {(k[2], k[3]): r["ev"] for k, r in rows}
+    volumes = sorted({k[3] for k, _ in rows})
+    ratios = []
+    for alg in sorted({k[2] for k, _ in rows if k[2].startswith("rdica")}):
+        for vol in volumes:
+            mine, light, plain = (
+                by.get((alg, vol)),
+                by.get(("reactive-light", vol)),
+                by.get(("enhanced", vol)),
+            )
+            if mine is None:
+                continue
+            ev_ratio = _ratio(mine["ev_mean"], light and light["ev_mean"])
+            ev_arrival = _ratio(mine["ev_from_arrival"], light and light["ev_from_arrival"])
+            normal = _ratio(mine["normal_max"], plain and plain["normal_max"])
+            ratios.append(f"| {alg} | {vol:g} | {ev_ratio} | {ev_arrival} | {normal} |")
+    if ratios:
+        lines += [
+            "| algorithm | volume | EV mean tau / reactive light's (target <= 0.5) | "
+            "the same from arrival | normal max tau / enhanced DICA's (target <= 1.10) |",
+            "|---|---|---|---|---|",
+            *ratios,
+            "",
+        ]
+    return lines
+
+
+def _ratio(a: float | None, b: float | None) -> str:
+    return "-" if a is None or not b else f"{a / b:.2f}"
 
 
 def plots(agg: dict[tuple, dict], out: Path) -> list[str]:
@@ -312,6 +412,30 @@ def plots(agg: dict[tuple, dict], out: Path) -> list[str]:
         fig.savefig(out / name, dpi=110)
         plt.close(fig)
         images.append(name)
+
+        evs = {alg: pts for alg, pts in algs.items() if any(r.get("ev") for _, r in pts)}
+        if evs:
+            fig, axes = plt.subplots(1, 3, figsize=(15, 4.2))
+            panels = [
+                ("ev_mean", "EVs' mean trip time [s]"),
+                ("normal_mean", "normal vehicles' mean trip time [s]"),
+                ("normal_max", "normal vehicles' max trip time [s]"),
+            ]
+            for ax, (field, label) in zip(axes, panels, strict=True):
+                for alg, pts in sorted(evs.items()):
+                    pts = sorted((p for p in pts if p[1].get("ev")), key=lambda p: p[0])
+                    ax.plot([p[0] for p in pts], [p[1]["ev"][field] for p in pts], marker="o",
+                            label=alg)  # fmt: skip
+                ax.set_xlabel("volume [veh / 10 min]")
+                ax.set_ylabel(label)
+                ax.grid(alpha=0.3)
+            axes[0].legend(fontsize=8)
+            fig.suptitle(f"{layout} {shape}: emergency vehicles (chapter 5)".strip())
+            fig.tight_layout()
+            name = f"ev_{tag}.png"
+            fig.savefig(out / name, dpi=110)
+            plt.close(fig)
+            images.append(name)
     return images
 
 

@@ -110,6 +110,7 @@ class Command:
     t0_s: float = math.nan
     s_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     wake_s: float = BIG
+    drop: bool = False  # give up plan ``seq`` (revoked) and stop short of the line
 
     @property
     def has_plan(self) -> bool:
@@ -188,12 +189,9 @@ class Vehicle:
             return None
         self.pending = False
         if isinstance(answer, Confirmation):
-            tss = answer.tss
-            s, _ = self.route.project(np.stack([tss.x_m, tss.y_m], -1))
             self._answer = answer
-            self.held = Command(
-                self.vin, answer.seq, float(tss.t_s[0]), np.maximum.accumulate(s), BIG
-            )
+            t0 = float(answer.tss.t_s[0])
+            self.held = Command(self.vin, answer.seq, t0, _positions(self.route, answer), BIG)
             return self.held
         self._count(answer.reason.value)
         if answer.reason is Reason.NOT_DETECTED:  # the ICA lost track of it: announce again
@@ -236,6 +234,39 @@ class Vehicle:
         link.cancel(self.vin, seq)
         self.next_request_s = obs.t_s
         return Command(self.vin, wake_s=obs.t_s)
+
+    def revoked(self, confirmation: Confirmation | None, now_s: float) -> Command:
+        """The ICA revoked this vehicle's confirmation (reactive DICA) and, unless
+        ``confirmation`` is None, confirmed it again under the next seq, from where
+        its old plan has it at the new plan's start. The actuator flies the old
+        plan up to that start and the new one from there, as one plan; if it
+        cannot (the vehicle is off its plan), it refuses it like a late one, and
+        the vehicle cancels it and asks again. Without a new plan the actuator
+        drops the old one, stops the vehicle short of the line, and the vehicle
+        asks again. In-process runners call this; the revocation comes with the call.
+        """
+        old = self.confirmation if self.confirmation is not None else self._answer
+        self.confirmation = self._answer = self.held = None
+        self.phase = Phase.REQUESTING
+        if confirmation is None:
+            self.next_request_s = now_s
+            return Command(self.vin, self.last_seq, wake_s=now_s, drop=True)
+        h = self.config.step_s
+        s_new = _positions(self.route, confirmation)
+        t0 = float(confirmation.tss.t_s[0])
+        if old is not None and t0 > now_s + 1e-9:
+            s_old = _positions(self.route, old)
+            k0 = round((now_s - float(old.tss.t_s[0])) / h)
+            k1 = round((t0 - float(old.tss.t_s[0])) / h)
+            s_new = np.concatenate([s_old[max(k0, 0) : max(k1, 0)], s_new])
+            t0 = now_s
+        elif t0 < now_s - 1e-9:
+            s_new = s_new[round((now_s - t0) / h) :]
+            t0 = now_s
+        self.last_seq = max(self.last_seq, confirmation.seq)
+        self._answer = confirmation
+        self.held = Command(self.vin, confirmation.seq, t0, s_new, BIG)
+        return self.held
 
     def _request(self, obs: Observation, link: IcaLink) -> Command | None:
         cfg = self.config
@@ -290,3 +321,10 @@ class Vehicle:
 
     def _count(self, reason: str) -> None:
         self.rejections[reason] = self.rejections.get(reason, 0) + 1
+
+
+def _positions(route: Route, conf: Confirmation) -> np.ndarray:
+    """Route positions [m] per step of a confirmed TSS, as the actuator flies it."""
+    tss = conf.tss
+    s, _ = route.project(np.stack([tss.x_m, tss.y_m], -1))
+    return np.maximum.accumulate(s)

@@ -204,6 +204,10 @@ class Dica:
             self._rows.add(confirmation.vin, dtot, done.packed)
         self._version += 1
 
+    def _queue(self, lane: str) -> list[str]:
+        """The vehicles detected on ``lane`` whose reservation has not ended, in order."""
+        return [e[2] for e in self._lanes[lane]]
+
     def is_head(self, vin: str, now_s: float) -> bool:
         """Every vehicle ahead of ``vin`` in its lane is confirmed and has begun to enter."""
         lane = self._lane_of.get(vin)
@@ -447,6 +451,76 @@ class Dica:
                 f"cannot delay the entry to t={t0_s + entry_rel_s:.2f} s from the state",
             )
         return sample(profile, t0_s, self.config.step_s, s_end)
+
+    # -- hooks for controllers that revise confirmations (ica/core/reactive.py) ---------
+    def _set_aside(self, vin: str, key: str) -> None:
+        """Move ``vin``'s reservation to ``key``: it stays in the confirmed set (the
+        vehicle may still fly it) while ``vin`` is free for a revised confirmation."""
+        c = self._confirmed.pop(vin)
+        self._rows.remove(vin)
+        self._confirmed[key] = c
+        self._rows.add(key, c.dtot, c.packed)
+        self._version += 1
+
+    def _drop(self, key: str) -> None:
+        """Forget a reservation that will not be flown (a revoked plan, acknowledged)."""
+        if self._confirmed.pop(key, None) is not None:
+            self._rows.remove(key)
+            self._version += 1
+
+    def _confirm_from(
+        self,
+        vin: str,
+        seq: int,
+        route: Route,
+        shape: Shape,
+        t0_s: float,
+        dist_to_entry_m: float,
+        speed_mps: float,
+        not_before_s: float,
+        leader_vin: str | None,
+    ) -> Confirmation:
+        """Confirm ``vin`` anew from a state it will be in (a revised confirmation).
+
+        The same conflict search as a REQUEST's, against the whole confirmed set,
+        starting from the plan that enters soonest at or after ``not_before_s``.
+        Raises RequestError as a REQUEST would.
+        """
+        cfg = self.config
+        s_end = route.cross_length_m + shape.length_m
+        planner = Planner(
+            d_m=max(dist_to_entry_m, 0.0),
+            v0_mps=speed_mps,
+            road_mps=cfg.caps.road_mps,
+            cap_mps=self.front_cap_mps(route),
+            s_end_m=s_end,
+            kin=cfg.kinematics,
+        )
+        traj = self._plan(planner, t0_s, max(not_before_s - t0_s, 0.0), s_end)
+        none = np.zeros(0)
+        req = Request(
+            vin, seq, route.in_lane, route.out_lane, shape.length_m, shape.width_m, t0_s,
+            dist_to_entry_m, speed_mps, Tss(none, none, none, none),
+        )  # fmt: skip
+        leader = self._confirmed.get(leader_vin) if leader_vin is not None else None
+        dtot, iterations, earliest = self._resolve(req, route, shape, traj, leader)
+        entry = dtot.trajectory.entry_time_s()
+        front, heading = dtot.trajectory.xy_heading(route, shape.length_m)
+        conf = Confirmation(
+            vin=vin,
+            seq=seq,
+            route_id=route.id,
+            tss=Tss(dtot.trajectory.t_s, front[:, 0].copy(), front[:, 1].copy(), heading),
+            entry_time_s=entry,
+            exit_time_s=float(dtot.t_s[-1]),
+            delay_s=max(0.0, entry - earliest),
+            iterations=iterations,
+        )
+        done = Confirmed(vin, dtot, conf, pack(dtot))
+        self._confirmed[vin] = done
+        self._rows.add(vin, dtot, done.packed)
+        self._version += 1
+        return conf
 
 
 _BATCHED_GET_CV = Dica.conflicts  # the getCV the compiled round loop repeats

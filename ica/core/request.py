@@ -66,6 +66,7 @@ class Reason(StrEnum):
     INFEASIBLE = "infeasible"
     BAD_MESSAGE = "bad_message"  # the bytes were not a valid REQUEST (see schemas.codec)
     NO_ANSWER = "no_answer"  # no reply within the timeout: the link or the ICA is down
+    HELD = "held"  # an emergency vehicle goes first: ask again later (reactive DICA)
 
 
 class RequestError(Exception):

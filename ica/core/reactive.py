@@ -1,0 +1,646 @@
+"""Reactive DICA (chapter 5): an emergency vehicle (EV) crosses as early as it can.
+
+Plain DICA until an EV is detected at the communication region's entry line.
+The EV's *event* starts once no unconfirmed vehicle is ahead of it in its
+lane (it is next to go: holds begin), and the vehicles are reordered when it
+asks as head of its lane (``start_at="head"``). The dissertation does both at
+the detection (``start_at="detection"``), but until the EV is next in its lane
+it can only follow the queue, and holding everyone else meanwhile cost the
+other vehicles more than it gained the EV (see docs/results.md). The EV's
+REQUEST that reorders is answered ``held`` if confirmations had to be revoked:
+the EV asks again once they are acknowledged (in process, at once).
+
+1. Requests of vehicles that could take the EV's room are held (REJECT
+   ``held``) until the EV holds a confirmation: every unconfirmed vehicle
+   except those ahead of the EV in its lane and those whose route cannot
+   touch any route of the EV's lane. Once the EV holds its reservation DICA
+   protects it, so the hold ends there rather than when the EV leaves (the
+   dissertation's choice), sparing the others.
+2. The **modifiable set**: confirmed vehicles that have not entered and can
+   still stop before the entry line at the time a revocation takes effect
+   (judged on their confirmed plan, with the planner's 4.5 m/s^2), every
+   confirmed vehicle behind them in their lane being modifiable too; plus the
+   unconfirmed vehicles ahead of the EV in its lane, and the EV.
+3. They are ordered with a solver of :mod:`ica.core.ordering`: the EV's entry
+   first, the others' delay second, every lane's order kept. Release times:
+   a confirmed vehicle's earliest entry from its state on its plan; for an
+   unconfirmed one (its state is not known here) the earliest entry from
+   where and how fast it was detected. Vehicles that cannot change any more
+   fold into the releases through their separations (:mod:`ica.core.separation`).
+4. Every modifiable confirmed vehicle is **revoked**: its reservation stays in
+   the confirmed set, set aside, until :meth:`ReactiveDica.acknowledge` says
+   the vehicle knows; nobody gets its room before that.
+5. Once all have acknowledged, they are **re-confirmed in the order**, each by
+   DICA's own conflict search against the whole confirmed set, from its state
+   on its old plan at the effective time. If the EV is head of its lane (it is
+   about to ask), it is planned first, by its own REQUEST, and the revoked
+   vehicles then around its real plan; those ordered ahead of it take any
+   room before it that costs it nothing.
+6. If the EV has not asked by :meth:`ReactiveDica.settle` (it is behind a
+   queue), those ordered ahead of it are re-confirmed, and those behind it get
+   no plan: they stop before the line and ask again, held until the EV has
+   its plan (a guess at the EV's plan that is early would let them take its
+   room, a late one would make them wait for nothing).
+7. The event closes when the EV has left the junction; a second EV detected
+   meanwhile waits for its own event.
+
+What must happen is handed out as plain data (:class:`Reorder`, and the
+confirmations :meth:`ReactiveDica.acknowledge` and
+:meth:`ReactiveDica.take_confirmations` return); carrying it to the vehicles
+is the caller's business. No I/O here.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ica.core.config import IcaConfig
+from ica.core.dica import Dica
+from ica.core.intersection import Intersection
+from ica.core.ordering import (
+    EXHAUSTIVE_LIMIT,
+    SOLVERS,
+    GaParams,
+    OrderingError,
+    Problem,
+    evaluate,
+    solve,
+)
+from ica.core.planner import Planner
+from ica.core.request import Confirmation, Reason, Request, RequestError
+from ica.core.route import Route
+from ica.core.separation import SeparationModel
+from ica.core.zones import ConflictTables, Shape
+
+_ASIDE = "~revoked"  # suffix of a revoked reservation's key while it awaits acknowledgement
+
+
+@dataclass(frozen=True, slots=True)
+class ReactiveConfig:
+    """How reactive DICA orders (``solver``: exact, ga or exhaustive) and when a
+    revocation takes effect after it is decided (``revoke_latency_s``)."""
+
+    solver: str = "exact"
+    seed: int = 0  # the GA's seed; each event draws from (seed, event number)
+    ga: GaParams = field(default_factory=GaParams)
+    exhaustive_limit: int = EXHAUSTIVE_LIMIT
+    revoke_latency_s: float = 0.0
+    # when an EV's event starts: "head", when the EV asks as head of its lane;
+    # "detection", as soon as it is detected (the dissertation's choice)
+    start_at: str = "head"
+
+    def __post_init__(self) -> None:
+        if self.solver not in SOLVERS:
+            raise ValueError(f"unknown solver {self.solver!r}: use {', '.join(SOLVERS)}")
+        if self.revoke_latency_s < 0:
+            raise ValueError("revoke_latency_s must not be negative")
+        if self.start_at not in ("head", "detection"):
+            raise ValueError(f"start_at must be 'head' or 'detection', not {self.start_at!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class Reorder:
+    """One EV event's decision, for the protocol layer to carry out."""
+
+    t_s: float  # when it was decided
+    effective_s: float  # when the revocations take effect
+    ev: str
+    solver: str
+    order: tuple[str, ...]  # the modifiable vehicles, the EV among them, in crossing order
+    revoked: tuple[str, ...]  # withdrawn confirmations, pending until acknowledged
+    ev_entry_before_s: float  # the EV's entry by the ordering model, present order kept
+    ev_entry_after_s: float  # the same in the new order
+    solve_s: float  # the solver's wall time
+    prepare_s: float  # the wall time of finding the candidates and measuring separations
+    refused: str = ""  # why the solver gave no order (the present order is kept)
+
+
+@dataclass(slots=True)
+class EvEvent:
+    """The log of one EV event (mutable: filled in as it goes)."""
+
+    ev: str
+    lane: str
+    detected_s: float
+    started_s: float
+    reorder: Reorder | None = None
+    confirmations: list[Confirmation] = field(default_factory=list)
+    failed: list[str] = field(default_factory=list)  # revoked, but no new plan was found
+    unplanned: list[str] = field(default_factory=list)  # revoked behind the EV, to ask again
+    ev_confirmed_s: float | None = None
+    ev_entry_s: float | None = None  # the EV's confirmed entry
+    closed_s: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class _Replan:
+    vin: str
+    seq: int
+    route: Route
+    shape: Shape
+    t0_s: float
+    dist_m: float
+    speed_mps: float
+
+
+@dataclass(frozen=True, slots=True)
+class _Candidate:
+    vin: str
+    lane: str
+    routes: tuple[Route, ...]  # its route, or every route of its lane if not known yet
+    release_s: float
+    entry_mps: float  # expected entry speed, for the separations
+    state: _Replan | None  # a confirmed vehicle's state at the effective time
+
+
+class ReactiveDica(Dica):
+    """DICA that lets one emergency vehicle at a time cross first."""
+
+    def __init__(
+        self,
+        intersection: Intersection,
+        config: IcaConfig | None = None,
+        tables: ConflictTables | None = None,
+        reactive: ReactiveConfig | None = None,
+    ) -> None:
+        super().__init__(intersection, config, tables)
+        self.reactive = reactive or ReactiveConfig()
+        self._shape = Shape.of(5.0, 1.8)
+        cfg = self.config
+        self.separations = SeparationModel(
+            intersection, self.tables, self._shape, cfg.kinematics, cfg.margin_m, cfg.step_s,
+            cfg.techniques,
+        )  # fmt: skip
+        self._now = -math.inf
+        self._detected: dict[str, tuple[int, float, float | None]] = {}  # number, t, speed
+        self._detections = 0  # detections so far: a vehicle's number says who came first
+        self._lane_confirmed: dict[str, list[str]] = {ln: [] for ln in intersection.in_lanes}
+        self._event: EvEvent | None = None
+        self._waiting_evs: list[tuple[str, str, float]] = []
+        self._pending: dict[str, str] = {}  # revoked vin -> key of its set-aside reservation
+        self._before: list[_Replan] = []  # re-confirmations ahead of the EV, awaiting acks
+        self._after: list[_Replan] = []  # re-confirmations behind the EV
+        self._late: list[Confirmation] = []  # re-confirmations made outside acknowledge()
+        self._outbox: list[Reorder] = []
+        self.events: list[EvEvent] = []
+
+    # -- what the caller sees -------------------------------------------------------
+    @property
+    def event(self) -> EvEvent | None:
+        return self._event
+
+    def take_reorders(self) -> list[Reorder]:
+        """Decisions made since the last call (each once)."""
+        out, self._outbox = self._outbox, []
+        return out
+
+    def pending(self) -> tuple[str, ...]:
+        """Revoked vehicles whose acknowledgement is not known yet."""
+        return tuple(self._pending)
+
+    def awaiting(self) -> tuple[str, ...]:
+        """Revoked vehicles with no new confirmation yet (acknowledged or not)."""
+        return tuple(self._pending) + tuple(r.vin for r in self._before + self._after)
+
+    def acknowledge(self, vin: str) -> list[Confirmation]:
+        """``vin`` knows its confirmation was revoked: its old reservation goes.
+
+        When the last vehicle of a reorder has acknowledged, the revoked
+        vehicles ordered ahead of the EV are re-confirmed in the order and
+        their new confirmations returned, unless the EV is head of its lane:
+        then everyone revoked is re-confirmed when the EV is (around its real
+        plan), or at :meth:`settle` (see :meth:`take_confirmations`).
+        """
+        key = self._pending.pop(vin, None)
+        if key is not None:
+            self._drop(key)
+        if self._pending:
+            return []
+        ev = self._event
+        if ev is not None and ev.ev_confirmed_s is None and self._queue(ev.lane)[:1] == [ev.ev]:
+            return []  # the EV is head of its lane and about to ask: it is planned first
+        replans, self._before = self._before, []
+        return self._replan(replans)
+
+    def settle(self) -> None:
+        """The EV has not asked: its plan is not known. Those ordered ahead of it are
+        re-confirmed now; those behind it get no new plan (a guess at the EV's that
+        is early lets them take its room, a late one makes them wait for nothing):
+        they stop before the line and ask again, held until the EV has its plan.
+        Call it once the acknowledgements are in and the EV has had its chance to
+        ask (the embedded runner: at the end of each step)."""
+        if self._pending:
+            return
+        if self._before:
+            replans, self._before = self._before, []
+            self._late += self._replan(replans)
+        if not self._after:
+            return
+        replans, self._after = self._after, []
+        for r in replans:
+            if r.vin not in self._confirmed and self._event is not None:
+                self._event.unplanned.append(r.vin)
+                self._forget_confirmed(r.vin)
+
+    def take_confirmations(self) -> list[Confirmation]:
+        """Re-confirmations made since the last call outside :meth:`acknowledge`."""
+        out, self._late = self._late, []
+        return out
+
+    def _replan(self, replans: list[_Replan]) -> list[Confirmation]:
+        """Re-confirm revoked vehicles in order; those without a plan are left to ask."""
+        out = []
+        ev = self._event
+        for r in replans:
+            if r.vin in self._confirmed:
+                continue  # it asked and was confirmed meanwhile
+            leader = self._leader_of(r.vin, r.route.in_lane)
+            try:
+                conf = self._confirm_from(
+                    r.vin, r.seq, r.route, r.shape, r.t0_s, r.dist_m, r.speed_mps,
+                    -math.inf, leader,
+                )  # fmt: skip
+            except RequestError:
+                if ev is not None:
+                    ev.failed.append(r.vin)
+                self._forget_confirmed(r.vin)
+                continue
+            out.append(conf)
+        if ev is not None:
+            ev.confirmations.extend(out)
+        return out
+
+    def summary(self) -> dict:
+        """Per-run figures of the events: counts, solver time, the EV's entries."""
+        solve_ms = [e.reorder.solve_s * 1e3 for e in self.events if e.reorder is not None]
+        arr = np.array(solve_ms) if solve_ms else np.zeros(0)
+        return {
+            "solver": self.reactive.solver,
+            "events": len(self.events),
+            "reordered": sum(1 for e in self.events if e.reorder and not e.reorder.refused),
+            "refused": sum(1 for e in self.events if e.reorder and e.reorder.refused),
+            "revoked": sum(len(e.reorder.revoked) for e in self.events if e.reorder),
+            "replan_failed": sum(len(e.failed) for e in self.events),
+            "candidates_max": max(
+                (len(e.reorder.order) for e in self.events if e.reorder), default=0
+            ),
+            "solve_ms_mean": float(arr.mean()) if len(arr) else None,
+            "solve_ms_max": float(arr.max()) if len(arr) else None,
+            "solve_s_total": float(arr.sum() / 1e3),
+            "prepare_s_total": float(
+                sum(e.reorder.prepare_s for e in self.events if e.reorder is not None)
+            ),
+            "unplanned": sum(len(e.unplanned) for e in self.events),
+            "ev_entry_model_gain_s_mean": _mean(
+                [
+                    e.reorder.ev_entry_before_s - e.reorder.ev_entry_after_s
+                    for e in self.events
+                    if e.reorder and not e.reorder.refused
+                ]
+            ),
+        }
+
+    # -- DICA's entry points ------------------------------------------------------------
+    def detect(
+        self,
+        vin: str,
+        lane: str,
+        t_s: float,
+        emergency: bool = False,
+        speed_mps: float | None = None,
+    ) -> None:
+        """A vehicle crossed the region's entry line; ``emergency`` marks an EV (the
+        detector reads it), ``speed_mps`` is its speed there if measured."""
+        super().detect(vin, lane, t_s)
+        if vin not in self._detected:
+            self._detected[vin] = (self._detections, t_s, speed_mps)
+            self._detections += 1
+            if emergency:
+                self._waiting_evs.append((vin, lane, t_s))
+                if self._event is None and self.reactive.start_at == "detection":
+                    self._next_event(max(self._now, t_s))
+
+    def advance(self, now_s: float) -> list[str]:
+        self._now = now_s
+        gone = super().advance(now_s)
+        for key in gone:
+            if key.endswith(_ASIDE):
+                vin = key[: -len(_ASIDE)]
+                if self._pending.get(vin) == key:  # its old plan is over: nothing to wait for
+                    del self._pending[vin]
+                continue
+            self._detected.pop(key, None)
+            for lst in self._lane_confirmed.values():
+                if key in lst:
+                    lst.remove(key)
+        ev = self._event
+        if ev is not None and ev.ev in gone:
+            ev.closed_s = now_s
+            self._event = None
+        if self._event is None:
+            if self.reactive.start_at == "detection":
+                self._next_event(now_s)
+            else:
+                self._next_hold(now_s)
+        return gone
+
+    def _handle(self, req: Request, now_s: float) -> Confirmation:
+        well_typed = all(isinstance(x, str) for x in (req.vin, req.in_lane, req.out_lane))
+        ev = self._event
+        if (
+            well_typed
+            and req.vin not in self._confirmed
+            and (ev is None or (ev.ev == req.vin and ev.reorder is None))
+            and any(w[0] == req.vin for w in self._waiting_evs) == (ev is None)
+            and self.is_head(req.vin, now_s)
+        ):
+            # an EV asks as head of its lane: the vehicles are reordered for it now
+            if ev is None:
+                self._next_event(now_s, first=req.vin, reorder=False)
+            self._reorder(self._event, now_s)
+            if self._pending:
+                raise RequestError(
+                    Reason.HELD,
+                    f"{req.vin}: confirmations are being revoked for it; ask again once "
+                    "they are acknowledged",
+                )
+        ev = self._event
+        if (
+            ev is not None
+            and ev.ev_confirmed_s is None
+            and well_typed
+            and req.vin not in self._confirmed  # a repeated request gets its answer again
+            and self._held(req, ev)
+        ):
+            raise RequestError(
+                Reason.HELD, f"{req.vin} waits: emergency vehicle {ev.ev} crosses first"
+            )
+        known = req.vin in self._confirmed if well_typed else True
+        conf = super()._handle(req, now_s)
+        if not known:
+            self._lane_confirmed[req.in_lane].append(req.vin)
+        if ev is not None and req.vin == ev.ev and ev.ev_confirmed_s is None:
+            ev.ev_confirmed_s = now_s
+            ev.ev_entry_s = conf.entry_time_s
+            waiting = self._before + self._after
+            if waiting and not self._pending and abs(now_s - waiting[0].t0_s) < 1e-6:
+                # the revoked vehicles, in the order, around the EV's real plan, from the
+                # states they had at the effective time (no time has passed in between)
+                self._before, self._after = [], []
+                self._late += self._replan(waiting)
+        return conf
+
+    # -- the event ----------------------------------------------------------------------
+    def _held(self, req: Request, ev: EvEvent) -> bool:
+        vin = req.vin
+        if vin == ev.ev:
+            return False
+        if req.in_lane == ev.lane:
+            mine = self._detected.get(vin)
+            theirs = self._detected.get(ev.ev)
+            if mine is not None and theirs is not None and mine[0] < theirs[0]:
+                return False  # ahead of the EV in its lane: it must go first anyway
+        route = self.intersection.route(req.in_lane, req.out_lane)
+        if route is None:
+            return False  # an unknown route: let DICA reject it with its own reason
+        sh = Shape.of(req.length_m, req.width_m) if _sized(req) else self._shape
+        return not all(
+            self.tables.compatible(route, sh, r, self._shape)
+            for r in self.intersection.routes_from(ev.lane)
+        )
+
+    def _next_hold(self, now_s: float) -> None:
+        """Start holding for the first EV waiting once no unconfirmed vehicle is ahead
+        of it in its lane: it is next to go, and its request will reorder."""
+        while self._waiting_evs and self._event is None:
+            vin, lane, _ = self._waiting_evs[0]
+            if vin in self._confirmed or vin not in self._lane_of:
+                self._waiting_evs.pop(0)
+                continue
+            queue = self._queue(lane)
+            if any(v not in self._confirmed for v in queue[: queue.index(vin)]):
+                return
+            self._next_event(now_s, reorder=False)
+
+    def _next_event(self, now_s: float, first: str | None = None, reorder: bool = True) -> None:
+        """Start the event of the next EV waiting (of ``first``, if given)."""
+        if first is not None:
+            i = next(i for i, w in enumerate(self._waiting_evs) if w[0] == first)
+            self._waiting_evs.insert(0, self._waiting_evs.pop(i))
+        while self._waiting_evs and self._event is None:
+            vin, lane, t_det = self._waiting_evs.pop(0)
+            if vin in self._confirmed or vin not in self._lane_of:
+                continue  # already confirmed (or gone): nothing left to reorder for it
+            self._event = EvEvent(vin, lane, t_det, now_s)
+            self.events.append(self._event)
+            if reorder:
+                self._reorder(self._event, now_s)
+
+    def _reorder(self, ev: EvEvent, now_s: float) -> None:
+        t_prep = time.perf_counter()
+        t_eff = now_s + self.reactive.revoke_latency_s
+        fixed, modifiable = self._classify(t_eff)
+        cands = [self._confirmed_candidate(vin, st) for vin, st in modifiable]
+        cands += self._lane_candidates(ev, t_eff)
+        n = len(cands)
+        ev_idx = next(i for i, c in enumerate(cands) if c.vin == ev.ev)
+        lanes = sorted({c.lane for c in cands})
+        sep = np.zeros((n, n))
+        for j, cj in enumerate(cands):
+            for k, ck in enumerate(cands):
+                if j != k:
+                    sep[j, k] = self._sep(cj.routes, cj.entry_mps, ck.routes, ck.entry_mps)
+        release = np.array([self._release(c, fixed) for c in cands])
+        # the present order: confirmed vehicles by their confirmed entries, then the EV's lane
+        present = sorted(
+            (i for i in range(n) if cands[i].state is not None),
+            key=lambda i: (self._confirmed[cands[i].vin].confirmation.entry_time_s, i),
+        ) + [i for i in range(n) if cands[i].state is None]
+        t0 = time.perf_counter()
+        prepare_s = t0 - t_prep
+        refused = ""
+        before = after = math.nan
+        try:
+            problem = Problem(np.array([lanes.index(c.lane) for c in cands]), release, sep, ev_idx)
+            _, before, _ = evaluate(problem, present)
+            sol = solve(
+                problem,
+                self.reactive.solver,
+                seed=hash((self.reactive.seed, len(self.events))) & 0x7FFFFFFF,
+                ga_params=self.reactive.ga,
+                limit=self.reactive.exhaustive_limit,
+            )
+            order, after = sol.order, sol.ev_entry_s
+        except OrderingError as e:
+            refused = str(e)
+            order, after = tuple(present), before
+        solve_s = time.perf_counter() - t0
+        revoked: list[str] = []
+        if not refused:
+            ev_pos = order.index(ev_idx)
+            for pos, i in enumerate(order):
+                c = cands[i]
+                if c.state is None:
+                    continue
+                (self._after if pos > ev_pos else self._before).append(c.state)
+                key = c.vin + _ASIDE
+                self._set_aside(c.vin, key)
+                self._pending[c.vin] = key
+                revoked.append(c.vin)
+        ev.reorder = Reorder(
+            t_s=now_s,
+            effective_s=t_eff,
+            ev=ev.ev,
+            solver=self.reactive.solver,
+            order=tuple(cands[i].vin for i in order),
+            revoked=tuple(revoked),
+            ev_entry_before_s=before,
+            ev_entry_after_s=after,
+            solve_s=solve_s,
+            prepare_s=prepare_s,
+            refused=refused,
+        )
+        self._outbox.append(ev.reorder)
+
+    def _classify(self, t_eff: float) -> tuple[list[tuple[str, float, float]], list]:
+        """Confirmed reservations split into fixed ones (vin, entry, entry speed) and
+        modifiable vehicles (vin, state at ``t_eff``), lane by lane from the back."""
+        fixed: list[tuple[str, float, float]] = []
+        modifiable: list[tuple[str, _Replan]] = []
+        for queue in map(self._queue, self._lanes):
+            confirmed = [v for v in queue if v in self._confirmed]
+            ok = True
+            for vin in reversed(confirmed):  # a vehicle can change only if those behind can
+                st = self._state_at(vin, t_eff) if ok else None
+                if st is None:
+                    ok = False
+                else:
+                    modifiable.append((vin, st))
+        movable = {vin for vin, _ in modifiable}
+        for vin, c in self._confirmed.items():
+            if vin in movable:
+                continue
+            traj = c.dtot.trajectory
+            k = min(traj.entry_index(), len(traj) - 2)
+            v_e = max((traj.s_m[k + 1] - traj.s_m[k]) / traj.step_s, 0.1)
+            fixed.append((vin, c.confirmation.entry_time_s, v_e))
+        modifiable.sort(key=lambda m: (m[1].route.in_lane, self._detected.get(m[0], (0,))[0]))
+        return fixed, modifiable
+
+    def _state_at(self, vin: str, t_eff: float) -> _Replan | None:
+        """The state of a confirmed vehicle at ``t_eff`` on its plan, if it can still stop."""
+        c = self._confirmed[vin]
+        traj = c.dtot.trajectory
+        k = round((t_eff - traj.t0_s) / traj.step_s)
+        if k < 0 or k >= len(traj) - 1:
+            return None
+        s = float(traj.s_m[k])
+        if s >= 0.0:
+            return None
+        if k >= 1:
+            v = float(traj.s_m[k] - traj.s_m[k - 1]) / traj.step_s
+        else:
+            v = float(traj.s_m[1] - traj.s_m[0]) / traj.step_s
+        st = _Replan(
+            # re-confirmed under the next seq: a plan the actuator takes over the old one
+            vin, c.confirmation.seq + 1, c.dtot.route, c.dtot.shape, traj.t0_s + k * traj.step_s,
+            -s, v,
+        )  # fmt: skip
+        if not self._planner(st).can_stop():
+            return None
+        return st
+
+    def _planner(self, st: _Replan) -> Planner:
+        cfg = self.config
+        return Planner(
+            d_m=st.dist_m,
+            v0_mps=st.speed_mps,
+            road_mps=cfg.caps.road_mps,
+            cap_mps=self.front_cap_mps(st.route),
+            s_end_m=st.route.cross_length_m + st.shape.length_m,
+            kin=cfg.kinematics,
+        )
+
+    def _confirmed_candidate(self, vin: str, st: _Replan) -> _Candidate:
+        pl = self._planner(st)
+        fastest = pl.fastest()
+        entry_mps = fastest.entry_speed_mps if fastest is not None else 0.0
+        release = st.t0_s + pl.earliest_entry_s()
+        return _Candidate(vin, st.route.in_lane, (st.route,), release, entry_mps, st)
+
+    def _lane_candidates(self, ev: EvEvent, t_eff: float) -> list[_Candidate]:
+        """The unconfirmed vehicles ahead of the EV in its lane, and the EV, with
+        releases estimated from their detection (their state is not known here)."""
+        routes = self.intersection.routes_from(ev.lane)
+        comm = self.intersection.comm_length_m
+        out = []
+        queue = [v for v in self._queue(ev.lane) if v not in self._confirmed]
+        nothing_ahead = queue[:1] == [ev.ev] and not any(
+            v in self._confirmed for v in self._queue(ev.lane)
+        )
+        for vin in queue:
+            _, t_det, v_det = self._detected.get(vin, (0, t_eff, None))
+            v0 = self.config.caps.road_mps if v_det is None else max(v_det, 0.0)
+            earliest = -math.inf
+            entry_mps = math.inf
+            for r in routes:
+                pl = Planner(
+                    comm, v0, self.config.caps.road_mps, r.speed_cap_mps,
+                    r.cross_length_m + self._shape.length_m, self.config.kinematics,
+                )  # fmt: skip
+                e = pl.earliest_entry_s()
+                earliest = max(earliest, t_det + e if math.isfinite(e) else t_eff)
+                fast = pl.fastest()
+                entry_mps = min(entry_mps, fast.entry_speed_mps if fast else 0.0)
+            if not (vin == ev.ev and nothing_ahead):  # waiting unconfirmed: stop and go
+                entry_mps = min(self.separations.stop_and_go_entry_mps(r) for r in routes)
+            out.append(_Candidate(vin, ev.lane, routes, max(earliest, t_eff), entry_mps, None))
+            if vin == ev.ev:
+                break
+        return out
+
+    def _sep(self, a: tuple[Route, ...], a_mps: float, b: tuple[Route, ...], b_mps: float) -> float:
+        """The largest separation over the routes each vehicle may take."""
+        return max(self.separations.separation_s(ra, a_mps, rb, b_mps) for ra in a for rb in b)
+
+    def _release(self, c: _Candidate, fixed: list[tuple[str, float, float]]) -> float:
+        """Earliest entry, and no earlier than the fixed reservations allow."""
+        t = c.release_s
+        for vin, entry, v_e in fixed:
+            route = self._confirmed[vin].dtot.route
+            t = max(t, entry + self._sep((route,), v_e, c.routes, c.entry_mps))
+        return t
+
+    def _leader_of(self, vin: str, lane: str) -> str | None:
+        """The vehicle confirmed from ``vin``'s lane just before it (still confirmed)."""
+        lst = self._lane_confirmed[lane]
+        if vin not in lst:
+            return None
+        i = lst.index(vin)
+        for lead in reversed(lst[:i]):
+            if lead in self._confirmed:
+                return lead
+        return None
+
+    def _forget_confirmed(self, vin: str) -> None:
+        """A revoked vehicle left without a plan: it will ask again like any other."""
+        for lst in self._lane_confirmed.values():
+            if vin in lst:
+                lst.remove(vin)
+
+
+def _sized(req: Request) -> bool:
+    return (
+        isinstance(req.length_m, (int, float))
+        and isinstance(req.width_m, (int, float))
+        and 0 < req.length_m < 50
+        and 0 < req.width_m < 10
+    )
+
+
+def _mean(values: list[float]) -> float | None:
+    return float(np.mean(values)) if values else None

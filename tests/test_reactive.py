@@ -1,0 +1,192 @@
+"""Reactive DICA in the pure core: who is revoked, when an old reservation may go,
+the EV ahead of vehicles confirmed before it, holds, and a conflict-free result."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ica.core.config import IcaConfig
+from ica.core.dica import Dica
+from ica.core.proposal import propose
+from ica.core.reactive import ReactiveConfig, ReactiveDica
+from ica.core.request import Confirmation, Reason, Rejection
+from tools.audit import Flown, conflicts
+
+CFG = IcaConfig()
+CROSS = "W_in_1", "E_out_1"  # through from the west, crossing the EV's path
+EV_ROUTE = "N_in_1", "S_out_1"  # the EV: through from the north
+
+
+def request(inter, vin, lanes, t, d, v, seq=0):
+    route = inter.route(*lanes)
+    return propose(route, vin=vin, seq=seq, t0_s=t, dist_to_entry_m=d, speed_mps=v, config=CFG)
+
+
+def scene(ica: Dica, inter) -> Confirmation:
+    """A car from the west is confirmed at t = 0, 30 m out at 8 m/s: it would be in the
+    junction when the EV, detected 0.5 s later at 15 m/s, gets there."""
+    ica.advance(0.0)
+    ica.detect("w1", CROSS[0], 0.0)
+    conf = ica.handle(request(inter, "w1", CROSS, 0.0, 30.0, 8.0), 0.0)
+    assert isinstance(conf, Confirmation)
+    ica.advance(0.5)
+    return conf
+
+
+def detect_ev(ica: Dica, **kw) -> None:
+    if isinstance(ica, ReactiveDica):
+        ica.detect("ev", EV_ROUTE[0], 0.5, emergency=True, speed_mps=15.0, **kw)
+    else:
+        ica.detect("ev", EV_ROUTE[0], 0.5)
+
+
+def ev_request(ica: Dica, inter, seq=0):
+    return ica.handle(request(inter, "ev", EV_ROUTE, 0.5, 50.0, 15.0, seq), 0.5)
+
+
+def start_event(ica: ReactiveDica, inter):
+    """The EV asks as head of its lane: its event starts, and the answer is "held"
+    while confirmations are being revoked for it."""
+    detect_ev(ica)
+    first = ev_request(ica, inter)
+    assert isinstance(first, Rejection) and first.reason is Reason.HELD
+    [r] = ica.take_reorders()
+    return r
+
+
+def flown(inter, confs: list[Confirmation]) -> list[Flown]:
+    return [
+        Flown(c.vin, inter.route_by_id(c.route_id), 5.0, 1.8, c.tss.t_s, c.tss.x_m, c.tss.y_m,
+              c.tss.heading_rad)
+        for c in confs
+    ]  # fmt: skip
+
+
+def test_plain_dica_makes_the_ev_wait_for_the_car_confirmed_first(ch45):
+    ica = Dica(ch45, CFG)
+    w1 = scene(ica, ch45)
+    detect_ev(ica)
+    ev = ev_request(ica, ch45)
+    assert isinstance(ev, Confirmation)
+    assert ev.delay_s > 0.3  # the scene is one where the EV loses time
+    assert ev.entry_time_s > w1.entry_time_s
+
+
+def test_the_ev_crosses_first_and_the_car_that_could_stop_goes_after_it(ch45):
+    ica = ReactiveDica(ch45, CFG)
+    w1_old = scene(ica, ch45)
+    r = start_event(ica, ch45)
+    assert r.ev == "ev" and r.revoked == ("w1",) and r.order.index("ev") < r.order.index("w1")
+    assert r.ev_entry_after_s < r.ev_entry_before_s
+    assert ica.pending() == ("w1",)
+    assert ica.acknowledge("w1") == []  # the EV is planned first, then the others around it
+    ev = ev_request(ica, ch45, seq=1)
+    assert isinstance(ev, Confirmation) and ev.delay_s < 1e-3  # at its earliest
+    [w1_new] = ica.take_confirmations()
+    assert w1_new.vin == "w1" and w1_new.tss.t_s[0] == pytest.approx(0.5)
+    assert w1_new.entry_time_s > ev.entry_time_s > w1_old.entry_time_s
+    # the new plan starts where the old one had the car when the revocation took effect
+    k = round((0.5 - w1_old.tss.t_s[0]) / CFG.step_s)
+    assert w1_new.tss.x_m[0] == pytest.approx(w1_old.tss.x_m[k])
+    assert conflicts(flown(ch45, [ev, w1_new]), CFG.margin_m) == []
+    assert ica.events[0].ev_entry_s == ev.entry_time_s
+
+
+def test_a_revoked_reservation_holds_until_it_is_acknowledged(ch45):
+    ica = ReactiveDica(ch45, CFG)
+    scene(ica, ch45)
+    start_event(ica, ch45)
+    # no acknowledgement yet: the car may still be flying its old plan, so the EV
+    # gets exactly what plain DICA would give it, not the car's room
+    ev = ev_request(ica, ch45, seq=1)
+    plain = Dica(ch45, CFG)
+    scene(plain, ch45)
+    detect_ev(plain)
+    assert isinstance(ev, Confirmation)
+    assert ev.entry_time_s == pytest.approx(ev_request(plain, ch45).entry_time_s)
+    assert "w1~revoked" in ica.confirmed
+
+
+def test_others_are_held_until_the_ev_holds_its_plan(ch45):
+    ica = ReactiveDica(ch45, CFG)
+    scene(ica, ch45)
+    r = start_event(ica, ch45)
+    for vin in r.revoked:
+        ica.acknowledge(vin)
+    ica.detect("e1", "E_in_1", 0.5)  # crosses the EV's path
+    ica.detect("s1", "S_in_0", 0.5)  # turns right, never near the EV's lane's routes
+    held = ica.handle(request(ch45, "e1", ("E_in_1", "W_out_1"), 0.5, 50.0, 10.0), 0.5)
+    assert isinstance(held, Rejection) and held.reason is Reason.HELD
+    free = ica.handle(request(ch45, "s1", ("S_in_0", "E_out_0"), 0.5, 50.0, 10.0), 0.5)
+    assert isinstance(free, Confirmation)
+    assert isinstance(ev_request(ica, ch45, seq=1), Confirmation)
+    ica.settle()
+    later = ica.handle(request(ch45, "e1", ("E_in_1", "W_out_1"), 0.5, 50.0, 10.0, seq=1), 0.5)
+    assert isinstance(later, Confirmation)
+    confs = [c.confirmation for c in ica.confirmed.values()]
+    assert conflicts(flown(ch45, confs), CFG.margin_m) == []
+
+
+def test_a_car_that_cannot_stop_keeps_its_confirmation(ch45):
+    ica = ReactiveDica(ch45, CFG)
+    ica.advance(0.0)
+    ica.detect("w1", CROSS[0], 0.0)
+    ica.handle(request(ch45, "w1", CROSS, 0.0, 12.0, 15.0), 0.0)  # 15 m/s, 12 m out
+    ica.advance(0.05)
+    ica.detect("ev", EV_ROUTE[0], 0.05, emergency=True, speed_mps=15.0)
+    ev = ica.handle(request(ch45, "ev", EV_ROUTE, 0.05, 50.0, 15.0), 0.05)
+    assert isinstance(ev, Confirmation)  # nothing to revoke: confirmed at its first request
+    [r] = ica.take_reorders()
+    assert r.revoked == () and r.order == ("ev",)
+
+
+def test_the_event_closes_when_the_ev_has_left(ch45):
+    ica = ReactiveDica(ch45, CFG)
+    scene(ica, ch45)
+    ica.detect("ev2", "E_in_1", 0.5, emergency=True, speed_mps=12.0)
+    r = start_event(ica, ch45)
+    for vin in r.revoked:
+        ica.acknowledge(vin)
+    ev = ev_request(ica, ch45, seq=1)
+    ica.settle()
+    assert ica.event is not None and ica.event.ev == "ev"
+    # the second EV waits: its request is held like anyone's that crosses the EV's path
+    second = ica.handle(request(ch45, "ev2", ("E_in_1", "W_out_1"), 0.5, 50.0, 12.0), 0.5)
+    assert isinstance(second, Confirmation)  # the first EV holds its plan: no hold now
+    t = ev.exit_time_s + 1.0
+    ica.advance(t)
+    assert ica.events[0].closed_s == t and ica.event is None
+    assert [e.ev for e in ica.events] == ["ev"]  # the second was confirmed: nothing to do
+
+
+def test_exhaustive_refusal_keeps_the_present_order(ch45):
+    ica = ReactiveDica(ch45, CFG, reactive=ReactiveConfig(solver="exhaustive", exhaustive_limit=1))
+    scene(ica, ch45)
+    detect_ev(ica)
+    assert isinstance(ev_request(ica, ch45), Confirmation)  # nothing revoked: plain DICA
+    [r] = ica.take_reorders()
+    assert "refused" in r.refused and r.revoked == ()
+    assert ica.summary()["refused"] == 1
+
+
+@pytest.mark.parametrize("solver", ["exact", "ga", "exhaustive"])
+def test_every_solver_puts_the_ev_first_here(ch45, solver):
+    ica = ReactiveDica(ch45, CFG, reactive=ReactiveConfig(solver=solver, seed=3))
+    scene(ica, ch45)
+    r = start_event(ica, ch45)
+    assert r.order.index("ev") < r.order.index("w1")
+    assert np.isfinite(r.solve_s)
+
+
+def test_at_detection_as_in_the_dissertation(ch45):
+    ica = ReactiveDica(ch45, CFG, reactive=ReactiveConfig(start_at="detection"))
+    scene(ica, ch45)
+    detect_ev(ica)
+    [r] = ica.take_reorders()  # decided at the detection, before the EV asks
+    assert r.revoked == ("w1",)
+    ica.acknowledge("w1")
+    ica.settle()  # the EV has not asked: the car ordered behind it gets no plan yet
+    assert ica.take_confirmations() == [] and ica.event.unplanned == ["w1"]
+    ev = ev_request(ica, ch45)
+    assert isinstance(ev, Confirmation) and ev.delay_s < 1e-3
