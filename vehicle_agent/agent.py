@@ -71,6 +71,7 @@ LAG_WARN_S = 0.5  # [s wall] a STATE older than this when acted on is worth a wa
 FORGET_S = 60.0  # [s wall] a vehicle no STATE has named for this long is forgotten
 LEAD_MIN_S = 0.25  # [s sim] shortest automatic lead in real time
 MIN_TIMEOUT_S, MAX_TIMEOUT_S = 0.2, 3.0  # [s wall] bounds of the adaptive query timeout
+BACKOFF_MAX = 4.0  # the most the timeout is stretched while queries go unanswered
 
 
 @dataclass(slots=True)
@@ -112,6 +113,9 @@ class ZenohLink:
         self.blocking = True
         self.timeout_s = 1.0
         self.loss = 0.0  # running share of queries that went unanswered
+        # grows while queries go unanswered: a timeout shorter than the round trip would
+        # drop every answer, and no answer would ever teach it the round trip
+        self.backoff = 1.0
         self.timing = Timing()
         self._keys = {
             "detect": keys.detect(junction, agent_id),
@@ -193,6 +197,7 @@ class ZenohLink:
     def _outcome(self, answered: bool) -> None:
         """Keep a running estimate of how often a query goes unanswered."""
         self.loss = 0.9 * self.loss + 0.1 * (0.0 if answered else 1.0)
+        self.backoff = 1.0 if answered else min(self.backoff * 1.5, BACKOFF_MAX)
 
     def copies(self) -> int:
         """How many copies of each query: more the more of them go unanswered."""
@@ -235,9 +240,12 @@ class ZenohLink:
         return response_to_core(msg)
 
     def adapt(self) -> None:
-        """Query timeouts from the round trips measured lately."""
+        """Query timeouts from the round trips measured lately, never shorter than two
+        of the STATEs' one-way ages (a round trip crosses at least two such links), and
+        longer while queries go unanswered."""
         t = self.timing
-        self.timeout_s = min(max(1.5 * t.q(t.rtt_s, 90, 0.4) + 0.05, MIN_TIMEOUT_S), MAX_TIMEOUT_S)
+        base = max(1.5 * t.q(t.rtt_s, 90, 0.4), 2.5 * t.q(t.state_age_s, 90, 0.0)) + 0.05
+        self.timeout_s = min(max(base * self.backoff, MIN_TIMEOUT_S), MAX_TIMEOUT_S)
 
 
 class Agent:
