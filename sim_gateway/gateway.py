@@ -169,9 +169,14 @@ class ZenohDrivers:
         self.log.info("ICA and %d agents up: %s", len(self.alive), ", ".join(sorted(self.alive)))
         self._t0_wall = time.monotonic()
 
-    def end(self, t: float) -> None:
+    def end(self, t: float, copies: int = 5) -> None:
+        """Tell the roles the run is over; a few times, as a lossy link may eat one."""
         self.ended = True  # from now on the roles stop: their tokens going is no news
-        self._clock_pub.put(encode(Clock(self._k + 1, t, self.clock, self.speed, True, now_ns())))
+        msg = encode(Clock(self._k + 1, t, self.clock, self.speed, True, now_ns()))
+        for i in range(copies):
+            if i:
+                time.sleep(0.2)
+            self._clock_pub.put(msg)
 
     def close(self) -> None:
         self._clock_pub.undeclare()
@@ -189,7 +194,7 @@ class ZenohDrivers:
             (a, keys.agent_stats(j, a)) for a in sorted(self.alive)
         ]
         for name, key in targets:
-            for _ in range(3):  # a lossy link may eat the query or the answer
+            for _ in range(5):  # a lossy link may eat the query or the answer
                 got = None
                 for r in self.session.get(
                     key, payload=query_payload(b""), timeout=timeout_s, **every_answer()
