@@ -106,6 +106,7 @@ class LocalDrivers:
         self.vehicles: dict[str, Vehicle] = {}
         self.rejections: dict[str, int] = {}
         self.recorded: set[str] = set()  # VINs whose confirmation is in the recording
+        self.revocations: list[tuple[float, str, str]] = []  # (t, vin, what), to record
 
     def step(self, t: float, seen: list[Seen]) -> list[Command]:
         self.ica.advance(t)
@@ -150,7 +151,10 @@ class LocalDrivers:
         for vin in link.revoked:
             v = self.vehicles.get(vin)
             if v is not None:
-                out.append(v.revoked(link.revised.get(vin), t))
+                new = link.revised.get(vin)
+                out.append(v.revoked(new, t))
+                self.recorded.discard(vin)  # its new plan is recorded once it flies it
+                self.revocations.append((t, vin, "revoked, replanned" if new else "revoked"))
         link.revoked, link.revised = [], {}
         return out
 
@@ -317,6 +321,9 @@ def _record(
 ) -> None:
     """This step's new confirmations and rejections, and every observed vehicle's footprint."""
     rec = r.rec
+    for t_rev, vin, what in drivers.revocations:  # a revoked plan is not flown from here on
+        rec.rejected(t_rev, vin, what)
+    drivers.revocations.clear()
     rejected = []
     for s in seen:
         v = drivers.vehicles.get(s.car.vin)
