@@ -311,6 +311,7 @@ class _Recording:
         self.rec = rec
         self.wake: dict[str, float] = {}  # when each vehicle may ask again, as last seen
         self.tally: dict[str, int] = {}  # rejections per reason, as last seen
+        self.emergency: set[str] = set()  # EVs the recorder has been told of
 
     def close(self) -> None:
         self.rec.close()
@@ -359,6 +360,10 @@ def _record(
         r.tally = dict(drivers.rejections)
         for vin in rejected or ["-"]:
             rec.rejected(t, vin, "/".join(reasons))
+    for s in seen:
+        if s.car.ev and s.car.vin not in r.emergency:
+            r.emergency.add(s.car.vin)
+            rec.emergency(s.car.vin)
     rec.footprints(
         t,
         [s.car.vin for s in seen],

@@ -92,16 +92,16 @@ class State(IntEnum):
     CONFIRMED = 2  # confirmed, front before the entry line
     CROSSING = 3  # front past the entry line, rear not yet past the exit line
     CLEARED = 4  # rear past the exit line
+    EMERGENCY = 5  # an emergency vehicle, in the region, whatever its state
 
 
-# The one table of states, names and colours (the top view and its legend). To give
-# emergency vehicles their own colour: add State.EMERGENCY here and return it
-# from vehicle_states() for vehicles that carry the flag.
+# The one table of states, names and colours (the top view and its legend).
 STATE_STYLE: dict[State, tuple[str, tuple[int, int, int]]] = {
     State.REQUESTING: ("requesting", (235, 150, 20)),
     State.CONFIRMED: ("confirmed", (40, 110, 235)),
     State.CROSSING: ("crossing", (20, 165, 60)),
     State.CLEARED: ("cleared", (140, 140, 140)),
+    State.EMERGENCY: ("emergency vehicle", (230, 30, 30)),
 }
 _STATE_RGBA = np.zeros(max(STATE_STYLE) + 1, dtype=np.uint32)  # packed colour by state
 for _state, (_, _rgb) in STATE_STYLE.items():
@@ -110,14 +110,22 @@ RESERVED_RGBA = (40, 110, 235, 90)  # the reserved footprint's margin band
 PLAN_ALPHA = 100  # plans are the vehicle's colour, translucent
 
 
-def vehicle_states(confirmed: np.ndarray, s_m: np.ndarray, out_m: np.ndarray) -> np.ndarray:
+def vehicle_states(
+    confirmed: np.ndarray,
+    s_m: np.ndarray,
+    out_m: np.ndarray,
+    emergency: np.ndarray | None = None,
+) -> np.ndarray:
     """State per vehicle from whether it holds a confirmation, its front's distance
-    along its route ``s_m`` (NaN: unknown) and the distance at which its rear is out."""
+    along its route ``s_m`` (NaN: unknown) and the distance at which its rear is out;
+    an emergency vehicle is EMERGENCY until it has cleared the junction."""
     st = np.full(len(s_m), int(State.REQUESTING), dtype=np.uint16)
     s = np.nan_to_num(s_m, nan=-np.inf)
     st[confirmed] = State.CONFIRMED
     st[confirmed & (s > 0.0)] = State.CROSSING
     st[confirmed & (s >= out_m)] = State.CLEARED
+    if emergency is not None:
+        st[emergency & (st != State.CLEARED)] = State.EMERGENCY
     return st
 
 
@@ -274,6 +282,7 @@ class SpaceTimeRecorder:
             intersection, ConflictTables(intersection, margin_m), shape
         )
         self._plans: dict[str, _Plan] = {}
+        self._emergency: set[str] = set()  # VINs drawn as emergency vehicles
         self._colors: dict[str, int] = {}
         self._steps: list[_Step] = []
         self._step_no = 0
@@ -748,6 +757,10 @@ class SpaceTimeRecorder:
         )
 
     # -- what really happened ------------------------------------------------
+    def emergency(self, vin: str) -> None:
+        """Draw ``vin`` in the emergency vehicles' colour from now on."""
+        self._emergency.add(vin)
+
     def footprints(
         self,
         t_s: float,
@@ -850,7 +863,8 @@ class SpaceTimeRecorder:
             dtype=bool,
         )
         out_m = np.array([p.out_m if p is not None else np.inf for p in plans])
-        state = vehicle_states(confirmed, np.where(dist <= LANE_WIDTH_M, s, np.nan), out_m)
+        ev = np.array([v in self._emergency for v in vins], dtype=bool)
+        state = vehicle_states(confirmed, np.where(dist <= LANE_WIDTH_M, s, np.nan), out_m, ev)
 
         # top view: every TOP_EVERY steps
         step_nos = self._step_no + np.arange(len(steps))

@@ -47,6 +47,7 @@ from sim_gateway.recording import (
     approach_of,
     rectangles,
     sumo_heading_rad,
+    vehicle_states,
 )
 from tools.cli import main as dica
 
@@ -432,6 +433,38 @@ def test_actual_footprints_states_and_names(recorded, ch45):
     names = _rows(data["/junction/names"], "Points2D:labels")
     assert {n for _, ns in names for n in ns} <= {c.vin for c in confs}
     assert any(ns for _, ns in names)
+
+
+def test_an_emergency_vehicle_has_its_own_colour_until_it_has_cleared():
+    confirmed = np.array([True, True, True, False, True])
+    s_m = np.array([-5.0, 3.0, 40.0, -10.0, -5.0])
+    out_m = np.full(5, 30.0)
+    ev = np.array([False, True, True, True, False])
+    st = vehicle_states(confirmed, s_m, out_m, ev)
+    assert list(st) == [
+        State.CONFIRMED, State.EMERGENCY, State.CLEARED, State.EMERGENCY, State.CONFIRMED
+    ]  # fmt: skip
+    assert "emergency vehicle" in {name for name, _ in STATE_STYLE.values()}
+
+
+def test_an_emergency_vehicle_is_drawn_in_its_colour(ch45, tmp_path):
+    confs = _confirmations(ch45)
+    path = tmp_path / "ev.rrd"
+    rec = SpaceTimeRecorder(ch45, path)
+    rec.geometry()
+    for c in confs:
+        tss = c.tss
+        rec.confirmed(
+            c.vin, c.route_id, tss.t_s, tss.x_m, tss.y_m, tss.heading_rad,
+            LENGTH_M, WIDTH_M, c.entry_time_s, c.exit_time_s,
+        )  # fmt: skip
+    rec.emergency(confs[0].vin)
+    _fly(rec, confs, 10)
+    rec.close()
+    r, g, b = STATE_STYLE[State.EMERGENCY][1]
+    red = (r << 24) | (g << 16) | (b << 8) | 0xFF
+    colours = _rows(_read(path)["/junction/vehicles"], "LineStrips2D:colors")
+    assert colours and all(ids[0] == red and red not in ids[1:] for _, ids in colours if ids)
 
 
 def test_charts_move_with_time_and_show_plan_and_progress(recorded, ch45):
