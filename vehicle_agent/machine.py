@@ -3,7 +3,8 @@
     approaching -> requesting -> confirmed -> crossing -> exited
 
 *approaching*: not yet announced; once it has crossed the communication
-region's entry line it sends a DETECT. *requesting*: without a plan it may
+region's entry line it sends a DETECT (over an asynchronous link it does
+not wait for the answer before it may ask). *requesting*: without a plan it may
 fly, the vehicle's own control stops it short of the junction's entry line
 (:mod:`vehicle_agent.control`, run at the actuator every step, no message
 needed); when it is head of its lane it sends a REQUEST (again ``retry_s``
@@ -130,7 +131,8 @@ class Vehicle:
     phase: Phase = Phase.APPROACHING
     next_request_s: float = 0.0
     last_seq: int = NO_PLAN  # the newest REQUEST sent; only its answer counts
-    pending: bool = False  # a REQUEST or DETECT awaits its answer
+    pending: bool = False  # a REQUEST awaits its answer
+    announcing: bool = False  # a DETECT awaits its answer
     held: Command | None = None  # a plan sent to the actuator, its verdict not yet seen
     confirmation: Confirmation | None = None  # the plan the actuator flies
     rejections: dict[str, int] = field(default_factory=dict)
@@ -145,15 +147,18 @@ class Vehicle:
             return verdict
         cmd = None
         if self.phase is Phase.APPROACHING:
-            if math.isnan(obs.detected_s) or self.pending:
+            if math.isnan(obs.detected_s) or self.announcing:
                 return None
             rej = link.detect(self.vin, self.route.in_lane, obs.detected_s)
             if rej is PENDING:
-                self.pending = True
-                return None
-            cmd = self.detected(rej, obs.t_s)
-            if self.phase is not Phase.REQUESTING:
-                return cmd
+                # its REQUEST need not wait for the DETECT's answer: the ICA orders a lane
+                # by detection time, and answers NOT_DETECTED a REQUEST it cannot place
+                self.announcing = True
+                self.phase = Phase.REQUESTING
+            else:
+                cmd = self.detected(rej, obs.t_s)
+                if self.phase is not Phase.REQUESTING:
+                    return cmd
         if self.phase is Phase.REQUESTING:
             if (
                 self.held is None
@@ -172,7 +177,15 @@ class Vehicle:
 
     def detected(self, rej: Rejection | None, now_s: float) -> Command | None:
         """The ICA's answer to this vehicle's DETECT (None: accepted)."""
-        self.pending = False
+        self.announcing = False
+        if self.phase is Phase.REQUESTING and rej is not None:
+            # asked already (an asynchronous link): announce again unless a REQUEST is out,
+            # whose answer says whether the ICA knows the vehicle after all
+            self._count(rej.reason.value)
+            if self.pending or self.held is not None:
+                return None
+            self.phase = Phase.APPROACHING
+            return Command(self.vin, wake_s=-BIG)
         if self.phase is not Phase.APPROACHING:
             return None
         if rej is not None:
