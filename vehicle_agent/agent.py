@@ -71,6 +71,7 @@ LAG_WARN_S = 0.5  # [s wall] a STATE older than this when acted on is worth a wa
 FORGET_S = 60.0  # [s wall] a vehicle no STATE has named for this long is forgotten
 LEAD_MIN_S = 0.25  # [s sim] shortest automatic lead in real time
 MIN_TIMEOUT_S, MAX_TIMEOUT_S = 0.2, 3.0  # [s wall] bounds of the adaptive query timeout
+LOCKSTEP_TIMEOUT_S = 2.0  # [s wall] the least a lockstep query waits
 BACKOFF_MAX = 4.0  # the most the timeout is stretched while queries go unanswered
 
 
@@ -111,7 +112,7 @@ class ZenohLink:
         self.inbox = inbox
         self.log = log
         self.blocking = True
-        self.timeout_s = 1.0
+        self.timeout_s = LOCKSTEP_TIMEOUT_S  # until round trips are measured
         self.loss = 0.0  # running share of queries that went unanswered
         # grows while queries go unanswered: a timeout shorter than the round trip would
         # drop every answer, and no answer would ever teach it the round trip
@@ -245,7 +246,10 @@ class ZenohLink:
         longer while queries go unanswered."""
         t = self.timing
         base = max(1.5 * t.q(t.rtt_s, 90, 0.4), 2.5 * t.q(t.state_age_s, 90, 0.0)) + 0.05
-        self.timeout_s = min(max(base * self.backoff, MIN_TIMEOUT_S), MAX_TIMEOUT_S)
+        # in lockstep the gateway waits for the answer anyway, and one given up early
+        # would make other decisions than the embedded run: only a dead ICA times out
+        low = LOCKSTEP_TIMEOUT_S if self.blocking else MIN_TIMEOUT_S
+        self.timeout_s = min(max(base * self.backoff, low), MAX_TIMEOUT_S)
 
 
 class Agent:
