@@ -455,13 +455,15 @@ class World:
             return
         kin = self.ica_cfg.kinematics
         flying = self.t >= c.plan_t0_s - 1e-6
-        if c.entered or c.exited or (
-            flying
-            and not can_stop_short(
-                -c.s_m, c.speed_mps, gap_m=kin.stop_gap_m, h=self.h,
-                accel_mps2=kin.accel_mps2, decel_mps2=kin.decel_mps2,
-            )  # fmt: skip
-        ):
+        stoppable = not flying or can_stop_short(
+            -c.s_m,
+            c.speed_mps,
+            gap_m=kin.stop_gap_m,
+            h=self.h,
+            accel_mps2=kin.accel_mps2,
+            decel_mps2=kin.decel_mps2,
+        )
+        if c.entered or c.exited or not stoppable:
             if c.kept_seq < c.plan_seq:
                 c.kept_seq = c.plan_seq
                 self.timing.kept += 1
