@@ -162,7 +162,7 @@ def test_ica_refuses_garbage_and_keeps_serving(ica_on_loopback):
 
     session, ica, tmp_path = ica_on_loopback
     request, detect = keys.request("C", "tester"), keys.detect("C", "tester")
-    good_detect = encode(Detect("v1", "W_in_0", 0.0, now_ns()))
+    good_detect = encode(Detect("v1", "W_in_0", 0.0, False, 10.0, now_ns()))
     for bad in (b"", b"\x00\xff garbage", good_detect[:-3], b"\x93\x01\x02\x03", good_detect):
         (answer,) = _ask(session, request, bad)
         assert isinstance(answer, Reject) and answer.reason == "bad_message", answer
@@ -177,7 +177,7 @@ def test_ica_refuses_garbage_and_keeps_serving(ica_on_loopback):
     inter = load_intersection(sc.net_path, sc.junction_id)
     route = inter.routes_from(inter.in_lanes[0])[0]
     session.put(keys.clock("C"), encode(Clock(1, 0.05, "lockstep", 1.0, False, now_ns())))
-    (ack,) = _ask(session, detect, encode(Detect("v1", route.in_lane, 0.0, now_ns())))
+    (ack,) = _ask(session, detect, encode(Detect("v1", route.in_lane, 0.0, False, 10.0, now_ns())))
     assert isinstance(ack, Ack)
     confirmed = []
     sub = session.declare_subscriber(keys.confirmed("C"), lambda s: confirmed.append(s))
