@@ -188,6 +188,7 @@ class ReactiveDica(Dica):
         self._waiting_evs: list[tuple[str, str, float]] = []
         self._pending: dict[str, str] = {}  # revoked vin -> key of its set-aside reservation
         self._revoked_seq: dict[str, int] = {}  # revoked vin -> the seq of the plan revoked
+        self._revoked_at: dict[str, float] = {}  # revoked vin -> when it was decided [s]
         self._lane_revoked: dict[str, list[str]] = {}  # per lane, revoked vins front to back
         self.acknowledged = 0  # revocations the vehicle confirmed (its plan dropped)
         self.restored = 0  # reservations given back: the vehicle could no longer stop
@@ -377,6 +378,8 @@ class ReactiveDica(Dica):
             "restored": self.restored,
             "expired": self.expired,
             "pending": len(self._pending),
+            # when the oldest revocation still unanswered was decided [sim s]
+            "pending_since_s": min((self._revoked_at[v] for v in self._pending), default=None),
             "ev_entry_model_gain_s_mean": _mean(
                 [
                     e.reorder.ev_entry_before_s - e.reorder.ev_entry_after_s
@@ -592,6 +595,7 @@ class ReactiveDica(Dica):
                 if replan:
                     (self._after if pos > ev_pos else self._before).append(c.state)
                 self._revoked_seq[c.vin] = self._confirmed[c.vin].confirmation.seq
+                self._revoked_at[c.vin] = now_s
                 key = c.vin + _ASIDE
                 self._set_aside(c.vin, key)
                 self._pending[c.vin] = key
