@@ -234,7 +234,8 @@ class ZenohDrivers:
             self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
         if self.clock == "lockstep":
             waves = self._waves(t, seen)
-        else:
+        else:  # a verdict is news there anyway (see _realtime_feed)
+            self.dropping.clear()
             waves = [self._batches(self._realtime_feed(t, seen))]
         for part, batches in enumerate(waves):
             if part > 0:
