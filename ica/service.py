@@ -45,15 +45,28 @@ from pathlib import Path
 import numpy as np
 
 from ica.core.dica import Dica
+from ica.core.reactive import ReactiveDica
 from ica.core.request import Confirmation, Reason, Rejection, RequestError
 from ica.journal import Journal, Replayed, replay
 from schemas import keys
 from schemas.codec import DecodeError, decode, encode, now_ns
 from schemas.convert import reject_from_core, request_to_core, response_from_core
 from schemas.link import Inbox, Item, note_refused, put, refused, reply
-from schemas.messages import Ack, Cancel, Clock, Detect, Reject, Request, State, Stats
+from schemas.messages import (
+    KEPT,
+    Ack,
+    Cancel,
+    Clock,
+    Detect,
+    Reject,
+    Request,
+    Revoke,
+    State,
+    Stats,
+)
 
 HOLD_S = 2.0  # [s wall] longest a request may wait for the clock to reach its time
+REVOKE_EVERY_S = 0.5  # [s wall] an unanswered REVOKE goes out again this often
 STATS_EVERY_S = 5.0  # [s wall] how often the statistics file is rewritten
 
 
@@ -73,6 +86,10 @@ class ServiceStats:
     rejections: dict[str, int] = field(default_factory=dict)
     compute_s: list[float] = field(default_factory=list)
     journal_replayed: dict | None = None
+    revokes_sent: int = 0  # REVOKE messages, repeats included
+    revoke_acks: int = 0  # answered: plan dropped
+    revoke_kept: int = 0  # answered: the vehicle could not stop, its reservation restored
+    reactive: dict | None = None  # reactive DICA's own figures
 
     def as_dict(self) -> dict:
         rt = np.array(self.compute_s) if self.compute_s else np.zeros(1)
@@ -92,6 +109,10 @@ class ServiceStats:
             "compute_median_ms": float(np.median(rt) * 1e3),
             "compute_p99_ms": float(np.percentile(rt, 99) * 1e3),
             "journal_replayed": self.journal_replayed,
+            "revokes_sent": self.revokes_sent,
+            "revoke_acks": self.revoke_acks,
+            "revoke_kept": self.revoke_kept,
+            "reactive": self.reactive,
             "refused_unsealed": refused(),
         }
 
@@ -124,6 +145,7 @@ class IcaService:
         self._owner: dict[str, str] = {}  # VIN -> the agent that speaks for it
         self._decls: list = []
         self._token = None
+        self._revoke_sent: dict[tuple[str, int], float] = {}  # (vin, seq) -> wall time sent
 
     def restore(self, path: Path) -> Replayed:
         """Replay a journal into the core before serving (a restarted ICA)."""
@@ -177,9 +199,12 @@ class IcaService:
         while not self.inbox.stopping.is_set() and not self.ended:
             item = self.inbox.get(timeout=0.1)
             self._expire_held()
+            if item is None:
+                self._revoke()  # resend what is still unanswered
             if time.monotonic() - written > STATS_EVERY_S:
                 note_refused(self.log)
                 if stats_path is not None:
+                    self.note_reactive()
                     write_stats(stats_path, self.stats)
                 written = time.monotonic()
             if item is None:
@@ -191,6 +216,7 @@ class IcaService:
                 self._dispatch(item)
             except Exception:  # a bug must not take the junction's controller down
                 self.log.exception("could not handle %s on %s", item.what, item.key)
+            self._revoke()
 
     def close(self) -> None:
         for _, item in self._held:
@@ -216,14 +242,74 @@ class IcaService:
         elif item.what == "vehicles":
             self._on_vehicles(item)
         elif item.what == "stats":
+            self.note_reactive()
             body = json.dumps(self.stats.as_dict())
             reply(item.query, item.key, encode(Stats("ica", self.junction, body, now_ns())))
         elif item.what == "ack":
             try:
-                decode(item.payload, Ack)
-                self.stats.acks += 1
+                ack = decode(item.payload, Ack)
             except DecodeError as e:
                 self._bad(item, e)
+                return
+            self.stats.acks += 1
+            if ack.of in (Revoke.KIND, KEPT):
+                self._on_revoke_answer(item, ack)
+
+    # -- revocations (reactive DICA) -----------------------------------------------
+    def _revoke(self) -> None:
+        """Send each revocation now due (again, if unanswered for REVOKE_EVERY_S).
+
+        Published before the answer to the query that caused it: a lockstep agent
+        then has it before it answers its STATE.
+        """
+        ica = self.ica
+        if not isinstance(ica, ReactiveDica):
+            return
+        for r in ica.take_reorders():
+            if r.revoked:
+                self.log.info(
+                    "EV %s: %d confirmations revoked (%s)", r.ev, len(r.revoked), r.solver
+                )
+        now = time.monotonic()
+        due = ica.due_revocations()
+        for vin, seq in due:
+            sent = self._revoke_sent.get((vin, seq))
+            if sent is not None and now - sent < REVOKE_EVERY_S:
+                continue
+            owner = self._owner.get(vin)
+            if owner is None:
+                continue  # nobody speaks for it yet: asked again later
+            self._revoke_sent[(vin, seq)] = now
+            self.stats.revokes_sent += 1
+            msg = Revoke(vin, seq, self.now_s, now_ns())
+            put(self.session, keys.revoke(self.junction, keys.chunk(owner)), encode(msg))
+        if len(self._revoke_sent) > len(due):
+            keep = set(due)
+            self._revoke_sent = {k: t for k, t in self._revoke_sent.items() if k in keep}
+
+    def note_reactive(self) -> None:
+        """Reactive DICA's figures into the statistics."""
+        if isinstance(self.ica, ReactiveDica):
+            self.stats.reactive = self.ica.summary()
+
+    def _on_revoke_answer(self, item: Item, ack: Ack) -> None:
+        """A vehicle's answer to a REVOKE: its old reservation goes (plan dropped, and
+        journalled as a cancel first, so a restart does not bring it back) or is its own
+        again (it could not stop)."""
+        ica = self.ica
+        if not isinstance(ica, ReactiveDica) or not self._speaks_for(item, ack.vin):
+            return
+        if ack.vin not in ica.pending() or ack.seq < 0:
+            return  # answered already (a repeat), or about nothing pending
+        if ack.of == KEPT:
+            ica.restore(ack.vin, ack.seq)
+            self.stats.revoke_kept += 1
+            return
+        if self.journal is not None:
+            self.journal.cancel(ack.vin, ack.seq)
+        before = ica.acknowledged
+        ica.acknowledge(ack.vin, ack.seq)
+        self.stats.revoke_acks += ica.acknowledged - before
 
     def _on_clock(self, item: Item) -> None:
         if item.key != self._clock_key:
@@ -308,9 +394,11 @@ class IcaService:
                 self._published.add((answer.vin, answer.seq))
                 self.stats.confirmed += 1
                 put(self.session, keys.confirmed(self.junction, keys.chunk(answer.vin)), payload)
+            self._revoke()
             reply(item.query, item.key, payload)
             return
         self._count(answer)
+        self._revoke()  # revocations this request caused go out before its answer
         reply(item.query, item.key, encode(reject_from_core(answer)))
 
     def _on_detect(self, item: Item) -> None:
@@ -330,7 +418,12 @@ class IcaService:
             return
         known = msg.vin in self.ica._lane_of
         try:
-            self.ica.detect(msg.vin, msg.lane, msg.t_s)
+            if isinstance(self.ica, ReactiveDica):
+                self.ica.detect(
+                    msg.vin, msg.lane, msg.t_s, emergency=msg.ev, speed_mps=msg.speed_mps
+                )
+            else:
+                self.ica.detect(msg.vin, msg.lane, msg.t_s)
         except RequestError as e:
             self._count(Rejection(msg.vin, -1, e.reason, e.detail))
             self._reject(item.query, msg.vin, -1, e.reason, e.detail)

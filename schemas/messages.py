@@ -17,7 +17,10 @@ from typing import ClassVar
 
 import numpy as np
 
-VERSION = 2
+# 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev`` and
+# ``kept_seq``, a setpoint ``drop``, and REVOKE exists (2 had no revocations; 1 had
+# open-loop speed commands)
+VERSION = 3
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
@@ -89,12 +92,30 @@ class Reject:
 
 @dataclass(frozen=True, slots=True)
 class Ack:
-    """Delivery receipt: the ICA for a DETECT, a vehicle for a RESPONSE."""
+    """Delivery receipt: the ICA for a DETECT or CANCEL, a vehicle for a RESPONSE or a
+    REVOKE. ``of`` is the kind acknowledged; for a REVOKE, ``revoke`` says the actuator
+    dropped plan ``seq`` and ``kept`` that it could not (it flies on)."""
 
     KIND: ClassVar[str] = "ack"
     vin: str = lim(n=MAX_TEXT)
     seq: int = lim(-1, 2**31 - 1)
     of: str = lim(n=32)  # the kind acknowledged
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+KEPT = "kept"  # Ack.of: a REVOKE received, but the actuator could not drop the plan
+
+
+@dataclass(frozen=True, slots=True)
+class Revoke:
+    """The ICA takes back confirmation ``seq`` (reactive DICA): drop it and stop short
+    of the line, then ACK (``revoke``, or ``kept`` if it cannot stop); sent again until
+    answered. ``t_s`` is the sim time it was decided."""
+
+    KIND: ClassVar[str] = "revoke"
+    vin: str = lim(n=MAX_TEXT)
+    seq: int = lim(0, 2**31 - 1)
+    t_s: float = lim(*TIME)
     sent_ns: int = lim(0, 2**63 - 1)
 
 
@@ -110,12 +131,15 @@ class Cancel:
 
 @dataclass(frozen=True, slots=True)
 class Detect:
-    """A vehicle entered the communication region on ``lane`` at sim time ``t_s``."""
+    """A vehicle entered the communication region on ``lane`` at sim time ``t_s``;
+    ``ev``: it is an emergency vehicle; ``speed_mps``: how fast it came in."""
 
     KIND: ClassVar[str] = "detect"
     vin: str = lim(n=MAX_TEXT)
     lane: str = lim(n=MAX_TEXT)
     t_s: float = lim(*TIME)
+    ev: bool = lim()
+    speed_mps: float = lim(0.0, 200.0)
     sent_ns: int = lim(0, 2**63 - 1)
 
 
@@ -129,9 +153,11 @@ class VehicleState:
     on the incoming lane. ``detected_s`` is when it crossed the communication
     region's entry line (NaN before). ``exited``: its rear has left the junction.
     ``plan_seq`` is the plan its actuator holds (-1: none), ``refused_seq`` the
-    last plan it refused because it arrived after its start (-1: none).
-    ``owner`` is the agent that hosts it. The first STATE that names a vehicle
-    to an agent hands it to that agent.
+    last plan it refused because it arrived after its start or dropped on a
+    REVOKE (-1: none), ``kept_seq`` the last plan it was told to drop and kept,
+    unable to stop short of the line. ``ev``: an emergency vehicle. ``owner``
+    is the agent that hosts it. The first STATE that names a vehicle to an
+    agent hands it to that agent.
     """
 
     vin: str = lim(n=MAX_TEXT)
@@ -150,6 +176,8 @@ class VehicleState:
     exited: bool = lim()
     plan_seq: int = lim(-1, 2**31 - 1)
     refused_seq: int = lim(-1, 2**31 - 1)
+    kept_seq: int = lim(-1, 2**31 - 1)
+    ev: bool = lim()
     owner: str = lim(n=MAX_TEXT)
 
 
@@ -173,7 +201,8 @@ class Setpoint:
     ``s_m`` is the front's position along the route [m], 0 at the entry line;
     the actuator flies it by position and takes it only if it arrives by
     ``t0_s``. ``seq`` is the confirmation it comes from (-1 and no positions:
-    no new plan, only ``wake_s``).
+    no new plan, only ``wake_s``). ``drop``: give up every plan up to ``seq``
+    (revoked) and stop short of the line, if the vehicle still can.
     """
 
     vin: str = lim(n=MAX_TEXT)
@@ -181,6 +210,7 @@ class Setpoint:
     t0_s: float = lim(*TIME, n=-1)  # NaN without a plan
     s_m: np.ndarray = lim(n=MAX_SAMPLES)
     wake_s: float = lim(*TIME)  # next sim time it may DETECT or REQUEST (-1e9: now, 1e9: never)
+    drop: bool = lim()
 
 
 @dataclass(frozen=True, slots=True)
@@ -224,6 +254,7 @@ MESSAGES: tuple[type, ...] = (
     Response,
     Reject,
     Ack,
+    Revoke,
     Cancel,
     Detect,
     State,

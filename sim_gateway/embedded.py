@@ -68,7 +68,10 @@ class LocalLink:
 
     def _revoke(self, ica: ReactiveDica) -> bool:
         """In process a revocation reaches its vehicle at once: acknowledge it now.
-        True if anything was revoked."""
+        True if anything was revoked. (Not in the cluster's way, ``replan_revoked``
+        off: there the vehicles answer for themselves, see LocalDrivers._deliver.)"""
+        if not ica.reactive.replan_revoked:
+            return False
         revoked = False
         for r in ica.take_reorders():
             self.revoked += r.revoked
@@ -95,6 +98,13 @@ class LocalLink:
     def cancel(self, vin: str, seq: int) -> None:
         self.ica.cancel(vin, seq)
 
+    def answer_revoke(self, vin: str, seq: int, dropped: bool) -> None:
+        if isinstance(self.ica, ReactiveDica):
+            if dropped:
+                self.ica.acknowledge(vin, seq)
+            else:
+                self.ica.restore(vin, seq)
+
 
 class LocalDrivers:
     """The vehicles' machines, all in this process, with the ICA beside them."""
@@ -107,6 +117,7 @@ class LocalDrivers:
         self.rejections: dict[str, int] = {}
         self.recorded: set[str] = set()  # VINs whose confirmation is in the recording
         self.revocations: list[tuple[float, str, str]] = []  # (t, vin, what), to record
+        self.delivered: set[tuple[str, int]] = set()  # revocations handed to their vehicles
 
     def step(self, t: float, seen: list[Seen]) -> list[Command]:
         self.ica.advance(t)
@@ -138,7 +149,30 @@ class LocalDrivers:
                 del self.vehicles[s.car.vin]
                 self.link.detector.pop(s.car.vin, None)
         if isinstance(self.ica, ReactiveDica):
-            out += self._revise(self.ica, t)
+            if self.ica.reactive.replan_revoked:
+                out += self._revise(self.ica, t)
+            else:
+                out += self._deliver(self.ica, t)
+        return out
+
+    def _deliver(self, ica: ReactiveDica, t: float) -> list[Command]:
+        """The cluster's way: this step's REVOKEs reach their vehicles, as they reach
+        a lockstep agent before it answers the STATE whose query caused them; each
+        vehicle's actuator drops its plan (or keeps it) and the vehicle tells the ICA
+        at its next observation."""
+        for r in ica.take_reorders():
+            for vin in r.revoked:
+                self.recorded.discard(vin)  # its next plan is recorded once it flies it
+                self.revocations.append((t, vin, "revoked"))
+        out = []
+        for vin, seq in ica.due_revocations():
+            if (vin, seq) in self.delivered:
+                continue
+            self.delivered.add((vin, seq))
+            v = self.vehicles.get(vin)
+            cmd = v.revoke(seq, self.link) if v is not None else None
+            if cmd is not None:
+                out.append(cmd)
         return out
 
     def _revise(self, ica: ReactiveDica, t: float) -> list[Command]:
@@ -192,6 +226,13 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
     return [v for v in schedule if v.arrival_s <= horizon], spec, horizon
 
 
+def reactive_config(cfg: RunConfig) -> ReactiveConfig:
+    """Reactive DICA's settings for a run (the cluster's ICA builds the same)."""
+    return ReactiveConfig(
+        solver=cfg.solver, seed=cfg.seed, replan_revoked=cfg.revocation == "replan"
+    )
+
+
 def ica_config(cfg: RunConfig) -> IcaConfig:
     return controller_config(cfg.algorithm, cfg.margin_m, cfg.time_pad_s)
 
@@ -228,9 +269,7 @@ def _run(
     light = cfg.algorithm in LIGHTS
     ica_cfg = ica_config(cfg)
     if cfg.algorithm == "rdica":
-        ica: Dica = ReactiveDica(
-            inter, ica_cfg, reactive=ReactiveConfig(solver=cfg.solver, seed=cfg.seed)
-        )
+        ica: Dica = ReactiveDica(inter, ica_cfg, reactive=reactive_config(cfg))
     else:
         ica = make_controller("fifo" if light else cfg.algorithm, inter, ica_cfg, cfg.tile_m)
     schedule, spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)

@@ -115,6 +115,8 @@ class ZenohDrivers:
         self.wake: dict[str, float] = {}  # per vehicle: when it may next talk to the ICA
         self.news: dict[str, float] = {}  # realtime: vehicles to keep naming until this time
         self.exits: list[Seen] = []  # lockstep: exit notices not yet delivered
+        # lockstep: vehicles told to drop a plan, whose agent must see the actuator's verdict
+        self.dropping: set[str] = set()
         self.dropped_setpoints = 0
         self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
         self.age_ms: list[float] = []
@@ -232,7 +234,8 @@ class ZenohDrivers:
             self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
         if self.clock == "lockstep":
             waves = self._waves(t, seen)
-        else:
+        else:  # a verdict is news there anyway (see _realtime_feed)
+            self.dropping.clear()
             waves = [self._batches(self._realtime_feed(t, seen))]
         for part, batches in enumerate(waves):
             if part > 0:
@@ -283,7 +286,7 @@ class ZenohDrivers:
                 self._seen_plan.pop(c.vin, None)
                 feed.append(s)
                 continue
-            mark = (c.plan_seq, c.refused_seq)
+            mark = (c.plan_seq, c.refused_seq, c.kept_seq)
             if self._seen_plan.get(c.vin) != mark:
                 self._seen_plan[c.vin] = mark
                 self.news[c.vin] = t + NOTICE_S
@@ -327,10 +330,16 @@ class ZenohDrivers:
                 if vin in self.known:
                     self.exits.append(s)
                 continue
-            if s.car.plan_seq != NO_PLAN:
+            verdict = vin in self.dropping  # the actuator dropped or kept a revoked plan
+            self.dropping.discard(vin)
+            if s.car.plan_seq != NO_PLAN and not verdict:
                 continue  # flying its plan: nothing to ask
             wake = self.wake.get(vin, -BIG)
-            if vin in self.known and not (t >= wake and (s.obs.head or wake <= -BIG)):
+            if (
+                vin in self.known
+                and not verdict
+                and not (t >= wake and (s.obs.head or wake <= -BIG))
+            ):
                 continue
             agent = self._owner(vin)
             if agent is None:
@@ -438,16 +447,24 @@ class ZenohDrivers:
             self.dropped_setpoints += len(cmd.setpoints)  # someone else's name on its key
             return None
         self.age_ms.append(max((item.arrived_ns - cmd.sent_ns) / 1e6, 0.0))  # in transit
-        if wanted is not None and (cmd.step, cmd.part) != wanted:
-            self.stale_commands += 1
-            return None  # lockstep: an answer to an earlier STATE (resent, or late)
+        stale = wanted is not None and (cmd.step, cmd.part) != wanted
+        if stale:
+            self.stale_commands += 1  # lockstep: an answer to an earlier STATE (resent, or late)
         for sp in cmd.setpoints:
             if self.owner.get(sp.vin) != cmd.agent:
                 self.dropped_setpoints += 1  # not this agent's vehicle (any more)
                 continue
+            if sp.drop:  # a revoked plan: safe to hand over whenever it comes, even twice
+                self.dropping.add(sp.vin)
+                out.append(Actuation(sp.vin, sp.seq, drop=True))
+                continue
+            if stale:
+                continue
             if sp.wake_s != BIG or sp.seq != NO_PLAN:
                 self.wake[sp.vin] = sp.wake_s
             out.append(Actuation(sp.vin, sp.seq, sp.t0_s, sp.s_m, sp.wake_s))
+        if stale:
+            return None
         return cmd.agent if wanted is not None else None
 
     def _note(self, item: Item) -> None:
@@ -503,6 +520,8 @@ class ZenohDrivers:
             exited=o.exited,
             plan_seq=c.plan_seq,
             refused_seq=c.refused_seq,
+            kept_seq=c.kept_seq,
+            ev=c.ev,
             owner=self.owner.get(c.vin, ""),
         )
 

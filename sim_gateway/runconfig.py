@@ -11,6 +11,7 @@ from sim_gateway.metrics import TripLog
 
 LIGHTS = ("fixed", "actuated", "reactive-light")  # SUMO drives; the junction is signalised
 REACTIVE = ("rdica",)  # reactive DICA: emergency vehicles first (--solver)
+REVOCATIONS = ("replan", "drop")  # how rdica's revoked vehicles get their next plan
 
 
 class RunError(Exception):
@@ -41,6 +42,9 @@ class RunConfig:
     time_pad_s: float = 0.0  # [s] the ICA's padding of every confirmed occupancy interval
     ev_prob: float = 0.0  # each arrival an emergency-vehicle candidate with this probability
     solver: str = "exact"  # reactive DICA's ordering solver
+    # reactive DICA's revoked vehicles: "replan" (the ICA plans them again in the solver's
+    # order; in process only) or "drop" (they drop their plans and ask again: the cluster)
+    revocation: str = "replan"
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.volume_per_10min <= 2000.0:
@@ -73,6 +77,10 @@ class RunConfig:
             raise RunError(f"retry must be between 0.05 and 60 s, got {self.retry_s:g}")
         if not 0.0 <= self.ev_prob <= 1.0:
             raise RunError(f"--ev-prob {self.ev_prob:g} is not a probability (0 to 1)")
+        if self.revocation not in REVOCATIONS:
+            raise RunError(
+                f"unknown revocation {self.revocation!r}: use {' or '.join(REVOCATIONS)}"
+            )
         if self.solver not in SOLVERS:
             raise RunError(f"unknown solver {self.solver!r}: use {', '.join(SOLVERS)}")
 

@@ -44,7 +44,7 @@ from sim_gateway.demand import Arrival
 from sim_gateway.metrics import Trip, TripLog, summarize
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
 from sim_gateway.safety import SafetyMonitor
-from vehicle_agent.control import entry_time, stop_speed, track_speed
+from vehicle_agent.control import can_stop_short, entry_time, stop_speed, track_speed
 from vehicle_agent.machine import (
     MODE_CONFIRMED,
     MODE_DEFAULT,
@@ -137,6 +137,7 @@ class Car:
     plan_t0_s: float = math.nan
     plan_s: np.ndarray | None = None
     refused_seq: int = NO_PLAN
+    kept_seq: int = NO_PLAN  # the last plan it was told to drop but kept (it could not stop)
     # where the front is along the route [m] (0 at the entry line) and how fast, this step
     s_m: float = math.nan
     speed_mps: float = 0.0
@@ -361,6 +362,7 @@ class World:
                 exited=c.exited,
                 plan_seq=c.plan_seq,
                 refused_seq=c.refused_seq,
+                kept_seq=c.kept_seq,
             )
             seen.append(Seen(c, obs))
         if self.want_xy:
@@ -382,12 +384,10 @@ class World:
         ls, t = self.ls, self.t
         for cmd in commands:
             c = self.cars.get(cmd.vin)
-            if c is None or c.entered or c.exited:
+            if c is not None and cmd.drop:  # revoked: stop short of the line, if it can
+                self._drop(c, cmd.seq)
                 continue
-            if cmd.drop:  # revoked: stop short of the line (the stop law below)
-                if c.plan_seq != NO_PLAN and cmd.seq >= c.plan_seq:
-                    c.refused_seq = max(c.refused_seq, c.plan_seq)
-                    c.plan_seq, c.plan_s = NO_PLAN, None
+            if c is None or c.entered or c.exited:
                 continue
             if not cmd.has_plan:
                 continue
@@ -439,6 +439,38 @@ class World:
                     ls.vehicle.setSpeedMode(c.vin, mode)
                     c.speed_mode = mode
                 ls.vehicle.setSpeed(c.vin, self._stop_speed(c, ahead.get(c.vin, math.inf)))
+
+    def _drop(self, c: Car, seq: int) -> None:
+        """Give up every plan up to ``seq`` (revoked), if the vehicle can still stop.
+
+        A plan not yet begun is always dropped (the stop law drives the vehicle
+        until then). One being flown is dropped only if the stop law, from here,
+        keeps the front short of the entry line; otherwise the vehicle flies on
+        (its reservation is still the ICA's to keep) and ``kept_seq`` says so.
+        Either way a plan up to ``seq`` that arrives later is never taken, and a
+        repeated drop changes nothing.
+        """
+        if c.plan_seq == NO_PLAN or c.plan_seq > seq:
+            c.refused_seq = max(c.refused_seq, seq)
+            return
+        kin = self.ica_cfg.kinematics
+        flying = self.t >= c.plan_t0_s - 1e-6
+        stoppable = not flying or can_stop_short(
+            -c.s_m,
+            c.speed_mps,
+            gap_m=kin.stop_gap_m,
+            h=self.h,
+            accel_mps2=kin.accel_mps2,
+            decel_mps2=kin.decel_mps2,
+        )
+        if c.entered or c.exited or not stoppable:
+            if c.kept_seq < c.plan_seq:
+                c.kept_seq = c.plan_seq
+                self.timing.kept += 1
+            return
+        c.refused_seq = max(c.refused_seq, seq)
+        c.plan_seq, c.plan_s = NO_PLAN, None
+        self.timing.dropped += 1
 
     def _obstacles(self) -> dict[str, float]:
         """For each vehicle short of the junction, the rear of the vehicle ahead of it
@@ -608,6 +640,8 @@ class Timing:
     accepted: int = 0  # plans taken before their start
     refused: int = 0  # plans never flown: arrived after their start, or found off it
     off_start: int = 0  # of those, found further than START_TOL_M off the plan at its start
+    dropped: int = 0  # plans given up on a revocation (reactive DICA)
+    kept: int = 0  # plans the vehicle was told to drop but flew on: it could not stop
     slack_s: list[float] = field(default_factory=list)  # plan start minus arrival [s]
     adherence_s: list[float] = field(default_factory=list)  # actual minus planned entry [s]
     worst: list[tuple[float, str, float, float]] = field(default_factory=list)
@@ -621,6 +655,8 @@ class Timing:
             "plans_accepted": self.accepted,
             "plans_refused": self.refused,
             "plans_refused_off_start": self.off_start,
+            "plans_dropped": self.dropped,
+            "plans_kept": self.kept,
             "plan_slack_p1_s": pct(self.slack_s, 1),
             "plan_slack_median_s": pct(self.slack_s, 50),
             "entry_adherence_p50_s": pct(adh, 50),

@@ -85,7 +85,7 @@ class Attacker(threading.Thread):
             for key in ("sim/C/clock", "*/C/clock", "sim/C/cl$*", "**"):
                 for body in (jump, end, seal.seal(jump), seal.seal(end)):
                     s.put(key, body)
-            plan = Setpoint("v00001", 9, 0.0, _f(range(0, 400, 2)), -1e9)
+            plan = Setpoint("v00001", 9, 0.0, _f(range(0, 400, 2)), -1e9, False)
             order = encode(Command("agent-1", k, 0, (plan,), now_ns()))
             s.put("sim/C/command/agent-1", order)
             s.put("sim/C/command/agent-1", seal.seal(order))

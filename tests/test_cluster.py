@@ -162,7 +162,7 @@ def test_ica_refuses_garbage_and_keeps_serving(ica_on_loopback):
 
     session, ica, tmp_path = ica_on_loopback
     request, detect = keys.request("C", "tester"), keys.detect("C", "tester")
-    good_detect = encode(Detect("v1", "W_in_0", 0.0, now_ns()))
+    good_detect = encode(Detect("v1", "W_in_0", 0.0, False, 10.0, now_ns()))
     for bad in (b"", b"\x00\xff garbage", good_detect[:-3], b"\x93\x01\x02\x03", good_detect):
         (answer,) = _ask(session, request, bad)
         assert isinstance(answer, Reject) and answer.reason == "bad_message", answer
@@ -177,7 +177,7 @@ def test_ica_refuses_garbage_and_keeps_serving(ica_on_loopback):
     inter = load_intersection(sc.net_path, sc.junction_id)
     route = inter.routes_from(inter.in_lanes[0])[0]
     session.put(keys.clock("C"), encode(Clock(1, 0.05, "lockstep", 1.0, False, now_ns())))
-    (ack,) = _ask(session, detect, encode(Detect("v1", route.in_lane, 0.0, now_ns())))
+    (ack,) = _ask(session, detect, encode(Detect("v1", route.in_lane, 0.0, False, 10.0, now_ns())))
     assert isinstance(ack, Ack)
     confirmed = []
     sub = session.declare_subscriber(keys.confirmed("C"), lambda s: confirmed.append(s))
@@ -261,3 +261,24 @@ def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path):
     # the observer closed its file on SIGTERM: it reads back
     chunks = list(RrdReader(out / "spacetime.rrd").stream())
     assert any(str(c.entity_path) == "/junction/vehicles" for c in chunks)
+
+
+def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_path):
+    port = _free_port()
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
+    p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), "--no-record", *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    _embedded(tmp_path / "emb", [*common, "--revocation", "drop"])
+
+    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
+    reactive = ica["incarnations"][0]["reactive"]
+    assert ica["incarnations"][0]["revoke_acks"] >= 1  # taken back over the wire, and ACKed
+    assert reactive["acknowledged"] + reactive["restored"] == reactive["revoked"]
+    assert reactive["pending"] == 0 and reactive["expired"] == 0
+    assert m["timing"]["plans_dropped"] >= 1
+    config = json.loads((tmp_path / "cl" / "config.json").read_text())
+    assert config["run"]["revocation"] == "drop"
+    _same_decisions(tmp_path / "cl", tmp_path / "emb")

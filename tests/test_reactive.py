@@ -190,3 +190,57 @@ def test_at_detection_as_in_the_dissertation(ch45):
     assert ica.take_confirmations() == [] and ica.event.unplanned == ["w1"]
     ev = ev_request(ica, ch45)
     assert isinstance(ev, Confirmation) and ev.delay_s < 1e-3
+
+
+ASK = ReactiveConfig(replan_revoked=False)
+
+
+def test_over_a_link_the_revoked_car_drops_its_plan_and_asks_after_the_ev(ch45):
+    ica = ReactiveDica(ch45, CFG, reactive=ASK)
+    w1_old = scene(ica, ch45)
+    r = start_event(ica, ch45)
+    assert r.revoked == ("w1",) and ica.due_revocations() == [("w1", 0)]
+    held = ev_request(ica, ch45, seq=1)  # no answer yet: the EV waits, the room stays taken
+    assert isinstance(held, Rejection) and held.reason is Reason.HELD
+    assert "w1~revoked" in ica.confirmed and ica.due_revocations() == [("w1", 0)]
+    assert ica.acknowledge("w1", seq=7) == [] and ica.pending() == ("w1",)  # not that plan
+    assert ica.cancel("w1", 0)  # the vehicle will not fly plan 0: its acknowledgement
+    assert ica.pending() == () and ica.due_revocations() == []
+    assert "w1~revoked" not in ica.confirmed and "w1" not in ica.confirmed
+    ev = ev_request(ica, ch45, seq=2)
+    assert isinstance(ev, Confirmation) and ev.delay_s < 1e-3
+    assert ica.take_confirmations() == []  # the ICA makes it no new plan: it asks again
+    k = round((0.5 - w1_old.tss.t_s[0]) / CFG.step_s)
+    d = -float(ch45.route(*CROSS).project(np.array([[w1_old.tss.x_m[k], w1_old.tss.y_m[k]]]))[0][0])
+    again = ica.handle(request(ch45, "w1", CROSS, 0.5, d, 7.0, seq=3), 0.5)
+    assert isinstance(again, Confirmation) and again.entry_time_s > ev.entry_time_s
+    assert conflicts(flown(ch45, [ev, again]), CFG.margin_m) == []
+    s = ica.summary()
+    assert (s["acknowledged"], s["restored"], s["pending"]) == (1, 0, 0)
+
+
+def test_a_refused_drop_gives_the_car_its_reservation_back(ch45):
+    ica = ReactiveDica(ch45, CFG, reactive=ASK)
+    w1 = scene(ica, ch45)
+    start_event(ica, ch45)
+    assert ica.restore("w1", seq=5) == ()  # about another plan: nothing changes
+    assert ica.restore("w1", seq=0) == ("w1",)
+    assert ica.confirmed["w1"].confirmation is w1 and "w1~revoked" not in ica.confirmed
+    assert ica.restore("w1", seq=0) == () and ica.due_revocations() == []  # a repeat
+    assert not ica.cancel("w1", 5)
+    ev = ev_request(ica, ch45, seq=1)  # planned around the car, as plain DICA would
+    plain = Dica(ch45, CFG)
+    scene(plain, ch45)
+    detect_ev(plain)
+    assert isinstance(ev, Confirmation)
+    assert ev.entry_time_s == pytest.approx(ev_request(plain, ch45).entry_time_s)
+    assert ica.summary()["restored"] == 1
+
+
+def test_an_unanswered_revocation_ends_with_the_old_plan(ch45):
+    ica = ReactiveDica(ch45, CFG, reactive=ASK)
+    w1 = scene(ica, ch45)
+    start_event(ica, ch45)
+    ica.advance(w1.exit_time_s + 1.0)  # never answered: it flew it (or stopped, unheard)
+    assert ica.pending() == () and ica.summary()["expired"] == 1
+    assert "w1" not in ica._lane_of  # gone from its queue: one still there announces itself

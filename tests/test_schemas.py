@@ -25,6 +25,7 @@ from schemas.messages import (
     Reject,
     Request,
     Response,
+    Revoke,
     Setpoint,
     State,
     Stats,
@@ -36,7 +37,7 @@ T = np.arange(0.0, 2.0, 0.05)
 
 def _vs(vin: str = "v00001", detected: float = math.nan) -> VehicleState:
     return VehicleState(vin, "r1", "W_in_0", 42.5, 13.9, -50.2, 1.6, 90.0, 5.0, 1.8, 19.4, True,
-                        detected, False, 7, -1, "agent-1")  # fmt: skip
+                        detected, False, 7, -1, 5, True, "agent-1")  # fmt: skip
 
 
 SAMPLES = {
@@ -61,13 +62,18 @@ SAMPLES = {
     Reject: Reject("v00001", 3, "not_head", "v00000 is ahead", 1),
     Ack: Ack("v00001", 3, "response", 2),
     Cancel: Cancel("v00001", 3, 7),
-    Detect: Detect("v00001", "W_in_0", 10.05, 3),
+    Detect: Detect("v00001", "W_in_0", 10.05, True, 12.5, 3),
+    Revoke: Revoke("v00001", 3, 12.4, 9),
     State: State("agent-1", 247, 1, 12.35, (_vs(), _vs("v00002", 3.2)), 4),
     Command: Command(
         "agent-1",
         247,
         0,
-        (Setpoint("v00001", 3, 12.35, T, 1e9), Setpoint("v2", -1, math.nan, T[:0], -1e9)),
+        (
+            Setpoint("v00001", 3, 12.35, T, 1e9, False),
+            Setpoint("v2", -1, math.nan, T[:0], -1e9, False),
+            Setpoint("v3", 4, math.nan, T[:0], 1e9, True),
+        ),
         5,
     ),
     Clock: Clock(247, 12.35, "lockstep", 1.0, False, 6),

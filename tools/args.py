@@ -88,6 +88,7 @@ def run_config(args: argparse.Namespace):
             lead_s=getattr(args, "lead", 0.0),
             ev_prob=_ev_prob(args),
             solver=args.solver,
+            revocation=getattr(args, "revocation", "replan"),
         )
     except RunError as e:
         raise UsageError(str(e)) from None

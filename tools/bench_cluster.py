@@ -66,7 +66,7 @@ def round_trips(n: int) -> dict:
             tick(60.0)  # everyone confirmed before has left: an empty junction
             time.sleep(0.002)
             vin = f"b{k:05d}"
-            detect = encode(Detect(vin, route.in_lane, t, now_ns()))
+            detect = encode(Detect(vin, route.in_lane, t, False, 10.0, now_ns()))
             req = propose(route, vin=vin, seq=0, t0_s=t, dist_to_entry_m=40.0, speed_mps=12.0)
             payload = encode(request_from_core(req))
             ask(keys.detect(j, "bench"), detect)

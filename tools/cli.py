@@ -339,6 +339,14 @@ def parser() -> argparse.ArgumentParser:
         help="vehicles plan each REQUEST this far ahead of what they observed [s], from where "
         "their stop law will have taken them: what a link with delay needs (default 0)",
     )
+    r.add_argument(
+        "--revocation",
+        choices=("replan", "drop"),
+        default="replan",
+        help="rdica's revoked vehicles: replan (the ICA plans them again in the solver's "
+        "order, at once; default) or drop (each drops its plan, stops short of the line and "
+        "asks again, answering the ICA one step later: what the cluster does)",
+    )
     r.add_argument("--out", type=Path, help="output directory (default runs/run-ALG-TIMESTAMP)")
     r.add_argument("--quiet", action="store_true", help="no progress bar")
     r.add_argument(

@@ -155,7 +155,15 @@ def cmd_ica(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, max_request_age_s=args.max_age)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    ica = make_controller(args.algorithm, inter, config, args.tile_size)
+    if args.algorithm == "rdica":
+        from ica.core.reactive import ReactiveConfig, ReactiveDica
+
+        # revoked vehicles drop their plans and ask again: the ICA cannot re-plan a
+        # vehicle over a link that may lose the new plan after the old one is gone
+        reactive = ReactiveConfig(solver=args.solver, seed=args.seed, replan_revoked=False)
+        ica = ReactiveDica(inter, config, reactive=reactive)
+    else:
+        ica = make_controller(args.algorithm, inter, config, args.tile_size)
     journal_path = args.journal or (args.out / "ica-journal.msgpack" if args.out else None)
     session, log = _session(args, "ica")
     try:
@@ -185,6 +193,7 @@ def cmd_ica(args: argparse.Namespace) -> int:
         service.close()
         session.close()
         log.info("stopped: %s", json.dumps(service.stats.as_dict()))
+        service.note_reactive()
         if stats_path is not None:
             write_stats(stats_path, service.stats)
     return 0
@@ -261,6 +270,8 @@ def cmd_gateway(args: argparse.Namespace) -> int:
     if not 0 < args.peers_timeout <= 3600 or not 0 < args.progress_every <= 86400:
         raise UsageError("--peers-timeout and --progress-every must be positive")
     cfg, inter = run_config(args)
+    if cfg.algorithm == "rdica":  # the cluster's way: no ICA re-plans over a link
+        cfg = dataclasses.replace(cfg, revocation="drop")
     out = args.out or Path("runs") / time.strftime("cluster-%Y%m%d-%H%M%S")
     session, log = _session(args, "gateway")
     try:
@@ -368,7 +379,19 @@ def add_role_parsers(sub) -> None:
         "SIGTERM or when the clock announces the end of the run.",
     )
     add_net_args(i)
-    i.add_argument("--algorithm", default="enhanced", help="basic, enhanced, t1..t4, fifo, ...")
+    i.add_argument(
+        "--algorithm",
+        default="enhanced",
+        help="basic, enhanced, t1..t4, fifo, ..., or rdica (reactive DICA: emergency vehicles "
+        "first; revoked vehicles drop their plans and ask again)",
+    )
+    i.add_argument(
+        "--solver",
+        choices=("exact", "ga", "exhaustive"),
+        default="exact",
+        help="rdica's ordering solver (default exact)",
+    )
+    i.add_argument("--seed", type=int, default=12, help="rdica's GA seed (the run's seed)")
     i.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
     i.add_argument(
         "--time-pad",

@@ -21,7 +21,11 @@ scenario and roles:
   --layout ch45|ch3     built-in intersection (default ch45)
   --net FILE --junction ID
                         any SUMO net instead
-  --algorithm NAME      ICA controller: enhanced (default), basic, t1..t4, fifo, ...
+  --algorithm NAME      ICA controller: enhanced (default), basic, t1..t4, fifo, ...,
+                        rdica (reactive DICA: emergency vehicles first)
+  --ev-prob P           probability an arrival is an emergency vehicle (default 0.02
+                        for rdica, else 0)
+  --solver NAME         rdica's ordering solver: exact (default), ga, exhaustive
   --volume N            vehicles per 10 min (default 500)
   --duration S          simulated seconds (default 600)
   --seed N              random seed (default 12)
@@ -77,7 +81,7 @@ prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1
 layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
 delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
-max_age="" restart=1 router_rules=1
+max_age="" restart=1 router_rules=1 ev_prob="" solver=exact
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -85,6 +89,8 @@ while [ $# -gt 0 ]; do
     --net) net="$2"; shift 2 ;;
     --junction) junction="$2"; shift 2 ;;
     --algorithm) algorithm="$2"; shift 2 ;;
+    --ev-prob) ev_prob="$2"; shift 2 ;;
+    --solver) solver="$2"; shift 2 ;;
     --volume) volume="$2"; shift 2 ;;
     --duration) duration="$2"; shift 2 ;;
     --seed) seed="$2"; shift 2 ;;
@@ -121,6 +127,10 @@ awk -v d="$delay" -v j="$jitter" 'BEGIN { exit !(d <= 10000 && j <= 10000) }' ||
 prob --loss "$loss"; prob --dup "$dup"; prob --reorder "$reorder"
 [ -z "$time_pad" ] || number --time-pad "$time_pad"
 [ -z "$max_age" ] || number --max-age "$max_age"
+[ -z "$ev_prob" ] || number --ev-prob "$ev_prob"
+case "$solver" in exact|ga|exhaustive) ;; *) die "--solver must be exact, ga or exhaustive" ;; esac
+ev_args=(--solver "$solver")
+[ -z "$ev_prob" ] || ev_args+=(--ev-prob "$ev_prob")
 [ "$lead" = auto ] || number --lead "$lead"
 [ -z "$port" ] || [[ "$port" =~ ^[0-9]+$ ]] || die "--port wants a port number"
 faulty_roles=()
@@ -303,7 +313,7 @@ link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to
 }
 link_for ica ica
 start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" \
-  --time-pad "$time_pad" --max-age "$max_age" "${role_link[@]}"
+  --time-pad "$time_pad" --max-age "$max_age" --solver "$solver" --seed "$seed" "${role_link[@]}"
 if [ "$record" = 1 ]; then
   link_for observer observer
   start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" --time-pad "$time_pad" \
@@ -317,7 +327,7 @@ link_for gateway gateway
 start gateway "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$volume" \
   --duration "$duration" --seed "$seed" --agents "$agents" --per-agent "$per_agent" \
   --clock "$clock" --speed "$speed" --observers "$record" --time-pad "$time_pad" \
-  --out "$out" "${role_link[@]}" "${extra[@]}"
+  --out "$out" "${ev_args[@]}" "${role_link[@]}" "${extra[@]}"
 gateway_pid="${pid_of[gateway]}"
 echo "run_cluster: router on tcp/127.0.0.1:$port; ${#order[@]} processes; logs in $out/logs/"
 if [ "$faults" = 1 ]; then

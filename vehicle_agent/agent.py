@@ -54,6 +54,7 @@ from schemas.link import (
     reply_body,
 )
 from schemas.messages import (
+    KEPT,
     Ack,
     Cancel,
     Clock,
@@ -61,11 +62,12 @@ from schemas.messages import (
     Detect,
     Reject,
     Response,
+    Revoke,
     Setpoint,
     State,
     Stats,
 )
-from vehicle_agent.machine import PENDING, Observation, Vehicle
+from vehicle_agent.machine import PENDING, Observation, Phase, Vehicle
 
 LAG_WARN_S = 0.5  # [s wall] a STATE older than this when acted on is worth a warning
 FORGET_S = 60.0  # [s wall] a vehicle no STATE has named for this long is forgotten
@@ -118,16 +120,20 @@ class ZenohLink:
         # drop every answer, and no answer would ever teach it the round trip
         self.backoff = 1.0
         self.timing = Timing()
+        self.revoke_answers = 0
         self._keys = {
             "detect": keys.detect(junction, agent_id),
             "request": keys.request(junction, agent_id),
             "cancel": keys.cancel(junction, agent_id),
         }
         self._ack_key = keys.ack(junction, agent_id)
+        # what the region's detector reads as a vehicle passes it: EV or not, and its speed
+        self.detector: dict[str, tuple[bool, float]] = {}
 
     # -- the IcaLink protocol -------------------------------------------------
     def detect(self, vin: str, lane: str, t_s: float):
-        msg = Detect(vin, lane, t_s, now_ns())
+        ev, speed = self.detector.get(vin, (False, 0.0))
+        msg = Detect(vin, lane, t_s, ev, min(max(speed, 0.0), 200.0), now_ns())
         return self._ask("detect", vin, -1, encode(msg))
 
     def request(self, req: Request, now_s: float):
@@ -143,6 +149,13 @@ class ZenohLink:
             timeout=self.timeout_s,
             **every_answer(),
         )
+
+    def answer_revoke(self, vin: str, seq: int, dropped: bool) -> None:
+        """ACK a REVOKE: ``revoke`` once the actuator dropped the plan, ``kept`` if it could
+        not (a publication: a lost one is answered again when the REVOKE comes again)."""
+        of = Revoke.KIND if dropped else KEPT
+        put(self.session, self._ack_key, encode(Ack(vin, seq, of, now_ns())))
+        self.revoke_answers += 1
 
     # -- answers ----------------------------------------------------------------
     def _ask(self, what: str, vin: str, seq: int, payload: bytes):
@@ -275,6 +288,8 @@ class Agent:
         self.log = log
         j = inter.junction_id
         self.inbox = Inbox()
+        self.revokes = Inbox()  # REVOKEs, taken before each COMMAND goes out
+        self.revoked = 0
         self.link = ZenohLink(session, j, self.agent_id, self.inbox, log)
         self.vehicles: dict[str, Vehicle] = {}
         self.rejections: dict[str, int] = {}  # one tally for every hosted vehicle
@@ -290,6 +305,9 @@ class Agent:
         self._decls = [
             session.declare_subscriber(keys.state(j, self.agent_id), self.inbox.sample_cb("state")),
             session.declare_subscriber(self._clock_key, self.inbox.sample_cb("clock")),
+            session.declare_subscriber(
+                keys.revoke(j, self.agent_id), self.revokes.sample_cb("revoke")
+            ),
             # the ICA publishes every confirmation too: a second way for a lost reply to arrive
             session.declare_subscriber(keys.confirmed(j), self.inbox.sample_cb("confirmed")),
             session.declare_queryable(
@@ -310,6 +328,8 @@ class Agent:
             if item is None:
                 self._forget_silent()
                 note_refused(self.log)
+                self._take_revokes()  # none came with a STATE: sent on their own
+                self._flush(step=self._answered[0] if self._answered else 0, part=0, always=False)
                 continue
             if self.realtime:
                 self._realtime(item)
@@ -326,6 +346,7 @@ class Agent:
         if states:
             self.link.timing.stale_states += len(states) - 1
             self._handle(states[-1])
+        self._take_revokes()
         self._flush(step=0, part=0, always=False)
 
     def _handle(self, item: Item) -> None:
@@ -398,6 +419,7 @@ class Agent:
                 exited=vs.exited,
                 plan_seq=vs.plan_seq,
                 refused_seq=vs.refused_seq,
+                kept_seq=vs.kept_seq,
             )
             if v is None:
                 if vs.exited:
@@ -405,6 +427,8 @@ class Agent:
                 v = self._host(vs, obs)
                 if v is None:
                     continue
+            if v.phase is Phase.APPROACHING:
+                self.link.detector[vs.vin] = (vs.ev, vs.speed_mps)
             self.seen_wall[vs.vin] = wall
             v.lead_s = lead
             cmd = v.step(obs, self.link)
@@ -421,8 +445,28 @@ class Agent:
             if vs.exited:
                 self.vehicles.pop(vs.vin, None)
                 self.seen_wall.pop(vs.vin, None)
+                self.link.detector.pop(vs.vin, None)
         if not realtime:
+            # the REVOKEs the queries of this STATE caused are here already (the ICA
+            # sends them before it answers): their drops go out with this COMMAND
+            self._take_revokes()
             self._flush(state.step, state.part, always=True)
+
+    def _take_revokes(self) -> None:
+        """Every REVOKE waiting: the vehicle's actuator is told to drop the plan."""
+        for item in self.revokes.drain():
+            try:
+                msg = decode(item.payload, Revoke)
+            except DecodeError as e:
+                self.log.warning("dropped a bad revoke message: %s", e)
+                continue
+            v = self.vehicles.get(msg.vin)
+            if v is None:
+                continue  # not ours (any more): its new agent is told when it comes again
+            self.revoked += 1
+            cmd = v.revoke(msg.seq, self.link)
+            if cmd is not None:
+                self._send(cmd)
 
     def _on_reply(self, what: str, vin: str, seq: int, msg) -> None:
         v = self.vehicles.get(vin)
@@ -466,7 +510,7 @@ class Agent:
         return min(max(lead, LEAD_MIN_S), self.config.max_lead_s - 1.0)
 
     def _send(self, cmd) -> None:
-        self._outbox.append(Setpoint(cmd.vin, cmd.seq, cmd.t0_s, cmd.s_m, cmd.wake_s))
+        self._outbox.append(Setpoint(cmd.vin, cmd.seq, cmd.t0_s, cmd.s_m, cmd.wake_s, cmd.drop))
 
     def _flush(self, step: int, part: int, always: bool) -> None:
         if not self._outbox and not always:
@@ -526,6 +570,8 @@ class Agent:
             "lag_warnings": t.lag_warnings,
             "plans_resent": t.resent_plans,
             "answers_via_publication": t.via_publication,
+            "revokes_received": self.revoked,
+            "revoke_answers": self.link.revoke_answers,
             "query_copies": self.link.copies(),
             "lead_s": self._lead() if self.realtime else 0.0,
             "rejections": dict(self.rejections),

@@ -54,6 +54,28 @@ def predict_stop(
     return d_m, v_mps
 
 
+def can_stop_short(
+    d_m: float, v_mps: float, *, gap_m: float, h: float, accel_mps2: float, decel_mps2: float
+) -> bool:
+    """Whether the stop law, from now on, keeps the front short of the entry line.
+
+    ``d_m`` is the distance from the front to the line. The law is run step by
+    step to a standstill exactly as the actuator would run it (SUMO's stopping
+    rule, never braking harder than ``decel_mps2``); a vehicle too close or too
+    fast for that would cross the line, so a plan it flies cannot be dropped.
+    """
+    if d_m <= 0.0:
+        return False
+    for _ in range(100_000):
+        if v_mps <= 1e-9:
+            return True
+        v_mps = stop_speed(d_m - gap_m, v_mps, v_mps, h, accel_mps2, decel_mps2)
+        d_m -= v_mps * h
+        if d_m <= 0.0:
+            return False
+    return False
+
+
 def track_speed(s_target_m: float, s_m: float, v_mps: float, h: float) -> float:
     """The speed that brings the front from ``s_m`` to ``s_target_m`` in one step.
 

@@ -80,6 +80,11 @@ class IcaLink(Protocol):
 
     def cancel(self, vin: str, seq: int) -> None: ...
 
+    def answer_revoke(self, vin: str, seq: int, dropped: bool) -> None:
+        """Tell the ICA whether the actuator dropped revoked plan ``seq`` (ACK) or
+        kept it, being unable to stop short of the line."""
+        ...
+
 
 @dataclass(frozen=True, slots=True)
 class Observation:
@@ -93,7 +98,8 @@ class Observation:
     detected_s: float  # when it crossed the region's entry line; NaN before
     exited: bool  # rear out of the junction
     plan_seq: int = NO_PLAN  # the plan the actuator holds (waiting for its start, or flying)
-    refused_seq: int = NO_PLAN  # the last plan the actuator refused because it came too late
+    refused_seq: int = NO_PLAN  # the last plan the actuator refused (too late) or dropped
+    kept_seq: int = NO_PLAN  # the last plan it was told to drop and kept: it could not stop
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -111,7 +117,9 @@ class Command:
     t0_s: float = math.nan
     s_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
     wake_s: float = BIG
-    drop: bool = False  # give up plan ``seq`` (revoked) and stop short of the line
+    # give up every plan up to ``seq`` (revoked) and stop short of the line; the actuator
+    # refuses (``kept_seq``) if the vehicle can no longer stop short of it
+    drop: bool = False
 
     @property
     def has_plan(self) -> bool:
@@ -137,9 +145,16 @@ class Vehicle:
     confirmation: Confirmation | None = None  # the plan the actuator flies
     rejections: dict[str, int] = field(default_factory=dict)
     _answer: Confirmation | None = None  # the confirmation behind ``held``
+    revoking: int = NO_PLAN  # a revoked plan whose drop awaits the actuator's verdict
+    revoked_seq: int = NO_PLAN  # the newest revoked plan whose verdict the ICA was told
+    revoke_dropped: bool = True  # that verdict
 
     def step(self, obs: Observation, link: IcaLink) -> Command | None:
         """Advance one step; what the actuator must be told, or None for nothing new."""
+        if self.revoking != NO_PLAN:
+            done = self._revoke_verdict(obs, link)
+            if done is not None:
+                return done
         if obs.exited:
             self.phase = Phase.EXITED
             return None
@@ -195,8 +210,11 @@ class Vehicle:
         return Command(self.vin, wake_s=self.next_request_s)  # it may ask once head
 
     def answered(self, answer: Confirmation | Rejection, now_s: float) -> Command | None:
-        """The ICA's answer to a REQUEST; answers to any but the newest are stale."""
+        """The ICA's answer to a REQUEST; answers to any but the newest are stale, and
+        so is one whose plan has been revoked meanwhile."""
         if answer.seq != self.last_seq or self.phase is not Phase.REQUESTING:
+            return None
+        if answer.seq <= max(self.revoking, self.revoked_seq):
             return None
         if self.held is not None:  # a repeat of the answer already taken
             return None
@@ -280,6 +298,49 @@ class Vehicle:
         self._answer = confirmation
         self.held = Command(self.vin, confirmation.seq, t0, s_new, BIG)
         return self.held
+
+    def revoke(self, seq: int, link: IcaLink) -> Command | None:
+        """The ICA revoked plan ``seq`` and will not plan this vehicle again (the
+        cluster's way): the actuator is told to drop every plan up to ``seq``. The
+        next observation says whether it did (the vehicle then asks again like any
+        head of its lane) or kept it, unable to stop short of the line; the ICA
+        hears which (:meth:`IcaLink.answer_revoke`) and only then frees or restores
+        the reservation. A repeated REVOKE is answered again and changes nothing.
+        """
+        if seq <= self.revoked_seq:
+            link.answer_revoke(self.vin, self.revoked_seq, self.revoke_dropped)
+            return None
+        self.revoking = max(self.revoking, seq)
+        if self.pending and self.last_seq <= seq and self.phase is Phase.REQUESTING:
+            self.pending = False  # its answer, whatever it is, would be revoked too
+        return Command(self.vin, self.revoking, drop=True)
+
+    def _revoke_verdict(self, obs: Observation, link: IcaLink) -> Command | None:
+        """The actuator's verdict on the drop of ``revoking``, once it shows."""
+        r = self.revoking
+        if obs.kept_seq >= r or (obs.plan_seq != NO_PLAN and obs.plan_seq <= r and obs.exited):
+            self.revoking, self.revoked_seq, self.revoke_dropped = NO_PLAN, r, False
+            link.answer_revoke(self.vin, r, False)
+            return None  # it flies on, as before
+        if obs.refused_seq < r:
+            return Command(self.vin, r, drop=True)  # not heard yet (a lost COMMAND): again
+        self.revoking, self.revoked_seq, self.revoke_dropped = NO_PLAN, r, True
+        link.answer_revoke(self.vin, r, True)
+        lost = self.phase is Phase.REQUESTING and self.held is None and self.last_seq <= r
+        if self.held is not None and self.held.seq <= r:
+            self.held = self._answer = None
+            lost = True
+        if self.confirmation is not None and self.confirmation.seq <= r:
+            self.confirmation = None
+            lost = True
+        if lost and self.phase in (Phase.CONFIRMED, Phase.REQUESTING):
+            self.phase = Phase.REQUESTING
+            self.pending = False
+            self.next_request_s = obs.t_s
+        if obs.exited:
+            return None
+        cmd = self.step(obs, link)  # it may ask at once, being head of its lane
+        return cmd if cmd is not None else Command(self.vin, wake_s=self.next_request_s)
 
     def _request(self, obs: Observation, link: IcaLink) -> Command | None:
         cfg = self.config

@@ -462,6 +462,14 @@ class Dica:
         self._rows.add(key, c.dtot, c.packed)
         self._version += 1
 
+    def _restore_aside(self, vin: str, key: str) -> None:
+        """Give a reservation set aside under ``key`` back to ``vin`` (undo _set_aside)."""
+        c = self._confirmed.pop(key)
+        self._rows.remove(key)
+        self._confirmed[vin] = c
+        self._rows.add(vin, c.dtot, c.packed)
+        self._version += 1
+
     def _drop(self, key: str) -> None:
         """Forget a reservation that will not be flown (a revoked plan, acknowledged)."""
         if self._confirmed.pop(key, None) is not None:

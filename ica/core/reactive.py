@@ -92,6 +92,11 @@ class ReactiveConfig:
     # when an EV's event starts: "head", when the EV asks as head of its lane;
     # "detection", as soon as it is detected (the dissertation's choice)
     start_at: str = "head"
+    # True: revoked vehicles are re-confirmed by the ICA in the solver's order (in process,
+    # where a revocation reaches its vehicle at once). False: over a real link, each
+    # revoked vehicle drops its plan, stops short of the line and asks again like any
+    # head of lane; revocations go out lane by lane from the back (see due_revocations)
+    replan_revoked: bool = True
 
     def __post_init__(self) -> None:
         if self.solver not in SOLVERS:
@@ -182,6 +187,12 @@ class ReactiveDica(Dica):
         self._event: EvEvent | None = None
         self._waiting_evs: list[tuple[str, str, float]] = []
         self._pending: dict[str, str] = {}  # revoked vin -> key of its set-aside reservation
+        self._revoked_seq: dict[str, int] = {}  # revoked vin -> the seq of the plan revoked
+        self._revoked_at: dict[str, float] = {}  # revoked vin -> when it was decided [s]
+        self._lane_revoked: dict[str, list[str]] = {}  # per lane, revoked vins front to back
+        self.acknowledged = 0  # revocations the vehicle confirmed (its plan dropped)
+        self.restored = 0  # reservations given back: the vehicle could no longer stop
+        self.expired = 0  # set-aside reservations that ended unanswered
         self._before: list[_Replan] = []  # re-confirmations ahead of the EV, awaiting acks
         self._after: list[_Replan] = []  # re-confirmations behind the EV
         self._late: list[Confirmation] = []  # re-confirmations made outside acknowledge()
@@ -206,8 +217,66 @@ class ReactiveDica(Dica):
         """Revoked vehicles with no new confirmation yet (acknowledged or not)."""
         return tuple(self._pending) + tuple(r.vin for r in self._before + self._after)
 
-    def acknowledge(self, vin: str) -> list[Confirmation]:
-        """``vin`` knows its confirmation was revoked: its old reservation goes.
+    def due_revocations(self) -> list[tuple[str, int]]:
+        """The revocations to send now, as (vin, seq of the plan revoked).
+
+        With ``replan_revoked`` off, a revoked vehicle drops its plan and stops
+        short of the line, which its follower's plan did not expect. So in each
+        lane only the rearmost revoked vehicle still pending is due: the one ahead
+        of it is told once it has dropped its plan (and is then stopping behind
+        whatever is ahead of it), or never, if it could not (see :meth:`restore`).
+        With ``replan_revoked`` on, every pending revocation is due at once. (DICA
+        confirms a vehicle only once those ahead of it have begun to enter, which
+        cannot be revoked, so a lane holds one revoked vehicle at most today; the
+        rule keeps a lane safe should that change.)
+        The answer is the same until something is acknowledged or restored, so a
+        caller may send it again (a lost REVOKE) as often as it likes.
+        """
+        if self.reactive.replan_revoked:
+            return [(vin, self._revoked_seq[vin]) for vin in self._pending]
+        out = []
+        for vins in self._lane_revoked.values():
+            for vin in reversed(vins):
+                if vin in self._pending:
+                    out.append((vin, self._revoked_seq[vin]))
+                    break
+        return out
+
+    def cancel(self, vin: str, seq: int) -> bool:
+        """A CANCEL of a revoked plan is its acknowledgement: the vehicle will not fly it."""
+        if vin in self._pending and self._revoked_seq.get(vin) == seq:
+            self.acknowledge(vin)
+            return True
+        return super().cancel(vin, seq)
+
+    def restore(self, vin: str, seq: int | None = None) -> tuple[str, ...]:
+        """``vin`` could not drop revoked plan ``seq`` (it can no longer stop short of
+        the line): its set-aside reservation is its own again, and so are those of the
+        revoked vehicles ahead of it in its lane, which were not told yet (their
+        follower flies on behind them, so they must too). Returns who got theirs back.
+        """
+        if vin not in self._pending or (seq is not None and self._revoked_seq.get(vin) != seq):
+            return ()
+        lane = self._lane_of.get(vin)
+        order = self._lane_revoked.get(lane, [vin]) if lane is not None else [vin]
+        ahead = order[: order.index(vin) + 1] if vin in order else [vin]
+        back = []
+        for v in ahead:
+            key = self._pending.pop(v, None)
+            if key is None:
+                continue
+            if v in self._confirmed:  # it asked again, so it did drop that plan
+                self._drop(key)
+                continue
+            self._restore_aside(v, key)
+            self.restored += 1
+            back.append(v)
+        return tuple(back)
+
+    def acknowledge(self, vin: str, seq: int | None = None) -> list[Confirmation]:
+        """``vin`` knows its confirmation was revoked: its old reservation goes
+        (``seq``, if given, must be the revoked plan's; an answer about another is
+        ignored). With ``replan_revoked`` off the vehicle has dropped that plan.
 
         When the last vehicle of a reorder has acknowledged, the revoked
         vehicles ordered ahead of the EV are re-confirmed in the order and
@@ -215,9 +284,19 @@ class ReactiveDica(Dica):
         then everyone revoked is re-confirmed when the EV is (around its real
         plan), or at :meth:`settle` (see :meth:`take_confirmations`).
         """
+        if seq is not None and (vin not in self._pending or self._revoked_seq.get(vin) != seq):
+            return []
         key = self._pending.pop(vin, None)
         if key is not None:
             self._drop(key)
+            self.acknowledged += 1
+            if not self.reactive.replan_revoked:
+                # it stops short of the line and asks again like any head of its lane
+                if vin not in self._confirmed:  # (not confirmed anew meanwhile)
+                    if self._event is not None:
+                        self._event.unplanned.append(vin)
+                    self._forget_confirmed(vin)
+                return []
         if self._pending:
             return []
         ev = self._event
@@ -295,6 +374,12 @@ class ReactiveDica(Dica):
                 sum(e.reorder.prepare_s for e in self.events if e.reorder is not None)
             ),
             "unplanned": sum(len(e.unplanned) for e in self.events),
+            "acknowledged": self.acknowledged,
+            "restored": self.restored,
+            "expired": self.expired,
+            "pending": len(self._pending),
+            # when the oldest revocation still unanswered was decided [sim s]
+            "pending_since_s": min((self._revoked_at[v] for v in self._pending), default=None),
             "ev_entry_model_gain_s_mean": _mean(
                 [
                     e.reorder.ev_entry_before_s - e.reorder.ev_entry_after_s
@@ -332,6 +417,15 @@ class ReactiveDica(Dica):
                 vin = key[: -len(_ASIDE)]
                 if self._pending.get(vin) == key:  # its old plan is over: nothing to wait for
                     del self._pending[vin]
+                    self.expired += 1
+                    if vin not in self._confirmed:
+                        # flown, or dropped with the answer lost: either way it leaves its
+                        # lane's queue (one still short of the line is told NOT_DETECTED
+                        # when it asks, and announces itself again in its place)
+                        lane = self._lane_of.pop(vin, None)
+                        if lane is not None:
+                            self._lanes[lane] = [e for e in self._lanes[lane] if e[2] != vin]
+                        self._forget_confirmed(vin)
                 continue
             self._detected.pop(key, None)
             for lst in self._lane_confirmed.values():
@@ -369,6 +463,17 @@ class ReactiveDica(Dica):
                     "they are acknowledged",
                 )
         ev = self._event
+        if (
+            not self.reactive.replan_revoked
+            and ev is not None
+            and req.vin == ev.ev
+            and ev.ev_confirmed_s is None
+            and self._pending
+        ):
+            raise RequestError(
+                Reason.HELD,
+                f"{req.vin}: {len(self._pending)} revoked confirmations await their answers",
+            )
         if (
             ev is not None
             and ev.ev_confirmed_s is None
@@ -482,15 +587,25 @@ class ReactiveDica(Dica):
         revoked: list[str] = []
         if not refused:
             ev_pos = order.index(ev_idx)
+            replan = self.reactive.replan_revoked
             for pos, i in enumerate(order):
                 c = cands[i]
                 if c.state is None:
                     continue
-                (self._after if pos > ev_pos else self._before).append(c.state)
+                if replan:
+                    (self._after if pos > ev_pos else self._before).append(c.state)
+                self._revoked_seq[c.vin] = self._confirmed[c.vin].confirmation.seq
+                self._revoked_at[c.vin] = now_s
                 key = c.vin + _ASIDE
                 self._set_aside(c.vin, key)
                 self._pending[c.vin] = key
                 revoked.append(c.vin)
+            for vin in revoked:  # front to back in each lane, by detection
+                lane = self._lane_of[vin]
+                lst = [v for v in self._lane_revoked.get(lane, []) if v in self._pending]
+                self._lane_revoked[lane] = sorted(
+                    {*lst, vin}, key=lambda v: self._detected.get(v, (0,))[0]
+                )
         ev.reorder = Reorder(
             t_s=now_s,
             effective_s=t_eff,
