@@ -54,7 +54,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -76,6 +76,7 @@ from ica.core.route import Route
 from ica.core.separation import SeparationModel
 from ica.core.zones import ConflictTables, Shape
 
+STOP_SLACK_STEPS, STOP_SLACK_M = 2, 0.5  # room kept beyond the stopping bound
 _ASIDE = "~revoked"  # suffix of a revoked reservation's key while it awaits acknowledgement
 
 
@@ -665,7 +666,11 @@ class ReactiveDica(Dica):
             vin, c.confirmation.seq + 1, c.dtot.route, c.dtot.shape, traj.t0_s + k * traj.step_s,
             -s, v,
         )  # fmt: skip
-        if not self._planner(st).can_stop():
+        # the actuator's discrete stop law, run from where the vehicle really is (within
+        # its tracking error), needs a little more room than the continuous bound: a
+        # revocation it could not carry out would leave a plan flown that nobody holds
+        slack = STOP_SLACK_STEPS * v * traj.step_s + STOP_SLACK_M
+        if not self._planner(replace(st, dist_m=st.dist_m - slack)).can_stop():
             return None
         return st
 
