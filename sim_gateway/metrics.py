@@ -77,19 +77,20 @@ class TripLog:
         self.generated_cum.append(generated)
 
 
+def _trips(gen: list[Trip]) -> tuple[list[Trip], np.ndarray, np.ndarray]:
+    """The crossed trips of ``gen``, their trip times and their delays (the
+    dissertation's clock, from the region's entry line)."""
+    crossed = [tr for tr in gen if tr.exited_s is not None and tr.entered_s is not None]
+    tau = np.array([tr.exited_s - tr.entered_s for tr in crossed], dtype=float)
+    free = [tr for tr in crossed if tr.free_flow_s is not None]
+    delay = np.array([tr.exited_s - tr.entered_s - tr.free_flow_s for tr in free], dtype=float)
+    return crossed, tau, delay
+
+
 def summarize(log: TripLog, end_s: float) -> dict[str, float | int | None]:
     """The metrics of one run; vehicles due after ``end_s`` are not counted as generated."""
     gen = [tr for tr in log.trips.values() if tr.depart_s <= end_s]
-    crossed = [tr for tr in gen if tr.exited_s is not None and tr.entered_s is not None]
-    tau = np.array([tr.exited_s - tr.entered_s for tr in crossed], dtype=float)
-    delay = np.array(
-        [
-            tr.exited_s - tr.entered_s - tr.free_flow_s
-            for tr in crossed
-            if tr.free_flow_s is not None
-        ],
-        dtype=float,
-    )
+    crossed, tau, delay = _trips(gen)
     rho = len(crossed) / len(gen) if gen else 0.0
     mean = float(tau.mean()) if len(tau) else math.nan
     out: dict[str, float | int | None] = {
@@ -158,16 +159,7 @@ def summarize_ev(log: TripLog, end_s: float) -> dict[str, dict[str, float | int 
     out: dict[str, dict[str, float | int | None]] = {}
     for name, want in (("ev", True), ("normal", False)):
         gen = [tr for tr in log.trips.values() if tr.depart_s <= end_s and tr.ev == want]
-        crossed = [tr for tr in gen if tr.exited_s is not None and tr.entered_s is not None]
-        tau = np.array([tr.exited_s - tr.entered_s for tr in crossed], dtype=float)
-        delay = np.array(
-            [
-                tr.exited_s - tr.entered_s - tr.free_flow_s
-                for tr in crossed
-                if tr.free_flow_s is not None
-            ],
-            dtype=float,
-        )
+        crossed, tau, delay = _trips(gen)
         # the same trips on a clock that starts at the scheduled arrival at the region's
         # entry line: it also counts a wait to get in when the lane is backed up beyond it
         from_arrival = np.array([tr.exited_s - tr.depart_s for tr in crossed], dtype=float)

@@ -96,12 +96,7 @@ def _fly(rec: SpaceTimeRecorder, confs: list[Confirmation], n_steps: int) -> Non
         )
 
 
-@pytest.fixture(scope="module")
-def recorded(ch45: Intersection, tmp_path_factory: pytest.TempPathFactory):
-    confs = _confirmations(ch45)
-    path = tmp_path_factory.mktemp("rec") / "run.rrd"
-    rec = SpaceTimeRecorder(ch45, path, flush_s=1.3)  # batches that do not divide the run
-    rec.geometry()
+def _confirm(rec: SpaceTimeRecorder, confs: list[Confirmation]) -> None:
     for c in confs:
         tss = c.tss
         rec.confirmed(
@@ -109,6 +104,15 @@ def recorded(ch45: Intersection, tmp_path_factory: pytest.TempPathFactory):
             LENGTH_M, WIDTH_M, c.entry_time_s, c.exit_time_s,
             delay_s=c.delay_s, rounds=c.iterations,
         )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def recorded(ch45: Intersection, tmp_path_factory: pytest.TempPathFactory):
+    confs = _confirmations(ch45)
+    path = tmp_path_factory.mktemp("rec") / "run.rrd"
+    rec = SpaceTimeRecorder(ch45, path, flush_s=1.3)  # batches that do not divide the run
+    rec.geometry()
+    _confirm(rec, confs)
     rec.rejected(0.5, "veh/9", "not_head", "a vehicle ahead")
     _fly(rec, confs, N_STEPS)
     rec.footprints(N_STEPS * 0.05, [], np.zeros(0), np.zeros(0), np.zeros(0), LENGTH_M, WIDTH_M)
@@ -452,12 +456,7 @@ def test_an_emergency_vehicle_is_drawn_in_its_colour(ch45, tmp_path):
     path = tmp_path / "ev.rrd"
     rec = SpaceTimeRecorder(ch45, path)
     rec.geometry()
-    for c in confs:
-        tss = c.tss
-        rec.confirmed(
-            c.vin, c.route_id, tss.t_s, tss.x_m, tss.y_m, tss.heading_rad,
-            LENGTH_M, WIDTH_M, c.entry_time_s, c.exit_time_s,
-        )  # fmt: skip
+    _confirm(rec, confs)
     rec.emergency(confs[0].vin)
     _fly(rec, confs, 10)
     rec.close()
