@@ -157,8 +157,14 @@ def plot(rows: list[dict], path: Path) -> None:
             ]
             ax.bar(x, vals, color="#c0392b")
             ax.set_ylim(0, max(1, max(vals, default=0) * 1.2))
+            for i, v in enumerate(vals):  # a zero bar is invisible: say it
+                ax.annotate(f"{v:g}", (i, v), ha="center", va="bottom", fontsize=9)
         else:
-            ax.plot(list(x), series(key), "o-", color="#2c3e50")
+            ys = series(key)
+            ax.plot(list(x), ys, "o-", color="#2c3e50")
+            # from zero, so that rounding noise or a small change does not look like a trend
+            top = max([y for y in ys if y == y] + [0.0])
+            ax.set_ylim(0, max(top * 1.15, 0.1 if key == "adherence_p99_s" else 1.0))
         ax.set_title(title, fontsize=10)
         ax.grid(alpha=0.3)
     for ax in axes[1]:
