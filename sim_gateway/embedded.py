@@ -362,7 +362,7 @@ def _record(
     """This step's new confirmations and rejections, and every observed vehicle's footprint."""
     rec = r.rec
     for t_rev, vin, what in drivers.revocations:  # a revoked plan is not flown from here on
-        rec.rejected(t_rev, vin, what)
+        rec.withdrawn(t_rev, vin, what)
     drivers.revocations.clear()
     rejected = []
     for s in seen:

@@ -757,6 +757,19 @@ class SpaceTimeRecorder:
         )
 
     # -- what really happened ------------------------------------------------
+    def withdrawn(self, t_s: float, vin: str, why: str) -> None:
+        """``vin``'s confirmation no longer holds (revoked): from ``t_s`` its reserved
+        footprint is no longer drawn and its plan and reserved intervals are not
+        logged again, so they leave the charts with the window; a row says why."""
+        self._plans.pop(vin, None)
+        mine = (f"{vin} plan", f"{vin} P")
+        self._later = [
+            item
+            for item in self._later
+            if not any(str(lb).startswith(mine) for lb in item[4].get("labels", ()))
+        ]
+        self.rejected(t_s, vin, why)
+
     def emergency(self, vin: str) -> None:
         """Draw ``vin`` in the emergency vehicles' colour from now on."""
         self._emergency.add(vin)

@@ -466,6 +466,40 @@ def test_an_emergency_vehicle_is_drawn_in_its_colour(ch45, tmp_path):
     assert colours and all(ids[0] == red and red not in ids[1:] for _, ids in colours if ids)
 
 
+def test_a_withdrawn_plan_leaves_the_charts_and_the_top_view(ch45, tmp_path):
+    def record(path: Path, withdraw: bool) -> dict:
+        confs = _confirmations(ch45)
+        rec = SpaceTimeRecorder(ch45, path)
+        rec.geometry()
+        _confirm(rec, confs)
+        _fly(rec, confs, 5)
+        if withdraw:
+            rec.withdrawn(0.25, confs[0].vin, "revoked")
+        _fly(rec, confs, N_STEPS)
+        rec.close()
+        return _read(path)
+
+    kept, gone = record(tmp_path / "kept.rrd", False), record(tmp_path / "gone.rrd", True)
+    vin = _confirmations(ch45)[0].vin
+
+    def labels(data: dict, column: str) -> list[str]:
+        return [lb for key, b in data.items() if key.endswith("/plans") or key.endswith(
+            "reserved") for _, lbs in _rows(b, column) for lb in lbs or []]  # fmt: skip
+
+    # the plan and its intervals are logged again when they end, unless withdrawn
+    n_kept = sum(lb.startswith(f"{vin} ") for lb in labels(kept, "LineStrips2D:labels"))
+    n_gone = sum(lb.startswith(f"{vin} ") for lb in labels(gone, "LineStrips2D:labels"))
+    assert n_gone < n_kept
+    # the reserved footprints in the top view: one fewer vehicle after the withdrawal
+    after = [strips for t, strips in _rows(gone["/junction/reserved"], "LineStrips2D:strips")
+             if t > 0.3]  # fmt: skip
+    before = [strips for t, strips in _rows(kept["/junction/reserved"], "LineStrips2D:strips")
+              if t > 0.3]  # fmt: skip
+    assert after and sum(map(len, after)) < sum(map(len, before))
+    rows = [txt for _, txts in _rows(gone["/tables/rejected"], "TextLog:text") for txt in txts]
+    assert any(txt.startswith(vin) and "revoked" in txt for txt in rows)
+
+
 def test_charts_move_with_time_and_show_plan_and_progress(recorded, ch45):
     path, confs, _ = recorded
     data = _read(path)
