@@ -250,7 +250,9 @@ def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path):
             assert time.monotonic() < deadline, "the cluster never got going"
             assert proc.poll() is None, proc.communicate()
             time.sleep(0.2)
-        os.kill(proc.pid, signal.SIGINT)  # what a terminal's Ctrl-C sends the script
+        # a terminal's Ctrl-C: SIGINT to the foreground process group (the script and
+        # whatever it runs in the foreground; the roles run in their own sessions)
+        os.killpg(proc.pid, signal.SIGINT)
         _, stderr = proc.communicate(timeout=60)
     finally:
         if proc.poll() is None:
