@@ -232,6 +232,14 @@ def test_bad_input_to_run_cluster_is_one_clear_line(tmp_path, args, says):
     assert says in p.stderr and "Traceback" not in p.stderr + p.stdout
 
 
+def _terminal_signals() -> None:
+    """SIGINT as a terminal's shell leaves it to what it starts: handled by default and
+    not blocked (a test worker's own state must not leak into the script: bash cannot
+    trap a signal that was ignored when it started)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path):
     from rerun.chunk import RrdReader
 
@@ -241,7 +249,7 @@ def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path):
     cmd += ["--port", str(port), "--duration", "600", "--volume", "300"]
     proc = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
-        start_new_session=True,
+        start_new_session=True, preexec_fn=_terminal_signals,
     )  # fmt: skip
     try:
         log = out / "logs" / "gateway.log"
