@@ -77,6 +77,16 @@ def _kill(out: Path, name: str) -> int:
     return pid
 
 
+def _run_safe(out: Path, *args: str) -> dict:
+    """A whole cluster run to its end: its metrics, once checked safe and whole."""
+    proc = _start_cluster(out, *args)
+    stdout, stderr = _finish(proc)
+    assert proc.returncode == 0, stdout + stderr
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    return m
+
+
 def _safe_and_whole(m: dict) -> None:
     assert m["complete"] is True
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0
@@ -164,17 +174,13 @@ def test_the_link_emulator_delays_and_loses_real_zenoh_messages(tmp_path):
 # -- the cluster under faults ---------------------------------------------------------------
 def test_realtime_cluster_under_delay_jitter_loss_duplication_and_reordering(tmp_path):
     out = tmp_path / "rt"
-    proc = _start_cluster(
+    m = _run_safe(
         out,
         *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
         *("--volume", "500", "--duration", "70", "--seed", "21"),
         *("--delay", "40", "--jitter", "20", "--loss", "0.1", "--dup", "0.05"),
         *("--reorder", "0.05", "--faulty", "all"),
     )
-    stdout, stderr = _finish(proc)
-    assert proc.returncode == 0, stdout + stderr
-    m = json.loads((out / "metrics.json").read_text())
-    _safe_and_whole(m)
     assert m["crossed"] >= 25
     # the faults really happened, on every role's link
     link = json.loads((out / "link" / "stats.json").read_text())
@@ -327,16 +333,12 @@ def test_realtime_rdica_with_lossy_agent_links_revokes_safely(tmp_path):
     """REVOKEs and their ACKs cross the agents' lossy links: some are lost and sent
     again; nobody is put in another's room, and every revocation is answered."""
     out = tmp_path / "rd"
-    proc = _start_cluster(
+    _run_safe(
         out,
         *("--clock", "realtime", "--speed", "2", "--agents", "1", "--port", str(free_port())),
         *("--algorithm", "rdica", "--ev-prob", "0.3", "--volume", "400", "--duration", "80"),
         *("--delay", "10", "--loss", "0.3", "--faulty", "agents"),
     )
-    stdout, stderr = _finish(proc)
-    assert proc.returncode == 0, stdout + stderr
-    m = json.loads((out / "metrics.json").read_text())
-    _safe_and_whole(m)
     link = json.loads((out / "link" / "stats.json").read_text())
     assert link["agent-1"]["dropped"] > 0
     ica = json.loads((out / "ica.json").read_text())["incarnations"][0]
