@@ -20,7 +20,7 @@ import numpy as np
 # 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev`` and
 # ``kept_seq``, a setpoint ``drop``, and REVOKE exists (2 had no revocations; 1 had
 # open-loop speed commands)
-VERSION = 3
+VERSION = 4
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
@@ -155,7 +155,9 @@ class VehicleState:
     ``plan_seq`` is the plan its actuator holds (-1: none), ``refused_seq`` the
     last plan it refused because it arrived after its start or dropped on a
     REVOKE (-1: none), ``kept_seq`` the last plan it was told to drop and kept,
-    unable to stop short of the line. ``ev``: an emergency vehicle. ``owner``
+    unable to stop short of the line. ``ev``: an emergency vehicle. ``follows``:
+    platoons are on and the vehicle ahead on the incoming lane flies its plan, so
+    this one may ask to follow it. ``owner``
     is the agent that hosts it. The first STATE that names a vehicle to an
     agent hands it to that agent.
     """
@@ -178,6 +180,7 @@ class VehicleState:
     refused_seq: int = lim(-1, 2**31 - 1)
     kept_seq: int = lim(-1, 2**31 - 1)
     ev: bool = lim()
+    follows: bool = lim()
     owner: str = lim(n=MAX_TEXT)
 
 

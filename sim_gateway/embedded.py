@@ -234,7 +234,9 @@ def reactive_config(cfg: RunConfig) -> ReactiveConfig:
 
 
 def ica_config(cfg: RunConfig) -> IcaConfig:
-    return controller_config(cfg.algorithm, cfg.margin_m, cfg.time_pad_s)
+    return controller_config(
+        cfg.algorithm, cfg.margin_m, cfg.time_pad_s, cfg.platoon, cfg.headway_s
+    )
 
 
 def run(

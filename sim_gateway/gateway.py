@@ -338,7 +338,7 @@ class ZenohDrivers:
             if (
                 vin in self.known
                 and not verdict
-                and not (t >= wake and (s.obs.head or wake <= -BIG))
+                and not (t >= wake and (s.obs.may_ask or wake <= -BIG))
             ):
                 continue
             agent = self._owner(vin)
@@ -522,6 +522,7 @@ class ZenohDrivers:
             refused_seq=c.refused_seq,
             kept_seq=c.kept_seq,
             ev=c.ev,
+            follows=o.follows,
             owner=self.owner.get(c.vin, ""),
         )
 

@@ -45,6 +45,10 @@ class RunConfig:
     # reactive DICA's revoked vehicles: "replan" (the ICA plans them again in the solver's
     # order; in process only) or "drop" (they drop their plans and ask again: the cluster)
     revocation: str = "replan"
+    # a vehicle may ask once the vehicle ahead of it flies its plan, and follows it
+    # across as a platoon (docs/architecture.md, "Platoons"); off: once it has entered
+    platoon: bool = False
+    headway_s: float = 0.0  # [s] a follower keeps its leader's plan this much later
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.volume_per_10min <= 2000.0:
@@ -71,6 +75,8 @@ class RunConfig:
             raise RunError(f"--margin must be between 0 and 5 m, got {self.margin_m:g}")
         if not 0.0 <= self.lead_s <= 10.0:
             raise RunError(f"--lead must be between 0 and 10 s, got {self.lead_s:g}")
+        if not 0.0 <= self.headway_s <= 5.0:
+            raise RunError(f"--headway must be between 0 and 5 s, got {self.headway_s:g}")
         if not 0.0 <= self.time_pad_s <= 5.0:
             raise RunError(f"--time-pad must be between 0 and 5 s, got {self.time_pad_s:g}")
         if not 0.05 <= self.retry_s <= 60.0:

@@ -29,6 +29,7 @@ gives a second opinion.
 from __future__ import annotations
 
 import bisect
+import itertools
 import math
 import time
 from collections.abc import Callable, Iterable
@@ -131,6 +132,8 @@ class Car:
     entered: bool = False
     speed_mode: int = -1
     head: bool = False  # nothing ahead of it on its incoming lane
+    ahead: Car | None = None  # the vehicle just ahead of it on its incoming lane
+    behind: Car | None = None  # the vehicle just behind it there
     released: bool = False
     # the actuator's plan: route positions [m] every step from plan_t0_s
     plan_seq: int = NO_PLAN
@@ -306,12 +309,17 @@ class World:
                 if tail is None or pos < tail[0]:
                     self._tails[c.route.in_lane] = (pos, vw.getSpeed(c.vin))
 
-        heads: dict[str, tuple[float, str]] = {}
+        on_lane: dict[str, list[tuple[float, Car]]] = {}
         for c in self.active:
+            c.ahead = c.behind = None
             if c.vin in present and vw.getLaneID(c.vin) == c.route.in_lane:
-                pos = vw.getLanePosition(c.vin)
-                if c.route.in_lane not in heads or pos > heads[c.route.in_lane][0]:
-                    heads[c.route.in_lane] = (pos, c.vin)
+                on_lane.setdefault(c.route.in_lane, []).append((vw.getLanePosition(c.vin), c))
+        heads: dict[str, tuple[float, str]] = {}
+        for lane, cars in on_lane.items():
+            cars.sort(key=lambda pc: -pc[0])
+            heads[lane] = (cars[0][0], cars[0][1].vin)
+            for (_, front), (_, back) in itertools.pairwise(cars):
+                front.behind, back.ahead = back, front
 
         seen: list[Seen] = []
         self.waiting = 0
@@ -352,6 +360,7 @@ class World:
                 self.crossed += 1
             d = self._lane_len[c.route.in_lane] - vw.getLanePosition(c.vin)
             c.head = heads.get(c.route.in_lane, (0.0, ""))[1] == c.vin
+            follows = self.ica_cfg.platoon and c.ahead is not None and _flying(c.ahead, t)
             obs = Observation(
                 t_s=t,
                 lane=lane,
@@ -363,6 +372,7 @@ class World:
                 plan_seq=c.plan_seq,
                 refused_seq=c.refused_seq,
                 kept_seq=c.kept_seq,
+                follows=follows,
             )
             seen.append(Seen(c, obs))
         if self.want_xy:
@@ -382,10 +392,11 @@ class World:
         change nothing here.
         """
         ls, t = self.ls, self.t
+        drops: list[tuple[Car, int]] = []
         for cmd in commands:
             c = self.cars.get(cmd.vin)
             if c is not None and cmd.drop:  # revoked: stop short of the line, if it can
-                self._drop(c, cmd.seq)
+                drops.append((c, cmd.seq))
                 continue
             if c is None or c.entered or c.exited:
                 continue
@@ -400,13 +411,20 @@ class World:
             c.plan_seq, c.plan_t0_s, c.plan_s = cmd.seq, cmd.t0_s, np.asarray(cmd.s_m, float)
             self.timing.accepted += 1
             self.timing.slack_s.append(cmd.t0_s - t)
+        # the rearmost first: a platoon's follower drops before its leader is asked to
+        for c, seq in sorted(drops, key=lambda d: _rank(d[0])):
+            self._drop(c, seq)
         ahead = self._obstacles()
         for c in self.active:
             if c.vin not in self._present or c.released or math.isnan(c.detected_s):
                 continue
             if c.plan_s is not None and t >= c.plan_t0_s - 1e-6:
-                if abs(t - c.plan_t0_s) < 1e-6 and abs(c.s_m - c.plan_s[0]) > START_TOL_M:
-                    # not where the plan starts (a leader held it back during the lead):
+                if abs(t - c.plan_t0_s) < 1e-6 and (
+                    abs(c.s_m - c.plan_s[0]) > START_TOL_M
+                    or (c.ahead is not None and not _flying(c.ahead, t))
+                ):
+                    # not where the plan starts (a leader held it back during the lead),
+                    # or a platoon's leader is not flying the plan this one follows:
                     # a reservation it cannot keep is not flown; it stops and asks again
                     c.refused_seq, c.plan_seq, c.plan_s = c.plan_seq, NO_PLAN, None
                     self.timing.off_start += 1
@@ -434,11 +452,17 @@ class World:
                     v = float(plan[-1] - plan[-2]) / self.h if len(plan) > 1 else c.speed_mps
                 ls.vehicle.setSpeed(c.vin, v)
             elif not c.entered:
-                mode = MODE_HEAD if c.head else MODE_QUEUED
+                mode = MODE_HEAD if self._asks(c, t) else MODE_QUEUED
                 if c.speed_mode != mode:
                     ls.vehicle.setSpeedMode(c.vin, mode)
                     c.speed_mode = mode
                 ls.vehicle.setSpeed(c.vin, self._stop_speed(c, ahead.get(c.vin, math.inf)))
+
+    def _asks(self, c: Car, t: float) -> bool:
+        """``c`` may ask for a plan (head of its lane, or following a flying leader):
+        it moves by its stop law alone and never speeds up, so where it will be when
+        its plan starts is predictable (:func:`vehicle_agent.control.predict_stop`)."""
+        return c.head or (self.ica_cfg.platoon and c.ahead is not None and _flying(c.ahead, t))
 
     def _drop(self, c: Car, seq: int) -> None:
         """Give up every plan up to ``seq`` (revoked), if the vehicle can still stop.
@@ -463,6 +487,9 @@ class World:
             accel_mps2=kin.accel_mps2,
             decel_mps2=kin.decel_mps2,
         )
+        follower = c.behind
+        if follower is not None and _flying(follower, self.t):
+            stoppable = False  # a platoon's follower flies behind it: it cannot stop for it
         if c.entered or c.exited or not stoppable:
             if c.kept_seq < c.plan_seq:
                 c.kept_seq = c.plan_seq
@@ -502,7 +529,7 @@ class World:
         Behind the head, SUMO's car-following closes the queue up as drivers do.
         """
         kin = self.ica_cfg.kinematics
-        cap = min(c.entry_speed_mps, c.speed_mps) if c.head else c.entry_speed_mps
+        cap = min(c.entry_speed_mps, c.speed_mps) if self._asks(c, self.t) else c.entry_speed_mps
         room = min(-c.s_m - kin.stop_gap_m, rear_ahead_m - c.s_m - MIN_GAP_M)
         return stop_speed(room, c.speed_mps, cap, self.h, kin.accel_mps2, kin.decel_mps2)
 
@@ -670,6 +697,16 @@ class Timing:
                 for _, vin, a, p in sorted(self.worst, reverse=True)[:5]
             ],
         }
+
+
+def _flying(c: Car, t: float) -> bool:
+    """The actuator flies a plan for ``c`` now (its start has come)."""
+    return c.plan_s is not None and t >= c.plan_t0_s - 1e-6
+
+
+def _rank(c: Car) -> float:
+    """Position along the route for ordering drops, rearmost first."""
+    return c.s_m if not math.isnan(c.s_m) else -math.inf
 
 
 def _edges(r: Route) -> tuple[str, str]:

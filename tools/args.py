@@ -89,6 +89,8 @@ def run_config(args: argparse.Namespace):
             ev_prob=_ev_prob(args),
             solver=args.solver,
             revocation=getattr(args, "revocation", "replan"),
+            platoon=args.platoon,
+            headway_s=headway_s(args),
         )
     except RunError as e:
         raise UsageError(str(e)) from None
@@ -136,6 +138,34 @@ def _ev_prob(args: argparse.Namespace) -> float:
 
 def _num(x: float | None) -> str:
     return "n/a" if x is None else f"{x:.2f}"
+
+
+PLATOON_HEADWAY_S = 0.3  # [s] a platoon follower's default time headway
+
+
+def add_platoon_arg(p: argparse.ArgumentParser) -> None:
+    """--platoon / --no-platoon and --headway, shared by runs, the gateway and the ICA."""
+    p.add_argument(
+        "--platoon",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="a vehicle may ask once the vehicle ahead of it in its lane flies its plan, and "
+        "crosses behind it as a platoon (default); --no-platoon: only once that vehicle has "
+        "entered the junction, the dissertation's rule",
+    )
+    p.add_argument(
+        "--headway",
+        type=float,
+        help="a follower keeps behind its lane leader's plan by this time [s] as well as by "
+        f"twice the margin in space (default {PLATOON_HEADWAY_S:g} s with platoons, 0 without)",
+    )
+
+
+def headway_s(args: argparse.Namespace) -> float:
+    """--headway, or its default for --platoon / --no-platoon."""
+    if args.headway is not None:
+        return args.headway
+    return PLATOON_HEADWAY_S if args.platoon else 0.0
 
 
 def add_run_args(r: argparse.ArgumentParser) -> None:
@@ -190,4 +220,5 @@ def add_run_args(r: argparse.ArgumentParser) -> None:
         help="the ICA grows every confirmed occupancy interval by this on each side [s]: "
         "the declared bound on how far off its plan in time a vehicle may be (default 0)",
     )
+    add_platoon_arg(r)
     r.add_argument("--sumo-args", help="extra SUMO options, verbatim, e.g. '--fcd-output f.xml'")

@@ -15,7 +15,16 @@ import json
 import time
 from pathlib import Path
 
-from tools.args import UsageError, add_net_args, add_run_args, intersection, report_run, run_config
+from tools.args import (
+    UsageError,
+    add_net_args,
+    add_platoon_arg,
+    add_run_args,
+    headway_s,
+    intersection,
+    report_run,
+    run_config,
+)
 
 
 def _add_link_args(p: argparse.ArgumentParser) -> None:
@@ -151,7 +160,9 @@ def cmd_ica(args: argparse.Namespace) -> int:
         raise UsageError("--idle-exit must be between 0 and 86400 s")
     inter = intersection(args)
     try:
-        config = controller_config(args.algorithm, args.margin, args.time_pad)
+        config = controller_config(
+            args.algorithm, args.margin, args.time_pad, args.platoon, headway_s(args)
+        )
         config = dataclasses.replace(config, max_request_age_s=args.max_age)
     except ValueError as e:
         raise UsageError(str(e)) from None
@@ -400,6 +411,7 @@ def add_role_parsers(sub) -> None:
         help="how far off its plan in time a vehicle may be [s]: every confirmed occupancy "
         "interval is grown by it on each side (default 0: exact actuators, as in lockstep)",
     )
+    add_platoon_arg(i)
     i.add_argument(
         "--max-age",
         type=float,

@@ -26,6 +26,11 @@ scenario and roles:
   --ev-prob P           probability an arrival is an emergency vehicle (default 0.02
                         for rdica, else 0)
   --solver NAME         rdica's ordering solver: exact (default), ga, exhaustive
+  --no-platoon          a vehicle asks only once the vehicle ahead of it has entered the
+                        junction (the dissertation's rule); by default it may ask once
+                        that vehicle flies its plan, and crosses behind it as a platoon
+  --headway S           a follower keeps behind its leader's plan by S seconds (default
+                        0.3 with platoons, 0 without)
   --volume N            vehicles per 10 min (default 500)
   --duration S          simulated seconds (default 600)
   --seed N              random seed (default 12)
@@ -81,7 +86,7 @@ prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1
 layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
 delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
-max_age="" restart=1 router_rules=1 ev_prob="" solver=exact
+max_age="" restart=1 router_rules=1 ev_prob="" solver=exact platoon=(--platoon) headway=""
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -91,6 +96,8 @@ while [ $# -gt 0 ]; do
     --algorithm) algorithm="$2"; shift 2 ;;
     --ev-prob) ev_prob="$2"; shift 2 ;;
     --solver) solver="$2"; shift 2 ;;
+    --no-platoon) platoon=(--no-platoon); shift ;;
+    --headway) headway="$2"; shift 2 ;;
     --volume) volume="$2"; shift 2 ;;
     --duration) duration="$2"; shift 2 ;;
     --seed) seed="$2"; shift 2 ;;
@@ -128,6 +135,7 @@ prob --loss "$loss"; prob --dup "$dup"; prob --reorder "$reorder"
 [ -z "$time_pad" ] || number --time-pad "$time_pad"
 [ -z "$max_age" ] || number --max-age "$max_age"
 [ -z "$ev_prob" ] || number --ev-prob "$ev_prob"
+[ -z "$headway" ] || { number --headway "$headway"; platoon+=(--headway "$headway"); }
 case "$solver" in exact|ga|exhaustive) ;; *) die "--solver must be exact, ga or exhaustive" ;; esac
 ev_args=(--solver "$solver")
 [ -z "$ev_prob" ] || ev_args+=(--ev-prob "$ev_prob")
@@ -313,7 +321,8 @@ link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to
 }
 link_for ica ica
 start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" \
-  --time-pad "$time_pad" --max-age "$max_age" --solver "$solver" --seed "$seed" "${role_link[@]}"
+  --time-pad "$time_pad" --max-age "$max_age" --solver "$solver" --seed "$seed" "${platoon[@]}" \
+  "${role_link[@]}"
 if [ "$record" = 1 ]; then
   link_for observer observer
   start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" --time-pad "$time_pad" \
@@ -327,7 +336,7 @@ link_for gateway gateway
 start gateway "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$volume" \
   --duration "$duration" --seed "$seed" --agents "$agents" --per-agent "$per_agent" \
   --clock "$clock" --speed "$speed" --observers "$record" --time-pad "$time_pad" \
-  --out "$out" "${ev_args[@]}" "${role_link[@]}" "${extra[@]}"
+  --out "$out" "${ev_args[@]}" "${platoon[@]}" "${role_link[@]}" "${extra[@]}"
 gateway_pid="${pid_of[gateway]}"
 echo "run_cluster: router on tcp/127.0.0.1:$port; ${#order[@]} processes; logs in $out/logs/"
 if [ "$faults" = 1 ]; then

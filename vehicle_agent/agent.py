@@ -420,6 +420,7 @@ class Agent:
                 plan_seq=vs.plan_seq,
                 refused_seq=vs.refused_seq,
                 kept_seq=vs.kept_seq,
+                follows=vs.follows,
             )
             if v is None:
                 if vs.exited:

@@ -100,6 +100,13 @@ class Observation:
     plan_seq: int = NO_PLAN  # the plan the actuator holds (waiting for its start, or flying)
     refused_seq: int = NO_PLAN  # the last plan the actuator refused (too late) or dropped
     kept_seq: int = NO_PLAN  # the last plan it was told to drop and kept: it could not stop
+    # platoons: the vehicle ahead on the incoming lane flies its plan, so this one may ask
+    # to follow it (the ICA plans it behind that plan)
+    follows: bool = False
+
+    @property
+    def may_ask(self) -> bool:
+        return self.head or self.follows
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -179,7 +186,7 @@ class Vehicle:
                 self.held is None
                 and not self.pending
                 and obs.t_s >= self.next_request_s
-                and obs.head
+                and obs.may_ask
             ):
                 return self._request(obs, link)
             return cmd

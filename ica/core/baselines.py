@@ -141,7 +141,13 @@ def make_controller(
     return Dica(intersection, config, tables)
 
 
-def controller_config(algorithm: str, margin_m: float, time_pad_s: float = 0.0) -> IcaConfig:
+def controller_config(
+    algorithm: str,
+    margin_m: float,
+    time_pad_s: float = 0.0,
+    platoon: bool = False,
+    headway_s: float = 0.0,
+) -> IcaConfig:
     """The ICA settings for a controller name: a DICA variant's techniques, else enhanced.
 
     Raises ValueError for settings out of range (see :class:`IcaConfig`)."""
@@ -149,4 +155,10 @@ def controller_config(algorithm: str, margin_m: float, time_pad_s: float = 0.0) 
         techniques = Techniques.parse(algorithm)
     except ValueError:
         techniques = ENHANCED  # baselines and lights keep the enhanced machinery underneath
-    return IcaConfig(techniques=techniques, margin_m=margin_m, time_pad_s=time_pad_s)
+    return IcaConfig(
+        techniques=techniques,
+        margin_m=margin_m,
+        time_pad_s=time_pad_s,
+        platoon=platoon,
+        headway_s=headway_s,
+    )

@@ -78,7 +78,9 @@ class IcaConfig:
     ``margin_m`` grows every occupancy on each side: the gap the ICA keeps
     between footprints, and where tracking error or delay bounds go.
     A vehicle is head of its lane when every vehicle ahead of it has begun
-    to enter the junction (the dissertation's rule).
+    to enter the junction (the dissertation's rule); with ``platoon`` it is
+    enough that every vehicle ahead of it is confirmed, so a queue can cross
+    behind its leader at speed (see docs/architecture.md, "Platoons").
     """
 
     techniques: Techniques = ENHANCED
@@ -98,6 +100,10 @@ class IcaConfig:
     # [s] how far off its plan in time a vehicle may be (tracking error, late
     # actuation): every confirmed occupancy interval is grown by it on each side
     time_pad_s: float = 0.0
+    platoon: bool = False
+    # [s] a follower keeps its lane leader's plan this much later in time as well as
+    # ``2 * margin_m`` behind in space (the time-headway of a platoon)
+    headway_s: float = 0.0
     max_iterations: int = 2000
     max_wait_s: float = 300.0
 
@@ -108,6 +114,8 @@ class IcaConfig:
             raise ValueError("margin_m must be between 0 and 5 m")
         if not 0.0 <= self.time_pad_s <= 5.0:
             raise ValueError("time_pad_s must be between 0 and 5 s")
+        if not 0.0 <= self.headway_s <= 5.0:
+            raise ValueError("headway_s must be between 0 and 5 s")
         if not 0.0 < self.max_request_age_s <= 60.0:
             raise ValueError("max_request_age_s must be in (0, 60] s")
         if not 0.0 <= self.max_lead_s <= 60.0:

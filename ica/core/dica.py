@@ -48,7 +48,7 @@ from ica.core.conflict import (
 )
 from ica.core.dtot import Dtot, build_dtot
 from ica.core.intersection import Intersection
-from ica.core.kernels import RESOLVED, resolve_rounds
+from ica.core.kernels import BLOCKED, RESOLVED, resolve_rounds
 from ica.core.planner import Planner
 from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
 from ica.core.route import Route
@@ -63,6 +63,15 @@ class Confirmed:
     dtot: Dtot  # intervals padded by 2 x time_pad_s: conflicts are judged against this
     confirmation: Confirmation
     packed: np.ndarray  # the DTOT's occupancies as rows for the batched getCV (pack)
+
+
+def _blocked(vin: str, leader: str) -> RequestError:
+    """A plan that stops at the line runs into the lane leader whatever it waits there:
+    the vehicle asks again once its own law has stopped it behind the leader."""
+    return RequestError(
+        Reason.INFEASIBLE,
+        f"{vin} cannot draw up to the line behind {leader}: ask again once standing",
+    )
 
 
 def padded(dtot: Dtot, pad_s: float) -> Dtot:
@@ -209,17 +218,19 @@ class Dica:
         return [e[2] for e in self._lanes[lane]]
 
     def is_head(self, vin: str, now_s: float) -> bool:
-        """Every vehicle ahead of ``vin`` in its lane is confirmed and has begun to enter."""
+        """Every vehicle ahead of ``vin`` in its lane is confirmed and has begun to
+        enter (with platoons: is confirmed; the plan then follows its leader's)."""
         lane = self._lane_of.get(vin)
         if lane is None:
             return False
+        platoon = self.config.platoon
         for _, _, ahead in self._lanes[lane]:
             if ahead == vin:
                 return True
             c = self._confirmed.get(ahead)
             if c is None:
                 return False
-            if c.confirmation.entry_time_s > now_s:
+            if not platoon and c.confirmation.entry_time_s > now_s:
                 return False
         return False
 
@@ -317,6 +328,7 @@ class Dica:
             cap_mps=cap,
             s_end_m=s_end,
             kin=cfg.kinematics,
+            hold=cfg.platoon,
         )
         earliest = req.t0_s + planner.earliest_entry_s()
         if not math.isfinite(earliest):
@@ -330,8 +342,9 @@ class Dica:
         gap = 2.0 * cfg.margin_m
         # the leader as late as the tracking bound lets it be, against a requester as early
         lag = leader.dtot.trajectory if leader is not None else None
-        if lag is not None and cfg.time_pad_s > 0.0:
-            lag = Trajectory(lag.t0_s + 2.0 * cfg.time_pad_s, lag.step_s, lag.s_m)
+        behind_s = 2.0 * cfg.time_pad_s + cfg.headway_s
+        if lag is not None and behind_s > 0.0:
+            lag = Trajectory(lag.t0_s + behind_s, lag.step_s, lag.s_m)
         if self._compiled_rounds():
             found = self._resolve_compiled(
                 req, route, shape, traj, leader, lag, planner, grid, s_end
@@ -340,6 +353,7 @@ class Dica:
                 return found[0], found[1], earliest
             # the compiled loop stops where this loop raises: let it raise, with its message
 
+        b_wait: float | None = None  # the current plan's wait if of the stop family
         for iteration in range(1, cfg.max_iterations + 1):
             dtot = build_dtot(route, shape, traj, cfg.margin_m, grid, cfg.techniques.estimated_oti)
             conflicts = self.conflicts(dtot)
@@ -352,6 +366,11 @@ class Dica:
                             Reason.BAD_STATE,
                             f"the state is within {gap:.2f} m of {leader.vin} ahead in the lane",
                         )
+                    if (
+                        b_wait is not None
+                        and found[0] - req.t0_s <= planner.stop_time_s() + b_wait + 1e-9
+                    ):
+                        raise _blocked(req.vin, leader.vin)
                     conflicts.append(Conflict(leader.vin, *found))
                     conflicts.sort(key=lambda c: c.first_time_s)
             if not conflicts:
@@ -362,6 +381,7 @@ class Dica:
                 raise RequestError(
                     Reason.INFEASIBLE, f"no conflict-free entry within {cfg.max_wait_s:.0f} s"
                 )
+            b_wait = planner.stop_wait_s(target)
             traj = self._plan(planner, req.t0_s, target, s_end)
         raise RequestError(
             Reason.INFEASIBLE, f"no conflict-free plan after {cfg.max_iterations} updates"
@@ -417,6 +437,8 @@ class Dica:
             *lead_args, 2.0 * cfg.margin_m,
             cfg.max_iterations, cfg.max_wait_s,
         )  # fmt: skip
+        if status == BLOCKED:
+            raise _blocked(req.vin, leader.vin if leader is not None else "")
         if status != RESOLVED:
             return None
         final = Trajectory(req.t0_s, cfg.step_s, s)
@@ -503,6 +525,7 @@ class Dica:
             cap_mps=self.front_cap_mps(route),
             s_end_m=s_end,
             kin=cfg.kinematics,
+            hold=cfg.platoon,
         )
         traj = self._plan(planner, t0_s, max(not_before_s - t0_s, 0.0), s_end)
         none = np.zeros(0)

@@ -868,7 +868,9 @@ def select_rows(
 _EPS_PLAN = 1e-9  # as in ica.core.planner._EPS
 _MAX_SEGS = 16  # a plan has at most 7 segments (stop family), 6 (slow-down family)
 
-RESOLVED, FALL_BACK = 0, 1  # resolve_rounds' status
+# resolve_rounds' status; BLOCKED: a stop-family plan meets the lane leader where every
+# later stop-family plan goes too (the vehicle must stop behind the leader first)
+RESOLVED, FALL_BACK, BLOCKED = 0, 1, 2
 
 
 @njit(cache=True, nogil=True)
@@ -1019,8 +1021,8 @@ def resolve_rounds(
 ) -> tuple[int, int, np.ndarray]:  # fmt: skip
     """The rounds of ``Dica._resolve`` (enhanced DICA) from the first plan ``s_init``.
 
-    Returns (RESOLVED, rounds, the conflict-free plan's samples), or
-    FALL_BACK where the Python loop raises (no plan, the wait or the round
+    Returns (RESOLVED, rounds, the conflict-free plan's samples), BLOCKED
+    (see the constant), or FALL_BACK where the Python loop raises (no plan, the wait or the round
     limit exceeded, the state too close to the lane leader, a plan that never
     leaves): the caller then runs the Python loop, which raises with its
     message. The planner's constants per request come from
@@ -1042,6 +1044,7 @@ def resolve_rounds(
     order = np.argsort(lbs)
     m_s, row_s, lo_s, hi_s = m_idx[order], row[order], row_lo[order], row_hi[order]
     s = s_init
+    b_wait = -1.0  # the current plan's wait if it is of the stop family, else -1
     for it in range(1, max_iterations + 1):
         # the DTOT (ica.core.dtot.build_dtot with the grid)
         k0, k1 = dtot_span(s, s_end)
@@ -1068,6 +1071,8 @@ def resolve_rounds(
             )
             if found and f_first <= t0 + step + 1e-9:
                 return FALL_BACK, it, s
+            if found and b_wait >= 0.0 and f_first - t0 <= b_state[0] + b_wait + 1e-9:
+                return BLOCKED, it, s
         best = -1
         best_first = 0.0
         best_delay = 0.0
@@ -1099,6 +1104,7 @@ def resolve_rounds(
         # the next plan: Planner.at_or_after, then sample
         if not hi_ok:
             return FALL_BACK, it, s
+        b_wait = -1.0
         if target <= hi_t + 1e-9:
             ns = _build_a(a, br, v0, d, cap, s_end, v_hi, segs)
         elif lo_ok and target <= lo_t:
@@ -1107,7 +1113,8 @@ def resolve_rounds(
         elif not math.isfinite(t_b0):
             ns = 0
         else:
-            ns = _build_b(a, cap, s_end, _py_max(0.0, target - t_b0), b_segs, b_state, segs)
+            b_wait = _py_max(0.0, target - t_b0)
+            ns = _build_b(a, cap, s_end, b_wait, b_segs, b_state, segs)
         if ns == 0:
             return FALL_BACK, it, s
         t_out = _time_at(segs, ns, s_end)

@@ -10,7 +10,9 @@ acceleration within the vehicle's limits:
   (or brake to the junction's cap when cruising above it). Larger v_m arrives
   earlier; the largest feasible v_m is the time-optimal plan.
 * **stop family** B(w): brake to a stop ``stop_gap_m`` before the entry line,
-  wait ``w`` seconds, then pull away at full acceleration.
+  wait ``w`` seconds, then pull away at full acceleration. With ``hold`` a
+  vehicle already standing waits where it stands instead (a platoon's
+  follower cannot draw up to the line while its leader stands there).
 
 Inside the junction every plan accelerates at ``accel`` up to the crossing
 cap and holds it until the vehicle is fully out. A-plans whose cruise speed
@@ -136,6 +138,9 @@ class Planner:
     cap_mps: float
     s_end_m: float
     kin: Kinematics = Kinematics()
+    # a vehicle standing still waits where it stands, then pulls away, instead of first
+    # drawing up to the line (platoons: its leader may still stand between it and the line)
+    hold: bool = False
     # what does not depend on the entry time asked for, computed once per planner
     _memo: dict[str, Any] = field(
         default_factory=dict, init=False, repr=False, compare=False, hash=False
@@ -223,6 +228,10 @@ class Planner:
         return b.profile(t_entry, v_e)
 
     def _stop_gap(self) -> float:
+        """Where the stop family stands: ``stop_gap`` short of the line, or where the
+        vehicle stands now if it holds (the family is then: wait, pull away)."""
+        if self.hold and self.v0_mps <= 0.0:
+            return self.d_m
         return min(self.kin.stop_gap_m, self.d_m)
 
     def can_stop(self) -> bool:
@@ -325,6 +334,22 @@ class Planner:
             m["v_lo"], lo is not None, lo[3] if lo is not None else 0.0,
             t_b0, base, state,
         )  # fmt: skip
+
+    def stop_wait_s(self, t_entry_s: float) -> float | None:
+        """The wait of the plan :meth:`at_or_after` gives if it is of the stop family,
+        else None. Such plans all move alike until ``stop_time_s() + wait``."""
+        m = self._entry_memo()
+        hi, lo = m["hi"], m["lo"]
+        if hi is None or t_entry_s <= hi[3] + 1e-9 or (lo is not None and t_entry_s <= lo[3]):
+            return None
+        if "t_b0" not in m:
+            m["t_b0"] = self.stop_entry_s()
+        t_b0 = m["t_b0"]
+        return max(0.0, t_entry_s - t_b0) if math.isfinite(t_b0) else None
+
+    def stop_time_s(self) -> float:
+        """When the stop family stands still (relative to the state)."""
+        return self._b_base()[1]
 
     def at_or_after(self, t_entry_s: float) -> Profile | None:
         """The plan entering soonest at or after ``t_entry_s`` (None if none exists).

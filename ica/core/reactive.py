@@ -683,6 +683,7 @@ class ReactiveDica(Dica):
             cap_mps=self.front_cap_mps(st.route),
             s_end_m=st.route.cross_length_m + st.shape.length_m,
             kin=cfg.kinematics,
+            hold=cfg.platoon,
         )
 
     def _confirmed_candidate(self, vin: str, st: _Replan) -> _Candidate:
