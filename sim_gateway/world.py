@@ -360,7 +360,7 @@ class World:
                 self.crossed += 1
             d = self._lane_len[c.route.in_lane] - vw.getLanePosition(c.vin)
             c.head = heads.get(c.route.in_lane, (0.0, ""))[1] == c.vin
-            follows = self.ica_cfg.platoon and c.ahead is not None and _flying(c.ahead, t)
+            follows = self.ica_cfg.platoon and self._may_follow(c, speed, t)
             obs = Observation(
                 t_s=t,
                 lane=lane,
@@ -457,6 +457,26 @@ class World:
                     ls.vehicle.setSpeedMode(c.vin, mode)
                     c.speed_mode = mode
                 ls.vehicle.setSpeed(c.vin, self._stop_speed(c, ahead.get(c.vin, math.inf)))
+
+    def _may_follow(self, c: Car, speed_mps: float, t: float) -> bool:
+        """A platoon's follower may ask: its leader flies a plan, it is as far behind
+        that plan as the ICA will ask of it (twice the margin behind where the leader
+        was a headway ago), and either it stands (it can wait where it is) or the
+        leader's plan goes through without standing short of the line (else its own
+        stop law must first stop it behind the leader)."""
+        lead, h, cfg = c.ahead, self.h, self.ica_cfg
+        if lead is None or not _flying(lead, t) or lead.plan_s is None:
+            return False
+        k = max(round((t - lead.plan_t0_s) / h), 0)
+        behind = round((cfg.headway_s + 2.0 * cfg.time_pad_s) / h)
+        lagged = float(lead.plan_s[min(max(k - behind, 0), len(lead.plan_s) - 1)])
+        if c.s_m > lagged - self.cfg.length_m - 2.0 * cfg.margin_m:
+            return False
+        if speed_mps <= 0.0:
+            return True
+        ahead = lead.plan_s[k:]
+        ahead = ahead[: int(np.searchsorted(ahead, 0.0)) + 1]
+        return bool(np.all(np.diff(ahead) > 1e-6))
 
     def _asks(self, c: Car, t: float) -> bool:
         """``c`` may ask for a plan (head of its lane, or following a flying leader):

@@ -81,7 +81,9 @@ def test_run_is_collision_free_and_writes_metrics(tmp_path, layout, algorithm, v
     least = {"fifo": 0.2, "fixed": 0.5, "actuated": 0.5}.get(algorithm, 0.7)
     assert m["crossed"] > least * m["generated"] > 0
     assert m["mean_trip_time_s"] > 0
-    assert m["requests"]["rejections"] == {}
+    # platoons: a follower may be told to ask again (too close for the headway, or it
+    # must first stop behind its leader); nothing else is ever refused here
+    assert set(m["requests"]["rejections"]) <= {"follow"}
     if algorithm == "fixed":
         signal = json.loads((out / "config.json").read_text())["signal"]
         assert signal["type"] == "fixed"

@@ -69,8 +69,25 @@ def _blocked(vin: str, leader: str) -> RequestError:
     """A plan that stops at the line runs into the lane leader whatever it waits there:
     the vehicle asks again once its own law has stopped it behind the leader."""
     return RequestError(
-        Reason.INFEASIBLE,
+        Reason.FOLLOW,
         f"{vin} cannot draw up to the line behind {leader}: ask again once standing",
+    )
+
+
+def _too_close(
+    req: Request, traj: Trajectory, leader: Confirmed, lag: Trajectory, gap_m: float, step_s: float
+) -> RequestError:
+    """The state itself is too close to the lane leader: a bad state if within the gap
+    of the leader's plan, else only within the headway behind it (ask again soon)."""
+    ahead = follow_conflict(traj, leader.dtot.trajectory, leader.dtot.shape.length_m, gap_m)
+    if lag is leader.dtot.trajectory or (
+        ahead is not None and ahead[0] <= req.t0_s + step_s + 1e-9
+    ):
+        return RequestError(
+            Reason.BAD_STATE, f"the state is within {gap_m:.2f} m of {leader.vin} ahead in the lane"
+        )
+    return RequestError(
+        Reason.FOLLOW, f"{req.vin} is within the headway behind {leader.vin}: ask again"
     )
 
 
@@ -362,10 +379,7 @@ class Dica:
                 found = follow_conflict(traj, lag, lead.shape.length_m, gap)
                 if found is not None:
                     if found[0] <= req.t0_s + cfg.step_s + 1e-9:
-                        raise RequestError(
-                            Reason.BAD_STATE,
-                            f"the state is within {gap:.2f} m of {leader.vin} ahead in the lane",
-                        )
+                        raise _too_close(req, traj, leader, lag, gap, cfg.step_s)
                     if (
                         b_wait is not None
                         and found[0] - req.t0_s <= planner.stop_time_s() + b_wait + 1e-9

@@ -67,6 +67,9 @@ class Reason(StrEnum):
     BAD_MESSAGE = "bad_message"  # the bytes were not a valid REQUEST (see schemas.codec)
     NO_ANSWER = "no_answer"  # no reply within the timeout: the link or the ICA is down
     HELD = "held"  # an emergency vehicle goes first: ask again later (reactive DICA)
+    # platoons: from this state the vehicle cannot follow its leader's plan yet (too close
+    # for the headway, or every stop at the line would run into the leader): ask again
+    FOLLOW = "follow"
 
 
 class RequestError(Exception):
