@@ -121,7 +121,7 @@ def test_a_follower_that_cannot_draw_up_is_refused_at_once(ch45, compiled):
     ica.compiled_loop = compiled
     req = _blocked_scene(ica, ch45)
     answer = ica.handle(req, 0.0)
-    assert isinstance(answer, Rejection) and answer.reason is Reason.INFEASIBLE
+    assert isinstance(answer, Rejection) and answer.reason is Reason.FOLLOW
     assert "ask again once standing" in answer.detail
     # once standing behind A it gets a plan
     stood = ica_req(ica, ch45, "b", WEST, 0.0, 0.5 + LENGTH + 2.5, 0.0)
