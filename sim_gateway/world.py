@@ -360,7 +360,12 @@ class World:
                 self.crossed += 1
             d = self._lane_len[c.route.in_lane] - vw.getLanePosition(c.vin)
             c.head = heads.get(c.route.in_lane, (0.0, ""))[1] == c.vin
-            follows = self.ica_cfg.platoon and self._may_follow(c, speed, t)
+            follows = (
+                self.ica_cfg.platoon
+                and c.plan_s is None  # one that holds a plan does not ask
+                and lane == c.route.in_lane
+                and self._may_follow(c, speed, t)
+            )
             obs = Observation(
                 t_s=t,
                 lane=lane,
