@@ -1,18 +1,21 @@
 """The observer process: records the run as Rerun space-time visuals.
 
 It only listens: the STATE of every vehicle in the region (``sim/<j>/vehicles``), the
-confirmations the ICA publishes (``dica/<j>/confirmed/*``) and the CLOCK. It
-is not a lockstep participant, so recording never slows the run; at the
-run's end on the clock it drains what is queued, closes the ``.rrd`` and
-exits. All Rerun calls go through :class:`sim_gateway.recording.SpaceTimeRecorder`.
-With ``live_port`` it also serves the recording over gRPC on 127.0.0.1 while
-it writes the file, so ``dica view --live`` can watch the run as it happens.
+confirmations the ICA publishes (``dica/<j>/confirmed/*``), reactive DICA's
+reorderings (``dica/<j>/reorder``) and the CLOCK. It is not a lockstep
+participant, so recording never slows the run; at the run's end on the clock
+it drains what is queued, closes the ``.rrd`` and exits. All Rerun calls go
+through :class:`sim_gateway.recording.SpaceTimeRecorder`. With ``live_port`` it
+also serves the recording over gRPC on 127.0.0.1 while it writes the file, so
+``dica view --live`` can watch the run as it happens.
 
-The wire carries no rejections to the observer (a REJECT is the reply to the
-vehicle's query), so the rejections table stays empty in a cluster run.
-Where a new message or field changes what is drawn: a vehicle's state and
-colour are decided in :func:`sim_gateway.recording.vehicle_states`; a
-withdrawn plan would call the recorder from :meth:`Observer._on`.
+Emergency vehicles are drawn in their colour from the first STATE that flags
+them (``ev``). A reordering is marked once, the first time it is heard; a
+revoked plan is withdrawn only once the ICA says its vehicle dropped it (a
+reordering comes again, whole, each time a revoked plan's fate is known), so
+a plan that was kept stays drawn. The wire carries no rejections to the
+observer (a REJECT is the reply to the vehicle's query), so the rejections
+table holds only the withdrawn plans in a cluster run.
 """
 
 from __future__ import annotations
@@ -26,7 +29,17 @@ from ica.core.intersection import Intersection
 from schemas import keys
 from schemas.codec import DecodeError, decode
 from schemas.link import Inbox, Item
-from schemas.messages import Clock, Response, State, VehicleState
+from schemas.messages import (
+    DROPPED,
+    EXPIRED,
+    KEPT,
+    Clock,
+    Place,
+    Reorder,
+    Response,
+    State,
+    VehicleState,
+)
 from sim_gateway.recording import SpaceTimeRecorder
 
 
@@ -59,13 +72,20 @@ class Observer:
         self.recorder.geometry()
         self.sizes: dict[str, tuple[float, float]] = {}
         self.confirmations = 0
+        self.reorders = 0
+        self.withdrawn = 0
         self.steps = 0
+        self._seq: dict[str, int] = {}  # VIN -> the newest confirmation drawn
+        self._emergency: set[str] = set()
+        self._marked: set[tuple[str, float]] = set()  # reorderings drawn: (EV, t_s)
+        self._answered: set[tuple[str, int]] = set()  # revoked plans whose fate is drawn
         self.ended = False
         self._cur = _Step()
         j = inter.junction_id
         self._decls = [
             session.declare_subscriber(keys.vehicles(j), self.inbox.sample_cb("state")),
             session.declare_subscriber(keys.confirmed(j), self.inbox.sample_cb("confirmed")),
+            session.declare_subscriber(keys.reorder(j), self.inbox.sample_cb("reorder")),
             session.declare_subscriber(keys.clock(j), self.inbox.sample_cb("clock")),
         ]
         # declared last: a gateway waiting for observers starts once all of the above are up
@@ -101,6 +121,9 @@ class Observer:
             self._cur.vehicles.extend(st.vehicles)
             for v in st.vehicles:
                 self.sizes[v.vin] = (v.length_m, v.width_m)
+                if v.ev and v.vin not in self._emergency:
+                    self._emergency.add(v.vin)
+                    self.recorder.emergency(v.vin)
         elif item.what == "confirmed":
             r = decode(item.payload, Response)
             length, width = self.sizes.get(r.vin, (5.0, 1.8))
@@ -122,10 +145,41 @@ class Observer:
                 time_pad_s=self.time_pad_s,
             )
             self.confirmations += 1
+            self._seq[r.vin] = max(r.seq, self._seq.get(r.vin, -1))
+        elif item.what == "reorder":
+            self._on_reorder(decode(item.payload, Reorder))
         elif item.what == "clock":
             c = decode(item.payload, Clock)
             if c.end:
                 self.ended = True
+
+    def _on_reorder(self, m: Reorder) -> None:
+        if (m.ev, m.t_s) not in self._marked:
+            self._marked.add((m.ev, m.t_s))
+            self.reorders += 1
+            self.recorder.reordered(
+                m.t_s, m.ev, m.lane, m.solver, [p.vin for p in m.order],
+                m.ev_entry_before_s, m.ev_entry_after_s,
+                revoked=[p.vin for p in m.order if p.seq >= 0], refused=m.refused,
+            )  # fmt: skip
+        for p in m.order:
+            settled = p.seq >= 0 and p.plan in (DROPPED, KEPT, EXPIRED)
+            if settled and (p.vin, p.seq) not in self._answered:
+                self._answered.add((p.vin, p.seq))
+                self._on_fate(p)
+
+    def _on_fate(self, p: Place) -> None:
+        """A revoked plan was dropped (withdrawn), kept, or ended unanswered."""
+        if p.plan == DROPPED:
+            self.withdrawn += 1
+            if self._seq.get(p.vin, -1) <= p.seq:
+                self.recorder.withdrawn(p.t_s, p.vin, "revoked")
+            else:  # a newer plan is drawn already: it stays
+                self.recorder.rejected(p.t_s, p.vin, "revoked")
+        elif p.plan == KEPT:
+            self.recorder.kept(p.t_s, p.vin, "kept its plan: it could not stop")
+        else:
+            self.recorder.kept(p.t_s, p.vin, "no answer before its plan ended")
 
     def _emit(self) -> None:
         cur = self._cur

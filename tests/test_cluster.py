@@ -3,7 +3,9 @@
 * lockstep with one agent makes exactly the embedded run's decisions;
 * with three agents too (the lockstep gateway keeps the order of ICA contacts);
 * lockstep waits for the agents only on steps where one must talk to the ICA;
-* garbage sent to the ICA's keys is refused or dropped and the ICA keeps serving.
+* garbage sent to the ICA's keys is refused or dropped and the ICA keeps serving;
+* reactive DICA revokes over Zenoh, and the observer's recording shows its
+  reorderings and withdrawn plans as the embedded run's does.
 
 Faults (late, lost and repeated messages, killed processes) are in test_timing.py.
 """
@@ -273,22 +275,110 @@ def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path):
     assert any(str(c.entity_path) == "/junction/vehicles" for c in chunks)
 
 
+def _reactive_recording(rrd: Path) -> dict:
+    """What a .rrd shows of reactive DICA, read back with Rerun's reader: the reorders
+    table (time, row), the plans withdrawn (time, VIN), how many reorder marks the
+    lane charts hold, and whether an EV is drawn in its colour in the top view and
+    in the lane charts."""
+    from rerun.chunk import RrdReader
+
+    from sim_gateway.recording import STATE_STYLE, State
+
+    r, g, b = STATE_STYLE[State.EMERGENCY][1]
+    red = (r << 24) | (g << 16) | (b << 8) | 0xFF
+    out = {"reorders": [], "withdrawn": [], "marks": 0, "ev_top": False, "ev_charts": False}
+    for chunk in RrdReader(rrd).stream():
+        path, batch = str(chunk.entity_path), chunk.to_record_batch()
+        if "sim_time" not in batch.schema.names:
+            continue
+        times = [round(t / 1e9, 3) for t in batch.column("sim_time").cast("int64").to_pylist()]
+
+        def column(name: str, batch=batch) -> list:
+            return batch.column(name).to_pylist() if name in batch.schema.names else []
+
+        if path == "/tables/reorders":
+            out["reorders"] += [
+                (t, txt) for t, (txt,) in zip(times, column("TextLog:text"), strict=True)
+            ]
+        elif path == "/tables/rejected":
+            rows = [
+                (t, txt.split()) for t, (txt,) in zip(times, column("TextLog:text"), strict=True)
+            ]
+            out["withdrawn"] += [(t, w[0]) for t, w in rows if w[1:] == ["revoked"]]
+        elif path.startswith("/charts/data/lanes/") and path.endswith("/reorders"):
+            out["marks"] += batch.num_rows
+        elif path == "/junction/vehicles":
+            out["ev_top"] |= any(red in (cs or []) for cs in column("LineStrips2D:colors"))
+        elif path.startswith("/charts/data/lanes/") and path.endswith("/actual"):
+            out["ev_charts"] |= any(red in (cs or []) for cs in column("Points2D:colors"))
+    out["reorders"].sort()
+    out["withdrawn"].sort()
+    return out
+
+
+def _revoked_at(reorders: list[tuple[float, str]]) -> dict[str, float]:
+    """When each starred (revoked) vehicle of the reorders table was first revoked."""
+    out: dict[str, float] = {}
+    for t, row in reorders:
+        for v in row.split():
+            if v.endswith("*"):
+                out.setdefault(v[:-1], t)
+    return out
+
+
 def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_path):
     port = _free_port()
     common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
-    p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), "--no-record", *common)
+    p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)
-    _embedded(tmp_path / "emb", [*common, "--revocation", "drop"])
+    _embedded(tmp_path / "emb", [*common, "--revocation", "drop", "--record"])
 
     m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
     ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
     reactive = ica["incarnations"][0]["reactive"]
-    assert ica["incarnations"][0]["revoke_acks"] >= 1  # taken back over the wire, and ACKed
+    acks = ica["incarnations"][0]["revoke_acks"]
+    assert acks >= 1  # taken back over the wire, and ACKed
     assert reactive["acknowledged"] + reactive["restored"] == reactive["revoked"]
     assert reactive["pending"] == 0 and reactive["expired"] == 0
     assert m["timing"]["plans_dropped"] >= 1
     config = json.loads((tmp_path / "cl" / "config.json").read_text())
     assert config["run"]["revocation"] == "drop"
     _same_decisions(tmp_path / "cl", tmp_path / "emb")
+
+    # the observer's recording shows what the embedded one shows
+    cl = _reactive_recording(tmp_path / "cl" / "spacetime.rrd")
+    emb = _reactive_recording(tmp_path / "emb" / "spacetime.rrd")
+    assert cl["ev_top"] and cl["ev_charts"]  # EVs in their colour, in the top view and charts
+    assert cl["marks"] >= 1 and cl["reorders"] == emb["reorders"]
+    assert len(cl["reorders"]) == reactive["events"]
+    # a plan is withdrawn once its vehicle dropped it (the actuator's own count, and the
+    # ACKs), after the REVOKE went out, never when only the REVOKE was sent
+    assert cl["withdrawn"] == emb["withdrawn"]
+    assert len(cl["withdrawn"]) == acks == m["timing"]["plans_dropped"]
+    revoked = _revoked_at(cl["reorders"])
+    assert all(t > revoked[vin] for t, vin in cl["withdrawn"])
+
+
+def test_two_agents_revoke_safely_and_the_recording_withdraws_only_dropped_plans(tmp_path):
+    port = _free_port()
+    out = tmp_path / "cl"
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
+    p = _cluster(out, "--agents", "2", "--port", str(port), *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    assert set(m["agents"]) == {"agent-1", "agent-2"} and min(m["agents"].values()) > 5
+    ica = json.loads((out / "ica.json").read_text())["incarnations"][0]
+    reactive = ica["reactive"]
+    assert ica["revoke_acks"] >= 1 and reactive["revoked"] >= 1  # revocations happened
+    assert reactive["acknowledged"] + reactive["restored"] == reactive["revoked"]
+    assert reactive["pending"] == 0
+    rec = _reactive_recording(out / "spacetime.rrd")
+    assert rec["ev_top"] and rec["marks"] >= 1 and len(rec["reorders"]) == reactive["events"]
+    # withdrawn: every plan its vehicle dropped (ACK or CANCEL), none that was kept
+    assert len(rec["withdrawn"]) == reactive["acknowledged"] >= ica["revoke_acks"]
+    revoked = _revoked_at(rec["reorders"])
+    assert all(vin in revoked and t >= revoked[vin] for t, vin in rec["withdrawn"])
