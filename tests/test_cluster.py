@@ -362,10 +362,11 @@ def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_pat
 
 
 def test_two_agents_revoke_safely_and_the_recording_withdraws_only_dropped_plans(tmp_path):
+    """On a secured site: the ICA's REORDERs pass the router's rules and their seals."""
     port = _free_port()
     out = tmp_path / "cl"
     common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
-    p = _cluster(out, "--agents", "2", "--port", str(port), *common)
+    p = _cluster(out, "--secure", "--agents", "2", "--port", str(port), *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)
     m = json.loads((out / "metrics.json").read_text())
@@ -376,6 +377,7 @@ def test_two_agents_revoke_safely_and_the_recording_withdraws_only_dropped_plans
     assert ica["revoke_acks"] >= 1 and reactive["revoked"] >= 1  # revocations happened
     assert reactive["acknowledged"] + reactive["restored"] == reactive["revoked"]
     assert reactive["pending"] == 0
+    assert ica["refused_unsealed"] == {}
     rec = _reactive_recording(out / "spacetime.rrd")
     assert rec["ev_top"] and rec["marks"] >= 1 and len(rec["reorders"]) == reactive["events"]
     # withdrawn: every plan its vehicle dropped (ACK or CANCEL), none that was kept
