@@ -228,6 +228,7 @@ class _Plan:
     t0_s: float  # first DTOT sample time
     band: np.ndarray  # (K, 5, 2) reserved outlines at the DTOT samples, viewer frame
     hold: Holding
+    until_s: float = math.inf  # withdrawn from this time on
 
 
 @dataclass(slots=True)
@@ -783,9 +784,13 @@ class SpaceTimeRecorder:
         """``vin``'s confirmation no longer holds (revoked): from ``t_s`` its reserved
         footprint is no longer drawn and its plan and reserved intervals are not
         logged again, so they leave the charts with the window; a row says why.
-        The steps buffered so far are drawn first, with the plan still in force."""
-        self.flush()
-        self._plans.pop(vin, None)
+        The steps buffered so far are drawn first, with the plan in force before
+        ``t_s`` (which may lie a little in the past) and withdrawn from it."""
+        plan = self._plans.get(vin)
+        if plan is not None:
+            plan.until_s = float(t_s)
+            self.flush()
+            self._plans.pop(vin, None)
         mine = (f"{vin} plan", f"{vin} P")
         self._later = [
             item
@@ -954,7 +959,7 @@ class SpaceTimeRecorder:
         plans = [self._plans.get(v) for v in vins]
         confirmed = np.array(
             [
-                p is not None and t >= p.t_confirmed_s - 1e-9
+                p is not None and p.t_confirmed_s - 1e-9 <= t < p.until_s - 1e-9
                 for p, t in zip(plans, t_row, strict=True)
             ],
             dtype=bool,
@@ -1090,7 +1095,7 @@ class SpaceTimeRecorder:
             if p.t0_s > hi or t_end < lo or len(p.band) == 0:
                 continue
             j = np.rint((times - p.t0_s) / STEP_S).astype(int)
-            ok = (j >= 0) & (j < len(p.band))
+            ok = (j >= 0) & (j < len(p.band)) & (times < p.until_s - 1e-9)
             if ok.any():
                 at_step.append(np.nonzero(ok)[0])
                 blocks.append(p.band[j[ok]])

@@ -536,18 +536,19 @@ def test_a_reordering_is_marked_on_the_ev_s_lane_chart_and_in_its_table(ch45, tm
         SpaceTimeRecorder(ch45, tmp_path / "x.rrd").reordered(0, "ev", "nowhere", "exact", [], 1, 1)
 
 
-def test_a_withdrawn_plan_is_drawn_in_force_until_its_withdrawal(ch45, tmp_path):
-    """Steps are drawn in batches: those buffered before a withdrawal keep the plan."""
+@pytest.mark.parametrize("told_at_step", [40, 46])  # at its time, or a little later
+def test_a_withdrawn_plan_is_drawn_in_force_until_its_withdrawal(ch45, tmp_path, told_at_step):
+    """Steps are drawn in batches: those before a withdrawal keep the plan, those after
+    lose it, even when the withdrawal is told after they were buffered."""
 
-    def record(path: Path, withdraw: bool) -> dict:
+    def record(path: Path, withdraw: bool) -> tuple[dict, dict]:
         confs = _confirmations(ch45)
         rec = SpaceTimeRecorder(ch45, path, flush_s=100.0)  # nothing drawn before the end
         rec.geometry()
         _confirm(rec, confs)
-        _fly(rec, confs, 40)
-        if withdraw:
-            rec.withdrawn(2.0, confs[0].vin, "revoked")
-        for i in range(40, 60):
+        for i in range(60):
+            if withdraw and i == told_at_step:
+                rec.withdrawn(2.0, confs[0].vin, "revoked")
             j = [min(i, len(c.tss) - 1) for c in confs]
             rec.footprints(
                 round(i * 0.05, 10), [c.vin for c in confs],
@@ -558,13 +559,27 @@ def test_a_withdrawn_plan_is_drawn_in_force_until_its_withdrawal(ch45, tmp_path)
                 LENGTH_M, WIDTH_M, route_ids=[c.route_id for c in confs],
             )  # fmt: skip
         rec.close()
-        return {t: len(st) for t, st in _rows(_read(path)["/junction/reserved"],
-                                              "LineStrips2D:strips")}  # fmt: skip
+        data = _read(path)
+        bands = {t: len(st) for t, st in _rows(data["/junction/reserved"], "LineStrips2D:strips")}
+        colours = dict(_rows(data["/junction/vehicles"], "LineStrips2D:colors"))
+        return bands, colours
 
-    kept, gone = record(tmp_path / "k.rrd", False), record(tmp_path / "g.rrd", True)
+    (kept, kept_c), (gone, gone_c) = (
+        record(tmp_path / "k.rrd", False),
+        record(tmp_path / "g.rrd", True),
+    )
     assert kept.keys() == gone.keys()
     assert all(gone[t] == kept[t] for t in kept if t < 2.0)  # in force until withdrawn
     assert all(gone[t] == kept[t] - 1 for t in kept if t >= 2.0)
+    # and its vehicle is drawn confirmed until then, requesting from then on
+    orange = _rgba_of(STATE_STYLE[State.REQUESTING][1])
+    assert all((gone_c[t][0] == orange) == (t >= 2.0) for t in gone_c)
+    assert orange not in {kept_c[t][0] for t in kept_c}
+
+
+def _rgba_of(rgb: tuple[int, int, int]) -> int:
+    r, g, b = rgb
+    return (r << 24) | (g << 16) | (b << 8) | 0xFF
 
 
 def test_a_withdrawn_plan_leaves_the_charts_and_the_top_view(ch45, tmp_path):
