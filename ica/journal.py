@@ -8,7 +8,10 @@ sent, and a restarted ICA replays the journal into a fresh core before it
 serves again: no confirmation after the restart conflicts with one before.
 
 The file is a stream of msgpack maps. A record cut short by a crash is the
-last one and was never answered, so it is dropped on replay.
+last one and was never answered, so it is dropped on replay. A DETECT keeps
+what the detector read (an emergency vehicle, its speed): reactive DICA's
+priority rests on it, so a restarted ICA still lets the EV go first. Journals
+written before the flag existed replay with every vehicle a normal one.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ import msgpack
 import numpy as np
 
 from ica.core.dica import Dica
+from ica.core.reactive import ReactiveDica
 from ica.core.request import Confirmation, RequestError, Tss
 
 
@@ -60,8 +64,14 @@ class Journal:
             os.fsync(self._f.fileno())
         self.written += 1
 
-    def detect(self, vin: str, lane: str, t_s: float) -> None:
-        self._write({"k": "detect", "vin": vin, "lane": lane, "t": t_s})
+    def detect(
+        self, vin: str, lane: str, t_s: float, ev: bool = False, speed_mps: float | None = None
+    ) -> None:
+        """``ev``: an emergency vehicle; ``speed_mps``: its speed at the detector (None:
+        not measured)."""
+        self._write(
+            {"k": "detect", "vin": vin, "lane": lane, "t": t_s, "ev": ev, "speed": speed_mps}
+        )
 
     def confirm(self, c: Confirmation, length_m: float, width_m: float, in_lane: str) -> None:
         self._write(
@@ -129,7 +139,17 @@ def replay(path: Path, ica: Dica) -> Replayed:
         try:
             kind = rec.get("k")
             if kind == "detect":
-                ica.detect(rec["vin"], rec["lane"], float(rec["t"]))
+                if isinstance(ica, ReactiveDica):
+                    speed = rec.get("speed")  # absent or None in older journals
+                    ica.detect(
+                        rec["vin"],
+                        rec["lane"],
+                        float(rec["t"]),
+                        emergency=rec.get("ev", False) is True,
+                        speed_mps=None if speed is None else float(speed),
+                    )
+                else:
+                    ica.detect(rec["vin"], rec["lane"], float(rec["t"]))
                 out.detects += 1
             elif kind == "confirm":
                 ica.adopt(

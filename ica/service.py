@@ -4,8 +4,9 @@ Keys (``schemas.keys``): each agent asks on its own chunk, REQUESTs on
 ``dica/<j>/request/<agent>`` (a RESPONSE or a REJECT), DETECTs on
 ``dica/<j>/detect/<agent>`` (an ACK or a REJECT), CANCELs on
 ``dica/<j>/cancel/<agent>``. Every new confirmation is also published on
-``dica/<j>/confirmed/<vin>`` for observers, and the statistics answer on
-``dica/<j>/stats``.
+``dica/<j>/confirmed/<vin>`` for observers, reactive DICA's reorderings (and
+what became of each revoked plan) on ``dica/<j>/reorder``, and the statistics
+answer on ``dica/<j>/stats``.
 
 Time: the ICA's clock is the sim CLOCK, taken only from the gateway's exact
 key and only forward (an old or repeated CLOCK changes nothing). It never
@@ -37,13 +38,15 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import os
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
+from ica.core import reactive
 from ica.core.dica import Dica
 from ica.core.reactive import ReactiveDica
 from ica.core.request import Confirmation, Reason, Rejection, RequestError
@@ -53,12 +56,19 @@ from schemas.codec import DecodeError, decode, encode, now_ns
 from schemas.convert import reject_from_core, request_to_core, response_from_core
 from schemas.link import Inbox, Item, note_refused, put, refused, reply
 from schemas.messages import (
+    DROPPED,
+    EXPIRED,
     KEPT,
+    NOT_REVOKED,
+    REVOKED,
+    TIME,
     Ack,
     Cancel,
     Clock,
     Detect,
+    Place,
     Reject,
+    Reorder,
     Request,
     Revoke,
     State,
@@ -68,6 +78,9 @@ from schemas.messages import (
 HOLD_S = 2.0  # [s wall] longest a request may wait for the clock to reach its time
 REVOKE_EVERY_S = 0.5  # [s wall] an unanswered REVOKE goes out again this often
 STATS_EVERY_S = 5.0  # [s wall] how often the statistics file is rewritten
+SHOWN_REORDERS = 16  # reorderings kept to tell observers what became of their revoked plans
+# what became of a revoked plan, from the core's words to the wire's
+_PLAN = {reactive.DROPPED: DROPPED, reactive.KEPT: KEPT, reactive.EXPIRED: EXPIRED}
 
 
 @dataclass(slots=True)
@@ -146,6 +159,7 @@ class IcaService:
         self._decls: list = []
         self._token = None
         self._revoke_sent: dict[tuple[str, int], float] = {}  # (vin, seq) -> wall time sent
+        self._shown: list[Reorder] = []  # the latest reorderings, as observers were told
 
     def restore(self, path: Path) -> Replayed:
         """Replay a journal into the core before serving (a restarted ICA)."""
@@ -270,6 +284,10 @@ class IcaService:
                 self.log.info(
                     "EV %s: %d confirmations revoked (%s)", r.ev, len(r.revoked), r.solver
                 )
+            self._shown = [*self._shown[1 - SHOWN_REORDERS :], _reorder_message(r)]
+            self._show(self._shown[-1])
+        for a in ica.take_answers():
+            self._show_answer(a)
         now = time.monotonic()
         due = ica.due_revocations()
         for vin, seq in due:
@@ -286,6 +304,23 @@ class IcaService:
         if len(self._revoke_sent) > len(due):
             keep = set(due)
             self._revoke_sent = {k: t for k, t in self._revoke_sent.items() if k in keep}
+
+    def _show(self, msg: Reorder) -> None:
+        """Tell observers of a reordering, or of a change in what became of its plans."""
+        put(self.session, keys.reorder(self.junction), encode(msg))
+
+    def _show_answer(self, a: reactive.Answer) -> None:
+        """A revoked plan was dropped, kept or ended unanswered: the reordering that
+        revoked it goes out again, whole, with that vehicle's place updated."""
+        for i in range(len(self._shown) - 1, -1, -1):
+            msg = self._shown[i]
+            places = list(msg.order)
+            for j, p in enumerate(places):
+                if p.vin == a.vin and p.seq == a.seq and p.plan == REVOKED:
+                    places[j] = Place(p.vin, p.seq, _PLAN.get(a.outcome, EXPIRED), _time(a.t_s))
+                    self._shown[i] = replace(msg, order=tuple(places), sent_ns=now_ns())
+                    self._show(self._shown[i])
+                    return
 
     def note_reactive(self) -> None:
         """Reactive DICA's figures into the statistics."""
@@ -430,7 +465,7 @@ class IcaService:
             return
         self._owner.setdefault(msg.vin, keys.last(item.key))
         if self.journal is not None and not known:
-            self.journal.detect(msg.vin, msg.lane, msg.t_s)
+            self.journal.detect(msg.vin, msg.lane, msg.t_s, msg.ev, msg.speed_mps)
         reply(item.query, item.key, encode(Ack(msg.vin, -1, Detect.KIND, now_ns())))
 
     def _on_cancel(self, item: Item) -> None:
@@ -476,6 +511,25 @@ class IcaService:
     def _bad(self, item: Item, e: DecodeError) -> None:
         self.stats.bad_messages += 1
         self.log.warning("dropped a bad %s message on %s: %s", item.what, item.key, e)
+
+
+def _reorder_message(r: reactive.Reorder) -> Reorder:
+    """A reordering as observers see it: every vehicle in the new order, the revoked
+    ones with the seq of the plan taken back."""
+    seqs = dict(zip(r.revoked, r.seqs, strict=True))
+    places = tuple(
+        Place(v, seqs.get(v, -1), REVOKED if v in seqs else NOT_REVOKED, _time(r.t_s))
+        for v in r.order
+    )
+    return Reorder(
+        r.ev, r.lane, _time(r.t_s), r.solver[:32], places, _time(r.ev_entry_before_s, math.nan),
+        _time(r.ev_entry_after_s, math.nan), r.refused[:512], now_ns(),
+    )  # fmt: skip
+
+
+def _time(t_s: float, otherwise: float = 0.0) -> float:
+    """A time as the wire takes it (``otherwise`` where it is not finite)."""
+    return float(t_s) if math.isfinite(t_s) and TIME[0] <= t_s <= TIME[1] else otherwise
 
 
 def _is_chunk(name: str) -> bool:

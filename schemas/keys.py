@@ -47,6 +47,11 @@ def revoke(junction: str, agent: str = "*") -> str:
     return f"dica/{chunk(junction)}/revoke/{_one(agent)}"
 
 
+def reorder(junction: str) -> str:
+    """Publication (ICA): reactive DICA's reorderings and what became of revoked plans."""
+    return f"dica/{chunk(junction)}/reorder"
+
+
 def confirmed(junction: str, vin: str = "*") -> str:
     """Publication (ICA): every new confirmation, for observers."""
     return f"dica/{chunk(junction)}/confirmed/{_one(vin)}"
@@ -125,4 +130,6 @@ def writer_of(key: str, action: str) -> str | None:
             return "ica" if action == "put" else None
         if kind == "stats" and name is None:
             return {"query": "gateway", "reply": "ica"}.get(action)
+        if kind == "reorder" and name is None:
+            return "ica" if action == "put" else None
     return None

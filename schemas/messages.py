@@ -119,6 +119,47 @@ class Revoke:
     sent_ns: int = lim(0, 2**63 - 1)
 
 
+# Place.plan: what became of a vehicle's confirmation in a reordering
+NOT_REVOKED = ""  # it had none to revoke (the EV, or not confirmed yet) or kept its place
+REVOKED = "revoked"  # REVOKE sent, no answer yet: the plan may still be flown
+DROPPED = "dropped"  # the vehicle dropped the plan (ACK revoke, or a CANCEL): withdrawn
+# KEPT (above): it could not stop short of the line, the plan stands
+EXPIRED = "expired"  # no answer came before the plan ended
+PLANS = (NOT_REVOKED, REVOKED, DROPPED, KEPT, EXPIRED)
+
+
+@dataclass(frozen=True, slots=True)
+class Place:
+    """One vehicle of a reordering, in the new crossing order, and what became of its
+    confirmation ``seq`` (-1: none was revoked) as of sim time ``t_s``."""
+
+    vin: str = lim(n=MAX_TEXT)
+    seq: int = lim(-1, 2**31 - 1)
+    plan: str = lim(n=16)  # one of PLANS
+    t_s: float = lim(*TIME)
+
+
+@dataclass(frozen=True, slots=True)
+class Reorder:
+    """Reactive DICA reordered the vehicles for emergency vehicle ``ev`` at sim time
+    ``t_s`` (ICA -> observers). Sent when decided and again whenever a revoked
+    plan's fate changes, whole each time, so an observer that missed one is put
+    right by the next. ``ev_entry_*_s``: the EV's entry by the ordering model in
+    the present order and in the new one (NaN: not known); ``refused``: why the
+    solver gave no order (the present one was kept)."""
+
+    KIND: ClassVar[str] = "reorder"
+    ev: str = lim(n=MAX_TEXT)
+    lane: str = lim(n=MAX_TEXT)  # the EV's incoming lane
+    t_s: float = lim(*TIME)
+    solver: str = lim(n=32)
+    order: tuple[Place, ...] = lim(n=MAX_VEHICLES)
+    ev_entry_before_s: float = lim(*TIME, n=-1)
+    ev_entry_after_s: float = lim(*TIME, n=-1)
+    refused: str = lim(n=MAX_DETAIL)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
 @dataclass(frozen=True, slots=True)
 class Cancel:
     """The vehicle will not fly confirmation ``seq`` (it came too late): free it."""
@@ -258,6 +299,7 @@ MESSAGES: tuple[type, ...] = (
     Reject,
     Ack,
     Revoke,
+    Reorder,
     Cancel,
     Detect,
     State,

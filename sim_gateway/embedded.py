@@ -22,7 +22,7 @@ from ica.core.baselines import controller_config, make_controller
 from ica.core.config import IcaConfig
 from ica.core.dica import Dica
 from ica.core.intersection import Intersection
-from ica.core.reactive import ReactiveConfig, ReactiveDica
+from ica.core.reactive import DROPPED, KEPT, ReactiveConfig, ReactiveDica, Reorder
 from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, make_arrivals
 from sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
@@ -53,6 +53,7 @@ class LocalLink:
         self.detector: dict[str, tuple[bool, float]] = {}
         self.revoked: list[str] = []  # reactive DICA: revoked this step, and their new plans
         self.revised: dict[str, Confirmation] = {}
+        self.reorders: list[Reorder] = []  # reactive DICA's decisions, to record
 
     def detect(self, vin: str, lane: str, t_s: float) -> Rejection | None:
         try:
@@ -74,6 +75,7 @@ class LocalLink:
             return False
         revoked = False
         for r in ica.take_reorders():
+            self.reorders.append(r)
             self.revoked += r.revoked
             revoked = revoked or bool(r.revoked)
             for vin in r.revoked:
@@ -117,6 +119,7 @@ class LocalDrivers:
         self.rejections: dict[str, int] = {}
         self.recorded: set[str] = set()  # VINs whose confirmation is in the recording
         self.revocations: list[tuple[float, str, str]] = []  # (t, vin, what), to record
+        self.kept: list[tuple[float, str, str]] = []  # revoked plans that stand: (t, vin, why)
         self.delivered: set[tuple[str, int]] = set()  # revocations handed to their vehicles
 
     def step(self, t: float, seen: list[Seen]) -> list[Command]:
@@ -152,18 +155,31 @@ class LocalDrivers:
             if self.ica.reactive.replan_revoked:
                 out += self._revise(self.ica, t)
             else:
-                out += self._deliver(self.ica, t)
+                out += self._deliver(self.ica)
+            self._answered(self.ica)
         return out
 
-    def _deliver(self, ica: ReactiveDica, t: float) -> list[Command]:
+    def _answered(self, ica: ReactiveDica) -> None:
+        """What became of revoked plans this step, to record: a plan is withdrawn once
+        its vehicle has dropped it, not when the revocation is sent (it may be kept)."""
+        answers = ica.take_answers()
+        if ica.reactive.replan_revoked:
+            return  # withdrawn with their replacements, at once (see _revise)
+        for a in answers:
+            if a.outcome == DROPPED:
+                self.recorded.discard(a.vin)  # its next plan is recorded once it flies it
+                self.revocations.append((a.t_s, a.vin, "revoked"))
+            elif a.outcome == KEPT:
+                self.kept.append((a.t_s, a.vin, "kept its plan: it could not stop"))
+            else:
+                self.kept.append((a.t_s, a.vin, "no answer before its plan ended"))
+
+    def _deliver(self, ica: ReactiveDica) -> list[Command]:
         """The cluster's way: this step's REVOKEs reach their vehicles, as they reach
         a lockstep agent before it answers the STATE whose query caused them; each
         vehicle's actuator drops its plan (or keeps it) and the vehicle tells the ICA
-        at its next observation."""
-        for r in ica.take_reorders():
-            for vin in r.revoked:
-                self.recorded.discard(vin)  # its next plan is recorded once it flies it
-                self.revocations.append((t, vin, "revoked"))
+        at its next observation (see _answered)."""
+        self.link.reorders += ica.take_reorders()
         out = []
         for vin, seq in ica.due_revocations():
             if (vin, seq) in self.delivered:
@@ -363,9 +379,22 @@ def _record(
 ) -> None:
     """This step's new confirmations and rejections, and every observed vehicle's footprint."""
     rec = r.rec
+    for s in seen:  # before any confirmation: an EV's plan is drawn in its colour
+        if s.car.ev and s.car.vin not in r.emergency:
+            r.emergency.add(s.car.vin)
+            rec.emergency(s.car.vin)
+    for o in drivers.link.reorders:
+        rec.reordered(
+            o.t_s, o.ev, o.lane, o.solver, o.order, o.ev_entry_before_s, o.ev_entry_after_s,
+            revoked=o.revoked, refused=o.refused,
+        )  # fmt: skip
+    drivers.link.reorders.clear()
     for t_rev, vin, what in drivers.revocations:  # a revoked plan is not flown from here on
         rec.withdrawn(t_rev, vin, what)
     drivers.revocations.clear()
+    for t_kept, vin, why in drivers.kept:
+        rec.kept(t_kept, vin, why)
+    drivers.kept.clear()
     rejected = []
     for s in seen:
         v = drivers.vehicles.get(s.car.vin)
@@ -401,10 +430,6 @@ def _record(
         r.tally = dict(drivers.rejections)
         for vin in rejected or ["-"]:
             rec.rejected(t, vin, "/".join(reasons))
-    for s in seen:
-        if s.car.ev and s.car.vin not in r.emergency:
-            r.emergency.add(s.car.vin)
-            rec.emergency(s.car.vin)
     rec.footprints(
         t,
         [s.car.vin for s in seen],

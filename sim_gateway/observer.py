@@ -1,23 +1,30 @@
 """The observer process: records the run as Rerun space-time visuals.
 
 It only listens: the STATE of every vehicle in the region (``sim/<j>/vehicles``), the
-confirmations the ICA publishes (``dica/<j>/confirmed/*``) and the CLOCK. It
-is not a lockstep participant, so recording never slows the run; at the
-run's end on the clock it drains what is queued, closes the ``.rrd`` and
-exits. All Rerun calls go through :class:`sim_gateway.recording.SpaceTimeRecorder`.
-With ``live_port`` it also serves the recording over gRPC on 127.0.0.1 while
-it writes the file, so ``dica view --live`` can watch the run as it happens.
+confirmations the ICA publishes (``dica/<j>/confirmed/*``), reactive DICA's
+reorderings (``dica/<j>/reorder``) and the CLOCK. It is not a lockstep
+participant, so recording never slows the run; at the run's end on the clock
+it drains what is queued, closes the ``.rrd`` and exits. All Rerun calls go
+through :class:`sim_gateway.recording.SpaceTimeRecorder`. With ``live_port`` it
+also serves the recording over gRPC on 127.0.0.1 while it writes the file, so
+``dica view --live`` can watch the run as it happens.
 
-The wire carries no rejections to the observer (a REJECT is the reply to the
-vehicle's query), so the rejections table stays empty in a cluster run.
-Where a new message or field changes what is drawn: a vehicle's state and
-colour are decided in :func:`sim_gateway.recording.vehicle_states`; a
-withdrawn plan would call the recorder from :meth:`Observer._on`.
+Emergency vehicles are drawn in their colour from the first STATE that flags
+them (``ev``). A reordering is marked once, the first time it is heard; a
+revoked plan is withdrawn only once the ICA says its vehicle dropped it (a
+reordering comes again, whole, each time a revoked plan's fate is known), so
+a plan that was kept stays drawn. It is withdrawn at the step at which the
+vehicle feed first showed the drop (``refused_seq``), the moment the
+vehicle's own observation showed it, not whenever the ICA's clock happened to
+be when the ACK came: so the drawing is the same on every run. The wire carries no rejections to the
+observer (a REJECT is the reply to the vehicle's query), so the rejections
+table holds only the withdrawn plans in a cluster run.
 """
 
 from __future__ import annotations
 
 import logging
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -26,8 +33,27 @@ from ica.core.intersection import Intersection
 from schemas import keys
 from schemas.codec import DecodeError, decode
 from schemas.link import Inbox, Item
-from schemas.messages import Clock, Response, State, VehicleState
+from schemas.messages import (
+    DROPPED,
+    EXPIRED,
+    KEPT,
+    Clock,
+    Place,
+    Reorder,
+    Response,
+    State,
+    VehicleState,
+)
 from sim_gateway.recording import SpaceTimeRecorder
+
+
+@dataclass(slots=True)
+class _Revoked:
+    """A revoked plan followed until its fate is drawn."""
+
+    decided_s: float
+    shown_s: float | None = None  # first step after the decision whose feed shows the drop
+    said: Place | None = None  # the ICA's DROPPED, until the feed shows the drop
 
 
 @dataclass(slots=True)
@@ -59,13 +85,22 @@ class Observer:
         self.recorder.geometry()
         self.sizes: dict[str, tuple[float, float]] = {}
         self.confirmations = 0
+        self.reorders = 0
+        self.withdrawn = 0
         self.steps = 0
+        self._seq: dict[str, int] = {}  # VIN -> the newest confirmation drawn
+        self._emergency: set[str] = set()
+        self._marked: set[tuple[str, float]] = set()  # reorderings drawn: (EV, t_s)
+        self._answered: set[tuple[str, int]] = set()  # revoked plans whose fate is drawn
+        self._revoked: dict[tuple[str, int], _Revoked] = {}  # (VIN, seq) -> what is known
+        self._watch: dict[str, list[tuple[int, _Revoked]]] = {}  # drops the feed has not shown
         self.ended = False
         self._cur = _Step()
         j = inter.junction_id
         self._decls = [
             session.declare_subscriber(keys.vehicles(j), self.inbox.sample_cb("state")),
             session.declare_subscriber(keys.confirmed(j), self.inbox.sample_cb("confirmed")),
+            session.declare_subscriber(keys.reorder(j), self.inbox.sample_cb("reorder")),
             session.declare_subscriber(keys.clock(j), self.inbox.sample_cb("clock")),
         ]
         # declared last: a gateway waiting for observers starts once all of the above are up
@@ -87,6 +122,8 @@ class Observer:
 
     def close(self) -> None:
         self._emit()
+        for vin in list(self._watch):  # the feed never showed these drops: the ICA's time
+            self._settle(vin, math.inf)
         self._token.undeclare()
         for d in self._decls:
             d.undeclare()
@@ -101,8 +138,15 @@ class Observer:
             self._cur.vehicles.extend(st.vehicles)
             for v in st.vehicles:
                 self.sizes[v.vin] = (v.length_m, v.width_m)
+                if v.vin in self._watch:
+                    self._feed_shows(v, st.t_s)
+                if v.ev and v.vin not in self._emergency:
+                    self._emergency.add(v.vin)
+                    self.recorder.emergency(v.vin)
         elif item.what == "confirmed":
             r = decode(item.payload, Response)
+            if r.vin in self._watch:
+                self._settle(r.vin, r.seq)  # a dropped plan goes before the next is drawn
             length, width = self.sizes.get(r.vin, (5.0, 1.8))
             self.recorder.confirmed(
                 r.vin,
@@ -122,10 +166,78 @@ class Observer:
                 time_pad_s=self.time_pad_s,
             )
             self.confirmations += 1
+            self._seq[r.vin] = max(r.seq, self._seq.get(r.vin, -1))
+        elif item.what == "reorder":
+            self._on_reorder(decode(item.payload, Reorder))
         elif item.what == "clock":
             c = decode(item.payload, Clock)
             if c.end:
                 self.ended = True
+
+    def _on_reorder(self, m: Reorder) -> None:
+        if (m.ev, m.t_s) not in self._marked:
+            self._marked.add((m.ev, m.t_s))
+            self.reorders += 1
+            self.recorder.reordered(
+                m.t_s, m.ev, m.lane, m.solver, [p.vin for p in m.order],
+                m.ev_entry_before_s, m.ev_entry_after_s,
+                revoked=[p.vin for p in m.order if p.seq >= 0], refused=m.refused,
+            )  # fmt: skip
+        for p in m.order:
+            if p.seq < 0:
+                continue
+            r = self._revoked.get((p.vin, p.seq))
+            if r is None:
+                r = self._revoked[(p.vin, p.seq)] = _Revoked(m.t_s)
+                self._watch.setdefault(p.vin, []).append((p.seq, r))
+            settled = p.plan in (DROPPED, KEPT, EXPIRED)
+            if settled and (p.vin, p.seq) not in self._answered:
+                self._answered.add((p.vin, p.seq))
+                self._on_fate(p, r)
+
+    def _on_fate(self, p: Place, r: _Revoked) -> None:
+        """A revoked plan was dropped (withdrawn once the feed shows it), kept, or ended
+        unanswered (both stay drawn)."""
+        if p.plan == DROPPED:
+            r.said = p
+            if r.shown_s is not None:
+                self._withdraw(p.vin, p.seq, r.shown_s)
+            return
+        self._unwatch(p.vin, p.seq)
+        if p.plan == KEPT:
+            self.recorder.kept(p.t_s, p.vin, "kept its plan: it could not stop")
+        else:
+            self.recorder.kept(p.t_s, p.vin, "no answer before its plan ended")
+
+    def _feed_shows(self, v: VehicleState, t_s: float) -> None:
+        """The vehicle feed at ``t_s``: has the actuator dropped a revoked plan?"""
+        for seq, r in list(self._watch.get(v.vin, ())):
+            if r.shown_s is None and t_s > r.decided_s + 1e-9 and v.refused_seq >= seq:
+                r.shown_s = t_s
+                if r.said is not None:
+                    self._withdraw(v.vin, seq, t_s)
+
+    def _settle(self, vin: str, below_seq: float) -> None:
+        """Withdraw at the ICA's time the dropped plans of ``vin`` below ``below_seq``
+        whose drop the feed has not shown (a newer plan comes, or the run ends)."""
+        for seq, r in list(self._watch.get(vin, ())):
+            if seq < below_seq and r.said is not None:
+                self._withdraw(vin, seq, r.said.t_s)
+
+    def _withdraw(self, vin: str, seq: int, t_s: float) -> None:
+        self._unwatch(vin, seq)
+        self.withdrawn += 1
+        if self._seq.get(vin, -1) <= seq:
+            self.recorder.withdrawn(t_s, vin, "revoked")
+        else:  # a newer plan is drawn already: it stays
+            self.recorder.rejected(t_s, vin, "revoked")
+
+    def _unwatch(self, vin: str, seq: int) -> None:
+        left = [w for w in self._watch.get(vin, ()) if w[0] != seq]
+        if left:
+            self._watch[vin] = left
+        else:
+            self._watch.pop(vin, None)
 
     def _emit(self) -> None:
         cur = self._cur

@@ -172,8 +172,9 @@ def sumo_heading_rad(angle_deg: np.ndarray) -> np.ndarray:
 
 
 def vehicle_color(vin: str, alpha: int = 0xFF) -> int:
-    """A colour (0xRRGGBBAA) fixed by the VIN, so a plan and its progress match."""
-    hue = (zlib.crc32(vin.encode()) % 360) / 360.0
+    """A colour (0xRRGGBBAA) fixed by the VIN, so a plan and its progress match; its hue
+    keeps 25 degrees away from red, the emergency vehicles' colour in the charts."""
+    hue = (25 + zlib.crc32(vin.encode()) % 310) / 360.0
     r, g, b = (round(c * 255) for c in colorsys.hsv_to_rgb(hue, 0.8, 0.85))
     return (r << 24) | (g << 16) | (b << 8) | alpha
 
@@ -227,6 +228,7 @@ class _Plan:
     t0_s: float  # first DTOT sample time
     band: np.ndarray  # (K, 5, 2) reserved outlines at the DTOT samples, viewer frame
     hold: Holding
+    until_s: float = math.inf  # withdrawn from this time on
 
 
 @dataclass(slots=True)
@@ -328,8 +330,9 @@ class SpaceTimeRecorder:
         )
 
     def views(self) -> dict[str, Any]:
-        """Every view of the layout by name: top, zones, counts, confirmed, rejected and
-        one per lane (its lane id); ``tools/screenshots.py`` shows them one by one."""
+        """Every view of the layout by name: top, zones, counts, confirmed, rejected,
+        reorders and one per lane (its lane id); ``tools/screenshots.py`` shows them
+        one by one."""
         reach = _frame_reach(self.intersection)
         top = rrb.Spatial2DView(
             origin="junction",
@@ -393,8 +396,21 @@ class SpaceTimeRecorder:
             columns=table_columns,
             format_options=mono,
         )
+        reorders = rrb.TextLogView(
+            origin="tables/reorders",
+            name="reorders: EV, solver, EV entry s before, after, order (* revoked)",
+            columns=table_columns,
+            format_options=mono,
+        )
         views = dict(zip(lanes, charts, strict=True))
-        views.update(top=top, zones=zones, counts=counts, confirmed=confirmed, rejected=rejected)
+        views.update(
+            top=top,
+            zones=zones,
+            counts=counts,
+            confirmed=confirmed,
+            rejected=rejected,
+            reorders=reorders,
+        )
         return views
 
     def blueprint(self) -> rrb.Blueprint:
@@ -403,7 +419,9 @@ class SpaceTimeRecorder:
         v = self.views()
         lanes = sorted(self.lanes, key=lambda ln: (ln.rsplit("_", 1)[1], ln))  # lane-major
         n_cols = len({approach_of(ln) for ln in self.lanes})
-        bottom = rrb.Horizontal(v["counts"], v["confirmed"], v["rejected"], column_shares=[2, 4, 3])
+        bottom = rrb.Horizontal(
+            v["counts"], v["confirmed"], v["rejected"], v["reorders"], column_shares=[2, 4, 3, 3]
+        )
         left = rrb.Vertical(v["top"], v["zones"], row_shares=[3, 2])
         grid = rrb.Grid(*(v[lane] for lane in lanes), grid_columns=n_cols)
         right = rrb.Vertical(grid, bottom, row_shares=[3, 1])
@@ -437,6 +455,11 @@ class SpaceTimeRecorder:
                 "radii": 0.15,
                 "draw_order": 10.0,
                 "show_labels": False,
+            }
+            splat[f"charts/data/lanes/{lane}/reorders"] = {
+                "radii": 0.3,
+                "draw_order": 25.0,
+                "show_labels": True,
             }
             splat[f"charts/data/lanes/{lane}/actual"] = {
                 "radii": 0.45,
@@ -760,8 +783,14 @@ class SpaceTimeRecorder:
     def withdrawn(self, t_s: float, vin: str, why: str) -> None:
         """``vin``'s confirmation no longer holds (revoked): from ``t_s`` its reserved
         footprint is no longer drawn and its plan and reserved intervals are not
-        logged again, so they leave the charts with the window; a row says why."""
-        self._plans.pop(vin, None)
+        logged again, so they leave the charts with the window; a row says why.
+        The steps buffered so far are drawn first, with the plan in force before
+        ``t_s`` (which may lie a little in the past) and withdrawn from it."""
+        plan = self._plans.get(vin)
+        if plan is not None:
+            plan.until_s = float(t_s)
+            self.flush()
+            self._plans.pop(vin, None)
         mine = (f"{vin} plan", f"{vin} P")
         self._later = [
             item
@@ -771,8 +800,68 @@ class SpaceTimeRecorder:
         self.rejected(t_s, vin, why)
 
     def emergency(self, vin: str) -> None:
-        """Draw ``vin`` in the emergency vehicles' colour from now on."""
+        """Draw ``vin`` in the emergency vehicles' colour from now on: in the top view
+        until it has cleared, and its plans and progress in the charts (call it before
+        its first confirmation, so that its plan is drawn in that colour too)."""
         self._emergency.add(vin)
+        self._colors[vin] = _rgba(STATE_STYLE[State.EMERGENCY][1])
+
+    def reordered(
+        self,
+        t_s: float,
+        ev: str,
+        lane: str,
+        solver: str,
+        order: Sequence[str],
+        ev_entry_before_s: float,
+        ev_entry_after_s: float,
+        *,
+        revoked: Sequence[str] = (),
+        refused: str = "",
+    ) -> None:
+        """Reactive DICA reordered the vehicles for emergency vehicle ``ev`` at ``t_s``.
+
+        On the EV's lane chart: a line across the chart at ``t_s`` and one along
+        the entry line from the EV's entry in the present order to its entry in
+        the new one (by the ordering model), in the EV's colour and labelled; a
+        row in the reorders table with the solver, both entries and the new
+        order, revoked vehicles starred (``refused``: the present order was kept).
+        """
+        if lane not in self.lanes:
+            raise ValueError(f"unknown lane {lane!r}")
+        t = float(t_s)
+        k = CHART_M_PER_S
+        comm = self.intersection.comm_length_m
+        strips = [np.array([(t * k, -self._top_m), (t * k, comm)], np.float32)]
+        labels = [f"reorder for {ev} ({solver})"]
+        ends = [t]
+        if math.isfinite(ev_entry_before_s) and math.isfinite(ev_entry_after_s):
+            a, b = float(ev_entry_before_s), float(ev_entry_after_s)
+            strips.append(np.array([(a * k, 0.6), (b * k, 0.6)], np.float32))
+            labels.append(f"{ev} entry {b:.1f} s (was {a:.1f} s)")
+            ends += [a, b]
+        fields = {
+            "strips": strips,
+            "colors": np.full(len(strips), _rgba(STATE_STYLE[State.EMERGENCY][1]), np.uint32),
+            "labels": labels,
+        }
+        entity = f"charts/data/lanes/{lane}/reorders"
+        self._row(entity, rr.LineStrips2D, t, len(strips), **fields)
+        self._again(max(ends), t, entity, rr.LineStrips2D, len(strips), fields)
+        star = set(revoked)
+        listed = " ".join(f"{v}*" if v in star else v for v in order)
+        if refused:
+            text = f"{ev:<8} {solver:<10} present order kept: {refused[:80]}"
+        else:
+            text = (
+                f"{ev:<8} {solver:<10} {ev_entry_before_s:7.2f} {ev_entry_after_s:7.2f}  {listed}"
+            )
+        self._row("tables/reorders", rr.TextLog, t, 1, text=[text])
+
+    def kept(self, t_s: float, vin: str, why: str) -> None:
+        """A revoked plan that stands after all (the vehicle could not stop short of the
+        line, or no answer came before the plan ended): it stays drawn; a row says why."""
+        self._row("tables/reorders", rr.TextLog, float(t_s), 1, text=[f"{vin:<8} {why}"])
 
     def footprints(
         self,
@@ -870,7 +959,7 @@ class SpaceTimeRecorder:
         plans = [self._plans.get(v) for v in vins]
         confirmed = np.array(
             [
-                p is not None and t >= p.t_confirmed_s - 1e-9
+                p is not None and p.t_confirmed_s - 1e-9 <= t < p.until_s - 1e-9
                 for p, t in zip(plans, t_row, strict=True)
             ],
             dtype=bool,
@@ -1006,7 +1095,7 @@ class SpaceTimeRecorder:
             if p.t0_s > hi or t_end < lo or len(p.band) == 0:
                 continue
             j = np.rint((times - p.t0_s) / STEP_S).astype(int)
-            ok = (j >= 0) & (j < len(p.band))
+            ok = (j >= 0) & (j < len(p.band)) & (times < p.until_s - 1e-9)
             if ok.any():
                 at_step.append(np.nonzero(ok)[0])
                 blocks.append(p.band[j[ok]])

@@ -3,7 +3,9 @@
 * lockstep with one agent makes exactly the embedded run's decisions;
 * with three agents too (the lockstep gateway keeps the order of ICA contacts);
 * lockstep waits for the agents only on steps where one must talk to the ICA;
-* garbage sent to the ICA's keys is refused or dropped and the ICA keeps serving.
+* garbage sent to the ICA's keys is refused or dropped and the ICA keeps serving;
+* reactive DICA revokes over Zenoh, and the observer's recording shows EVs in
+  their colour, each reordering, and withdrawn exactly the plans that were dropped.
 
 Faults (late, lost and repeated messages, killed processes) are in test_timing.py.
 """
@@ -273,6 +275,58 @@ def test_ctrl_c_stops_everything_and_keeps_the_recording(tmp_path):
     assert any(str(c.entity_path) == "/junction/vehicles" for c in chunks)
 
 
+def _reactive_recording(rrd: Path) -> dict:
+    """What a .rrd shows of reactive DICA, read back with Rerun's reader: the reorders
+    table's reorderings and its rows on revoked plans that stand (time, row), the
+    plans withdrawn (time, VIN), how many reorder marks the lane charts hold, and
+    whether an EV is drawn in its colour in the top view and in the lane charts."""
+    from rerun.chunk import RrdReader
+
+    from sim_gateway.recording import STATE_STYLE, State
+
+    r, g, b = STATE_STYLE[State.EMERGENCY][1]
+    red = (r << 24) | (g << 16) | (b << 8) | 0xFF
+    out = {"reorders": [], "kept": [], "withdrawn": [], "marks": 0, "ev_top": False,
+           "ev_charts": False}  # fmt: skip
+    for chunk in RrdReader(rrd).stream():
+        path, batch = str(chunk.entity_path), chunk.to_record_batch()
+        if "sim_time" not in batch.schema.names:
+            continue
+        times = [round(t / 1e9, 3) for t in batch.column("sim_time").cast("int64").to_pylist()]
+
+        def column(name: str, batch=batch) -> list:
+            return batch.column(name).to_pylist() if name in batch.schema.names else []
+
+        if path == "/tables/reorders":
+            for t, (txt,) in zip(times, column("TextLog:text"), strict=True):
+                stands = "kept its plan" in txt or "no answer before" in txt
+                out["kept" if stands else "reorders"].append((t, txt))
+        elif path == "/tables/rejected":
+            rows = [
+                (t, txt.split()) for t, (txt,) in zip(times, column("TextLog:text"), strict=True)
+            ]
+            out["withdrawn"] += [(t, w[0]) for t, w in rows if w[1:] == ["revoked"]]
+        elif path.startswith("/charts/data/lanes/") and path.endswith("/reorders"):
+            out["marks"] += batch.num_rows
+        elif path == "/junction/vehicles":
+            out["ev_top"] |= any(red in (cs or []) for cs in column("LineStrips2D:colors"))
+        elif path.startswith("/charts/data/lanes/") and path.endswith("/actual"):
+            out["ev_charts"] |= any(red in (cs or []) for cs in column("Points2D:colors"))
+    for rows in ("reorders", "kept", "withdrawn"):
+        out[rows].sort()
+    return out
+
+
+def _revoked_at(reorders: list[tuple[float, str]]) -> dict[str, float]:
+    """When each starred (revoked) vehicle of the reorders table was first revoked."""
+    out: dict[str, float] = {}
+    for t, row in reorders:
+        for v in row.split():
+            if v.endswith("*"):
+                out.setdefault(v[:-1], t)
+    return out
+
+
 def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_path):
     port = _free_port()
     common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
@@ -292,3 +346,54 @@ def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_pat
     config = json.loads((tmp_path / "cl" / "config.json").read_text())
     assert config["run"]["revocation"] == "drop"
     _same_decisions(tmp_path / "cl", tmp_path / "emb")
+
+
+def test_the_observer_records_evs_reorderings_and_only_the_dropped_plans(tmp_path):
+    port = _free_port()
+    out = tmp_path / "cl"
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
+    p = _cluster(out, "--agents", "1", "--port", str(port), *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    ica = json.loads((out / "ica.json").read_text())["incarnations"][0]
+    reactive = ica["reactive"]
+    assert ica["revoke_acks"] >= 1
+
+    rec = _reactive_recording(out / "spacetime.rrd")
+    assert rec["ev_top"] and rec["ev_charts"]  # EVs in their colour, top view and charts
+    assert rec["marks"] >= 1 and len(rec["reorders"]) == reactive["events"]
+    # withdrawn: exactly the plans the actuators dropped (the gateway's own count) and the
+    # ICA heard dropped, each after its REVOKE went out; the plans kept stay drawn
+    withdrawn = rec["withdrawn"]
+    assert len(withdrawn) == m["timing"]["plans_dropped"] == reactive["acknowledged"]
+    assert len(rec["kept"]) == reactive["restored"] + reactive["expired"]
+    revoked = _revoked_at(rec["reorders"])
+    assert all(vin in revoked and t > revoked[vin] for t, vin in withdrawn)
+
+
+def test_two_agents_revoke_safely_and_the_recording_withdraws_only_dropped_plans(tmp_path):
+    """On a secured site: the ICA's REORDERs pass the router's rules and their seals."""
+    port = _free_port()
+    out = tmp_path / "cl"
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
+    p = _cluster(out, "--secure", "--agents", "2", "--port", str(port), *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    assert set(m["agents"]) == {"agent-1", "agent-2"} and min(m["agents"].values()) > 5
+    ica = json.loads((out / "ica.json").read_text())["incarnations"][0]
+    reactive = ica["reactive"]
+    assert ica["revoke_acks"] >= 1 and reactive["revoked"] >= 1  # revocations happened
+    assert reactive["acknowledged"] + reactive["restored"] == reactive["revoked"]
+    assert reactive["pending"] == 0
+    assert ica["refused_unsealed"] == {}
+    rec = _reactive_recording(out / "spacetime.rrd")
+    assert rec["ev_top"] and rec["marks"] >= 1 and len(rec["reorders"]) == reactive["events"]
+    # withdrawn: every plan its vehicle dropped (ACK or CANCEL), none that was kept
+    assert len(rec["withdrawn"]) == reactive["acknowledged"] >= ica["revoke_acks"]
+    assert len(rec["kept"]) == reactive["restored"] + reactive["expired"]
+    revoked = _revoked_at(rec["reorders"])
+    assert all(vin in revoked and t >= revoked[vin] for t, vin in rec["withdrawn"])

@@ -3,14 +3,16 @@ the EV ahead of vehicles confirmed before it, holds, and a conflict-free result.
 
 from __future__ import annotations
 
+import msgpack
 import numpy as np
 import pytest
 
 from ica.core.config import IcaConfig
 from ica.core.dica import Dica
 from ica.core.proposal import propose
-from ica.core.reactive import ReactiveConfig, ReactiveDica
+from ica.core.reactive import DROPPED, EXPIRED, KEPT, Answer, ReactiveConfig, ReactiveDica
 from ica.core.request import Confirmation, Reason, Rejection
+from ica.journal import Journal, records, replay
 from tools.audit import Flown, conflicts
 
 CFG = IcaConfig()
@@ -199,13 +201,16 @@ def test_over_a_link_the_revoked_car_drops_its_plan_and_asks_after_the_ev(ch45):
     ica = ReactiveDica(ch45, CFG, reactive=ASK)
     w1_old = scene(ica, ch45)
     r = start_event(ica, ch45)
-    assert r.revoked == ("w1",) and ica.due_revocations() == [("w1", 0)]
+    assert r.revoked == ("w1",) and r.seqs == (0,) and r.lane == EV_ROUTE[0]
+    assert ica.due_revocations() == [("w1", 0)]
     held = ev_request(ica, ch45, seq=1)  # no answer yet: the EV waits, the room stays taken
     assert isinstance(held, Rejection) and held.reason is Reason.HELD
     assert "w1~revoked" in ica.confirmed and ica.due_revocations() == [("w1", 0)]
     assert ica.acknowledge("w1", seq=7) == [] and ica.pending() == ("w1",)  # not that plan
+    assert ica.take_answers() == []  # nothing is known of the plan yet: it stays drawn
     assert ica.cancel("w1", 0)  # the vehicle will not fly plan 0: its acknowledgement
     assert ica.pending() == () and ica.due_revocations() == []
+    assert ica.take_answers() == [Answer("w1", 0, DROPPED, 0.5)] and ica.take_answers() == []
     assert "w1~revoked" not in ica.confirmed and "w1" not in ica.confirmed
     ev = ev_request(ica, ch45, seq=2)
     assert isinstance(ev, Confirmation) and ev.delay_s < 1e-3
@@ -225,6 +230,7 @@ def test_a_refused_drop_gives_the_car_its_reservation_back(ch45):
     start_event(ica, ch45)
     assert ica.restore("w1", seq=5) == ()  # about another plan: nothing changes
     assert ica.restore("w1", seq=0) == ("w1",)
+    assert ica.take_answers() == [Answer("w1", 0, KEPT, 0.5)]
     assert ica.confirmed["w1"].confirmation is w1 and "w1~revoked" not in ica.confirmed
     assert ica.restore("w1", seq=0) == () and ica.due_revocations() == []  # a repeat
     assert not ica.cancel("w1", 5)
@@ -243,4 +249,56 @@ def test_an_unanswered_revocation_ends_with_the_old_plan(ch45):
     start_event(ica, ch45)
     ica.advance(w1.exit_time_s + 1.0)  # never answered: it flew it (or stopped, unheard)
     assert ica.pending() == () and ica.summary()["expired"] == 1
+    assert ica.take_answers() == [Answer("w1", 0, EXPIRED, w1.exit_time_s + 1.0)]
     assert "w1" not in ica._lane_of  # gone from its queue: one still there announces itself
+
+
+# -- a restarted ICA: the journal keeps what the detector read ---------------------------
+def journalled_scene(inter, path, ev_flag: bool = True) -> ReactiveDica:
+    """The scene, with every detection and confirmation journalled as the ICA does."""
+    ica = ReactiveDica(inter, CFG, reactive=ASK)
+    journal = Journal(path, sync=False)
+    conf = scene(ica, inter)
+    journal.detect("w1", CROSS[0], 0.0, False, 8.0)
+    journal.confirm(conf, 5.0, 1.8, CROSS[0])
+    detect_ev(ica)
+    journal.detect("ev", EV_ROUTE[0], 0.5, ev_flag, 15.0)
+    journal.close()
+    return ica
+
+
+def test_a_replayed_journal_keeps_the_ev_flag_and_the_ev_still_goes_first(ch45, tmp_path):
+    path = tmp_path / "ica-journal.msgpack"
+    before = journalled_scene(ch45, path)
+    assert records(path)[0][-1]["ev"] is True
+    restarted = ReactiveDica(ch45, CFG, reactive=ASK)
+    done = replay(path, restarted)
+    assert (done.detects, done.confirmations, done.skipped) == (2, 1, 0)
+    restarted.advance(0.5)
+    # the EV asks as head of its lane: the restarted ICA reorders exactly as before
+    for ica in (before, restarted):
+        held = ev_request(ica, ch45)
+        assert isinstance(held, Rejection) and held.reason is Reason.HELD
+    [r0], [r1] = before.take_reorders(), restarted.take_reorders()
+    assert r1.revoked == r0.revoked == ("w1",) and r1.order == r0.order
+    assert r1.ev_entry_after_s == pytest.approx(r0.ev_entry_after_s)
+    assert restarted._lane_confirmed[CROSS[0]] == ["w1"]  # the lane's order came back too
+
+
+def test_an_old_journal_without_the_flag_still_replays(ch45, tmp_path):
+    path = tmp_path / "old.msgpack"
+    journalled_scene(ch45, path, ev_flag=False)
+    recs, _ = records(path)
+    with path.open("wb") as f:  # as written before the flag existed: no "ev", no "speed"
+        for rec in recs:
+            rec.pop("ev", None)
+            rec.pop("speed", None)
+            f.write(msgpack.packb(rec, use_bin_type=True))
+    ica = ReactiveDica(ch45, CFG, reactive=ASK)
+    done = replay(path, ica)
+    assert (done.detects, done.confirmations, done.skipped) == (2, 1, 0)
+    ica.advance(0.5)
+    ev = ev_request(ica, ch45)  # a normal vehicle now: planned around the car, no reorder
+    assert isinstance(ev, Confirmation) and ica.take_reorders() == []
+    plain = Dica(ch45, CFG)
+    assert replay(path, plain).detects == 2  # and into plain DICA too

@@ -8,6 +8,7 @@ with shapely, intervals with the core's exhaustive getOTI).
 
 from __future__ import annotations
 
+import colorsys
 import itertools
 import math
 import os
@@ -47,6 +48,7 @@ from sim_gateway.recording import (
     approach_of,
     rectangles,
     sumo_heading_rad,
+    vehicle_color,
     vehicle_states,
 )
 from tools.cli import main as dica
@@ -464,6 +466,120 @@ def test_an_emergency_vehicle_is_drawn_in_its_colour(ch45, tmp_path):
     red = (r << 24) | (g << 16) | (b << 8) | 0xFF
     colours = _rows(_read(path)["/junction/vehicles"], "LineStrips2D:colors")
     assert colours and all(ids[0] == red and red not in ids[1:] for _, ids in colours if ids)
+
+
+def test_an_emergency_vehicle_s_plan_and_progress_are_in_its_colour_in_the_charts(ch45, tmp_path):
+    confs = _confirmations(ch45)
+    path = tmp_path / "ev-charts.rrd"
+    rec = SpaceTimeRecorder(ch45, path)
+    rec.geometry()
+    rec.emergency(confs[0].vin)  # told before its confirmation, as the runners do
+    _confirm(rec, confs)
+    _fly(rec, confs, 10)
+    rec.close()
+    data = _read(path)
+    r, g, b = STATE_STYLE[State.EMERGENCY][1]
+    red = (r << 24) | (g << 16) | (b << 8)
+    lane = ch45.route_by_id(confs[0].route_id).in_lane
+    plans = _rows(data[f"/charts/data/lanes/{lane}/plans"], "LineStrips2D:colors")
+    labels = _rows(data[f"/charts/data/lanes/{lane}/plans"], "LineStrips2D:labels")
+    mine = [
+        c[0] for (_, c), (_, (lb,)) in zip(plans, labels, strict=True) if lb.startswith("veh/0")
+    ]
+    assert mine and all(c & 0xFFFFFF00 == red for c in mine)
+    dots = _rows(data[f"/charts/data/lanes/{lane}/actual"], "Points2D:colors")
+    names = _rows(data[f"/charts/data/lanes/{lane}/actual"], "Points2D:labels")
+    ev_dots = [c for (_, cs), (_, ns) in zip(dots, names, strict=True)
+               for c, n in zip(cs, ns, strict=True) if n == confs[0].vin]  # fmt: skip
+    assert ev_dots and set(ev_dots) == {red | 0xFF}
+
+
+def test_no_other_vehicle_is_drawn_near_the_emergency_red():
+    for i in range(2000):
+        c = vehicle_color(f"v{i:05d}")
+        r, g, b = ((c >> s) & 0xFF for s in (24, 16, 8))
+        hue = colorsys.rgb_to_hsv(r / 255, g / 255, b / 255)[0] * 360
+        assert 24.0 <= hue <= 336.0, (i, hue)
+
+
+def test_a_reordering_is_marked_on_the_ev_s_lane_chart_and_in_its_table(ch45, tmp_path):
+    confs = _confirmations(ch45)
+    ev = confs[0]
+    lane = ch45.route_by_id(ev.route_id).in_lane
+    path = tmp_path / "reorder.rrd"
+    rec = SpaceTimeRecorder(ch45, path)
+    rec.geometry()
+    rec.emergency(ev.vin)
+    _confirm(rec, confs)
+    _fly(rec, confs, 20)
+    rec.reordered(1.0, ev.vin, lane, "exact", ["w1", ev.vin, "w2"], 9.0, 5.5, revoked=["w1"])
+    rec.reordered(1.5, ev.vin, lane, "ga", [ev.vin], math.nan, math.nan, refused="too many")
+    rec.kept(2.0, "w1", "kept its plan: it could not stop")
+    for i in range(20, 200):  # past the EV's old entry: the mark is logged again then
+        t = round(i * 0.05, 10)
+        rec.footprints(t, [], np.zeros(0), np.zeros(0), np.zeros(0), LENGTH_M, WIDTH_M)
+    rec.close()
+    data = _read(path)
+    marks = _rows(data[f"/charts/data/lanes/{lane}/reorders"], "LineStrips2D:strips")
+    labels = _rows(data[f"/charts/data/lanes/{lane}/reorders"], "LineStrips2D:labels")
+    assert [t for t, _ in marks] == [1.0, 1.5, 9.0]  # the first again when its last part ends
+    (t, (across, entries)), (_, lbs) = marks[0], labels[0]
+    assert [x for x, _ in across] == [pytest.approx(K * 1.0)] * 2  # a line across at 1 s
+    assert [x for x, _ in entries] == [pytest.approx(K * 9.0), pytest.approx(K * 5.5)]
+    assert lbs == [f"reorder for {ev.vin} (exact)", f"{ev.vin} entry 5.5 s (was 9.0 s)"]
+    assert len(marks[1][1]) == 1  # refused: no entries to compare, only the mark
+    rows = [text for _, (text,) in _rows(data["/tables/reorders"], "TextLog:text")]
+    assert rows[0].split() == [ev.vin, "exact", "9.00", "5.50", "w1*", ev.vin, "w2"]
+    assert "present order kept: too many" in rows[1]
+    assert rows[2].split()[:3] == ["w1", "kept", "its"]
+    with pytest.raises(ValueError, match="unknown lane"):
+        SpaceTimeRecorder(ch45, tmp_path / "x.rrd").reordered(0, "ev", "nowhere", "exact", [], 1, 1)
+
+
+@pytest.mark.parametrize("told_at_step", [40, 46])  # at its time, or a little later
+def test_a_withdrawn_plan_is_drawn_in_force_until_its_withdrawal(ch45, tmp_path, told_at_step):
+    """Steps are drawn in batches: those before a withdrawal keep the plan, those after
+    lose it, even when the withdrawal is told after they were buffered."""
+
+    def record(path: Path, withdraw: bool) -> tuple[dict, dict]:
+        confs = _confirmations(ch45)
+        rec = SpaceTimeRecorder(ch45, path, flush_s=100.0)  # nothing drawn before the end
+        rec.geometry()
+        _confirm(rec, confs)
+        for i in range(60):
+            if withdraw and i == told_at_step:
+                rec.withdrawn(2.0, confs[0].vin, "revoked")
+            j = [min(i, len(c.tss) - 1) for c in confs]
+            rec.footprints(
+                round(i * 0.05, 10), [c.vin for c in confs],
+                np.array([c.tss.x_m[k] for c, k in zip(confs, j, strict=True)]),
+                np.array([c.tss.y_m[k] for c, k in zip(confs, j, strict=True)]),
+                _sumo_angle_deg(np.array([c.tss.heading_rad[k] for c, k in zip(confs, j,
+                                                                               strict=True)])),
+                LENGTH_M, WIDTH_M, route_ids=[c.route_id for c in confs],
+            )  # fmt: skip
+        rec.close()
+        data = _read(path)
+        bands = {t: len(st) for t, st in _rows(data["/junction/reserved"], "LineStrips2D:strips")}
+        colours = dict(_rows(data["/junction/vehicles"], "LineStrips2D:colors"))
+        return bands, colours
+
+    (kept, kept_c), (gone, gone_c) = (
+        record(tmp_path / "k.rrd", False),
+        record(tmp_path / "g.rrd", True),
+    )
+    assert kept.keys() == gone.keys()
+    assert all(gone[t] == kept[t] for t in kept if t < 2.0)  # in force until withdrawn
+    assert all(gone[t] == kept[t] - 1 for t in kept if t >= 2.0)
+    # and its vehicle is drawn confirmed until then, requesting from then on
+    orange = _rgba_of(STATE_STYLE[State.REQUESTING][1])
+    assert all((gone_c[t][0] == orange) == (t >= 2.0) for t in gone_c)
+    assert orange not in {kept_c[t][0] for t in kept_c}
+
+
+def _rgba_of(rgb: tuple[int, int, int]) -> int:
+    r, g, b = rgb
+    return (r << 24) | (g << 16) | (b << 8) | 0xFF
 
 
 def test_a_withdrawn_plan_leaves_the_charts_and_the_top_view(ch45, tmp_path):

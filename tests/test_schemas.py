@@ -22,7 +22,9 @@ from schemas.messages import (
     Clock,
     Command,
     Detect,
+    Place,
     Reject,
+    Reorder,
     Request,
     Response,
     Revoke,
@@ -64,6 +66,17 @@ SAMPLES = {
     Cancel: Cancel("v00001", 3, 7),
     Detect: Detect("v00001", "W_in_0", 10.05, True, 12.5, 3),
     Revoke: Revoke("v00001", 3, 12.4, 9),
+    Reorder: Reorder(
+        "ev1",
+        "N_in_1",
+        12.4,
+        "exact",
+        (Place("w1", 40, "dropped", 13.1), Place("ev1", -1, "", 12.4), Place("w2", 7, "kept", 13)),
+        30.5,
+        24.25,
+        "",
+        10,
+    ),
     State: State("agent-1", 247, 1, 12.35, (_vs(), _vs("v00002", 3.2)), 4),
     Command: Command(
         "agent-1",
@@ -162,6 +175,13 @@ def test_wrong_types_and_ranges() -> None:
     assert _why(_pack(state)) is Why.OUT_OF_RANGE
     state["vehicles"][0] = "not a map"
     assert _why(_pack(state)) is Why.BAD_TYPE
+    # a reordering: the EV's entries may be unknown (NaN), the places' times may not
+    reorder = _raw(SAMPLES[Reorder])
+    assert math.isnan(decode(_pack({**reorder, "ev_entry_before_s": math.nan})).ev_entry_before_s)
+    reorder["order"][0]["t_s"] = float("nan")
+    assert _why(_pack(reorder)) is Why.OUT_OF_RANGE
+    reorder["order"][0] = {"vin": "w1", "seq": 40, "plan": "x" * 17, "t_s": 1.0}
+    assert _why(_pack(reorder)) is Why.TOO_LARGE
 
 
 def test_oversize_arrays_are_refused() -> None:
@@ -172,6 +192,11 @@ def test_oversize_arrays_are_refused() -> None:
     many = _raw(SAMPLES[State])
     many["vehicles"] = many["vehicles"] * 1500
     assert _why(_pack(many)) in (Why.TOO_LARGE, Why.NOT_MSGPACK)
+    long = _raw(SAMPLES[Reorder])
+    long["order"] = long["order"][:1] * 2049
+    assert _why(_pack(long)) in (Why.TOO_LARGE, Why.NOT_MSGPACK)
+    long["order"] = long["order"][:2048]
+    assert len(decode(_pack(long), Reorder).order) == 2048  # the limit itself passes
 
 
 @settings(max_examples=400, derandomize=True, deadline=None)
@@ -196,6 +221,7 @@ def test_keys_refuse_special_characters() -> None:
     assert keys.request("C") == "dica/C/request/*"
     assert keys.state("C", "agent-1") == "sim/C/state/agent-1"
     assert keys.confirmed("C") == "dica/C/confirmed/*"
+    assert keys.reorder("C") == "dica/C/reorder"
     for bad in ("a/b", "x?y", "", "$z", "**"):
         with pytest.raises(keys.KeyChunkError):
             keys.command("C", bad)

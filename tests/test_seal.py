@@ -57,13 +57,16 @@ def test_each_key_has_one_writer_and_wildcards_none():
     assert w("dica/C/request/agent-1", "query") == "agent-1"
     assert w("dica/C/request/agent-1", "reply") == "ica"
     assert w("dica/C/confirmed/v7", "put") == "ica"
+    assert w("dica/C/reorder", "put") == "ica"
     assert w("sim/C/stats/agent-1", "reply") == "agent-1"
     assert w("dica/C/stats", "query") == "gateway"
     for key in ("*/C/clock", "sim/C/cl$*", "**", "sim/C/command/*", "dica/C/request/*",
-                "sim/C/clock/extra", "other/C/clock"):  # fmt: skip
+                "sim/C/clock/extra", "other/C/clock", "dica/C/reorder/v7",
+                "dica/*/reorder"):  # fmt: skip
         for action in ("put", "query", "reply"):
             assert w(key, action) is None, (key, action)
     assert w("sim/C/clock", "query") is None and w("dica/C/confirmed/v7", "reply") is None
+    assert w("dica/C/reorder", "query") is None and w("dica/C/reorder", "reply") is None
 
 
 def test_an_open_site_passes_everything_and_a_seal_needs_a_keyring(site):

@@ -268,6 +268,7 @@ def _uses() -> tuple[Use, ...]:
         Use("put", f"dica/{J}/confirmed/v7", ("ica",), "observer", f"dica/{J}/confirmed/*",
             "ica", ""),
         Use("put", f"dica/{J}/revoke/{A}", ("ica",), A, f"dica/{J}/revoke/{A}", "ica", ""),
+        Use("put", f"dica/{J}/reorder", ("ica",), "observer", f"dica/{J}/reorder", "ica", ""),
         Use("put", f"dica/{J}/ack/{A}", (A,), "ica", f"dica/{J}/ack/*", A, ""),
         Use("put", f"sim/{J}/command/{A}", (A,), "gateway", f"sim/{J}/command/*", A, ""),
         # subscriptions: the owner subscribes, the witness publishes
@@ -277,6 +278,7 @@ def _uses() -> tuple[Use, ...]:
         Use("subscribe", f"dica/{J}/confirmed/v7", ("observer", A, B), "ica", "", "observer",
             f"dica/{J}/confirmed/*"),
         Use("subscribe", f"dica/{J}/revoke/{A}", (A,), "ica", "", A, ""),
+        Use("subscribe", f"dica/{J}/reorder", ("observer",), "ica", "", "observer", ""),
         Use("subscribe", f"dica/{J}/ack/{A}", ("ica",), A, "", "ica", f"dica/{J}/ack/*"),
         Use("subscribe", f"sim/{J}/command/{A}", ("gateway",), A, "", "gateway",
             f"sim/{J}/command/*"),

@@ -361,7 +361,10 @@ def cmd_observer(args: argparse.Namespace) -> int:
     finally:
         obs.close()
         session.close()
-        log.info("wrote %s: %d steps, %d confirmations", args.rrd, obs.steps, obs.confirmations)
+        log.info(
+            "wrote %s: %d steps, %d confirmations, %d reorderings, %d plans withdrawn",
+            args.rrd, obs.steps, obs.confirmations, obs.reorders, obs.withdrawn,
+        )  # fmt: skip
     return 0
 
 

@@ -80,7 +80,9 @@ def layouts(rrd_dir: Path):
         "lane-charts": alone(rrb.Grid(*(v[ln] for ln in lanes), grid_columns=n_cols)),
         "lane-chart": alone(v["N_in_1"] if "N_in_1" in v else v[lanes[0]]),
         "conflict-points": alone(v["zones"]),
-        "tables": alone(v["counts"], v["confirmed"], v["rejected"], column_shares=[2, 4, 3]),
+        "tables": alone(
+            v["counts"], v["confirmed"], v["rejected"], v["reorders"], column_shares=[2, 4, 3, 3]
+        ),
     }
 
 

@@ -46,8 +46,9 @@ the EV asks again once they are acknowledged (in process, at once).
 
 What must happen is handed out as plain data (:class:`Reorder`, and the
 confirmations :meth:`ReactiveDica.acknowledge` and
-:meth:`ReactiveDica.take_confirmations` return); carrying it to the vehicles
-is the caller's business. No I/O here.
+:meth:`ReactiveDica.take_confirmations` return), and so is what became of each
+revoked plan (:class:`Answer`: dropped, kept or expired) for whoever shows the
+run; carrying it to the vehicles is the caller's business. No I/O here.
 """
 
 from __future__ import annotations
@@ -123,6 +124,24 @@ class Reorder:
     solve_s: float  # the solver's wall time
     prepare_s: float  # the wall time of finding the candidates and measuring separations
     refused: str = ""  # why the solver gave no order (the present order is kept)
+    lane: str = ""  # the EV's incoming lane
+    seqs: tuple[int, ...] = ()  # the seq of each revoked confirmation, as in ``revoked``
+
+
+DROPPED = "dropped"  # the vehicle gave up the revoked plan: its reservation is gone
+KEPT = "kept"  # it could not stop short of the line: its reservation is its own again
+EXPIRED = "expired"  # no answer came before the revoked plan ended
+
+
+@dataclass(frozen=True, slots=True)
+class Answer:
+    """What became of one revoked confirmation, and when the ICA learnt it [sim s]:
+    only a DROPPED plan is withdrawn; a KEPT one is still flown."""
+
+    vin: str
+    seq: int
+    outcome: str  # DROPPED, KEPT or EXPIRED
+    t_s: float
 
 
 @dataclass(slots=True)
@@ -198,6 +217,7 @@ class ReactiveDica(Dica):
         self._after: list[_Replan] = []  # re-confirmations behind the EV
         self._late: list[Confirmation] = []  # re-confirmations made outside acknowledge()
         self._outbox: list[Reorder] = []
+        self._answers: list[Answer] = []
         self.events: list[EvEvent] = []
 
     # -- what the caller sees -------------------------------------------------------
@@ -209,6 +229,15 @@ class ReactiveDica(Dica):
         """Decisions made since the last call (each once)."""
         out, self._outbox = self._outbox, []
         return out
+
+    def take_answers(self) -> list[Answer]:
+        """What became of revoked confirmations since the last call (each once)."""
+        out, self._answers = self._answers, []
+        return out
+
+    def _answered(self, vin: str, outcome: str) -> None:
+        t = self._now if math.isfinite(self._now) else self._revoked_at.get(vin, 0.0)
+        self._answers.append(Answer(vin, self._revoked_seq.get(vin, -1), outcome, t))
 
     def pending(self) -> tuple[str, ...]:
         """Revoked vehicles whose acknowledgement is not known yet."""
@@ -268,9 +297,11 @@ class ReactiveDica(Dica):
                 continue
             if v in self._confirmed:  # it asked again, so it did drop that plan
                 self._drop(key)
+                self._answered(v, DROPPED)
                 continue
             self._restore_aside(v, key)
             self.restored += 1
+            self._answered(v, KEPT)
             back.append(v)
         return tuple(back)
 
@@ -291,6 +322,7 @@ class ReactiveDica(Dica):
         if key is not None:
             self._drop(key)
             self.acknowledged += 1
+            self._answered(vin, DROPPED)
             if not self.reactive.replan_revoked:
                 # it stops short of the line and asks again like any head of its lane
                 if vin not in self._confirmed:  # (not confirmed anew meanwhile)
@@ -410,6 +442,16 @@ class ReactiveDica(Dica):
                 if self._event is None and self.reactive.start_at == "detection":
                     self._next_event(max(self._now, t_s))
 
+    def adopt(
+        self, confirmation: Confirmation, length_m: float, width_m: float, in_lane: str
+    ) -> None:
+        """DICA's adoption (a restarted ICA's replay), with the lane's order of
+        confirmations kept as :meth:`handle` keeps it: a replay leaves the same state."""
+        known = confirmation.vin in self._confirmed
+        super().adopt(confirmation, length_m, width_m, in_lane)
+        if not known:
+            self._lane_confirmed[in_lane].append(confirmation.vin)
+
     def advance(self, now_s: float) -> list[str]:
         self._now = now_s
         gone = super().advance(now_s)
@@ -419,6 +461,7 @@ class ReactiveDica(Dica):
                 if self._pending.get(vin) == key:  # its old plan is over: nothing to wait for
                     del self._pending[vin]
                     self.expired += 1
+                    self._answered(vin, EXPIRED)
                     if vin not in self._confirmed:
                         # flown, or dropped with the answer lost: either way it leaves its
                         # lane's queue (one still short of the line is told NOT_DETECTED
@@ -619,6 +662,8 @@ class ReactiveDica(Dica):
             solve_s=solve_s,
             prepare_s=prepare_s,
             refused=refused,
+            lane=ev.lane,
+            seqs=tuple(self._revoked_seq[vin] for vin in revoked),
         )
         self._outbox.append(ev.reorder)
 
