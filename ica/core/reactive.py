@@ -97,7 +97,7 @@ class ReactiveConfig:
     # True: revoked vehicles are re-confirmed by the ICA in the solver's order (in process,
     # where a revocation reaches its vehicle at once). False: over a real link, each
     # revoked vehicle drops its plan, stops short of the line and asks again like any
-    # head of lane; revocations go out lane by lane from the back (see due_revocations)
+    # head of lane; revocations go out together, each lane's from the back (due_revocations)
     replan_revoked: bool = True
 
     def __post_init__(self) -> None:
@@ -250,15 +250,16 @@ class ReactiveDica(Dica):
     def due_revocations(self) -> list[tuple[str, int]]:
         """The revocations to send now, as (vin, seq of the plan revoked).
 
-        With ``replan_revoked`` off, a revoked vehicle drops its plan and stops
-        short of the line, which its follower's plan did not expect. So in each
-        lane only the rearmost revoked vehicle still pending is due: the one ahead
-        of it is told once it has dropped its plan (and is then stopping behind
-        whatever is ahead of it), or never, if it could not (see :meth:`restore`).
-        With ``replan_revoked`` on, every pending revocation is due at once. (DICA
-        confirms a vehicle only once those ahead of it have begun to enter, which
-        cannot be revoked, so a lane holds one revoked vehicle at most today; the
-        rule keeps a lane safe should that change.)
+        Every pending revocation is due at once, each lane's rearmost first. With
+        ``replan_revoked`` off a revoked vehicle drops its plan and stops short of
+        the line, which its follower's plan did not expect; the actuator therefore
+        drops a plan only while no follower flies behind it (drops of one step
+        go rearmost first), and a vehicle is modifiable only if every confirmed one
+        behind it is (:meth:`_classify`). A REVOKE that reaches a leader before its
+        follower's is answered "kept" (see :meth:`restore`): safe, never a
+        collision. Sending them together (rather than each once the one behind has
+        dropped) also keeps a lockstep cluster's decisions independent of when an
+        acknowledgement happens to arrive.
         The answer is the same until something is acknowledged or restored, so a
         caller may send it again (a lost REVOKE) as often as it likes.
         """
@@ -266,10 +267,7 @@ class ReactiveDica(Dica):
             return [(vin, self._revoked_seq[vin]) for vin in self._pending]
         out = []
         for vins in self._lane_revoked.values():
-            for vin in reversed(vins):
-                if vin in self._pending:
-                    out.append((vin, self._revoked_seq[vin]))
-                    break
+            out += [(v, self._revoked_seq[v]) for v in reversed(vins) if v in self._pending]
         return out
 
     def cancel(self, vin: str, seq: int) -> bool:
