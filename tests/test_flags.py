@@ -51,3 +51,13 @@ def test_a_bad_value_is_one_clear_line(args, says, capsys):
     err = capsys.readouterr().err
     assert says in err, err
     assert len(err.strip().splitlines()) == 1, err
+
+
+def test_experiment_passes_a_lone_option_as_extra():
+    """`dica experiment --extra --no-platoon` hands the flag to every run, as a user
+    would write it (argparse alone takes an option-like value for an option)."""
+    from tools.experiment import _joined_extra, parser
+
+    argv = ["--out", "x", "--extra", "--no-platoon", "--seeds", "1"]
+    assert parser().parse_args(_joined_extra(argv)).extra == "--no-platoon"
+    assert _joined_extra(["--extra", "--ev-prob 0.02"]) == ["--extra=--ev-prob 0.02"]
