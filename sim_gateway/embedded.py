@@ -547,9 +547,10 @@ class _ReactiveLight:
         self.ls = ls
         self.tls = inter.junction_id
         self.program = Preemption(phases)
+        self.program_id = ls.trafficlight.getProgram(self.tls)
         self.links = ls.trafficlight.getControlledLinks(self.tls)
         self.ev: str | None = None
-        self.steps: list[tuple[int, float | None]] = []
+        self.steps: list[tuple[int | str, float | None]] = []
         self.step_end_s = math.inf
         self.served = 0
         self.kinds: dict[str, int] = {"extend": 0, "return": 0, "cut": 0}
@@ -596,7 +597,11 @@ class _ReactiveLight:
     def _begin(self, t: float, first: bool) -> None:
         tl = self.ls.trafficlight
         k, duration = self.steps[0]
-        if not (first and tl.getPhase(self.tls) == k):
+        if isinstance(k, str):  # a transition of the cut: a state of its own
+            tl.setRedYellowGreenState(self.tls, k)
+        elif not (first and tl.getPhase(self.tls) == k):
+            if tl.getProgram(self.tls) != self.program_id:
+                tl.setProgram(self.tls, self.program_id)
             tl.setPhase(self.tls, k)
         # SUMO must not move on by itself: every switch is ours until the EV has entered
         tl.setPhaseDuration(self.tls, self._FOREVER_S)

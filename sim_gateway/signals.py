@@ -235,17 +235,23 @@ def reactive_phases(phases: list[Phase]) -> list[Phase]:
 class Preemption:
     """What the light does for an emergency vehicle (EV) whose movements are ``links``.
 
-    :meth:`steps` answers, from the phase running now, the phases to run in
-    turn, each with its duration or :data:`HOLD` (until the EV has entered):
+    :meth:`steps` answers, from the phase running now, what to show in turn,
+    each a program phase (its index) or a transition state of its own (a
+    signal string), with its duration or :data:`HOLD` (until the EV has
+    entered):
 
     * the EV's movements are green: **extend** the green;
     * they are yellow after their green: **return** to that green;
-    * otherwise **cut** the running green to its own yellow (a yellow or
-      all-red already running finishes), run the all-red phases that follow
-      it in the program with their full durations, then green the EV's lanes.
+    * otherwise **cut** to the EV's green: every movement green now and not
+      green in the EV's phase turns yellow for the program's full yellow (those
+      yellow already finish theirs), then all of them are red for the program's
+      longest all-red, and only then the EV's phase starts. Movements green in
+      both stay green throughout (they are compatible with the EV's phase).
 
-    Yellow and all-red clearances are never shortened, so a cut is as safe as
-    the program's own phase change.
+    The program's own phases in between are not run: a yellow of the program
+    keeps green what its *next* green keeps, which need not be the EV's phase's,
+    so jumping from it to the EV's phase could turn a green red with no yellow.
+    Clearances are never shortened, so a cut is as safe as a phase change.
     """
 
     def __init__(self, phases: list[Phase]) -> None:
@@ -254,6 +260,10 @@ class Preemption:
         self.states = [ph.state for ph in phases]
         self.durations = [ph.duration_s for ph in phases]
         self.kinds = [ph.kind for ph in phases]
+        yellows = [ph.duration_s for ph in phases if ph.kind == YELLOW]
+        reds = [ph.duration_s for ph in phases if ph.kind == ALL_RED]
+        self.yellow_s = max(yellows, default=REACTIVE_YELLOW_S)
+        self.all_red_s = max(reds, default=0.0)
 
     def _green_for(self, phase: int, links: list[int]) -> bool:
         s = self.states[phase]
@@ -270,25 +280,25 @@ class Preemption:
 
     def steps(
         self, phase: int, remaining_s: float, links: list[int]
-    ) -> list[tuple[int, float | None]]:
+    ) -> list[tuple[int | str, float | None]]:
         n = len(self.states)
         if self._green_for(phase, links):
             return [(phase, HOLD)]
         prev = (phase - 1) % n
         if self.kinds[phase] == YELLOW and self._green_for(prev, links):
             return [(prev, HOLD)]
-        out: list[tuple[int, float | None]] = []
-        k = phase
-        if self.kinds[k] == GREEN:
-            k = (k + 1) % n
-            if self.kinds[k] != YELLOW:
-                raise ValueError(f"green phase {phase} is not followed by a yellow")
-            out.append((k, self.durations[k]))
-        else:
-            out.append((k, max(remaining_s, 0.0)))
-        k = (k + 1) % n
-        while self.kinds[k] == ALL_RED:
-            out.append((k, self.durations[k]))  # all-red clearance
-            k = (k + 1) % n
-        out.append((self.target(links), HOLD))
-        return out
+        tgt = self.target(links)
+        now, then = self.states[phase], self.states[tgt]
+        keep = [a in "Gg" and b in "Gg" for a, b in zip(now, then, strict=True)]
+        stops = any(a in "Gg" and not k for a, k in zip(now, keep, strict=True))
+        out: list[tuple[int | str, float | None]] = []
+        if stops or any(a in "yY" for a in now):
+            yellow = "".join(
+                a if k else ("y" if a in "GgyY" else "r") for a, k in zip(now, keep, strict=True)
+            )
+            out.append((yellow, self.yellow_s if stops else max(remaining_s, 0.0)))
+        red = "".join(a if k else "r" for a, k in zip(now, keep, strict=True))
+        cleared = self.kinds[phase] == ALL_RED and not stops and red == now
+        out.append((red, max(remaining_s, 0.0) if cleared else self.all_red_s))
+        out.append((tgt, HOLD))
+        return [(k, d) for k, d in out if d is HOLD or d > 0.0]

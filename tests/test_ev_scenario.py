@@ -3,6 +3,8 @@ pre-emption, and the vehicle machine's revocation hook; no SUMO."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -89,10 +91,12 @@ def test_pre_emption_extends_returns_or_cuts_and_keeps_clearances():
     north_through, east_through = [0], [4]
     assert pre.steps(0, 10.0, north_through) == [(0, HOLD)]  # extend the green
     assert pre.steps(1, 5.0, north_through) == [(0, HOLD)]  # back from yellow to green
-    # red for the EV: the running green goes to its full yellow, then the EV's green
-    assert pre.steps(0, 20.0, east_through) == [(1, REACTIVE_YELLOW_S), (4, HOLD)]
+    # red for the EV: every green not green in the EV's phase, the permissive left
+    # included, goes to the full yellow, then the EV's green
+    yellow = "yyyyrrrryyyyrrrr"
+    assert pre.steps(0, 20.0, east_through) == [(yellow, REACTIVE_YELLOW_S), (4, HOLD)]
     # a yellow already running finishes (what is left of it), then the EV's green
-    assert pre.steps(3, 4.0, east_through) == [(3, 4.0), (4, HOLD)]
+    assert pre.steps(3, 4.0, east_through) == [("rrryrrrrrrryrrrr", 4.0), (4, HOLD)]
     # the protected left gets its 'G' phase, not the permissive one
     assert pre.target([3]) == 2
 
@@ -100,7 +104,41 @@ def test_pre_emption_extends_returns_or_cuts_and_keeps_clearances():
 def test_all_red_phases_are_kept_when_cutting():
     plan = ["GGrr", "yyrr", "rrrr", "rrGG", "rryy", "rrrr"]
     pre = Preemption(_program(plan, [30.0, 3.0, 2.0, 30.0, 3.0, 2.0]))
-    assert pre.steps(0, 12.0, [2]) == [(1, 3.0), (2, 2.0), (3, HOLD)]
+    assert pre.steps(0, 12.0, [2]) == [("yyrr", 3.0), ("rrrr", 2.0), (3, HOLD)]
+    assert pre.steps(2, 1.0, [2]) == [("rrrr", 1.0), (3, HOLD)]  # an all-red running finishes
+
+
+# the chapter 4-5 junction's reactive program (protected lefts keep a permissive 'g'
+# through the main yellow and its all-red, into their own green)
+CH45 = [
+    (31.0, "GGGgrrrrGGGgrrrr"), (13.0, "yyygrrrryyygrrrr"), (2.286, "rrrgrrrrrrrgrrrr"),
+    (5.0, "rrrGrrrrrrrGrrrr"), (13.0, "rrryrrrrrrryrrrr"), (2.856, "rrrrrrrrrrrrrrrr"),
+    (31.0, "rrrrGGGgrrrrGGGg"), (13.0, "rrrryyygrrrryyyg"), (2.286, "rrrrrrrgrrrrrrrg"),
+    (5.0, "rrrrrrrGrrrrrrrG"), (13.0, "rrrrrrryrrrrrrry"), (2.856, "rrrrrrrrrrrrrrrr"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("program", [CH45, [(30.0 if "y" not in s else 3.0, s) for s in PLAN]])
+def test_no_cut_turns_a_green_red_without_its_full_yellow_and_all_red(program):
+    """From every phase, with any time left, for every movement an EV may need: no
+    movement goes from green to red without the full yellow, and none gets green
+    before the longest all-red has passed since the last yellow ended."""
+    phases = _program([s for _, s in program], [d for d, _ in program])
+    pre = Preemption(phases)
+    for phase in range(len(program)):
+        for link in range(len(program[0][1])):
+            for left in (0.05, 1.0, 40.0):
+                seq = pre.steps(phase, left, [link])
+                shown = [(program[phase][1], left)]
+                shown += [(k if isinstance(k, str) else program[k][1], d) for k, d in seq]
+                for (a, _), (b, _) in itertools.pairwise(shown):
+                    for i, (x, y) in enumerate(zip(a, b, strict=True)):
+                        assert not (x in "Gg" and y == "r"), (phase, link, i, seq)
+                start, end = shown[0][0], shown[-1][0]
+                for i in range(len(start)):
+                    if start[i] in "Gg" and end[i] == "r":  # it is stopped: a full yellow
+                        assert any(st[i] == "y" and d >= pre.yellow_s for st, d in shown[1:])
+                assert seq[-1][1] is HOLD and program[seq[-1][0]][1][link] in "Gg"
 
 
 def test_the_machine_flies_a_replacement_and_drops_the_plan_without_one(ch45):
