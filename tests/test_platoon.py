@@ -5,9 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,8 +14,8 @@ from ica.core.dica import Dica
 from ica.core.planner import Kinematics, Planner
 from ica.core.proposal import propose
 from ica.core.request import Confirmation, Reason, Rejection, RequestError
+from tests.test_run_sumo import dica
 
-ROOT = Path(__file__).resolve().parents[1]
 WEST = "W_in_1", "E_out_1"  # through from the west
 NORTH = "N_in_1", "S_out_1"  # through from the north: crosses WEST
 LENGTH, MARGIN = 5.0, 0.25
@@ -150,16 +147,6 @@ def test_stop_law_bound_is_kept_for_a_standing_vehicle():
     kin = Kinematics()
     moving = Planner(d_m=30.0, v0_mps=10.0, road_mps=15.0, cap_mps=10.0, s_end_m=30.0, kin=kin)
     assert moving.stop_time_s() > 0.0
-
-
-def dica(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=600,
-    )
 
 
 def test_platoons_cross_heavy_traffic_safely_with_fewer_stops(tmp_path):
