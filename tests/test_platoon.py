@@ -173,7 +173,7 @@ def test_platoons_cross_heavy_traffic_safely_with_fewer_stops(tmp_path):
 
 def _actuator_at(t_s: float):
     """The gateway's actuator rules alone (World._drop, World._may_follow), no SUMO."""
-    from sim_gateway.world import World, Timing
+    from sim_gateway.world import Timing, World
 
     w = World.__new__(World)
     w.t, w.h = t_s, 0.05
