@@ -113,6 +113,23 @@ def test_rdica_runs_collision_free_with_every_solver(tmp_path, solver):
     assert json.loads((out / "config.json").read_text())["run"]["solver"] == solver
 
 
+def test_a_platoon_behind_a_vehicle_that_got_no_new_plan_stops_behind_it(tmp_path):
+    """Platoons let several revoked vehicles share a lane. When one of them gets no new
+    plan after a reordering it stops short of the line, so those behind it must stop too:
+    planned as if it were gone, they ran into it (this seed gave 18 overlaps and 16 SUMO
+    collisions before the fix)."""
+    out = tmp_path / "run"
+    p = dica(
+        "run", "--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "500",
+        "--duration", "300", "--seed", "12", "--out", str(out), "--quiet",
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    assert m["reactive"]["replan_failed"] >= 2  # the case did happen
+    assert m["timing"]["plans_kept"] == 0
+
+
 def test_the_reactive_light_pre_empts_for_evs_without_collisions(tmp_path):
     out = tmp_path / "light"
     p = dica(

@@ -365,11 +365,16 @@ class ReactiveDica(Dica):
         """Re-confirm revoked vehicles in order; those without a plan are left to ask."""
         out = []
         ev = self._event
+        stopped: set[str] = set()  # lanes where a vehicle got no new plan: it stops there
         for r in replans:
             if r.vin in self._confirmed:
                 continue  # it asked and was confirmed meanwhile
             leader = self._leader_of(r.vin, r.route.in_lane)
             try:
+                if r.route.in_lane in stopped:
+                    # those behind it (after it in the order, which keeps each lane's) stop
+                    # too: planned past it as if it were gone, they would run into it
+                    raise RequestError(Reason.NOT_HEAD, "a vehicle ahead stops")
                 conf = self._confirm_from(
                     r.vin, r.seq, r.route, r.shape, r.t0_s, r.dist_m, r.speed_mps,
                     -math.inf, leader,
@@ -378,6 +383,7 @@ class ReactiveDica(Dica):
                 if ev is not None:
                     ev.failed.append(r.vin)
                 self._forget_confirmed(r.vin)
+                stopped.add(r.route.in_lane)
                 continue
             out.append(conf)
         if ev is not None:
