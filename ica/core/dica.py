@@ -318,6 +318,23 @@ class Dica:
         self._version += 1
         return conf
 
+    def exit_order(self, route: Route, dtot: Dtot) -> Conflict | None:
+        """checkFV beyond the junction: a plan may not leave by an exit lane ahead of a
+        confirmed vehicle that leaves it faster, which would run into it out there
+        (nothing checks the road after the junction). The conflict with the one that
+        leaves last: delay this plan until it leaves after it."""
+        out_s = float(dtot.t_s[-1])
+        v = dtot.exit_speed_mps + self.config.speed_tol_mps
+        worst: Conflict | None = None
+        for vin, c in self._confirmed.items():
+            d = c.dtot
+            if d.route.out_lane != route.out_lane or d.exit_speed_mps <= v:
+                continue
+            need = float(d.t_s[-1]) + self.config.step_s  # its padded reservation's end
+            if need > out_s and (worst is None or need - out_s > worst.delay_s):
+                worst = Conflict(vin, out_s, need - out_s)
+        return worst
+
     def front_cap_mps(self, route: Route) -> float:
         """checkFV: a vehicle may not cross faster than the slowest confirmed
         vehicle leaving by the same exit lane (which covers the same route ahead)."""
@@ -366,9 +383,10 @@ class Dica:
             found = self._resolve_compiled(
                 req, route, shape, traj, leader, lag, planner, grid, s_end
             )
-            if found is not None:
+            if found is not None and self.exit_order(route, found[0]) is None:
                 return found[0], found[1], earliest
-            # the compiled loop stops where this loop raises: let it raise, with its message
+            # the compiled loop stops where this loop raises (let it raise, with its
+            # message), and knows nothing of the exit order: this loop adds it
 
         b_wait: float | None = None  # the current plan's wait if of the stop family
         for iteration in range(1, cfg.max_iterations + 1):
@@ -387,6 +405,10 @@ class Dica:
                         raise _blocked(req.vin, leader.vin)
                     conflicts.append(Conflict(leader.vin, *found))
                     conflicts.sort(key=lambda c: c.first_time_s)
+            late = self.exit_order(route, dtot)
+            if late is not None:
+                conflicts.append(late)
+                conflicts.sort(key=lambda c: c.first_time_s)
             if not conflicts:
                 return dtot, iteration, earliest
             first = conflicts[0]
