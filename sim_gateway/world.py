@@ -314,10 +314,8 @@ class World:
             c.ahead = c.behind = None
             if c.vin in present and vw.getLaneID(c.vin) == c.route.in_lane:
                 on_lane.setdefault(c.route.in_lane, []).append((vw.getLanePosition(c.vin), c))
-        heads: dict[str, tuple[float, str]] = {}
-        for lane, cars in on_lane.items():
+        for cars in on_lane.values():
             cars.sort(key=lambda pc: -pc[0])
-            heads[lane] = (cars[0][0], cars[0][1].vin)
             for (_, front), (_, back) in itertools.pairwise(cars):
                 front.behind, back.ahead = back, front
 
@@ -359,7 +357,7 @@ class World:
             if self._left_junction(vw, c, t):
                 self.crossed += 1
             d = self._lane_len[c.route.in_lane] - vw.getLanePosition(c.vin)
-            c.head = heads.get(c.route.in_lane, (0.0, ""))[1] == c.vin
+            c.head = lane == c.route.in_lane and c.ahead is None
             follows = (
                 self.ica_cfg.platoon
                 and c.plan_s is None  # one that holds a plan does not ask

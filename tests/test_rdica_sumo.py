@@ -71,6 +71,13 @@ def dica(*args: str) -> subprocess.CompletedProcess:
     )
 
 
+def run_metrics(out: Path, *args: str) -> dict:
+    """``dica run ARGS --out OUT --quiet``, which must succeed; its metrics.json."""
+    p = dica("run", *args, "--out", str(out), "--quiet")
+    assert p.returncode == 0, p.stdout + p.stderr
+    return json.loads((out / "metrics.json").read_text())
+
+
 def collision_free(d: dict) -> None:
     assert d["overlaps"] == 0 and d["sumo"] == 0 and d["unconfirmed"] == 0
 
@@ -96,12 +103,10 @@ def test_the_ev_behind_a_queue_crosses_before_cars_confirmed_earlier_that_could_
 @pytest.mark.parametrize("solver", ["exact", "ga", "exhaustive"])
 def test_rdica_runs_collision_free_with_every_solver(tmp_path, solver):
     out = tmp_path / solver
-    p = dica(
-        "run", "--algorithm", "rdica", "--solver", solver, "--volume", "400",
-        "--duration", "150", "--seed", "21", "--ev-prob", "0.1", "--out", str(out), "--quiet",
+    m = run_metrics(
+        out, "--algorithm", "rdica", "--solver", solver, "--volume", "400",
+        "--duration", "150", "--seed", "21", "--ev-prob", "0.1",
     )  # fmt: skip
-    assert p.returncode == 0, p.stdout + p.stderr
-    m = json.loads((out / "metrics.json").read_text())
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
     r = m["reactive"]
     assert r["solver"] == solver and r["events"] >= 2
@@ -118,13 +123,10 @@ def test_a_platoon_behind_a_vehicle_that_got_no_new_plan_stops_behind_it(tmp_pat
     plan after a reordering it stops short of the line, so those behind it must stop too:
     planned as if it were gone, they ran into it (this seed gave 18 overlaps and 16 SUMO
     collisions before the fix)."""
-    out = tmp_path / "run"
-    p = dica(
-        "run", "--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "500",
-        "--duration", "300", "--seed", "12", "--out", str(out), "--quiet",
+    m = run_metrics(
+        tmp_path / "run", "--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "500",
+        "--duration", "300", "--seed", "12",
     )  # fmt: skip
-    assert p.returncode == 0, p.stdout + p.stderr
-    m = json.loads((out / "metrics.json").read_text())
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
     assert m["reactive"]["replan_failed"] >= 2  # the case did happen
     assert m["timing"]["plans_kept"] == 0
@@ -132,12 +134,10 @@ def test_a_platoon_behind_a_vehicle_that_got_no_new_plan_stops_behind_it(tmp_pat
 
 def test_the_reactive_light_pre_empts_for_evs_without_collisions(tmp_path):
     out = tmp_path / "light"
-    p = dica(
-        "run", "--algorithm", "reactive-light", "--volume", "300", "--duration", "300",
-        "--seed", "12", "--ev-prob", "0.1", "--out", str(out), "--quiet",
+    m = run_metrics(
+        out, "--algorithm", "reactive-light", "--volume", "300", "--duration", "300",
+        "--seed", "12", "--ev-prob", "0.1",
     )  # fmt: skip
-    assert p.returncode == 0, p.stdout + p.stderr
-    m = json.loads((out / "metrics.json").read_text())
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0
     assert m["preemption"]["served"] >= 1
     cfg = json.loads((out / "config.json").read_text())
