@@ -224,6 +224,36 @@ def test_over_a_link_the_revoked_car_drops_its_plan_and_asks_after_the_ev(ch45):
     assert (s["acknowledged"], s["restored"], s["pending"]) == (1, 0, 0)
 
 
+def test_asking_again_acknowledges_the_revocation_whatever_path_the_ack_took(ch45):
+    """Over Zenoh the ACK (a publication) and the vehicle's next REQUEST (a query) may
+    reach the ICA in either order: the REQUEST under a higher seq is the proof that the
+    revoked plan is not flown, so both orders give the same plan and the same state."""
+    w1_old = scene(ReactiveDica(ch45, CFG, reactive=ASK), ch45)  # where w1 is at 0.5 s
+    k = round((0.5 - w1_old.tss.t_s[0]) / CFG.step_s)
+    xy = np.array([[w1_old.tss.x_m[k], w1_old.tss.y_m[k]]])
+    d = -float(ch45.route(*CROSS).project(xy)[0][0])
+    plans = []
+    for ack_first in (True, False):
+        ica = ReactiveDica(ch45, CFG, reactive=ASK)
+        scene(ica, ch45)
+        start_event(ica, ch45)
+        assert ica.pending() == ("w1",)
+        if ack_first:
+            ica.acknowledge("w1", 0)
+        held = ica.handle(request(ch45, "w1", CROSS, 0.5, d, 7.0, seq=3), 0.5)
+        assert isinstance(held, Rejection) and held.reason is Reason.HELD  # the EV first
+        assert "w1~revoked" not in ica.confirmed and ica.pending() == ()
+        assert ica.acknowledge("w1", 0) == []  # the ACK that comes late changes nothing
+        assert [a.outcome for a in ica.take_answers()] == [DROPPED]
+        ev = ev_request(ica, ch45, seq=2)
+        again = ica.handle(request(ch45, "w1", CROSS, 0.5, d, 7.0, seq=4), 0.5)
+        assert isinstance(ev, Confirmation) and isinstance(again, Confirmation)
+        plans.append((ev, again))
+    (ev1, w1a), (ev2, w1b) = plans
+    assert ev1.entry_time_s == ev2.entry_time_s and w1a.entry_time_s == w1b.entry_time_s
+    assert np.array_equal(w1a.tss.x_m, w1b.tss.x_m)
+
+
 def test_a_refused_drop_gives_the_car_its_reservation_back(ch45):
     ica = ReactiveDica(ch45, CFG, reactive=ASK)
     w1 = scene(ica, ch45)

@@ -492,6 +492,16 @@ class ReactiveDica(Dica):
 
     def _handle(self, req: Request, now_s: float) -> Confirmation:
         well_typed = all(isinstance(x, str) for x in (req.vin, req.in_lane, req.out_lane))
+        if (
+            well_typed
+            and req.vin in self._pending
+            and isinstance(req.seq, int)
+            and req.seq > self._revoked_seq[req.vin]
+        ):
+            # asking again under a higher seq proves the vehicle does not fly the revoked
+            # plan (as a CANCEL of it would): its ACK may still be on its way by another
+            # path, and the request must not be planned around its own old reservation
+            self.acknowledge(req.vin, self._revoked_seq[req.vin])
         ev = self._event
         if (
             well_typed
