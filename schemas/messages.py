@@ -20,7 +20,7 @@ import numpy as np
 # 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev`` and
 # ``kept_seq``, a setpoint ``drop``, and REVOKE exists (2 had no revocations; 1 had
 # open-loop speed commands)
-VERSION = 4
+VERSION = 5
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
@@ -199,8 +199,10 @@ class VehicleState:
     unable to stop short of the line. ``ev``: an emergency vehicle. ``follows``:
     platoons are on and the vehicle ahead on the incoming lane flies its plan, so
     this one may ask to follow it. ``owner``
-    is the agent that hosts it. The first STATE that names a vehicle to an
-    agent hands it to that agent.
+    is the agent that hosts it. ``intent_m``: where its actuator will take it
+    over the next steps without a new plan (route positions, m; empty if not
+    predicted), for the plan its agent asks ahead of time. The first STATE that
+    names a vehicle to an agent hands it to that agent.
     """
 
     vin: str = lim(n=MAX_TEXT)
@@ -223,6 +225,9 @@ class VehicleState:
     ev: bool = lim()
     follows: bool = lim()
     owner: str = lim(n=MAX_TEXT)
+    # its actuator's prediction of its route position [m] after each of the next steps,
+    # should no plan reach it (empty: not predicted; see Observation.intent_m)
+    intent_m: np.ndarray = lim(n=MAX_SAMPLES)
 
 
 @dataclass(frozen=True, slots=True)

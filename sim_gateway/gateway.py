@@ -60,6 +60,7 @@ from vehicle_agent.machine import BIG, NO_PLAN
 from vehicle_agent.machine import Command as Actuation
 
 CLOCKS = ("lockstep", "realtime")
+PREDICT_S = 2.0  # [s sim] how far ahead a realtime STATE says where each asker will be
 NOTICE_S = 1.0  # [s sim] how long a realtime STATE keeps naming a vehicle after news about it
 AGE_BINS_MS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)  # command age histogram
 
@@ -524,6 +525,7 @@ class ZenohDrivers:
             ev=c.ev,
             follows=o.follows,
             owner=self.owner.get(c.vin, ""),
+            intent_m=np.asarray(o.intent_m, dtype=float),
         )
 
     def facts(self) -> dict:
@@ -598,7 +600,10 @@ def run_gateway(
         return res
 
     try:
-        world = World(ls, cfg, inter, ica_cfg, schedule, horizon, want_xy=True)
+        # in real time the agents plan ahead by their measured lead: each vehicle that may
+        # ask is told where its actuator takes it over the next PREDICT_S (lockstep: now)
+        predict = PREDICT_S if drivers.clock == "realtime" else cfg.lead_s
+        world = World(ls, cfg, inter, ica_cfg, schedule, horizon, want_xy=True, predict_s=predict)
         next_checkpoint = checkpoint_every_s
         ended = False
         try:

@@ -33,7 +33,7 @@ import itertools
 import math
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -173,6 +173,7 @@ class World:
         *,
         signalised: bool = False,
         want_xy: bool = False,
+        predict_s: float = 0.0,
     ) -> None:
         self.ls = ls
         self.cfg = cfg
@@ -183,6 +184,9 @@ class World:
         self.horizon = horizon
         self.signalised = signalised
         self.want_xy = want_xy
+        # how far ahead [s] each vehicle that may ask is told where its own control law will
+        # take it (Observation.intent_m): as far as its agents plan ahead (their lead)
+        self.predict_steps = max(round(predict_s / self.h), 0)
         self.log = TripLog()
         self.cars: dict[str, Car] = {}
         self.active: list[Car] = []
@@ -383,6 +387,12 @@ class World:
                 s.xy = vw.getPosition(s.car.vin)
                 s.angle_deg = vw.getAngle(s.car.vin)
         self._present = present
+        if self.predict_steps:
+            intents = self._intents(t)
+            for s in seen:
+                fut = intents.get(s.car.vin)
+                if fut is not None and s.obs.may_ask and s.car.plan_s is None:
+                    s.obs = replace(s.obs, intent_m=fut[1:])
         return seen
 
     def apply(self, commands: Iterable[Command]) -> None:
@@ -462,14 +472,16 @@ class World:
                 ls.vehicle.setSpeed(c.vin, self._stop_speed(c, ahead.get(c.vin, math.inf)))
 
     def _may_follow(self, c: Car, speed_mps: float, t: float) -> bool:
-        """A platoon's follower may ask: its leader flies a plan, it is as far behind
+        """A platoon's follower may ask: its leader holds a plan (flown, or to be flown
+        from its start), it is as far behind
         that plan as the ICA will ask of it (twice the margin behind where the leader
         was a headway ago), and either it stands (it can wait where it is) or the
         leader's plan goes through without standing short of the line (else its own
         stop law must first stop it behind the leader)."""
         lead, h, cfg = c.ahead, self.h, self.ica_cfg
-        if lead is None or not _flying(lead, t) or lead.plan_s is None:
+        if lead is None or lead.plan_s is None:
             return False
+        t = max(t, lead.plan_t0_s)  # judged from the leader's start if it is still to come
         k = max(round((t - lead.plan_t0_s) / h), 0)
         behind = round((cfg.headway_s + 2.0 * cfg.time_pad_s) / h)
         lagged = float(lead.plan_s[min(max(k - behind, 0), len(lead.plan_s) - 1)])
@@ -482,10 +494,13 @@ class World:
         return bool(np.all(np.diff(ahead) > 1e-6))
 
     def _asks(self, c: Car, t: float) -> bool:
-        """``c`` may ask for a plan (head of its lane, or following a flying leader):
-        it moves by its stop law alone and never speeds up, so where it will be when
-        its plan starts is predictable (:func:`vehicle_agent.control.predict_stop`)."""
-        return c.head or (self.ica_cfg.platoon and c.ahead is not None and _flying(c.ahead, t))
+        """``c`` may ask for a plan (head of its lane, or following a leader that holds
+        one, flown already or still to start): it moves by its stop law alone and never
+        speeds up, so where it will be when its plan starts is predictable
+        (:meth:`_intents`)."""
+        return c.head or (
+            self.ica_cfg.platoon and c.ahead is not None and c.ahead.plan_s is not None
+        )
 
     def _drop(self, c: Car, seq: int) -> None:
         """Give up every plan up to ``seq`` (revoked), if the vehicle can still stop.
@@ -539,6 +554,65 @@ class World:
                 out[c.vin] = rear
                 rear = c.s_m - length
         return out
+
+    def _intents(self, t: float) -> dict[str, np.ndarray]:
+        """Where each vehicle short of the junction will be over the next
+        ``predict_steps`` steps if no new plan reaches it [route positions, m, now
+        first]: on its plan from the plan's start, before that (or without one) by its
+        stop law, run step by step as :meth:`apply` runs it against the future of the
+        vehicle ahead (for the front one, the last to enter from its lane).
+
+        A vehicle that may ask is told its own (``Observation.intent_m``), so that a
+        plan asked for ahead of time starts where it will really be: by the head's law
+        alone, one that follows a moving leader would be planned from where it never
+        gets, found off its plan's start and refused. A lane's prediction stops at a
+        vehicle that SUMO's car-following drives (one that may not ask)."""
+        n = self.predict_steps
+        length = self.cfg.length_m
+        lanes: dict[str, list[Car]] = {}
+        for c in self.active:
+            if c.vin in self._present and not c.entered and not math.isnan(c.s_m):
+                lanes.setdefault(c.route.in_lane, []).append(c)
+        out: dict[str, np.ndarray] = {}
+        free = np.full(n + 1, math.inf)
+        for lane, cars in lanes.items():
+            cars.sort(key=lambda c: -c.s_m)
+            prev = self._last_in.get(lane)
+            ahead = free if prev is None or prev.exited else self._future(prev, t, free)
+            for c in cars:
+                if ahead is None:
+                    break
+                fut = self._future(c, t, ahead - length)
+                if fut is not None:
+                    out[c.vin] = fut
+                ahead = fut
+        return out
+
+    def _future(self, c: Car, t: float, rear_m: np.ndarray) -> np.ndarray | None:
+        """``c``'s positions now and after each of the next steps, behind a vehicle whose
+        rear will be at ``rear_m``; None if its own driver is SUMO's car-following."""
+        n, h = self.predict_steps, self.h
+        kin = self.ica_cfg.kinematics
+        plan = c.plan_s
+        asks = self._asks(c, t)
+        if plan is None and not asks:
+            return None
+        k0 = round((t - c.plan_t0_s) / h) if plan is not None else 0
+        p = np.empty(n + 1)
+        p[0], v = c.s_m, c.speed_mps
+        for j in range(n):
+            if plan is not None and k0 + j >= 0:  # the plan is flown from its start
+                k = k0 + j + 1
+                if k < len(plan):
+                    p[j + 1] = plan[k]
+                else:  # past its end: the last speed held
+                    p[j + 1] = p[j] + (plan[-1] - plan[-2] if len(plan) > 1 else v * h)
+                continue
+            cap = min(c.entry_speed_mps, v) if asks else c.entry_speed_mps
+            room = min(-p[j] - kin.stop_gap_m, rear_m[j] - p[j] - MIN_GAP_M)
+            v = stop_speed(room, v, cap, h, kin.accel_mps2, kin.decel_mps2)
+            p[j + 1] = p[j] + v * h
+        return p
 
     def _stop_speed(self, c: Car, rear_ahead_m: float) -> float:
         """The vehicle's own law without a plan to fly: stop short of the entry line,

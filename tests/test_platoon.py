@@ -210,15 +210,23 @@ def test_the_actuator_keeps_a_leader_s_plan_while_its_follower_flies_behind(ch45
     assert lead.plan_seq == -1 and w.timing.dropped == 2
 
 
-def test_a_vehicle_may_follow_only_a_flying_leader_far_enough_ahead(ch45):
+def test_a_vehicle_may_follow_only_a_leader_with_a_plan_far_enough_ahead(ch45):
     w = _actuator_at(10.0)
     lead = _car(ch45, "a", -20.0, 5.0, plan_t0=9.0)
     back = _car(ch45, "b", -40.0, 5.0)
     back.ahead = lead
     assert w._may_follow(back, 5.0, 10.0)
-    lead.plan_t0_s = 10.5  # its plan has not begun: it does not fly yet
+    plan = lead.plan_s
+    lead.plan_s = None  # no plan: nothing to follow
     assert not w._may_follow(back, 5.0, 10.0)
-    lead.plan_t0_s = 9.0
+    lead.plan_s = plan
+    # its plan has not begun, but it holds it (a plan asked ahead of time): the follower
+    # may ask now, judged from where the leader's plan starts
+    lead.plan_t0_s = 10.5
+    assert w._may_follow(back, 5.0, 10.0)
+    back.s_m = -20.0 - LENGTH - 2 * MARGIN + 0.1
+    assert not w._may_follow(back, 5.0, 10.0)
+    lead.plan_t0_s, back.s_m = 9.0, -40.0
     # 1 s into its plan the leader was at -16.5 m 0.3 s ago: its rear at -21.5 m, and
     # twice the margin behind that is -22 m
     back.s_m = -21.9
@@ -230,3 +238,17 @@ def test_a_vehicle_may_follow_only_a_flying_leader_far_enough_ahead(ch45):
     lead.plan_s = np.full(400, -30.0)
     assert not w._may_follow(back, 5.0, 10.0)
     assert w._may_follow(back, 0.0, 10.0)  # standing, it may (it can wait where it is)
+
+
+def test_plans_asked_ahead_of_time_start_where_the_vehicles_will_be(tmp_path):
+    """With a lead, a platoon's follower is told where its actuator will take it behind
+    its moving leader (Observation.intent_m): no plan is found off its start."""
+    out = tmp_path / "lead"
+    p = dica(
+        "run", "--layout", "ch45", "--volume", "500", "--duration", "150", "--seed", "12",
+        "--lead", "0.5", "--out", str(out), "--quiet",
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    assert m["timing"]["plans_accepted"] > 50 and m["timing"]["plans_refused"] == 0

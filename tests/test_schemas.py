@@ -39,7 +39,7 @@ T = np.arange(0.0, 2.0, 0.05)
 
 def _vs(vin: str = "v00001", detected: float = math.nan) -> VehicleState:
     return VehicleState(vin, "r1", "W_in_0", 42.5, 13.9, -50.2, 1.6, 90.0, 5.0, 1.8, 19.4, True,
-                        detected, False, 7, -1, 5, True, True, "agent-1")  # fmt: skip
+                        detected, False, 7, -1, 5, True, True, "agent-1", T[:3] - 9.0)  # fmt: skip
 
 
 SAMPLES = {

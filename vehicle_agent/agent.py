@@ -421,6 +421,7 @@ class Agent:
                 refused_seq=vs.refused_seq,
                 kept_seq=vs.kept_seq,
                 follows=vs.follows,
+                intent_m=tuple(vs.intent_m.tolist()),
             )
             if v is None:
                 if vs.exited:

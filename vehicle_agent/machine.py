@@ -103,6 +103,9 @@ class Observation:
     # platoons: the vehicle ahead on the incoming lane flies its plan, so this one may ask
     # to follow it (the ICA plans it behind that plan)
     follows: bool = False
+    # where its own control law takes it over the next steps if no plan comes [route
+    # position, m, after each step]: a plan asked for ahead of time starts there
+    intent_m: tuple[float, ...] = ()
 
     @property
     def may_ask(self) -> bool:
@@ -354,7 +357,11 @@ class Vehicle:
         h = cfg.step_s
         lead = max(round(self.lead_s / h), 0)
         d, v = max(obs.dist_to_entry_m, 0.0), obs.speed_mps
-        if lead:
+        if 0 < lead <= len(obs.intent_m):
+            # the actuator's own prediction: it knows what the vehicle ahead will do
+            before = obs.intent_m[lead - 2] if lead > 1 else -d
+            d, v = -obs.intent_m[lead - 1], (obs.intent_m[lead - 1] - before) / h
+        elif lead:
             kin = cfg.kinematics
             d, v = predict_stop(
                 d,
