@@ -24,6 +24,7 @@ from ica.core.dica import Dica
 from ica.core.intersection import Intersection
 from ica.core.reactive import DROPPED, KEPT, ReactiveConfig, ReactiveDica, Reorder
 from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
+from ica.core.window import WindowOrder
 from sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, make_arrivals
 from sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
 from sim_gateway.scenario import ScenarioError, light_net
@@ -38,7 +39,7 @@ from sim_gateway.signals import (
 )
 from sim_gateway.signals import Phase as SignalPhase
 from sim_gateway.world import Seen, World, import_libsumo, start_sumo
-from vehicle_agent.machine import Command, Phase, Vehicle
+from vehicle_agent.machine import PENDING, Command, Phase, Vehicle
 
 __all__ = ["LIGHTS", "RunConfig", "RunError", "RunResult", "run", "schedule_for"]
 
@@ -54,6 +55,7 @@ class LocalLink:
         self.revoked: list[str] = []  # reactive DICA: revoked this step, and their new plans
         self.revised: dict[str, Confirmation] = {}
         self.reorders: list[Reorder] = []  # reactive DICA's decisions, to record
+        self.window: list[Request] | None = None  # a window's requests, when windowed
 
     def detect(self, vin: str, lane: str, t_s: float) -> Rejection | None:
         try:
@@ -82,7 +84,13 @@ class LocalLink:
                 self.revised.update((c.vin, c) for c in ica.acknowledge(vin))
         return revoked
 
-    def request(self, req: Request, now_s: float) -> Confirmation | Rejection:
+    def request(self, req: Request, now_s: float):
+        if self.window is not None:  # answered when the window closes (LocalDrivers)
+            self.window.append(req)
+            return PENDING
+        return self.decide(req, now_s)
+
+    def decide(self, req: Request, now_s: float) -> Confirmation | Rejection:
         t_c = time.perf_counter()
         answer = self.ica.handle(req, now_s)
         if (
@@ -121,6 +129,10 @@ class LocalDrivers:
         self.revocations: list[tuple[float, str, str]] = []  # (t, vin, what), to record
         self.kept: list[tuple[float, str, str]] = []  # revoked plans that stand: (t, vin, why)
         self.delivered: set[tuple[str, int]] = set()  # revocations handed to their vehicles
+        self.order = WindowOrder(ica) if cfg.window_s else None
+        self.close_s = cfg.window_s  # when the current window closes
+        if self.order is not None:
+            self.link.window = []
 
     def step(self, t: float, seen: list[Seen]) -> list[Command]:
         self.ica.advance(t)
@@ -139,7 +151,7 @@ class LocalDrivers:
                     c.entry_speed_mps,
                     self.ica.config,
                     self.cfg.retry_s,
-                    lead_s=self.cfg.lead_s,
+                    lead_s=self.cfg.plan_lead_s,
                 )
                 v.rejections = self.rejections  # one tally for the run
                 self.vehicles[c.vin] = v
@@ -151,12 +163,29 @@ class LocalDrivers:
             if s.obs.exited:
                 del self.vehicles[s.car.vin]
                 self.link.detector.pop(s.car.vin, None)
+        if self.order is not None and t + 1e-9 >= self.close_s:
+            out += self._close_window(t)
         if isinstance(self.ica, ReactiveDica):
             if self.ica.reactive.replan_revoked:
                 out += self._revise(self.ica, t)
             else:
                 out += self._deliver(self.ica)
             self._answered(self.ica)
+        return out
+
+    def _close_window(self, t: float) -> list[Command]:
+        """Decide the window's requests, in the order that delays them least; each
+        plan starts no earlier than now, as every vehicle planned a window ahead."""
+        w = self.cfg.window_s
+        self.close_s = (math.floor(t / w + 1e-9) + 1) * w
+        reqs, self.link.window = self.link.window, []
+        out = []
+        for req in self.order.order(reqs):
+            answer = self.link.decide(req, t)
+            v = self.vehicles.get(req.vin)
+            cmd = v.answered(answer, t) if v is not None else None
+            if cmd is not None:
+                out.append(cmd)
         return out
 
     def _answered(self, ica: ReactiveDica) -> None:
@@ -215,7 +244,11 @@ class LocalDrivers:
             "rejections": dict(self.rejections),
             "median_ms": float(np.median(rt) * 1e3),
             "p99_ms": float(np.percentile(rt, 99) * 1e3),
-        }
+        } | (
+            {}
+            if self.order is None
+            else {"windows_ordered": self.order.windows, "windows_reordered": self.order.reordered}
+        )
 
 
 def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
@@ -319,8 +352,9 @@ def _run(
             preempt = _ReactiveLight(ls, inter, program)
         recorder = _recorder(inter, rrd_path)
         world = World(
-            ls, cfg, inter, ica_cfg, schedule, horizon, signalised=light, want_xy=bool(recorder)
-        )
+            ls, cfg, inter, ica_cfg, schedule, horizon, signalised=light,
+            want_xy=bool(recorder), predict_s=cfg.plan_lead_s,
+        )  # fmt: skip
         drivers = LocalDrivers(ica, cfg)
         try:
             while True:

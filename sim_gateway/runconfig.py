@@ -49,6 +49,14 @@ class RunConfig:
     # across as a platoon (docs/architecture.md, "Platoons"); off: once it has entered
     platoon: bool = False
     headway_s: float = 0.0  # [s] a follower keeps its leader's plan this much later
+    # [s] the ICA decides the REQUESTs of each window together, in the order that delays
+    # them least (ica/core/window.py); 0: one by one as they come. Embedded runs only
+    window_s: float = 0.0
+
+    @property
+    def plan_lead_s(self) -> float:
+        """How far ahead vehicles plan: a windowed request is decided up to a window late."""
+        return max(self.lead_s, self.window_s)
 
     def __post_init__(self) -> None:
         if not 1.0 <= self.volume_per_10min <= 2000.0:
@@ -75,6 +83,10 @@ class RunConfig:
             raise RunError(f"--margin must be between 0 and 5 m, got {self.margin_m:g}")
         if not 0.0 <= self.lead_s <= 10.0:
             raise RunError(f"--lead must be between 0 and 10 s, got {self.lead_s:g}")
+        if not 0.0 <= self.window_s <= 5.0:
+            raise RunError(f"--window must be between 0 and 5 s, got {self.window_s:g}")
+        if self.window_s and self.algorithm in BASELINES + LIGHTS + REACTIVE:
+            raise RunError(f"--window orders DICA's requests; {self.algorithm} does not take it")
         if not 0.0 <= self.headway_s <= 5.0:
             raise RunError(f"--headway must be between 0 and 5 s, got {self.headway_s:g}")
         if not 0.0 <= self.time_pad_s <= 5.0:

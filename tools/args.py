@@ -86,6 +86,7 @@ def run_config(args: argparse.Namespace):
             ramp_s=args.ramp if args.ramp is not None else args.duration,
             time_pad_s=args.time_pad,
             lead_s=getattr(args, "lead", 0.0),
+            window_s=getattr(args, "window", 0.0),
             ev_prob=_ev_prob(args),
             solver=args.solver,
             revocation=getattr(args, "revocation", "replan"),

@@ -340,6 +340,14 @@ def parser() -> argparse.ArgumentParser:
         "their stop law will have taken them: what a link with delay needs (default 0)",
     )
     r.add_argument(
+        "--window",
+        type=float,
+        default=0.0,
+        help="collect the REQUESTs of this many seconds and decide them in the order that "
+        "delays them least, each lane's order kept (0: first come, first served; default). "
+        "Vehicles then plan at least this far ahead (--lead); DICA's controllers only",
+    )
+    r.add_argument(
         "--revocation",
         choices=("replan", "drop"),
         default="replan",
