@@ -7,12 +7,16 @@ installs it). "Shown" means: the viewer has the recording up to its last time
 (read from the viewer's own state) and has drawn a frame. The clock starts when
 the page is asked for, so it includes loading the viewer itself; an almost empty
 recording is measured the same way in the same run, and the difference is the
-cost of the data.
+cost of the data. ``--repeat N`` measures both N times, alternating, and gives
+medians; every measurement is printed with the load average beside it, since
+other work on the machine changes the figures up to 2x.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -57,9 +61,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--volume", type=int, default=500)
     ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds")
     ap.add_argument("--timeout", type=float, default=900.0, help="[s] before giving up")
+    ap.add_argument(
+        "--repeat", type=int, default=1, help="measurements of each recording, alternating"
+    )
     args = ap.parse_args(argv)
     if args.rrd is not None and not args.rrd.is_file():
         print(f"bench_view: no recording {args.rrd}", file=sys.stderr)
+        return 2
+    if args.repeat < 1:
+        print("bench_view: --repeat must be at least 1", file=sys.stderr)
         return 2
     subprocess.run(["bash", str(ROOT / "tools" / "install_chromium.sh")], check=True)
     with tempfile.TemporaryDirectory() as tmp:
@@ -70,13 +80,20 @@ def main(argv: list[str] | None = None) -> int:
             cmd += ["--duration", str(args.duration), "--record", "--quiet", "--out", str(out)]
             subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
             rrd = out / "spacetime.rrd"
-        base = shown_after_s(empty_recording(Path(tmp) / "empty.rrd"), args.timeout)
-        full = shown_after_s(rrd, args.timeout)
+        empty = empty_recording(Path(tmp) / "empty.rrd")
         size_mb = rrd.stat().st_size / 1e6
-        n_chunks = chunks(rrd)
-    print(f"recording: {size_mb:.2f} MB in {n_chunks} chunks")
-    print(f"web viewer, whole recording shown after {full:.1f} s "
-          f"(an empty recording: {base:.1f} s; the data: {full - base:.1f} s)")  # fmt: skip
+        print(f"recording: {size_mb:.2f} MB in {chunks(rrd)} chunks", flush=True)
+        bases, fulls = [], []
+        for i in range(args.repeat):
+            for name, path, got in (("empty", empty, bases), ("whole", rrd, fulls)):
+                load = os.getloadavg()[0]
+                got.append(shown_after_s(path, args.timeout))
+                print(f"  {i + 1} {name}: {got[-1]:.1f} s (load average {load:.1f})", flush=True)
+    base, full = statistics.median(bases), statistics.median(fulls)
+    what = "median of " if args.repeat > 1 else ""
+    print(f"web viewer, whole recording shown after {what}{full:.1f} s "
+          f"(an empty recording: {base:.1f} s; the data: {full - base:.1f} s; "
+          f"load average {os.getloadavg()[0]:.1f})")  # fmt: skip
     return 0
 
 
