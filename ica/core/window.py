@@ -20,6 +20,7 @@ No I/O here; the caller collects the window and asks for the order.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 
 import numpy as np
@@ -46,6 +47,7 @@ class WindowOrder:
         )  # fmt: skip
         self.windows = 0  # windows with two requests or more (the others need no order)
         self.reordered = 0  # of them, decided in an order other than arrival's
+        self.order_s: list[float] = []  # wall time of ordering each of them
 
     def order(self, reqs: Sequence[Request]) -> list[Request]:
         """``reqs`` (in arrival order) in the order to decide them. Requests the
@@ -71,6 +73,7 @@ class WindowOrder:
                 known.append((r, route))
         if len(known) < 2:
             return [r for r, _ in known] + rest
+        t_wall = time.perf_counter()
         self.windows += 1
         # candidates grouped by lane, front first (the ordering keeps index order per lane)
         known.sort(key=lambda x: (x[1].in_lane, rank[x[0].vin]))
@@ -102,6 +105,8 @@ class WindowOrder:
             order = [i for i in solve(problem, self.solver).order if i != n]
         except OrderingError:
             return list(reqs)  # the model cannot say: first come, first served
+        finally:
+            self.order_s.append(time.perf_counter() - t_wall)
         out = [known[i][0] for i in order]
         arrival = [r for r in reqs if r in out]
         if out != arrival:
