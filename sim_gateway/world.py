@@ -473,11 +473,10 @@ class World:
 
     def _may_follow(self, c: Car, speed_mps: float, t: float) -> bool:
         """A platoon's follower may ask: its leader holds a plan (flown, or to be flown
-        from its start), it is as far behind
-        that plan as the ICA will ask of it (twice the margin behind where the leader
-        was a headway ago), and either it stands (it can wait where it is) or the
-        leader's plan goes through without standing short of the line (else its own
-        stop law must first stop it behind the leader)."""
+        from its start), it is as far behind that plan as the ICA will ask of it (twice
+        the margin behind where the leader was a headway ago), and either it stands (it
+        can wait where it is) or the leader's plan goes through without standing short
+        of the line (else its own stop law must first stop it behind the leader)."""
         lead, h, cfg = c.ahead, self.h, self.ica_cfg
         if lead is None or lead.plan_s is None:
             return False
