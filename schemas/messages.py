@@ -197,7 +197,7 @@ class VehicleState:
     last plan it refused because it arrived after its start or dropped on a
     REVOKE (-1: none), ``kept_seq`` the last plan it was told to drop and kept,
     unable to stop short of the line. ``ev``: an emergency vehicle. ``follows``:
-    platoons are on and the vehicle ahead on the incoming lane flies its plan, so
+    platoons are on and the vehicle ahead on the incoming lane holds a plan, so
     this one may ask to follow it. ``owner``
     is the agent that hosts it. ``intent_m``: where its actuator will take it
     over the next steps without a new plan (route positions, m; empty if not

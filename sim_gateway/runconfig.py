@@ -45,7 +45,7 @@ class RunConfig:
     # reactive DICA's revoked vehicles: "replan" (the ICA plans them again in the solver's
     # order; in process only) or "drop" (they drop their plans and ask again: the cluster)
     revocation: str = "replan"
-    # a vehicle may ask once the vehicle ahead of it flies its plan, and follows it
+    # a vehicle may ask once the vehicle ahead of it holds a plan, and follows it
     # across as a platoon (docs/architecture.md, "Platoons"); off: once it has entered
     platoon: bool = False
     headway_s: float = 0.0  # [s] a follower keeps its leader's plan this much later

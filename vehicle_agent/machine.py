@@ -100,7 +100,7 @@ class Observation:
     plan_seq: int = NO_PLAN  # the plan the actuator holds (waiting for its start, or flying)
     refused_seq: int = NO_PLAN  # the last plan the actuator refused (too late) or dropped
     kept_seq: int = NO_PLAN  # the last plan it was told to drop and kept: it could not stop
-    # platoons: the vehicle ahead on the incoming lane flies its plan, so this one may ask
+    # platoons: the vehicle ahead on the incoming lane holds a plan, so this one may ask
     # to follow it (the ICA plans it behind that plan)
     follows: bool = False
     # where its own control law takes it over the next steps if no plan comes [route
