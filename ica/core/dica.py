@@ -230,7 +230,7 @@ class Dica:
             self._rows.add(confirmation.vin, dtot, done.packed)
         self._version += 1
 
-    def _queue(self, lane: str) -> list[str]:
+    def queue(self, lane: str) -> list[str]:
         """The vehicles detected on ``lane`` whose reservation has not ended, in order."""
         return [e[2] for e in self._lanes[lane]]
 

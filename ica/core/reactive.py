@@ -331,7 +331,7 @@ class ReactiveDica(Dica):
         if self._pending:
             return []
         ev = self._event
-        if ev is not None and ev.ev_confirmed_s is None and self._queue(ev.lane)[:1] == [ev.ev]:
+        if ev is not None and ev.ev_confirmed_s is None and self.queue(ev.lane)[:1] == [ev.ev]:
             return []  # the EV is head of its lane and about to ask: it is planned first
         replans, self._before = self._before, []
         return self._replan(replans)
@@ -584,7 +584,7 @@ class ReactiveDica(Dica):
             if vin in self._confirmed or vin not in self._lane_of:
                 self._waiting_evs.pop(0)
                 continue
-            queue = self._queue(lane)
+            queue = self.queue(lane)
             if any(v not in self._confirmed for v in queue[: queue.index(vin)]):
                 return
             self._next_event(now_s, reorder=False)
@@ -686,7 +686,7 @@ class ReactiveDica(Dica):
         modifiable vehicles (vin, state at ``t_eff``), lane by lane from the back."""
         fixed: list[tuple[str, float, float]] = []
         modifiable: list[tuple[str, _Replan]] = []
-        for queue in map(self._queue, self._lanes):
+        for queue in map(self.queue, self._lanes):
             confirmed = [v for v in queue if v in self._confirmed]
             ok = True
             for vin in reversed(confirmed):  # a vehicle can change only if those behind can
@@ -758,9 +758,9 @@ class ReactiveDica(Dica):
         routes = self.intersection.routes_from(ev.lane)
         comm = self.intersection.comm_length_m
         out = []
-        queue = [v for v in self._queue(ev.lane) if v not in self._confirmed]
+        queue = [v for v in self.queue(ev.lane) if v not in self._confirmed]
         nothing_ahead = queue[:1] == [ev.ev] and not any(
-            v in self._confirmed for v in self._queue(ev.lane)
+            v in self._confirmed for v in self.queue(ev.lane)
         )
         for vin in queue:
             _, t_det, v_det = self._detected.get(vin, (0, t_eff, None))

@@ -56,7 +56,7 @@ class WindowOrder:
         if len(reqs) < 2:
             return list(reqs)
         dica = self.dica
-        rank = {vin: i for lane in dica._lanes.values() for i, (_, _, vin) in enumerate(lane)}
+        rank = {v: i for lane in dica.intersection.in_lanes for i, v in enumerate(dica.queue(lane))}
         known: list[tuple[Request, Route]] = []
         rest: list[Request] = []
         seen: set[str] = set()
@@ -108,8 +108,9 @@ class WindowOrder:
         finally:
             self.order_s.append(time.perf_counter() - t_wall)
         out = [known[i][0] for i in order]
-        arrival = [r for r in reqs if r in out]
-        if out != arrival:
+        taken = {id(r) for r in out}
+        arrival = [r for r in reqs if id(r) in taken]
+        if any(a is not b for a, b in zip(out, arrival, strict=True)):
             self.reordered += 1
         return out + rest
 
@@ -134,7 +135,7 @@ class WindowOrder:
     def _fixed(self) -> list[tuple[Route, float, float]]:
         """Every confirmed plan not yet through the junction: route, entry, entry speed."""
         out = []
-        for c in self.dica._confirmed.values():
+        for c in self.dica.confirmed.values():
             traj = c.dtot.trajectory
             k = min(traj.entry_index(), len(traj) - 2)
             v_e = max((traj.s_m[k + 1] - traj.s_m[k]) / traj.step_s, 0.1)
