@@ -100,7 +100,7 @@ class ServiceStats:
     compute_s: list[float] = field(default_factory=list)
     journal_replayed: dict | None = None
     revokes_sent: int = 0  # REVOKE messages, repeats included
-    revoke_acks: int = 0  # answered: plan dropped
+    revoke_acks: int = 0  # answered: plan dropped (an ACK, or the vehicle asked again)
     revoke_kept: int = 0  # answered: the vehicle could not stop, its reservation restored
     reactive: dict | None = None  # reactive DICA's own figures
 
@@ -346,6 +346,9 @@ class IcaService:
         ica.acknowledge(ack.vin, ack.seq)
         self.stats.revoke_acks += ica.acknowledged - before
 
+    def _revoked_seq(self, vin: str) -> int | None:
+        return self.ica.revoked_seq(vin) if isinstance(self.ica, ReactiveDica) else None
+
     def _on_clock(self, item: Item) -> None:
         if item.key != self._clock_key:
             self.stats.ignored_clocks += 1
@@ -413,9 +416,16 @@ class IcaService:
         self.stats.requests += 1
         req = request_to_core(msg)
         held = self.ica.confirmed.get(msg.vin)
+        revoked = self._revoked_seq(msg.vin)
         t_c = time.perf_counter()
         answer = self.ica.handle(req, self.now_s)
         self.stats.compute_s.append(time.perf_counter() - t_c)
+        if revoked is not None and self._revoked_seq(msg.vin) is None:
+            # asking again under a higher seq answered the REVOKE (its ACK may still be on
+            # its way): journalled as a cancel before anything this request decided
+            if self.journal is not None:
+                self.journal.cancel(msg.vin, revoked)
+            self.stats.revoke_acks += 1
         if isinstance(answer, Confirmation):
             payload = encode(response_from_core(answer))
             if (answer.vin, answer.seq) in self._published:

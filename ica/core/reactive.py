@@ -243,6 +243,10 @@ class ReactiveDica(Dica):
         """Revoked vehicles whose acknowledgement is not known yet."""
         return tuple(self._pending)
 
+    def revoked_seq(self, vin: str) -> int | None:
+        """The seq of ``vin``'s revoked plan while its answer is awaited, else None."""
+        return self._revoked_seq[vin] if vin in self._pending else None
+
     def awaiting(self) -> tuple[str, ...]:
         """Revoked vehicles with no new confirmation yet (acknowledged or not)."""
         return tuple(self._pending) + tuple(r.vin for r in self._before + self._after)
