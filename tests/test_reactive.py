@@ -238,6 +238,9 @@ def test_asking_again_acknowledges_the_revocation_whatever_path_the_ack_took(ch4
         scene(ica, ch45)
         start_event(ica, ch45)
         assert ica.pending() == ("w1",)
+        # a request under the revoked plan's seq (a late copy of the old one) proves nothing
+        ica.handle(request(ch45, "w1", CROSS, 0.5, d, 7.0, seq=0), 0.5)
+        assert ica.pending() == ("w1",) and "w1~revoked" in ica.confirmed
         if ack_first:
             ica.acknowledge("w1", 0)
         held = ica.handle(request(ch45, "w1", CROSS, 0.5, d, 7.0, seq=3), 0.5)
