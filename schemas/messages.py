@@ -17,9 +17,9 @@ from typing import ClassVar
 
 import numpy as np
 
-# 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev`` and
-# ``kept_seq``, a setpoint ``drop``, and REVOKE exists (2 had no revocations; 1 had
-# open-loop speed commands)
+# 5: a vehicle state carries ``intent_m``; 4: ``follows`` and REORDER; 3: DETECT carries
+# the EV flag and the detection speed, a vehicle state ``ev`` and ``kept_seq``, a setpoint
+# ``drop``, and REVOKE exists (2 had no revocations; 1 had open-loop speed commands)
 VERSION = 5
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch

@@ -392,7 +392,7 @@ class World:
             for s in seen:
                 fut = intents.get(s.car.vin)
                 if fut is not None and s.obs.may_ask and s.car.plan_s is None:
-                    s.obs = replace(s.obs, intent_m=fut[1:])
+                    s.obs = replace(s.obs, intent_m=tuple(fut[1:].tolist()))
         return seen
 
     def apply(self, commands: Iterable[Command]) -> None:
@@ -465,7 +465,7 @@ class World:
                     v = float(plan[-1] - plan[-2]) / self.h if len(plan) > 1 else c.speed_mps
                 ls.vehicle.setSpeed(c.vin, v)
             elif not c.entered:
-                mode = MODE_HEAD if self._asks(c, t) else MODE_QUEUED
+                mode = MODE_HEAD if self._asks(c) else MODE_QUEUED
                 if c.speed_mode != mode:
                     ls.vehicle.setSpeedMode(c.vin, mode)
                     c.speed_mode = mode
@@ -492,7 +492,7 @@ class World:
         ahead = ahead[: int(np.searchsorted(ahead, 0.0)) + 1]
         return bool(np.all(np.diff(ahead) > 1e-6))
 
-    def _asks(self, c: Car, t: float) -> bool:
+    def _asks(self, c: Car) -> bool:
         """``c`` may ask for a plan (head of its lane, or following a leader that holds
         one, flown already or still to start): it moves by its stop law alone and never
         speeds up, so where it will be when its plan starts is predictable
@@ -593,7 +593,7 @@ class World:
         n, h = self.predict_steps, self.h
         kin = self.ica_cfg.kinematics
         plan = c.plan_s
-        asks = self._asks(c, t)
+        asks = self._asks(c)
         if plan is None and not asks:
             return None
         k0 = round((t - c.plan_t0_s) / h) if plan is not None else 0
@@ -625,7 +625,7 @@ class World:
         Behind the head, SUMO's car-following closes the queue up as drivers do.
         """
         kin = self.ica_cfg.kinematics
-        cap = min(c.entry_speed_mps, c.speed_mps) if self._asks(c, self.t) else c.entry_speed_mps
+        cap = min(c.entry_speed_mps, c.speed_mps) if self._asks(c) else c.entry_speed_mps
         room = min(-c.s_m - kin.stop_gap_m, rear_ahead_m - c.s_m - MIN_GAP_M)
         return stop_speed(room, c.speed_mps, cap, self.h, kin.accel_mps2, kin.decel_mps2)
 

@@ -230,6 +230,16 @@ class Dica:
             self._rows.add(confirmation.vin, dtot, done.packed)
         self._version += 1
 
+    def entries(
+        self, skip: frozenset[str] | set[str] = frozenset()
+    ) -> list[tuple[Route, float, float]]:
+        """Each confirmed plan but those of ``skip``: route, entry time [s], entry speed."""
+        return [
+            (c.dtot.route, c.confirmation.entry_time_s, c.dtot.trajectory.entry_speed_mps())
+            for vin, c in self._confirmed.items()
+            if vin not in skip
+        ]
+
     def queue(self, lane: str) -> list[str]:
         """The vehicles detected on ``lane`` whose reservation has not ended, in order."""
         return [e[2] for e in self._lanes[lane]]

@@ -685,10 +685,9 @@ class ReactiveDica(Dica):
         )
         self._outbox.append(ev.reorder)
 
-    def _classify(self, t_eff: float) -> tuple[list[tuple[str, float, float]], list]:
-        """Confirmed reservations split into fixed ones (vin, entry, entry speed) and
+    def _classify(self, t_eff: float) -> tuple[list[tuple[Route, float, float]], list]:
+        """Confirmed reservations split into fixed ones (route, entry, entry speed) and
         modifiable vehicles (vin, state at ``t_eff``), lane by lane from the back."""
-        fixed: list[tuple[str, float, float]] = []
         modifiable: list[tuple[str, _Replan]] = []
         for queue in map(self.queue, self._lanes):
             confirmed = [v for v in queue if v in self._confirmed]
@@ -699,14 +698,7 @@ class ReactiveDica(Dica):
                     ok = False
                 else:
                     modifiable.append((vin, st))
-        movable = {vin for vin, _ in modifiable}
-        for vin, c in self._confirmed.items():
-            if vin in movable:
-                continue
-            traj = c.dtot.trajectory
-            k = min(traj.entry_index(), len(traj) - 2)
-            v_e = max((traj.s_m[k + 1] - traj.s_m[k]) / traj.step_s, 0.1)
-            fixed.append((vin, c.confirmation.entry_time_s, v_e))
+        fixed = self.entries(skip={vin for vin, _ in modifiable})
         modifiable.sort(key=lambda m: (m[1].route.in_lane, self._detected.get(m[0], (0,))[0]))
         return fixed, modifiable
 
@@ -791,13 +783,9 @@ class ReactiveDica(Dica):
         """The largest separation over the routes each vehicle may take."""
         return max(self.separations.separation_s(ra, a_mps, rb, b_mps) for ra in a for rb in b)
 
-    def _release(self, c: _Candidate, fixed: list[tuple[str, float, float]]) -> float:
+    def _release(self, c: _Candidate, fixed: list[tuple[Route, float, float]]) -> float:
         """Earliest entry, and no earlier than the fixed reservations allow."""
-        t = c.release_s
-        for vin, entry, v_e in fixed:
-            route = self._confirmed[vin].dtot.route
-            t = max(t, entry + self._sep((route,), v_e, c.routes, c.entry_mps))
-        return t
+        return self.separations.release_after(c.release_s, c.routes, c.entry_mps, fixed)
 
     def _leader_of(self, vin: str, lane: str) -> str | None:
         """The vehicle confirmed from ``vin``'s lane just before it (still confirmed)."""

@@ -119,6 +119,21 @@ class SeparationModel:
                     out[j, k] = self.separation_s(routes[j], entry_mps[j], routes[k], entry_mps[k])
         return out
 
+    def release_after(
+        self,
+        t_s: float,
+        routes: tuple[Route, ...],
+        entry_mps: float,
+        fixed: list[tuple[Route, float, float]],
+    ) -> float:
+        """``t_s``, or later as the reservations that stay need: each ``fixed``
+        (route, entry [s], entry speed) enters first, and a vehicle entering at
+        ``entry_mps`` by any of ``routes`` keeps its separation behind it."""
+        for f_route, f_entry, f_mps in fixed:
+            sep = max(self.separation_s(f_route, f_mps, r, entry_mps) for r in routes)
+            t_s = max(t_s, f_entry + sep)
+        return t_s
+
     def stop_and_go_entry_mps(self, route: Route) -> float:
         """Entry speed of a vehicle pulling away from its stop just before the line."""
         gap = self.kin.stop_gap_m

@@ -43,6 +43,12 @@ class Trajectory:
             return len(self.s_m) - 1
         return max(int(inside[0]) - 1, 0)
 
+    def entry_speed_mps(self) -> float:
+        """Speed over the step in which the front passes the entry line, at least
+        0.1 m/s (a separation needs a vehicle that moves)."""
+        k = min(self.entry_index(), len(self.s_m) - 2)
+        return max(float(self.s_m[k + 1] - self.s_m[k]) / self.step_s, 0.1)
+
     def exit_index(self, s_end_m: float) -> int:
         """Index of the first sample at which the front is at ``s_end_m`` or beyond."""
         out = np.nonzero(self.s_m >= s_end_m - 1e-9)[0]

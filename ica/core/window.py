@@ -84,11 +84,11 @@ class WindowOrder:
             release.append(t)
             entry_mps.append(v)
         routes = [route for _, route in known]
-        fixed = self._fixed()
-        for k, route in enumerate(routes):
-            for f_route, f_entry, f_mps in fixed:
-                sep = self.separations.separation_s(f_route, f_mps, route, entry_mps[k])
-                release[k] = max(release[k], f_entry + sep)
+        fixed = dica.entries()
+        release = [
+            self.separations.release_after(t, (route,), v, fixed)
+            for t, route, v in zip(release, routes, entry_mps, strict=True)
+        ]
         # the ordering's first key is an EV's entry; here nobody comes first, so the "EV"
         # is a stand-in in a lane of its own, released before all and separated from none:
         # it goes first at no cost to anyone, and the total delay decides the rest
@@ -131,13 +131,3 @@ class WindowOrder:
         v = fastest.entry_speed_mps if fastest is not None else 0.0
         t = float(r.t0_s) + e if math.isfinite(e) else float(r.t0_s)
         return t, v
-
-    def _fixed(self) -> list[tuple[Route, float, float]]:
-        """Every confirmed plan not yet through the junction: route, entry, entry speed."""
-        out = []
-        for c in self.dica.confirmed.values():
-            traj = c.dtot.trajectory
-            k = min(traj.entry_index(), len(traj) - 2)
-            v_e = max((traj.s_m[k + 1] - traj.s_m[k]) / traj.step_s, 0.1)
-            out.append((c.dtot.route, c.confirmation.entry_time_s, float(v_e)))
-        return out
