@@ -49,6 +49,9 @@ class RunConfig:
     # across as a platoon (docs/architecture.md, "Platoons"); off: once it has entered
     platoon: bool = False
     headway_s: float = 0.0  # [s] a follower keeps its leader's plan this much later
+    # a vehicle that must wait enters at speed: slows to as little as 0.5 m/s, or stands
+    # back far enough to reach the crossing cap at the line (ica/core/planner.py)
+    run_up: bool = True
     # [s] the ICA decides the REQUESTs of each window together, in the order that delays
     # them least (ica/core/window.py); 0: one by one as they come. Embedded runs only
     window_s: float = 0.0

@@ -202,7 +202,7 @@ def test_plan_phases_and_bisection_are_the_python_ones():
                 lo_v = mid
             else:
                 hi_v = mid
-            if hi_v - lo_v < 1e-7:
+            if hi_v - lo_v < 1e-10:
                 break
         assert pl.at_or_after(t).s_m.tolist() == pl._build_a(hi_v).s_m.tolist()
         bisected += 1

@@ -76,13 +76,36 @@ def test_fastest_is_time_optimal_on_a_free_run():
 
 
 def test_long_delay_stops_at_the_line_and_waits():
-    pl = Planner(50.0, 15.0, ROAD, 35 / 3.6, 30.0, KIN)
+    kin = Kinematics.at_the_line()
+    pl = Planner(50.0, 15.0, ROAD, 35 / 3.6, 30.0, kin)
     p = pl.at_or_after(60.0)
     traj = sample(p, 0.0, 0.05, 30.0)
     stopped = np.nonzero(traj.speeds() < 1e-9)[0]
     assert len(stopped) > 100
-    assert traj.s_m[stopped[0]] == pytest.approx(-KIN.stop_gap_m, abs=1e-6)
+    assert traj.s_m[stopped[0]] == pytest.approx(-kin.stop_gap_m, abs=1e-6)
     assert p.entry_time_s == pytest.approx(60.0, abs=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("d", "v0", "stands_at"),
+    [
+        (50.0, 15.0, -((35 / 3.6) ** 2) / 4),  # room to stand where the pull-away reaches the cap
+        (30.0, 12.0, -(30.0 - 12.0**2 / 9)),  # as far back as it can stop: 14 m
+        (12.0, 10.0, -(12.0 - 10.0**2 / 9)),  # it can only just stop: 0.9 m short
+    ],
+)
+def test_long_delay_with_a_run_up_stands_back_and_enters_at_speed(d, v0, stands_at):
+    cap = 35 / 3.6
+    pl = Planner(d, v0, ROAD, cap, 30.0, KIN)
+    p = pl.at_or_after(60.0)
+    traj = sample(p, 0.0, 0.05, 30.0)
+    stopped = np.nonzero(traj.speeds() < 1e-9)[0]
+    assert len(stopped) > 100
+    assert traj.s_m[stopped[0]] == pytest.approx(stands_at, abs=1e-6)
+    assert p.entry_time_s == pytest.approx(60.0, abs=1e-6)
+    assert p.entry_speed_mps == pytest.approx(min(cap, math.sqrt(2 * 2.0 * -stands_at)))
+    # the slow-down family creeps to 0.5 m/s before it gives way to stopping
+    assert pl._v_min_a() == pytest.approx(max(0.5, math.sqrt(max(0, v0**2 - 9 * d))))
 
 
 def test_a_vehicle_that_cannot_stop_cannot_wait_long():

@@ -79,14 +79,19 @@ def test_the_hold_family_waits_where_the_vehicle_stands():
     t = np.arange(0.0, 4.0, 0.05)
     assert np.all(later.position(t) == -12.0)
     assert later.entry_speed_mps == pytest.approx(fastest.entry_speed_mps)
-    # without hold the stop family first draws up to the line
-    plain = Planner(d_m=12.0, v0_mps=0.0, road_mps=15.0, cap_mps=10.0, s_end_m=30.0)
+    # without hold the stop family first draws up to the line (or, with a run-up, to
+    # where pulling away reaches the cap: 25 m, so this vehicle would stand too)
+    plain = Planner(
+        d_m=12.0, v0_mps=0.0, road_mps=15.0, cap_mps=10.0, s_end_m=30.0,
+        kin=Kinematics.at_the_line(),
+    )  # fmt: skip
     assert plain.at_or_after(fastest.entry_time_s + 4.0).position(np.array([3.0]))[0] > -12.0
 
 
 def _blocked_scene(ica: Dica, inter):
     """Crossing traffic keeps A standing at the line for seconds; B comes up behind at
-    speed. Every plan of B's stop family would run into A: refused at once."""
+    speed, too close to stop short of A. Every plan of B's stop family would run into
+    A: refused at once."""
     ica.advance(0.0)
     for i in range(4):
         ica.detect(f"n{i}", NORTH[0], 0.01 * i)
@@ -97,7 +102,7 @@ def _blocked_scene(ica: Dica, inter):
         assert isinstance(n, Confirmation), n
     a = ica.handle(ica_req(ica, inter, "a", WEST, 0.0, 0.5, 0.0), 0.0)
     assert isinstance(a, Confirmation) and a.entry_time_s > 3.0
-    return ica_req(ica, inter, "b", WEST, 0.0, 30.0, 12.0)
+    return ica_req(ica, inter, "b", WEST, 0.0, 20.0, 12.0)
 
 
 def ica_req(ica: Dica, inter, vin, lanes, t, d, v):

@@ -92,6 +92,7 @@ def run_config(args: argparse.Namespace):
             revocation=getattr(args, "revocation", "replan"),
             platoon=args.platoon,
             headway_s=headway_s(args),
+            run_up=getattr(args, "run_up", True),
         )
     except RunError as e:
         raise UsageError(str(e)) from None
@@ -159,6 +160,18 @@ def add_platoon_arg(p: argparse.ArgumentParser) -> None:
         type=float,
         help="a follower keeps behind its lane leader's plan by this time [s] as well as by "
         f"twice the margin in space (default {PLATOON_HEADWAY_S:g} s with platoons, 0 without)",
+    )
+
+
+def add_run_up_arg(p: argparse.ArgumentParser) -> None:
+    """--run-up / --no-run-up: how the ICA plans a vehicle that must wait (runs, the ICA)."""
+    p.add_argument(
+        "--run-up",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="a vehicle that must wait enters the junction at speed: it slows to as little "
+        "as 0.5 m/s, or stands back as far as pulling away to the crossing cap needs "
+        "(default); --no-run-up: it slows to 2 m/s at least, else stops at the line",
     )
 
 

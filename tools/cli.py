@@ -18,6 +18,7 @@ from tools.args import (
     UsageError,
     add_net_args,
     add_run_args,
+    add_run_up_arg,
     intersection,
     report_run,
     run_config,
@@ -332,6 +333,7 @@ def parser() -> argparse.ArgumentParser:
         "collision was seen.",
     )
     add_run_args(r)
+    add_run_up_arg(r)
     r.add_argument(
         "--lead",
         type=float,

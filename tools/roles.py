@@ -20,6 +20,7 @@ from tools.args import (
     add_net_args,
     add_platoon_arg,
     add_run_args,
+    add_run_up_arg,
     headway_s,
     intersection,
     report_run,
@@ -161,7 +162,12 @@ def cmd_ica(args: argparse.Namespace) -> int:
     inter = intersection(args)
     try:
         config = controller_config(
-            args.algorithm, args.margin, args.time_pad, args.platoon, headway_s(args)
+            args.algorithm,
+            args.margin,
+            args.time_pad,
+            args.platoon,
+            headway_s(args),
+            args.run_up,
         )
         config = dataclasses.replace(config, max_request_age_s=args.max_age)
     except ValueError as e:
@@ -415,6 +421,7 @@ def add_role_parsers(sub) -> None:
         "interval is grown by it on each side (default 0: exact actuators, as in lockstep)",
     )
     add_platoon_arg(i)
+    add_run_up_arg(i)
     i.add_argument(
         "--max-age",
         type=float,

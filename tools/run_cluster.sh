@@ -31,6 +31,9 @@ scenario and roles:
                         that vehicle flies its plan, and crosses behind it as a platoon
   --headway S           a follower keeps behind its leader's plan by S seconds (default
                         0.3 with platoons, 0 without)
+  --no-run-up           a vehicle that must wait slows to 2 m/s at least, else stops at
+                        the line; by default it enters at speed (slows to as little as
+                        0.5 m/s, or stands back far enough to reach the crossing cap)
   --volume N            vehicles per 10 min (default 500)
   --duration S          simulated seconds (default 600)
   --seed N              random seed (default 12)
@@ -86,7 +89,7 @@ prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1
 layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
 delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
-max_age="" restart=1 router_rules=1 ev_prob="" solver=exact platoon=(--platoon) headway=""
+max_age="" restart=1 router_rules=1 ev_prob="" solver=exact platoon=(--platoon) headway="" run_up=(--run-up)
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -98,6 +101,7 @@ while [ $# -gt 0 ]; do
     --solver) solver="$2"; shift 2 ;;
     --no-platoon) platoon=(--no-platoon); shift ;;
     --headway) headway="$2"; shift 2 ;;
+    --no-run-up) run_up=(--no-run-up); shift ;;
     --volume) volume="$2"; shift 2 ;;
     --duration) duration="$2"; shift 2 ;;
     --seed) seed="$2"; shift 2 ;;
@@ -322,7 +326,7 @@ link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to
 link_for ica ica
 start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" \
   --time-pad "$time_pad" --max-age "$max_age" --solver "$solver" --seed "$seed" "${platoon[@]}" \
-  "${role_link[@]}"
+  "${run_up[@]}" "${role_link[@]}"
 if [ "$record" = 1 ]; then
   link_for observer observer
   start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" --time-pad "$time_pad" \

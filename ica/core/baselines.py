@@ -29,6 +29,7 @@ from ica.core.dica import Dica
 from ica.core.dtot import Dtot
 from ica.core.intersection import Intersection
 from ica.core.occupancy import Rects, overlap_matrix
+from ica.core.planner import Kinematics
 from ica.core.zones import ConflictTables
 
 
@@ -147,6 +148,7 @@ def controller_config(
     time_pad_s: float = 0.0,
     platoon: bool = False,
     headway_s: float = 0.0,
+    run_up: bool = True,
 ) -> IcaConfig:
     """The ICA settings for a controller name: a DICA variant's techniques, else enhanced.
 
@@ -161,4 +163,5 @@ def controller_config(
         time_pad_s=time_pad_s,
         platoon=platoon,
         headway_s=headway_s,
+        kinematics=Kinematics() if run_up else Kinematics.at_the_line(),
     )

@@ -351,7 +351,7 @@ class Dica:
         cap = route.speed_cap_mps
         for c in self._confirmed.values():
             if c.dtot.route.out_lane == route.out_lane:
-                cap = min(cap, max(c.dtot.exit_speed_mps, self.config.kinematics.creep_mps))
+                cap = min(cap, max(c.dtot.exit_speed_mps, self.config.kinematics.min_cross_mps))
         return cap
 
     def _resolve(

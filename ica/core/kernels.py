@@ -691,7 +691,9 @@ def bisect_cruise(
             lo_v = mid
         else:
             hi_v = mid
-        if hi_v - lo_v < 1e-7:
+        # the entry time's slope is d2 / v^2: 80 s per m/s when creeping at 0.5 m/s
+        # 20 m short of the line, so the speed must be this fine for microseconds
+        if hi_v - lo_v < 1e-10:
             break
     return hi_v
 

@@ -9,14 +9,18 @@ acceleration within the vehicle's limits:
   cruise, then accelerate to the entry speed reached exactly at the entry line
   (or brake to the junction's cap when cruising above it). Larger v_m arrives
   earlier; the largest feasible v_m is the time-optimal plan.
-* **stop family** B(w): brake to a stop ``stop_gap_m`` before the entry line,
-  wait ``w`` seconds, then pull away at full acceleration. With ``hold`` a
+* **stop family** B(w): brake to a stop before the entry line, wait ``w``
+  seconds, then pull away at full acceleration. With ``run_up`` the vehicle
+  stands where that pull-away reaches the crossing cap at the line (or as far
+  back as it can still stop), else ``stop_gap_m`` short of the line. With ``hold`` a
   vehicle already standing waits where it stands instead (a platoon's
   follower cannot draw up to the line while its leader stands there).
 
 Inside the junction every plan accelerates at ``accel`` up to the crossing
 cap and holds it until the vehicle is fully out. A-plans whose cruise speed
-would fall below ``creep_mps`` give way to stopping, as a driver would.
+would fall below ``creep_mps`` give way to stopping. Entering at speed
+matters under heavy traffic: a vehicle that pulls away from the line occupies
+the conflict zones for seconds longer than one that arrives moving.
 
 Positions are arc length along the route with 0 at the entry line, times are
 relative to the request (``t = 0`` at the state the vehicle reported).
@@ -37,12 +41,30 @@ _EPS = 1e-9
 
 @dataclass(frozen=True, slots=True)
 class Kinematics:
-    """Vehicle limits used for planning [m/s^2, m/s, m]; the dissertation's defaults."""
+    """Vehicle limits used for planning [m/s^2, m/s, m]: the dissertation's
+    accelerations, and how a vehicle that must wait approaches the line.
+
+    With ``run_up`` (the default) it enters at speed: a slow-down plan may cruise
+    as slowly as ``creep_mps``, and the stop family stands where pulling away
+    reaches the crossing cap at the line (as far back as the vehicle can still
+    stop), so the vehicle crosses quickly and frees the conflict zones early.
+    :meth:`at_the_line` is the earlier rule: slow to no less than 2 m/s, else stop
+    ``stop_gap_m`` short of the line and pull away from there.
+    ``min_cross_mps`` is the slowest crossing cap checkFV imposes behind a slow
+    vehicle.
+    """
 
     accel_mps2: float = 2.0
     decel_mps2: float = 4.5
-    creep_mps: float = 2.0
+    creep_mps: float = 0.5
     stop_gap_m: float = 0.5
+    run_up: bool = True
+    min_cross_mps: float = 2.0
+
+    @classmethod
+    def at_the_line(cls) -> Kinematics:
+        """Slow to 2 m/s at least, else stop at the line (``--no-run-up``)."""
+        return cls(creep_mps=2.0, run_up=False)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -232,7 +254,13 @@ class Planner:
         vehicle stands now if it holds (the family is then: wait, pull away)."""
         if self.hold and self.v0_mps <= 0.0:
             return self.d_m
-        return min(self.kin.stop_gap_m, self.d_m)
+        gap = self.kin.stop_gap_m
+        if self.kin.run_up:
+            # back where a pull-away reaches the cap at the line, if it can stop there
+            run_up = self.cap_mps**2 / (2 * self.kin.accel_mps2)
+            room = self.d_m - self.v0_mps**2 / (2 * self.kin.decel_mps2)
+            gap = max(gap, min(run_up, room))
+        return min(gap, self.d_m)
 
     def can_stop(self) -> bool:
         d_stop = self.d_m - self._stop_gap()
