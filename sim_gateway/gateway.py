@@ -52,7 +52,7 @@ from schemas.link import (
     refused,
     reply_body,
 )
-from schemas.messages import Clock, Command, State, Stats, VehicleState
+from schemas.messages import Clock, Command, Revoke, State, Stats, VehicleState
 from sim_gateway.embedded import ica_config, schedule_for
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
 from sim_gateway.world import Seen, World
@@ -118,6 +118,10 @@ class ZenohDrivers:
         self.exits: list[Seen] = []  # lockstep: exit notices not yet delivered
         # lockstep: vehicles told to drop a plan, whose agent must see the actuator's verdict
         self.dropping: set[str] = set()
+        # lockstep: vehicles whose REVOKE went out this step; their agents hear it at once
+        self.revoked_news: set[str] = set()
+        self.revoke_waves = 0  # lockstep waves added for a REVOKE to another agent's vehicle
+        self._seen_now: dict[str, Seen] = {}
         self.dropped_setpoints = 0
         self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
         self.age_ms: list[float] = []
@@ -136,6 +140,8 @@ class ZenohDrivers:
         lv = session.liveliness()
         self._decls = [
             session.declare_subscriber(keys.command(j), self.inbox.sample_cb("command")),
+            # lockstep: a REVOKE may be for a vehicle whose agent gets no STATE this step
+            session.declare_subscriber(keys.revoke(j), self.inbox.sample_cb("revoke")),
             lv.declare_subscriber(
                 keys.agent_alive(j), self.inbox.liveliness_cb("agent"), history=True
             ),
@@ -234,6 +240,7 @@ class ZenohDrivers:
             everyone = tuple(self._vehicle_state(s) for s in seen)
             self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
         if self.clock == "lockstep":
+            self._seen_now = {s.car.vin: s for s in seen}
             waves = self._waves(t, seen)
         else:  # a verdict is news there anyway (see _realtime_feed)
             self.dropping.clear()
@@ -260,6 +267,12 @@ class ZenohDrivers:
         if self.clock == "lockstep":
             if expected:
                 self._wait_commands(k, part, expected, out, t)
+            while news := self._revoke_wave():
+                part += 1
+                self.revoke_waves += 1
+                for agent, vehicles in news.items():
+                    self._publish_state(agent, State(agent, k, part, t, tuple(vehicles), now_ns()))
+                self._wait_commands(k, part, news, out, t)
         else:
             for item in self.inbox.drain():
                 self._take(item, None, out)
@@ -361,6 +374,27 @@ class ZenohDrivers:
                 waves[0].setdefault(agent, []).append(self._vehicle_state(s))
         self.exits = []
         return waves
+
+    def _revoke_wave(self) -> dict[str, list[VehicleState]]:
+        """Lockstep: the vehicles revoked this step whose drop has not come back with a
+        COMMAND, by agent. A reordering asked for by one agent's vehicle may revoke
+        another agent's, and that agent gets no STATE while its vehicles fly their
+        plans: it would hear its REVOKE only when idle, a wall-clock moment. Sent now,
+        in one more wave of this step, it answers the REVOKE in this step's COMMAND,
+        as an agent that caused the reordering does: the ICA hears every drop in the
+        same step whoever hosts the vehicle, and lockstep runs stay deterministic.
+        (The ICA publishes a REVOKE before it answers the query that caused it, and
+        the router forwards both in order, so the REVOKE is here, and at the revoked
+        vehicle's agent, before that query's COMMAND.)"""
+        news, self.revoked_news = self.revoked_news, set()
+        batches: dict[str, list[VehicleState]] = {}
+        for vin in sorted(news - self.dropping):
+            s = self._seen_now.get(vin)
+            agent = self.owner.get(vin)
+            if s is None or s.obs.exited or agent not in self.alive or vin not in self.known:
+                continue
+            batches.setdefault(agent, []).append(self._vehicle_state(s))
+        return batches
 
     def _owner(self, vin: str) -> str | None:
         agent = self.owner.get(vin)
@@ -469,6 +503,13 @@ class ZenohDrivers:
         return cmd.agent if wanted is not None else None
 
     def _note(self, item: Item) -> None:
+        if item.what == "revoke":
+            if self.clock == "lockstep":
+                try:
+                    self.revoked_news.add(decode(item.payload, Revoke).vin)
+                except DecodeError as e:
+                    self.log.warning("dropped a bad revoke message: %s", e)
+            return
         up = item.payload == b"+"
         name = keys.last(item.key)
         if item.what == "agent" and item.key.startswith(self._agent_key):
@@ -540,6 +581,7 @@ class ZenohDrivers:
             "adoptions": self.adoptions,
             "ica_outages": self.ica_outages,
             "multi_wave_steps": self.multi_wave_steps,
+            "revoke_waves": self.revoke_waves,
             "lockstep_waits": len(self.wait_s),
             "resent_states": self.resent_states,
             "stale_commands": self.stale_commands,

@@ -328,12 +328,12 @@ def _revoked_at(reorders: list[tuple[float, str]]) -> dict[str, float]:
 
 
 def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_path):
+    """Two agents: an EV on one revokes vehicles of the other, whose agent gets no STATE
+    while they fly; the gateway wakes it in the same step (revoke_waves). Before it did,
+    one REVOKE waited 5 s for the agent to idle and its plan expired unanswered."""
     port = _free_port()
-    # the dissertation's rule: with platoons an ACK and a REQUEST of one step may reach the
-    # ICA in either order, so decisions may differ from the embedded run (see docs/protocol.md)
-    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90",
-              "--no-platoon"]  # fmt: skip
-    p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), "--no-record", *common)
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
+    p = _cluster(tmp_path / "cl", "--agents", "2", "--port", str(port), "--no-record", *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)
     _embedded(tmp_path / "emb", [*common, "--revocation", "drop"])
@@ -346,6 +346,7 @@ def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_pat
     assert reactive["acknowledged"] + reactive["restored"] == reactive["revoked"]
     assert reactive["pending"] == 0 and reactive["expired"] == 0
     assert m["timing"]["plans_dropped"] >= 1
+    assert m["revoke_waves"] >= 1  # the case did happen
     config = json.loads((tmp_path / "cl" / "config.json").read_text())
     assert config["run"]["revocation"] == "drop"
     _same_decisions(tmp_path / "cl", tmp_path / "emb")

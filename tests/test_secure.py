@@ -277,7 +277,7 @@ def _uses() -> tuple[Use, ...]:
         Use("subscribe", f"sim/{J}/vehicles", ("ica", "observer"), "gateway", "", "observer", ""),
         Use("subscribe", f"dica/{J}/confirmed/v7", ("observer", A, B), "ica", "", "observer",
             f"dica/{J}/confirmed/*"),
-        Use("subscribe", f"dica/{J}/revoke/{A}", (A,), "ica", "", A, ""),
+        Use("subscribe", f"dica/{J}/revoke/{A}", (A, "gateway"), "ica", "", A, ""),
         Use("subscribe", f"dica/{J}/reorder", ("observer",), "ica", "", "observer", ""),
         Use("subscribe", f"dica/{J}/ack/{A}", ("ica",), A, "", "ica", f"dica/{J}/ack/*"),
         Use("subscribe", f"sim/{J}/command/{A}", ("gateway",), A, "", "gateway",
