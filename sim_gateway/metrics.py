@@ -6,7 +6,9 @@ Where each clock starts:
 * trip time tau (the dissertation's): from the front crossing the
   communication region's entry line until the rear leaves the junction.
   Throughput rho = crossed / generated (generated: scheduled to reach the
-  region by the end); stopped rate eta = stopped in the region / crossed;
+  region by the end); stopped rate eta = stopped in the region / crossed
+  (below SUMO's halting speed, 0.1 m/s), and beside it the crawled rate
+  (below 1 m/s, a creeping plan's 0.5 m/s included);
   effective mean trip time tau_e = mean tau / rho. Delay: tau over the
   free-flow time (the fastest plan from the speed it entered the region with,
   alone at the junction).
@@ -32,6 +34,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+CRAWL_MPS = 1.0  # [m/s] slower than this in the region counts as crawling (walking pace)
+
 
 @dataclass(slots=True)
 class Trip:
@@ -43,6 +47,9 @@ class Trip:
     exited_s: float | None = None  # rear left the junction
     free_flow_s: float | None = None  # from the entry line at the speed it entered with
     stopped: bool = False
+    # below CRAWL_MPS in the region, stopped or not: a plan may creep at 0.5 m/s, which
+    # the stopped rate (SUMO's halting speed, 0.1 m/s) does not count
+    crawled: bool = False
     confirmed_s: float | None = None
     inserted_s: float | None = None  # SUMO placed it on the road, upstream of the region
     free_flow_scheduled_s: float | None = None  # from the entry line at its scheduled speed
@@ -101,6 +108,7 @@ def summarize(log: TripLog, end_s: float) -> dict[str, float | int | None]:
         "std_trip_time_s": float(tau.std()) if len(tau) else math.nan,
         "max_trip_time_s": float(tau.max()) if len(tau) else math.nan,
         "stopped_rate": (sum(tr.stopped for tr in crossed) / len(crossed)) if crossed else math.nan,
+        "crawled_rate": (sum(tr.crawled for tr in crossed) / len(crossed)) if crossed else math.nan,
         "effective_mean_trip_time_s": mean / rho if rho > 0 else math.nan,
         "mean_delay_s": float(delay.mean()) if len(delay) else math.nan,
     }

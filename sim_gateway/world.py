@@ -42,7 +42,7 @@ from ica.core.intersection import Intersection
 from ica.core.planner import Planner
 from ica.core.route import Route
 from sim_gateway.demand import Arrival
-from sim_gateway.metrics import Trip, TripLog, summarize
+from sim_gateway.metrics import CRAWL_MPS, Trip, TripLog, summarize
 from sim_gateway.runconfig import RunConfig, RunError, RunResult
 from sim_gateway.safety import SafetyMonitor
 from vehicle_agent.control import can_stop_short, entry_time, stop_speed, track_speed
@@ -355,6 +355,8 @@ class World:
                     planned = entry_time(c.plan_t0_s, self.h, c.plan_s)
                     self.timing.adherence_s.append(actual - planned)
                     self.timing.worst.append((abs(actual - planned), c.vin, actual, planned))
+            if speed < CRAWL_MPS:
+                self.log.trips[c.vin].crawled = True
             if speed < 0.1:
                 self.log.trips[c.vin].stopped = True  # stopped in the region before leaving
                 self.waiting += 1

@@ -18,6 +18,7 @@ KEYS = {
     "std_trip_time_s",
     "max_trip_time_s",
     "stopped_rate",
+    "crawled_rate",
     "effective_mean_trip_time_s",
     "mean_delay_s",
     "mean_system_time_s",
@@ -81,6 +82,7 @@ def test_run_is_collision_free_and_writes_metrics(tmp_path, layout, algorithm, v
     least = {"fifo": 0.2, "fixed": 0.5, "actuated": 0.5}.get(algorithm, 0.7)
     assert m["crossed"] > least * m["generated"] > 0
     assert m["mean_trip_time_s"] > 0
+    assert m["crawled_rate"] >= m["stopped_rate"]  # a stop is below walking pace too
     # platoons: a follower may be told to ask again (too close for the headway, or it
     # must first stop behind its leader); nothing else is ever refused here
     assert set(m["requests"]["rejections"]) <= {"follow"}

@@ -45,6 +45,7 @@ FIELDS = [
     ("std_trip_time_s", "std tau [s]", "{:.2f}"),
     ("max_trip_time_s", "max tau [s]", "{:.1f}"),
     ("stopped_rate", "eta", "{:.3f}"),
+    ("crawled_rate", "crawled", "{:.3f}"),  # below 1 m/s, stops included
     ("effective_mean_trip_time_s", "tau_e [s]", "{:.2f}"),
     ("mean_delay_s", "delay [s]", "{:.2f}"),
     ("mean_system_time_s", "time in system [s]", "{:.2f}"),
