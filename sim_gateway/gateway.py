@@ -121,7 +121,7 @@ class ZenohDrivers:
         # lockstep: vehicles whose REVOKE went out this step; their agents hear it at once
         self.revoked_news: set[str] = set()
         self.revoke_waves = 0  # lockstep waves added for a REVOKE to another agent's vehicle
-        self._seen_now: dict[str, Seen] = {}
+        self._seen_now: list[Seen] = []
         self.dropped_setpoints = 0
         self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
         self.age_ms: list[float] = []
@@ -140,8 +140,6 @@ class ZenohDrivers:
         lv = session.liveliness()
         self._decls = [
             session.declare_subscriber(keys.command(j), self.inbox.sample_cb("command")),
-            # lockstep: a REVOKE may be for a vehicle whose agent gets no STATE this step
-            session.declare_subscriber(keys.revoke(j), self.inbox.sample_cb("revoke")),
             lv.declare_subscriber(
                 keys.agent_alive(j), self.inbox.liveliness_cb("agent"), history=True
             ),
@@ -150,6 +148,10 @@ class ZenohDrivers:
                 keys.observer_alive(j), self.inbox.liveliness_cb("observer"), history=True
             ),
         ]
+        if clock == "lockstep":  # a REVOKE may be for a vehicle whose agent gets no STATE
+            self._decls.append(
+                session.declare_subscriber(keys.revoke(j), self.inbox.sample_cb("revoke"))
+            )
         self._agent_key = keys.agent_alive(j, "x").rsplit("/", 1)[0] + "/"
         self._ica_key = keys.ica_alive(j)
         self._observer_key = keys.observer_alive(j, "x").rsplit("/", 1)[0] + "/"
@@ -240,7 +242,7 @@ class ZenohDrivers:
             everyone = tuple(self._vehicle_state(s) for s in seen)
             self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
         if self.clock == "lockstep":
-            self._seen_now = {s.car.vin: s for s in seen}
+            self._seen_now = seen
             waves = self._waves(t, seen)
         else:  # a verdict is news there anyway (see _realtime_feed)
             self.dropping.clear()
@@ -386,10 +388,13 @@ class ZenohDrivers:
         (The ICA publishes a REVOKE before it answers the query that caused it, and
         the router forwards both in order, so the REVOKE is here, and at the revoked
         vehicle's agent, before that query's COMMAND.)"""
-        news, self.revoked_news = self.revoked_news, set()
+        news, self.revoked_news = self.revoked_news - self.dropping, set()
         batches: dict[str, list[VehicleState]] = {}
-        for vin in sorted(news - self.dropping):
-            s = self._seen_now.get(vin)
+        if not news:
+            return batches
+        seen = {s.car.vin: s for s in self._seen_now}
+        for vin in sorted(news):
+            s = seen.get(vin)
             agent = self.owner.get(vin)
             if s is None or s.obs.exited or agent not in self.alive or vin not in self.known:
                 continue
@@ -504,11 +509,10 @@ class ZenohDrivers:
 
     def _note(self, item: Item) -> None:
         if item.what == "revoke":
-            if self.clock == "lockstep":
-                try:
-                    self.revoked_news.add(decode(item.payload, Revoke).vin)
-                except DecodeError as e:
-                    self.log.warning("dropped a bad revoke message: %s", e)
+            try:
+                self.revoked_news.add(decode(item.payload, Revoke).vin)
+            except DecodeError as e:
+                self.log.warning("dropped a bad revoke message: %s", e)
             return
         up = item.payload == b"+"
         name = keys.last(item.key)
