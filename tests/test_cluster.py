@@ -96,6 +96,21 @@ def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
     _same_decisions(tmp_path / "cl", tmp_path / "emb")
 
 
+def test_no_run_up_reaches_the_clusters_ica(tmp_path):
+    """--no-run-up is the ICA's (run_cluster.sh hands it over): the cluster then makes
+    the embedded run's decisions under the earlier rule, which differ from the default's."""
+    port = _free_port()
+    common = ["--volume", "500", "--duration", "60", "--seed", "12"]
+    p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), "--no-record",
+                 "--no-run-up", *common)  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    _embedded(tmp_path / "emb", [*common, "--no-run-up"])
+    _same_decisions(tmp_path / "cl", tmp_path / "emb")
+    _embedded(tmp_path / "default", common)
+    assert _rows(tmp_path / "emb" / "vehicles.csv") != _rows(tmp_path / "default" / "vehicles.csv")
+
+
 def test_three_agents_make_the_same_decisions_and_the_recording_holds_them(tmp_path):
     port = _free_port()
     out = tmp_path / "cl"
