@@ -294,7 +294,13 @@ def reactive_config(cfg: RunConfig) -> ReactiveConfig:
 
 def ica_config(cfg: RunConfig) -> IcaConfig:
     return controller_config(
-        cfg.algorithm, cfg.margin_m, cfg.time_pad_s, cfg.platoon, cfg.headway_s, cfg.run_up
+        cfg.algorithm,
+        cfg.margin_m,
+        cfg.time_pad_s,
+        cfg.platoon,
+        cfg.headway_s,
+        cfg.run_up,
+        cfg.exit_spacing,
     )
 
 

@@ -52,6 +52,9 @@ class RunConfig:
     # a vehicle that must wait enters at speed: slows to as little as 0.5 m/s, or stands
     # back far enough to reach the crossing cap at the line (ica/core/planner.py)
     run_up: bool = True
+    # a vehicle may leave the junction faster than a slower one ahead on its exit lane,
+    # late enough that the road's driver never brakes behind it (ica/core/handover.py)
+    exit_spacing: bool = True
     # [s] the ICA decides the REQUESTs of each window together, in the order that delays
     # them least (ica/core/window.py); 0: one by one as they come. Embedded runs only
     window_s: float = 0.0

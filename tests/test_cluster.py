@@ -96,16 +96,18 @@ def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
     _same_decisions(tmp_path / "cl", tmp_path / "emb")
 
 
-def test_no_run_up_reaches_the_clusters_ica(tmp_path):
-    """--no-run-up is the ICA's (run_cluster.sh hands it over): the cluster then makes
-    the embedded run's decisions under the earlier rule, which differ from the default's."""
+@pytest.mark.parametrize("flag", ["--no-run-up", "--no-exit-spacing"])
+def test_a_planning_rule_off_reaches_the_clusters_ica(tmp_path, flag):
+    """--no-run-up and --no-exit-spacing are the ICA's (run_cluster.sh hands them over):
+    the cluster then makes the embedded run's decisions under the earlier rule, which
+    differ from the default's."""
     port = _free_port()
     common = ["--volume", "500", "--duration", "60", "--seed", "12"]
     p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), "--no-record",
-                 "--no-run-up", *common)  # fmt: skip
+                 flag, *common)  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)
-    _embedded(tmp_path / "emb", [*common, "--no-run-up"])
+    _embedded(tmp_path / "emb", [*common, flag])
     _same_decisions(tmp_path / "cl", tmp_path / "emb")
     _embedded(tmp_path / "default", common)
     assert _rows(tmp_path / "emb" / "vehicles.csv") != _rows(tmp_path / "default" / "vehicles.csv")

@@ -93,6 +93,7 @@ def run_config(args: argparse.Namespace):
             platoon=args.platoon,
             headway_s=headway_s(args),
             run_up=getattr(args, "run_up", True),
+            exit_spacing=getattr(args, "exit_spacing", True),
         )
     except RunError as e:
         raise UsageError(str(e)) from None
@@ -163,8 +164,8 @@ def add_platoon_arg(p: argparse.ArgumentParser) -> None:
     )
 
 
-def add_run_up_arg(p: argparse.ArgumentParser) -> None:
-    """--run-up / --no-run-up: how the ICA plans a vehicle that must wait (runs, the ICA)."""
+def add_plan_args(p: argparse.ArgumentParser) -> None:
+    """--run-up and --exit-spacing: how the ICA plans (runs, the ICA)."""
     p.add_argument(
         "--run-up",
         action=argparse.BooleanOptionalAction,
@@ -172,6 +173,14 @@ def add_run_up_arg(p: argparse.ArgumentParser) -> None:
         help="a vehicle that must wait enters the junction at speed: it slows to as little "
         "as 0.5 m/s, or stands back as far as pulling away to the crossing cap needs "
         "(default); --no-run-up: it slows to 2 m/s at least, else stops at the line",
+    )
+    p.add_argument(
+        "--exit-spacing",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="a vehicle may leave the junction faster than a slower vehicle ahead on its exit "
+        "lane, late enough that the road's driver never brakes behind it (default); "
+        "--no-exit-spacing: never faster than it (checkFV's cap alone)",
     )
 
 

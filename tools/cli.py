@@ -17,8 +17,8 @@ from pathlib import Path
 from tools.args import (
     UsageError,
     add_net_args,
+    add_plan_args,
     add_run_args,
-    add_run_up_arg,
     intersection,
     report_run,
     run_config,
@@ -333,7 +333,7 @@ def parser() -> argparse.ArgumentParser:
         "collision was seen.",
     )
     add_run_args(r)
-    add_run_up_arg(r)
+    add_plan_args(r)
     r.add_argument(
         "--lead",
         type=float,

@@ -18,9 +18,9 @@ from pathlib import Path
 from tools.args import (
     UsageError,
     add_net_args,
+    add_plan_args,
     add_platoon_arg,
     add_run_args,
-    add_run_up_arg,
     headway_s,
     intersection,
     report_run,
@@ -168,6 +168,7 @@ def cmd_ica(args: argparse.Namespace) -> int:
             args.platoon,
             headway_s(args),
             args.run_up,
+            args.exit_spacing,
         )
         config = dataclasses.replace(config, max_request_age_s=args.max_age)
     except ValueError as e:
@@ -421,7 +422,7 @@ def add_role_parsers(sub) -> None:
         "interval is grown by it on each side (default 0: exact actuators, as in lockstep)",
     )
     add_platoon_arg(i)
-    add_run_up_arg(i)
+    add_plan_args(i)
     i.add_argument(
         "--max-age",
         type=float,

@@ -34,6 +34,9 @@ scenario and roles:
   --no-run-up           a vehicle that must wait slows to 2 m/s at least, else stops at
                         the line; by default it enters at speed (slows to as little as
                         0.5 m/s, or stands back far enough to reach the crossing cap)
+  --no-exit-spacing     a vehicle never leaves the junction faster than a slower vehicle
+                        ahead on its exit lane (checkFV's cap alone); by default it may,
+                        late enough that the road's driver never brakes behind it
   --volume N            vehicles per 10 min (default 500)
   --duration S          simulated seconds (default 600)
   --seed N              random seed (default 12)
@@ -90,6 +93,7 @@ layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=1
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
 delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
 max_age="" restart=1 router_rules=1 ev_prob="" solver=exact platoon=(--platoon) headway="" run_up=(--run-up)
+exit_spacing=(--exit-spacing)
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
@@ -102,6 +106,7 @@ while [ $# -gt 0 ]; do
     --no-platoon) platoon=(--no-platoon); shift ;;
     --headway) headway="$2"; shift 2 ;;
     --no-run-up) run_up=(--no-run-up); shift ;;
+    --no-exit-spacing) exit_spacing=(--no-exit-spacing); shift ;;
     --volume) volume="$2"; shift 2 ;;
     --duration) duration="$2"; shift 2 ;;
     --seed) seed="$2"; shift 2 ;;
@@ -326,7 +331,7 @@ link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to
 link_for ica ica
 start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" \
   --time-pad "$time_pad" --max-age "$max_age" --solver "$solver" --seed "$seed" "${platoon[@]}" \
-  "${run_up[@]}" "${role_link[@]}"
+  "${run_up[@]}" "${exit_spacing[@]}" "${role_link[@]}"
 if [ "$record" = 1 ]; then
   link_for observer observer
   start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" --time-pad "$time_pad" \

@@ -149,6 +149,7 @@ def controller_config(
     platoon: bool = False,
     headway_s: float = 0.0,
     run_up: bool = True,
+    exit_spacing: bool = True,
 ) -> IcaConfig:
     """The ICA settings for a controller name: a DICA variant's techniques, else enhanced.
 
@@ -164,4 +165,5 @@ def controller_config(
         platoon=platoon,
         headway_s=headway_s,
         kinematics=Kinematics() if run_up else Kinematics.at_the_line(),
+        exit_spacing=exit_spacing,
     )

@@ -104,6 +104,10 @@ class IcaConfig:
     # [s] a follower keeps its lane leader's plan this much later in time as well as
     # ``2 * margin_m`` behind in space (the time-headway of a platoon)
     headway_s: float = 0.0
+    # a plan may leave faster than a slower vehicle ahead on its exit lane, late enough
+    # that the driver it is handed to never brakes (ica/core/handover.py), where
+    # checkFV's cap alone would slow it to that vehicle's speed
+    exit_spacing: bool = False
     max_iterations: int = 2000
     max_wait_s: float = 300.0
 

@@ -47,6 +47,7 @@ from ica.core.conflict import (
     pack,
 )
 from ica.core.dtot import Dtot, build_dtot
+from ica.core.handover import Handover
 from ica.core.intersection import Intersection
 from ica.core.kernels import BLOCKED, RESOLVED, resolve_rounds
 from ica.core.planner import Planner
@@ -55,6 +56,8 @@ from ica.core.route import Route
 from ica.core.trajectory import Trajectory, sample
 from ica.core.validate import check_request
 from ica.core.zones import ConflictTables, RouteGrid, Shape
+
+LEFT_MEMORY_S = 20.0  # [s] how long exit spacing remembers a vehicle that has left
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -141,6 +144,11 @@ class Dica:
         self._rows = ConfirmedRows()
         self._version = 0
         self._batch: tuple[tuple[int, str, Shape], ConfirmedBatch] | None = None
+        # with exit spacing: per exit lane, recent vehicles whose reservation has ended
+        # (rear out of the junction): (time out, speed out, vin)
+        self._left: dict[str, list[tuple[float, float, str]]] = {}
+        k, caps = self.config.kinematics, self.config.caps
+        self.handover = Handover(caps.road_mps, k.accel_mps2, k.decel_mps2)
 
     # -- state -------------------------------------------------------------
     @property
@@ -169,6 +177,14 @@ class Dica:
     def advance(self, now_s: float) -> list[str]:
         """Move the ICA's clock: forget who has left (their reservation has ended)."""
         gone = [vin for vin, c in self._confirmed.items() if c.dtot.end_s < now_s]
+        if self.config.exit_spacing:
+            for vin in gone:
+                d = self._confirmed[vin].dtot
+                self._left.setdefault(d.route.out_lane, []).append(
+                    (float(d.t_s[-1]), d.exit_speed_mps, vin)
+                )
+            for lane, rows in self._left.items():
+                self._left[lane] = [r for r in rows if r[0] > now_s - LEFT_MEMORY_S]
         for vin in gone:
             self._withdraw(vin)
             lane = self._lane_of.pop(vin, None)
@@ -308,7 +324,7 @@ class Dica:
             self._withdraw(req.vin)
 
         leader = self._leader(req.vin, lane)
-        dtot, iterations, earliest = self._resolve(req, route, shape, traj, leader)
+        dtot, iterations, earliest = self._resolve_best(req, route, shape, traj, leader)
         entry = dtot.trajectory.entry_time_s()
         front, heading = dtot.trajectory.xy_heading(route, req.length_m)
         conf = Confirmation(
@@ -345,6 +361,38 @@ class Dica:
                 worst = Conflict(vin, out_s, need - out_s)
         return worst
 
+    def exit_spacing(self, route: Route, dtot: Dtot) -> Conflict | None:
+        """The hand-over beyond the junction: a plan that leaves by an exit lane faster
+        than a vehicle that leaves it earlier does so late enough that the driver it
+        is handed to never brakes behind it (:class:`ica.core.handover.Handover`).
+        The conflict with the one that needs the latest exit."""
+        out_s = float(dtot.t_s[-1])
+        v = dtot.exit_speed_mps
+        length = dtot.shape.length_m
+        tol = self.config.speed_tol_mps
+        ahead = [
+            (float(c.dtot.t_s[-1]), c.dtot.exit_speed_mps, vin)
+            for vin, c in self._confirmed.items()
+            if c.dtot.route.out_lane == route.out_lane
+        ]
+        ahead += self._left.get(route.out_lane, [])
+        worst: Conflict | None = None
+        for t_out, v_out, vin in ahead:
+            if t_out > out_s or v_out >= v - tol:
+                continue
+            need = t_out + self.handover.separation_s(v_out, v, length)
+            if need > out_s and (worst is None or need - out_s > worst.delay_s):
+                worst = Conflict(vin, out_s, need - out_s)
+        return worst
+
+    def _exit_conflict(self, route: Route, dtot: Dtot) -> Conflict | None:
+        late = self.exit_order(route, dtot)
+        if self.config.exit_spacing:
+            gap = self.exit_spacing(route, dtot)
+            if gap is not None and (late is None or gap.delay_s > late.delay_s):
+                late = gap
+        return late
+
     def front_cap_mps(self, route: Route) -> float:
         """checkFV: a vehicle may not cross faster than the slowest confirmed
         vehicle leaving by the same exit lane (which covers the same route ahead)."""
@@ -354,7 +402,7 @@ class Dica:
                 cap = min(cap, max(c.dtot.exit_speed_mps, self.config.kinematics.min_cross_mps))
         return cap
 
-    def _resolve(
+    def _resolve_best(
         self,
         req: Request,
         route: Route,
@@ -362,8 +410,31 @@ class Dica:
         traj: Trajectory,
         leader: Confirmed | None,
     ) -> tuple[Dtot, int, float]:
-        cfg = self.config
+        """checkFV's capped plan; with exit spacing also the uncapped one that leaves
+        late enough behind slower vehicles, and the one that leaves first."""
         cap = self.front_cap_mps(route)
+        if not self.config.exit_spacing or cap >= route.speed_cap_mps:
+            return self._resolve(req, route, shape, traj, leader, cap)
+        try:
+            capped = self._resolve(req, route, shape, traj, leader, cap)
+        except RequestError:
+            return self._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
+        try:
+            fast = self._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
+        except RequestError:
+            return capped
+        return fast if fast[0].t_s[-1] < capped[0].t_s[-1] else capped
+
+    def _resolve(
+        self,
+        req: Request,
+        route: Route,
+        shape: Shape,
+        traj: Trajectory,
+        leader: Confirmed | None,
+        cap: float,
+    ) -> tuple[Dtot, int, float]:
+        cfg = self.config
         s_end = route.cross_length_m + shape.length_m
         planner = Planner(
             d_m=max(req.dist_to_entry_m, 0.0),
@@ -393,7 +464,7 @@ class Dica:
             found = self._resolve_compiled(
                 req, route, shape, traj, leader, lag, planner, grid, s_end
             )
-            if found is not None and self.exit_order(route, found[0]) is None:
+            if found is not None and self._exit_conflict(route, found[0]) is None:
                 return found[0], found[1], earliest
             # the compiled loop stops where this loop raises (let it raise, with its
             # message), and knows nothing of the exit order: this loop adds it
@@ -415,7 +486,7 @@ class Dica:
                         raise _blocked(req.vin, leader.vin)
                     conflicts.append(Conflict(leader.vin, *found))
                     conflicts.sort(key=lambda c: c.first_time_s)
-            late = self.exit_order(route, dtot)
+            late = self._exit_conflict(route, dtot)
             if late is not None:
                 conflicts.append(late)
                 conflicts.sort(key=lambda c: c.first_time_s)
@@ -580,7 +651,7 @@ class Dica:
             dist_to_entry_m, speed_mps, Tss(none, none, none, none),
         )  # fmt: skip
         leader = self._confirmed.get(leader_vin) if leader_vin is not None else None
-        dtot, iterations, earliest = self._resolve(req, route, shape, traj, leader)
+        dtot, iterations, earliest = self._resolve_best(req, route, shape, traj, leader)
         entry = dtot.trajectory.entry_time_s()
         front, heading = dtot.trajectory.xy_heading(route, shape.length_m)
         conf = Confirmation(

@@ -1,0 +1,148 @@
+"""Exit spacing: a vehicle may leave the junction faster than a slower vehicle
+ahead on its exit lane, late enough that the road's driver never brakes."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from ica.core.baselines import controller_config, make_controller
+from ica.core.dica import Dica
+from ica.core.handover import Handover
+from ica.core.proposal import propose
+from ica.core.request import Confirmation
+from tests.test_run_sumo import dica
+
+ROAD_MPS = 70.0 / 3.6
+RIGHT = "W_in_0", "S_out_0"  # right turn from the west: 25 km/h
+THROUGH = "N_in_0", "S_out_0"  # through from the north, onto the same exit lane
+
+
+def krauss_run(h: Handover, v_lead: float, v_follow: float, length: float, sep_s: float):
+    """SUMO's Krauss driver (no dawdling), stepped at 0.1 s, for a follower released
+    ``sep_s`` after its leader; both start with the rear at the exit line. Returns
+    the follower's speeds and the speeds of a free run from its release."""
+    dt = 0.1
+    x_l, vl = 0.0, v_lead
+    for _ in range(round(sep_s / dt)):  # the leader runs alone until the follower's release
+        vl = min(vl + h.accel_mps2 * dt, ROAD_MPS)
+        x_l += vl * dt
+    x_f, vf, free, speeds, frees = -length, v_follow, v_follow, [], []
+    for _ in range(400):
+        g = x_l - x_f - length - h.min_gap_m  # SUMO's gap excludes minGap
+        b, tau = h.decel_mps2, h.tau_s
+        v_safe = -tau * b + math.sqrt((tau * b) ** 2 + vl * vl + 2.0 * b * max(g, 0.0))
+        vf = min(vf + h.accel_mps2 * dt, ROAD_MPS, v_safe)
+        free = min(free + h.accel_mps2 * dt, ROAD_MPS)
+        vl = min(vl + h.accel_mps2 * dt, ROAD_MPS)
+        x_l += vl * dt
+        x_f += vf * dt
+        speeds.append(vf)
+        frees.append(free)
+    return np.array(speeds), np.array(frees)
+
+
+@pytest.mark.parametrize(
+    "v_lead,v_follow", [(25 / 3.6, 65 / 3.6), (35 / 3.6, 65 / 3.6), (2.0, 65 / 3.6), (8.0, 12.0)]
+)
+def test_at_the_separation_the_driver_never_brakes_and_a_little_earlier_it_does(v_lead, v_follow):
+    h = Handover(ROAD_MPS)
+    sep = h.separation_s(v_lead, v_follow, 5.0)
+    assert 0.0 < sep < 10.0
+    speeds, free = krauss_run(h, v_lead, v_follow, 5.0, sep)
+    assert np.all(speeds >= free - 1e-9), "released at the separation, the driver braked"
+    # the bound is not idle: a follower released well before it has to brake
+    speeds, free = krauss_run(h, v_lead, v_follow, 5.0, 0.5 * sep)
+    assert np.any(speeds < free - 0.1)
+
+
+def test_the_separation_grows_with_the_follower_s_speed_and_shrinks_with_the_leader_s():
+    h = Handover(ROAD_MPS)
+    by_follower = [h.separation_s(7.0, v, 5.0) for v in (9.0, 12.0, 15.0, 18.0)]
+    assert by_follower == sorted(by_follower) and by_follower[0] < by_follower[-1]
+    by_leader = [h.separation_s(v, 18.0, 5.0) for v in (3.0, 7.0, 11.0, 15.0)]
+    assert by_leader == sorted(by_leader, reverse=True) and by_leader[0] > by_leader[-1]
+    assert h.separation_s(7.0, 18.0, 12.0) > h.separation_s(7.0, 18.0, 5.0)  # a longer follower
+
+
+def confirm_pair(inter, exit_spacing: bool) -> Dica:
+    """A right-turner near the line, then a through vehicle onto the same exit lane."""
+    cfg = controller_config(
+        "enhanced", 0.25, platoon=True, headway_s=0.3, exit_spacing=exit_spacing
+    )
+    ica = make_controller("enhanced", inter, cfg)
+    ica.advance(0.0)
+    for vin, lanes, d, v in (("a", RIGHT, 10.0, 25 / 3.6), ("b", THROUGH, 50.0, 15.0)):
+        ica.detect(vin, lanes[0], 0.0)
+        req = propose(
+            inter.route(*lanes), vin=vin, seq=0, t0_s=0.0, dist_to_entry_m=d, speed_mps=v,
+            config=ica.config,
+        )  # fmt: skip
+        assert isinstance(ica.handle(req, 0.0), Confirmation)
+    return ica
+
+
+def test_a_through_vehicle_leaves_fast_behind_a_right_turner_at_the_separation(ch45):
+    capped = confirm_pair(ch45, exit_spacing=False).confirmed
+    ica = confirm_pair(ch45, exit_spacing=True)
+    a, b = ica.confirmed["a"].dtot, ica.confirmed["b"].dtot
+    tol = ica.config.speed_tol_mps
+    # checkFV's cap alone: no faster than the right-turner, over the whole crossing
+    assert capped["b"].dtot.exit_speed_mps <= a.exit_speed_mps + tol
+    # with exit spacing it leaves faster, and no sooner than the separation allows
+    assert b.exit_speed_mps > a.exit_speed_mps + 5.0
+    sep = ica.handover.separation_s(a.exit_speed_mps, b.exit_speed_mps, 5.0)
+    assert b.t_s[-1] >= a.t_s[-1] + sep - 1e-9
+    # it takes the fast plan because it leaves earlier, and it holds the junction less long
+    assert b.t_s[-1] < capped["b"].dtot.t_s[-1]
+    assert b.t_s[-1] - b.trajectory.entry_time_s() < (
+        capped["b"].dtot.t_s[-1] - capped["b"].dtot.trajectory.entry_time_s()
+    )
+
+
+def test_a_vehicle_that_has_left_still_spaces_the_next(ch45):
+    """The right-turner's reservation ends (its rear is out); a through vehicle
+    asking just after still leaves late enough behind it: the ICA remembers
+    recent exits, as the road's driver will still be closing in."""
+    cfg = controller_config("enhanced", 0.25, platoon=True, headway_s=0.3)
+    ica = make_controller("enhanced", ch45, cfg)
+    ica.advance(0.0)
+    ica.detect("a", RIGHT[0], 0.0)
+    req = propose(
+        ch45.route(*RIGHT), vin="a", seq=0, t0_s=0.0, dist_to_entry_m=10.0, speed_mps=25 / 3.6,
+        config=ica.config,
+    )  # fmt: skip
+    assert isinstance(ica.handle(req, 0.0), Confirmation)
+    a = ica.confirmed["a"].dtot
+    t = float(a.end_s) + 0.01
+    assert ica.advance(t) == ["a"] and "a" not in ica.confirmed
+    ica.detect("c", THROUGH[0], t)
+    req = propose(
+        ch45.route(*THROUGH), vin="c", seq=0, t0_s=t, dist_to_entry_m=30.0, speed_mps=15.0,
+        config=ica.config,
+    )  # fmt: skip
+    conf = ica.handle(req, t)
+    assert isinstance(conf, Confirmation) and conf.delay_s > 0.2  # held back for the spacing
+    c = ica.confirmed["c"].dtot
+    assert c.exit_speed_mps > a.exit_speed_mps + 5.0
+    sep = ica.handover.separation_s(a.exit_speed_mps, c.exit_speed_mps, 5.0)
+    assert c.t_s[-1] >= a.t_s[-1] + sep - 1e-9
+
+
+def test_heavy_traffic_with_exit_spacing_is_safe_and_waits_less(tmp_path):
+    """Volume 800 on the chapter 4-5 layout: zero collisions by both checks with
+    and without exit spacing, and less delay from the schedule with it."""
+    out = {}
+    for name, extra in (("spaced", []), ("capped", ["--no-exit-spacing"])):
+        rc = dica("run", "--volume", "800", "--duration", "240", "--seed", "21", "--quiet",
+                  "--out", str(tmp_path / name), *extra)  # fmt: skip
+        assert rc.returncode == 0, rc.stderr
+        m = json.loads((tmp_path / name / "metrics.json").read_text())
+        assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+        cfg = json.loads((tmp_path / name / "config.json").read_text())
+        assert cfg["run"]["exit_spacing"] is (name == "spaced")
+        out[name] = m["mean_system_delay_s"]
+    assert out["spaced"] < out["capped"], out
