@@ -15,7 +15,8 @@ requester's own lane, which would stand ahead of it).
 Every variant then answers exactly those requests from exactly those states
 (its own interval method applied to the confirmed trajectories), best of
 ``repeat`` timings each. Ratios to basic DICA are taken per request, so
-machine noise mostly cancels.
+machine noise mostly cancels. Every variant runs with exit spacing, as the
+ICA does by default: where checkFV's cap binds, a request is planned twice.
 """
 
 from __future__ import annotations
@@ -87,7 +88,7 @@ def collect(inter: Intersection, per_bucket: int, seed: int) -> dict[int, list[S
 
     for volume in (600.0, 3000.0, 6000.0):
         spec = StreamSpec(volume_per_10min=volume, n_vehicles=6 * per_bucket + 100, seed=seed)
-        run_stream(inter, IcaConfig(), spec, before_request=keep)
+        run_stream(inter, IcaConfig(exit_spacing=True), spec, before_request=keep)
         if all(len(v) >= per_bucket for v in found.values()):
             break
     return found
@@ -100,7 +101,7 @@ def time_variant(
     repeat: int,
     shared: dict[bool, ConflictTables],
 ) -> list[float]:
-    cfg = IcaConfig(techniques=Techniques.parse(variant))
+    cfg = IcaConfig(techniques=Techniques.parse(variant), exit_spacing=True)
     tables = shared.get(cfg.techniques.exact_oti)
     if tables is None:  # the offline tables of this interval kind, built once
         tables = shared[cfg.techniques.exact_oti] = Dica(

@@ -365,11 +365,13 @@ class Dica:
         """The hand-over beyond the junction: a plan that leaves by an exit lane faster
         than a vehicle that leaves it earlier does so late enough that the driver it
         is handed to never brakes behind it (:class:`ica.core.handover.Handover`).
-        The conflict with the one that needs the latest exit."""
+        Each may be ``time_pad_s`` off its plan, so the separation grows by twice
+        that. The conflict with the one that needs the latest exit."""
         out_s = float(dtot.t_s[-1])
         v = dtot.exit_speed_mps
         length = dtot.shape.length_m
         tol = self.config.speed_tol_mps
+        pad = 2.0 * self.config.time_pad_s
         ahead = [
             (float(c.dtot.t_s[-1]), c.dtot.exit_speed_mps, vin)
             for vin, c in self._confirmed.items()
@@ -380,7 +382,7 @@ class Dica:
         for t_out, v_out, vin in ahead:
             if t_out > out_s or v_out >= v - tol:
                 continue
-            need = t_out + self.handover.separation_s(v_out, v, length)
+            need = t_out + self.handover.separation_s(v_out, v, length) + pad
             if need > out_s and (worst is None or need - out_s > worst.delay_s):
                 worst = Conflict(vin, out_s, need - out_s)
         return worst
