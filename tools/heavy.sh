@@ -4,7 +4,7 @@
 # ramps, then the reports (saturation volumes, stopped rates, delay from the schedule).
 # Also chapter 3 light traffic and the technique-3 check (basic, enhanced and the
 # dissertation's enhanced DICA, t1+2+3+4). Resumable: finished runs are skipped.
-# About 3 hours on 2 busy shared cores.
+# About 45 minutes on 2 cores.
 #   bash tools/heavy.sh [OUT]        (default runs/heavy)
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -15,7 +15,7 @@ dica=".venv/bin/dica"
 seeds="12,21,66"
 lights="enhanced,fixed,actuated"
 
-$dica experiment --layout ch45 --algorithms "$lights" --volumes 100,200,300,400,500,600,800,1000 \
+$dica experiment --layout ch45 --algorithms "$lights" --volumes 100,200,300,400,500,600,800,1000,1200 \
   --ramps 100-1000 --seeds "$seeds" --out "$out/ch45"
 for layout in skewed tee; do
   $dica experiment --layout "$layout" --algorithms "$lights" --volumes 100,300,500,600,800,1000 \
