@@ -147,6 +147,7 @@ class Dica:
         # with exit spacing: per exit lane, recent vehicles whose reservation has ended
         # (rear out of the junction): (time out, speed out, vin)
         self._left: dict[str, list[tuple[float, float, str]]] = {}
+        self._exit_cache: tuple[int, dict[str, list[tuple[float, float, str]]]] = (-1, {})
         k, caps = self.config.kinematics, self.config.caps
         self.handover = Handover(caps.road_mps, k.accel_mps2, k.decel_mps2)
 
@@ -352,14 +353,26 @@ class Dica:
         out_s = float(dtot.t_s[-1])
         v = dtot.exit_speed_mps + self.config.speed_tol_mps
         worst: Conflict | None = None
-        for vin, c in self._confirmed.items():
-            d = c.dtot
-            if d.route.out_lane != route.out_lane or d.exit_speed_mps <= v:
+        for t_out, v_out, vin in self._exits(route.out_lane):
+            if v_out <= v:
                 continue
-            need = float(d.t_s[-1]) + self.config.step_s  # its padded reservation's end
+            need = t_out + self.config.step_s  # its padded reservation's end
             if need > out_s and (worst is None or need - out_s > worst.delay_s):
                 worst = Conflict(vin, out_s, need - out_s)
         return worst
+
+    def _exits(self, out_lane: str) -> list[tuple[float, float, str]]:
+        """(time out, speed out, vin) of the confirmed vehicles leaving by ``out_lane``,
+        worked out once per confirmed set (a request's rounds ask for them each time)."""
+        if self._exit_cache[0] != self._version:
+            by_lane: dict[str, list[tuple[float, float, str]]] = {}
+            for vin, c in self._confirmed.items():
+                d = c.dtot
+                by_lane.setdefault(d.route.out_lane, []).append(
+                    (float(d.t_s[-1]), d.exit_speed_mps, vin)
+                )
+            self._exit_cache = (self._version, by_lane)
+        return self._exit_cache[1].get(out_lane, [])
 
     def exit_spacing(self, route: Route, dtot: Dtot) -> Conflict | None:
         """The hand-over beyond the junction: a plan that leaves by an exit lane faster
@@ -372,14 +385,8 @@ class Dica:
         length = dtot.shape.length_m
         tol = self.config.speed_tol_mps
         pad = 2.0 * self.config.time_pad_s
-        ahead = [
-            (float(c.dtot.t_s[-1]), c.dtot.exit_speed_mps, vin)
-            for vin, c in self._confirmed.items()
-            if c.dtot.route.out_lane == route.out_lane
-        ]
-        ahead += self._left.get(route.out_lane, [])
         worst: Conflict | None = None
-        for t_out, v_out, vin in ahead:
+        for t_out, v_out, vin in self._exits(route.out_lane) + self._left.get(route.out_lane, []):
             if t_out > out_s or v_out >= v - tol:
                 continue
             need = t_out + self.handover.separation_s(v_out, v, length) + pad
@@ -436,6 +443,7 @@ class Dica:
         leader: Confirmed | None,
         cap: float,
     ) -> tuple[Dtot, int, float]:
+        """Algorithm 1's rounds under crossing speed cap ``cap``."""
         cfg = self.config
         s_end = route.cross_length_m + shape.length_m
         planner = Planner(
@@ -462,17 +470,23 @@ class Dica:
         behind_s = 2.0 * cfg.time_pad_s + cfg.headway_s
         if lag is not None and behind_s > 0.0:
             lag = Trajectory(lag.t0_s + behind_s, lag.step_s, lag.s_m)
+        b_wait: float | None = None  # the current plan's wait if of the stop family
+        first_round = 1
         if self._compiled_rounds():
             found = self._resolve_compiled(
                 req, route, shape, traj, leader, lag, planner, grid, s_end
             )
-            if found is not None and self._exit_conflict(route, found[0]) is None:
-                return found[0], found[1], earliest
             # the compiled loop stops where this loop raises (let it raise, with its
-            # message), and knows nothing of the exit order: this loop adds it
+            # message), and knows nothing of the exit rules: this loop adds them,
+            # going on from the compiled loop's plan (its rounds are this loop's)
+            if found is not None:
+                if self._exit_conflict(route, found[0]) is None:
+                    return found[0], found[1], earliest
+                traj, first_round = found[0].trajectory, found[1]
+                if first_round > 1:
+                    b_wait = planner.stop_wait_s(traj.entry_time_s() - req.t0_s)
 
-        b_wait: float | None = None  # the current plan's wait if of the stop family
-        for iteration in range(1, cfg.max_iterations + 1):
+        for iteration in range(first_round, cfg.max_iterations + 1):
             dtot = build_dtot(route, shape, traj, cfg.margin_m, grid, cfg.techniques.estimated_oti)
             conflicts = self.conflicts(dtot)
             if leader is not None:
