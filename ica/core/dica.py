@@ -49,7 +49,7 @@ from ica.core.conflict import (
 from ica.core.dtot import Dtot, build_dtot
 from ica.core.handover import Handover
 from ica.core.intersection import Intersection
-from ica.core.kernels import BLOCKED, RESOLVED, resolve_rounds
+from ica.core.kernels import BLOCKED, RESOLVED, TOO_LATE, resolve_rounds
 from ica.core.planner import Planner
 from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
 from ica.core.route import Route
@@ -66,6 +66,10 @@ class Confirmed:
     dtot: Dtot  # intervals padded by 2 x time_pad_s: conflicts are judged against this
     confirmation: Confirmation
     packed: np.ndarray  # the DTOT's occupancies as rows for the batched getCV (pack)
+
+
+def _too_late(max_wait_s: float) -> RequestError:
+    return RequestError(Reason.INFEASIBLE, f"no conflict-free entry within {max_wait_s:.0f} s")
 
 
 def _blocked(vin: str, leader: str) -> RequestError:
@@ -406,9 +410,8 @@ class Dica:
         """checkFV: a vehicle may not cross faster than the slowest confirmed
         vehicle leaving by the same exit lane (which covers the same route ahead)."""
         cap = route.speed_cap_mps
-        for c in self._confirmed.values():
-            if c.dtot.route.out_lane == route.out_lane:
-                cap = min(cap, max(c.dtot.exit_speed_mps, self.config.kinematics.min_cross_mps))
+        for _, v_out, _ in self._exits(route.out_lane):
+            cap = min(cap, max(v_out, self.config.kinematics.min_cross_mps))
         return cap
 
     def _resolve_best(
@@ -428,8 +431,10 @@ class Dica:
             capped = self._resolve(req, route, shape, traj, leader, cap)
         except RequestError:
             return self._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
+        # a plan entering after the capped one leaves cannot leave first: stop looking there
+        give_up = min(self.config.max_wait_s, float(capped[0].t_s[-1]) - req.t0_s)
         try:
-            fast = self._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
+            fast = self._resolve(req, route, shape, traj, leader, route.speed_cap_mps, give_up)
         except RequestError:
             return capped
         return fast if fast[0].t_s[-1] < capped[0].t_s[-1] else capped
@@ -442,9 +447,13 @@ class Dica:
         traj: Trajectory,
         leader: Confirmed | None,
         cap: float,
+        max_wait_s: float | None = None,
     ) -> tuple[Dtot, int, float]:
-        """Algorithm 1's rounds under crossing speed cap ``cap``."""
+        """Algorithm 1's rounds under crossing speed cap ``cap``, giving up on an entry
+        more than ``max_wait_s`` after the state (default: the configured limit)."""
         cfg = self.config
+        if max_wait_s is None:
+            max_wait_s = cfg.max_wait_s
         s_end = route.cross_length_m + shape.length_m
         planner = Planner(
             d_m=max(req.dist_to_entry_m, 0.0),
@@ -470,23 +479,34 @@ class Dica:
         behind_s = 2.0 * cfg.time_pad_s + cfg.headway_s
         if lag is not None and behind_s > 0.0:
             lag = Trajectory(lag.t0_s + behind_s, lag.step_s, lag.s_m)
-        b_wait: float | None = None  # the current plan's wait if of the stop family
-        first_round = 1
         if self._compiled_rounds():
-            found = self._resolve_compiled(
-                req, route, shape, traj, leader, lag, planner, grid, s_end
-            )
-            # the compiled loop stops where this loop raises (let it raise, with its
-            # message), and knows nothing of the exit rules: this loop adds them,
-            # going on from the compiled loop's plan (its rounds are this loop's)
-            if found is not None:
-                if self._exit_conflict(route, found[0]) is None:
+            # the compiled loop knows nothing of the exit rules: a plan of it that breaks
+            # one is delayed here as the loop below would, and the compiled loop goes on
+            # from there (its rounds are the loop's); where it would raise, the loop
+            # below runs from the start and raises with its message
+            first_round, b_wait0, plan = 1, -1.0, traj
+            while True:
+                found = self._resolve_compiled(
+                    req, route, shape, plan, leader, lag, planner, grid, s_end, max_wait_s,
+                    first_round, b_wait0,
+                )  # fmt: skip
+                if found is None:
+                    break
+                late = self._exit_conflict(route, found[0])
+                if late is None:
                     return found[0], found[1], earliest
-                traj, first_round = found[0].trajectory, found[1]
-                if first_round > 1:
-                    b_wait = planner.stop_wait_s(traj.entry_time_s() - req.t0_s)
+                target = found[0].trajectory.entry_time_s() - req.t0_s
+                target += max(late.delay_s, cfg.step_s)
+                if target > max_wait_s:
+                    raise _too_late(max_wait_s)
+                if found[1] >= cfg.max_iterations:
+                    break
+                wait = planner.stop_wait_s(target)
+                first_round, b_wait0 = found[1] + 1, -1.0 if wait is None else wait
+                plan = self._plan(planner, req.t0_s, target, s_end)
 
-        for iteration in range(first_round, cfg.max_iterations + 1):
+        b_wait: float | None = None  # the current plan's wait if of the stop family
+        for iteration in range(1, cfg.max_iterations + 1):
             dtot = build_dtot(route, shape, traj, cfg.margin_m, grid, cfg.techniques.estimated_oti)
             conflicts = self.conflicts(dtot)
             if leader is not None:
@@ -510,10 +530,8 @@ class Dica:
                 return dtot, iteration, earliest
             first = conflicts[0]
             target = traj.entry_time_s() - req.t0_s + max(first.delay_s, cfg.step_s)
-            if target > cfg.max_wait_s:
-                raise RequestError(
-                    Reason.INFEASIBLE, f"no conflict-free entry within {cfg.max_wait_s:.0f} s"
-                )
+            if target > max_wait_s:
+                raise _too_late(max_wait_s)
             b_wait = planner.stop_wait_s(target)
             traj = self._plan(planner, req.t0_s, target, s_end)
         raise RequestError(
@@ -543,6 +561,9 @@ class Dica:
         planner: Planner,
         grid: RouteGrid,
         s_end: float,
+        max_wait_s: float,
+        first_round: int = 1,
+        b_wait0: float = -1.0,
     ) -> tuple[Dtot, int] | None:
         """The loop of :meth:`_resolve` in one compiled call
         (:func:`ica.core.kernels.resolve_rounds`): the same plans round for
@@ -568,10 +589,12 @@ class Dica:
             g.packed, g.vid, batch.m, batch.row, batch.row_lo, batch.row_hi, batch.codes,
             batch.width, len(g.vins),
             *lead_args, 2.0 * cfg.margin_m,
-            cfg.max_iterations, cfg.max_wait_s,
+            cfg.max_iterations, max_wait_s, first_round, b_wait0,
         )  # fmt: skip
         if status == BLOCKED:
             raise _blocked(req.vin, leader.vin if leader is not None else "")
+        if status == TOO_LATE:
+            raise _too_late(max_wait_s)
         if status != RESOLVED:
             return None
         final = Trajectory(req.t0_s, cfg.step_s, s)

@@ -58,9 +58,11 @@ class Dtot:
 
     @property
     def exit_speed_mps(self) -> float:
-        v = self.trajectory.speeds()
-        k = self.k0 + len(self.t_s) - 2
-        return float(v[min(max(k, 0), len(v) - 1)]) if len(v) else 0.0
+        s = self.trajectory.s_m
+        if len(s) < 2:
+            return 0.0
+        k = min(max(self.k0 + len(self.t_s) - 2, 0), len(s) - 2)
+        return float(s[k + 1] - s[k]) / self.trajectory.step_s
 
 
 def build_dtot(

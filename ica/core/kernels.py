@@ -871,8 +871,9 @@ _EPS_PLAN = 1e-9  # as in ica.core.planner._EPS
 _MAX_SEGS = 16  # a plan has at most 7 segments (stop family), 6 (slow-down family)
 
 # resolve_rounds' status; BLOCKED: a stop-family plan meets the lane leader where every
-# later stop-family plan goes too (the vehicle must stop behind the leader first)
-RESOLVED, FALL_BACK, BLOCKED = 0, 1, 2
+# later stop-family plan goes too (the vehicle must stop behind the leader first);
+# TOO_LATE: the next entry would be later than ``max_wait_s``
+RESOLVED, FALL_BACK, BLOCKED, TOO_LATE = 0, 1, 2, 3
 
 
 @njit(cache=True, nogil=True)
@@ -1003,7 +1004,7 @@ def _entry_time(t0: float, step: float, s: np.ndarray) -> float:
     " float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1],"
     " int8[::1], int64, int64,"  # confirmed batch
     " boolean, float64, float64, float64[::1], float64, float64,"  # lane leader
-    " int64, float64)",
+    " int64, float64, int64, float64)",  # max_iterations, max_wait_s, first_round, b_wait0
     cache=True,
     nogil=True,
 )
@@ -1019,15 +1020,17 @@ def resolve_rounds(
     row_lo: np.ndarray, row_hi: np.ndarray, codes: np.ndarray, width: int, nv: int,
     has_leader: bool, lead_t0: float, lead_step: float, lead_s: np.ndarray,
     lead_length_m: float, gap_m: float,
-    max_iterations: int, max_wait_s: float,
+    max_iterations: int, max_wait_s: float, first_round: int, b_wait0: float,
 ) -> tuple[int, int, np.ndarray]:  # fmt: skip
     """The rounds of ``Dica._resolve`` (enhanced DICA) from the first plan ``s_init``.
 
     Returns (RESOLVED, rounds, the conflict-free plan's samples), BLOCKED
-    (see the constant), or FALL_BACK where the Python loop raises (no plan, the wait or the round
-    limit exceeded, the state too close to the lane leader, a plan that never
-    leaves): the caller then runs the Python loop, which raises with its
-    message. The planner's constants per request come from
+    (see the constant), TOO_LATE (the wait exceeded), or FALL_BACK where the Python
+    loop raises (no plan, the round limit exceeded, the state too close to the lane
+    leader, a plan that never leaves): the caller then runs the Python loop, which
+    raises with its message. ``first_round`` and ``b_wait0`` (-1: none) go on from
+    a round the caller made (a delay for an exit rule, which this loop does not
+    know). The planner's constants per request come from
     ``Planner.plan_constants``; the confirmed set from ``ConfirmedBatch``.
     """
     segs = np.empty((_MAX_SEGS, 4))
@@ -1046,8 +1049,8 @@ def resolve_rounds(
     order = np.argsort(lbs)
     m_s, row_s, lo_s, hi_s = m_idx[order], row[order], row_lo[order], row_hi[order]
     s = s_init
-    b_wait = -1.0  # the current plan's wait if it is of the stop family, else -1
-    for it in range(1, max_iterations + 1):
+    b_wait = b_wait0  # the current plan's wait if it is of the stop family, else -1
+    for it in range(first_round, max_iterations + 1):
         # the DTOT (ica.core.dtot.build_dtot with the grid)
         k0, k1 = dtot_span(s, s_end)
         sd = s[k0 : k1 + 1].copy()
@@ -1102,7 +1105,7 @@ def resolve_rounds(
             return RESOLVED, it, s
         target = _entry_time(t0, step, s) - t0 + _py_max(best_delay, step)
         if target > max_wait_s:
-            return FALL_BACK, it, s
+            return TOO_LATE, it, s
         # the next plan: Planner.at_or_after, then sample
         if not hi_ok:
             return FALL_BACK, it, s
