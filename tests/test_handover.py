@@ -148,3 +148,60 @@ def test_heavy_traffic_with_exit_spacing_is_safe_and_waits_less(tmp_path):
         assert cfg["run"]["exit_spacing"] is (name == "spaced")
         out[name] = m["mean_system_delay_s"]
     assert out["spaced"] < out["capped"], out
+
+
+def _turner_then_through(ica: Dica, ch45, t: float) -> Confirmation:
+    ica.detect("c", THROUGH[0], t)
+    req = propose(
+        ch45.route(*THROUGH), vin="c", seq=0, t0_s=t, dist_to_entry_m=30.0, speed_mps=15.0,
+        config=ica.config,
+    )  # fmt: skip
+    conf = ica.handle(req, t)
+    assert isinstance(conf, Confirmation)
+    return conf
+
+
+@pytest.mark.parametrize("case", ["restarted", "remembered", "forgotten"])
+def test_exits_are_remembered_across_a_restart_and_for_the_memory_s_length(ch45, tmp_path, case):
+    """An ICA restarted from its journal still spaces a through vehicle behind the
+    right-turner that left just before (the first advance files it among the exits);
+    the memory keeps a vehicle LEFT_MEMORY_S after it left, and no longer."""
+    from ica.core.dica import LEFT_MEMORY_S
+    from ica.journal import Journal, replay
+
+    cfg = controller_config("enhanced", 0.25, platoon=True, headway_s=0.3)
+    ica = make_controller("enhanced", ch45, cfg)
+    journal = Journal(tmp_path / "ica.journal")
+    ica.advance(0.0)
+    ica.detect("a", RIGHT[0], 0.0)
+    journal.detect("a", RIGHT[0], 0.0)
+    req = propose(
+        ch45.route(*RIGHT), vin="a", seq=0, t0_s=0.0, dist_to_entry_m=10.0, speed_mps=25 / 3.6,
+        config=ica.config,
+    )  # fmt: skip
+    conf_a = ica.handle(req, 0.0)
+    assert isinstance(conf_a, Confirmation)
+    journal.confirm(conf_a, 5.0, 1.8, RIGHT[0])
+    journal.close()
+    a = ica.confirmed["a"].dtot
+    out_s = float(a.t_s[-1])
+    if case == "restarted":
+        ica = make_controller("enhanced", ch45, cfg)
+        assert replay(tmp_path / "ica.journal", ica).confirmations == 1
+        t = float(a.end_s) + 0.01
+    elif case == "remembered":
+        ica.advance(float(a.end_s) + 0.01)
+        t = out_s + LEFT_MEMORY_S - 0.05
+    else:
+        ica.advance(float(a.end_s) + 0.01)
+        t = out_s + LEFT_MEMORY_S + 0.05
+    ica.advance(t)
+    assert "a" not in ica.confirmed
+    remembered = ica._left.get(RIGHT[1], [])
+    assert [r[2] for r in remembered] == ([] if case == "forgotten" else ["a"])
+    if case == "restarted":
+        _turner_then_through(ica, ch45, t)
+        c = ica.confirmed["c"].dtot
+        sep = ica.handover.separation_s(a.exit_speed_mps, c.exit_speed_mps, 5.0)
+        assert c.exit_speed_mps > a.exit_speed_mps + 5.0
+        assert c.t_s[-1] >= out_s + sep - 1e-9
