@@ -103,6 +103,31 @@ def test_a_through_vehicle_leaves_fast_behind_a_right_turner_at_the_separation(c
     )
 
 
+def ask_right_turner(ica: Dica, inter) -> Confirmation:
+    """A right-turner 10 m before the line at its 25 km/h cap, asking at t = 0."""
+    ica.advance(0.0)
+    ica.detect("a", RIGHT[0], 0.0)
+    req = propose(
+        inter.route(*RIGHT), vin="a", seq=0, t0_s=0.0, dist_to_entry_m=10.0, speed_mps=25 / 3.6,
+        config=ica.config,
+    )  # fmt: skip
+    conf = ica.handle(req, 0.0)
+    assert isinstance(conf, Confirmation)
+    return conf
+
+
+def ask_through(ica: Dica, inter, t: float) -> Confirmation:
+    """A through vehicle onto the right-turner's exit lane, 30 m out at 15 m/s at ``t``."""
+    ica.detect("c", THROUGH[0], t)
+    req = propose(
+        inter.route(*THROUGH), vin="c", seq=0, t0_s=t, dist_to_entry_m=30.0, speed_mps=15.0,
+        config=ica.config,
+    )  # fmt: skip
+    conf = ica.handle(req, t)
+    assert isinstance(conf, Confirmation)
+    return conf
+
+
 @pytest.mark.parametrize("pad", [0.0, 0.2])
 def test_a_vehicle_that_has_left_still_spaces_the_next(ch45, pad):
     """The right-turner's reservation ends (its rear is out); a through vehicle
@@ -111,23 +136,11 @@ def test_a_vehicle_that_has_left_still_spaces_the_next(ch45, pad):
     pad each may be that far off its plan, and the separation grows by twice it."""
     cfg = controller_config("enhanced", 0.25, pad, platoon=True, headway_s=0.3)
     ica = make_controller("enhanced", ch45, cfg)
-    ica.advance(0.0)
-    ica.detect("a", RIGHT[0], 0.0)
-    req = propose(
-        ch45.route(*RIGHT), vin="a", seq=0, t0_s=0.0, dist_to_entry_m=10.0, speed_mps=25 / 3.6,
-        config=ica.config,
-    )  # fmt: skip
-    assert isinstance(ica.handle(req, 0.0), Confirmation)
+    ask_right_turner(ica, ch45)
     a = ica.confirmed["a"].dtot
     t = float(a.end_s) + 0.01
     assert ica.advance(t) == ["a"] and "a" not in ica.confirmed
-    ica.detect("c", THROUGH[0], t)
-    req = propose(
-        ch45.route(*THROUGH), vin="c", seq=0, t0_s=t, dist_to_entry_m=30.0, speed_mps=15.0,
-        config=ica.config,
-    )  # fmt: skip
-    conf = ica.handle(req, t)
-    assert isinstance(conf, Confirmation) and conf.delay_s > 0.2  # held back for the spacing
+    assert ask_through(ica, ch45, t).delay_s > 0.2  # held back for the spacing
     c = ica.confirmed["c"].dtot
     assert c.exit_speed_mps > a.exit_speed_mps + 5.0
     sep = ica.handover.separation_s(a.exit_speed_mps, c.exit_speed_mps, 5.0)
@@ -150,17 +163,6 @@ def test_heavy_traffic_with_exit_spacing_is_safe_and_waits_less(tmp_path):
     assert out["spaced"] < out["capped"], out
 
 
-def _turner_then_through(ica: Dica, ch45, t: float) -> Confirmation:
-    ica.detect("c", THROUGH[0], t)
-    req = propose(
-        ch45.route(*THROUGH), vin="c", seq=0, t0_s=t, dist_to_entry_m=30.0, speed_mps=15.0,
-        config=ica.config,
-    )  # fmt: skip
-    conf = ica.handle(req, t)
-    assert isinstance(conf, Confirmation)
-    return conf
-
-
 @pytest.mark.parametrize("case", ["restarted", "remembered", "forgotten"])
 def test_exits_are_remembered_across_a_restart_and_for_the_memory_s_length(ch45, tmp_path, case):
     """An ICA restarted from its journal still spaces a through vehicle behind the
@@ -172,15 +174,8 @@ def test_exits_are_remembered_across_a_restart_and_for_the_memory_s_length(ch45,
     cfg = controller_config("enhanced", 0.25, platoon=True, headway_s=0.3)
     ica = make_controller("enhanced", ch45, cfg)
     journal = Journal(tmp_path / "ica.journal")
-    ica.advance(0.0)
-    ica.detect("a", RIGHT[0], 0.0)
+    conf_a = ask_right_turner(ica, ch45)
     journal.detect("a", RIGHT[0], 0.0)
-    req = propose(
-        ch45.route(*RIGHT), vin="a", seq=0, t0_s=0.0, dist_to_entry_m=10.0, speed_mps=25 / 3.6,
-        config=ica.config,
-    )  # fmt: skip
-    conf_a = ica.handle(req, 0.0)
-    assert isinstance(conf_a, Confirmation)
     journal.confirm(conf_a, 5.0, 1.8, RIGHT[0])
     journal.close()
     a = ica.confirmed["a"].dtot
@@ -200,7 +195,7 @@ def test_exits_are_remembered_across_a_restart_and_for_the_memory_s_length(ch45,
     remembered = ica._left.get(RIGHT[1], [])
     assert [r[2] for r in remembered] == ([] if case == "forgotten" else ["a"])
     if case == "restarted":
-        _turner_then_through(ica, ch45, t)
+        ask_through(ica, ch45, t)
         c = ica.confirmed["c"].dtot
         sep = ica.handover.separation_s(a.exit_speed_mps, c.exit_speed_mps, 5.0)
         assert c.exit_speed_mps > a.exit_speed_mps + 5.0
