@@ -66,6 +66,13 @@ class Confirmed:
     dtot: Dtot  # intervals padded by 2 x time_pad_s: conflicts are judged against this
     confirmation: Confirmation
     packed: np.ndarray  # the DTOT's occupancies as rows for the batched getCV (pack)
+    out_s: float  # when its rear leaves the junction, and at what speed (the exit rules)
+    out_mps: float
+
+    @classmethod
+    def of(cls, vin: str, dtot: Dtot, confirmation: Confirmation) -> Confirmed:
+        """Keep what each later request asks of this reservation, worked out once."""
+        return cls(vin, dtot, confirmation, pack(dtot), float(dtot.t_s[-1]), dtot.exit_speed_mps)
 
 
 def _too_late(max_wait_s: float) -> RequestError:
@@ -184,10 +191,8 @@ class Dica:
         gone = [vin for vin, c in self._confirmed.items() if c.dtot.end_s < now_s]
         if self.config.exit_spacing:
             for vin in gone:
-                d = self._confirmed[vin].dtot
-                self._left.setdefault(d.route.out_lane, []).append(
-                    (float(d.t_s[-1]), d.exit_speed_mps, vin)
-                )
+                c = self._confirmed[vin]
+                self._left.setdefault(c.dtot.route.out_lane, []).append((c.out_s, c.out_mps, vin))
             for lane, rows in self._left.items():
                 self._left[lane] = [r for r in rows if r[0] > now_s - LEFT_MEMORY_S]
         for vin in gone:
@@ -240,7 +245,7 @@ class Dica:
             route, shape, traj, self.config.margin_m, grid, self.config.techniques.estimated_oti
         )
         dtot = padded(dtot, 2.0 * self.config.time_pad_s)
-        done = Confirmed(confirmation.vin, dtot, confirmation, pack(dtot))
+        done = Confirmed.of(confirmation.vin, dtot, confirmation)
         if confirmation.vin in self._confirmed:  # replaced in place: keep the set's order
             self._confirmed[confirmation.vin] = done
             self._rows = ConfirmedRows()
@@ -343,7 +348,7 @@ class Dica:
             iterations=iterations,
         )
         stored = padded(dtot, 2.0 * self.config.time_pad_s)
-        done = Confirmed(req.vin, stored, conf, pack(stored))
+        done = Confirmed.of(req.vin, stored, conf)
         self._confirmed[req.vin] = done
         self._rows.add(req.vin, stored, done.packed)
         self._version += 1
@@ -371,10 +376,7 @@ class Dica:
         if self._exit_cache[0] != self._version:
             by_lane: dict[str, list[tuple[float, float, str]]] = {}
             for vin, c in self._confirmed.items():
-                d = c.dtot
-                by_lane.setdefault(d.route.out_lane, []).append(
-                    (float(d.t_s[-1]), d.exit_speed_mps, vin)
-                )
+                by_lane.setdefault(c.dtot.route.out_lane, []).append((c.out_s, c.out_mps, vin))
             self._exit_cache = (self._version, by_lane)
         return self._exit_cache[1].get(out_lane, [])
 
@@ -408,10 +410,15 @@ class Dica:
 
     def front_cap_mps(self, route: Route) -> float:
         """checkFV: a vehicle may not cross faster than the slowest confirmed
-        vehicle leaving by the same exit lane (which covers the same route ahead)."""
+        vehicle leaving by the same exit lane (which covers the same route ahead).
+
+        An exit speed read from a plan's samples that is its route's cap up to
+        rounding (1e-9 m/s) does not bind: the plans would differ by rounding alone,
+        and exit spacing would plan the request twice for nothing."""
         cap = route.speed_cap_mps
         for _, v_out, _ in self._exits(route.out_lane):
-            cap = min(cap, max(v_out, self.config.kinematics.min_cross_mps))
+            if v_out < route.speed_cap_mps - 1e-9:
+                cap = min(cap, max(v_out, self.config.kinematics.min_cross_mps))
         return cap
 
     def _resolve_best(
@@ -703,7 +710,7 @@ class Dica:
             delay_s=max(0.0, entry - earliest),
             iterations=iterations,
         )
-        done = Confirmed(vin, dtot, conf, pack(dtot))
+        done = Confirmed.of(vin, dtot, conf)
         self._confirmed[vin] = done
         self._rows.add(vin, dtot, done.packed)
         self._version += 1

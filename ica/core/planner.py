@@ -347,6 +347,8 @@ class Planner:
         time, v_lo, lo fits, its entry time, the stop plan's earliest entry,
         the stop-at-the-line base as segments and as the builder's (t, s, v))."""
         m = self._entry_memo()
+        if "constants" in m:
+            return m["constants"]
         hi, lo = m["hi"], m["lo"]
         if "t_b0" not in m:
             m["t_b0"] = self.stop_entry_s()
@@ -357,11 +359,12 @@ class Planner:
             state = np.array([t, s, v], dtype=float)
         else:
             base, state = np.zeros((0, 4)), np.zeros(3)
-        return (
+        m["constants"] = (
             m["v_hi"], hi is not None, hi[3] if hi is not None else 0.0,
             m["v_lo"], lo is not None, lo[3] if lo is not None else 0.0,
             t_b0, base, state,
         )  # fmt: skip
+        return m["constants"]
 
     def stop_wait_s(self, t_entry_s: float) -> float | None:
         """The wait of the plan :meth:`at_or_after` gives if it is of the stop family,
