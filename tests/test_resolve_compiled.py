@@ -39,20 +39,26 @@ def _resolve(resolve, ica: Dica, compiled: bool, args: tuple):
 
 
 @pytest.mark.parametrize(
-    ("junction", "volume", "seed", "variant"),
+    ("junction", "volume", "seed", "variant", "exit_spacing"),
     [
-        ("ch45", 3000.0, 3, "enhanced"),
-        ("ch45", 6000.0, 12, "enhanced"),
-        ("skewed", 2500.0, 7, "enhanced"),
-        ("tee", 2500.0, 9, "enhanced"),
-        ("ch45", 6000.0, 12, "t1+2+3+4"),
-        ("skewed", 2500.0, 7, "t1+2+3+4"),
+        ("ch45", 3000.0, 3, "enhanced", False),
+        ("ch45", 6000.0, 12, "enhanced", False),
+        ("skewed", 2500.0, 7, "enhanced", False),
+        ("tee", 2500.0, 9, "enhanced", False),
+        ("ch45", 6000.0, 12, "t1+2+3+4", False),
+        ("skewed", 2500.0, 7, "t1+2+3+4", False),
+        ("ch45", 3000.0, 3, "enhanced", True),
+        ("skewed", 2500.0, 7, "enhanced", True),
     ],
 )
-def test_compiled_rounds_equal_python_rounds(request, monkeypatch, junction, volume, seed, variant):
+def test_compiled_rounds_equal_python_rounds(
+    request, monkeypatch, junction, volume, seed, variant, exit_spacing
+):
     """Every request of a heavy stream is resolved both ways, from the same
     state: same plan, DTOT, rounds and earliest entry, or the same rejection.
-    Both kinds of technique 3's intervals: exact, and the dissertation's."""
+    Both kinds of technique 3's intervals: exact, and the dissertation's; with
+    exit spacing the compiled loop goes on after each exit delay, and each
+    request may be resolved twice (capped and fast), both ways each time."""
     inter = request.getfixturevalue(junction)
     python_loop = Dica._resolve
     seen = {"requests": 0, "rounds": 0, "raised": 0, "stops": 0}
@@ -77,6 +83,15 @@ def test_compiled_rounds_equal_python_rounds(request, monkeypatch, junction, vol
         return build_b(self, wait_s)
 
     monkeypatch.setattr(Planner, "_build_b", counted)
+    exit_conflict = Dica._exit_conflict
+
+    def delayed(self: Dica, *args):
+        late = exit_conflict(self, *args)
+        seen["exit_delays"] += late is not None
+        return late
+
+    monkeypatch.setattr(Dica, "_exit_conflict", delayed)
+    seen["exit_delays"] = 0
     spec = StreamSpec(
         volume_per_10min=volume,
         n_vehicles=60,
@@ -84,11 +99,14 @@ def test_compiled_rounds_equal_python_rounds(request, monkeypatch, junction, vol
         length_range_m=(3.5, 7.5),
         width_range_m=(1.6, 2.3),
     )
-    res = run_stream(inter, IcaConfig(techniques=Techniques.parse(variant)), spec)
+    cfg = IcaConfig(techniques=Techniques.parse(variant), exit_spacing=exit_spacing)
+    res = run_stream(inter, cfg, spec)
     assert len(res.confirmed) == len(res.vehicles)
     assert seen["stops"] > 0  # plans of the stop family too
     assert seen["requests"] >= 60
     assert seen["rounds"] > 3 * seen["requests"]  # most requests took several rounds
+    if exit_spacing:
+        assert seen["exit_delays"] > 0  # exit rules delayed plans: the compiled loop went on
 
 
 def test_compiled_rounds_only_for_enhanced(ch45):
