@@ -335,3 +335,22 @@ def test_an_old_journal_without_the_flag_still_replays(ch45, tmp_path):
     assert isinstance(ev, Confirmation) and ica.take_reorders() == []
     plain = Dica(ch45, CFG)
     assert replay(path, plain).detects == 2  # and into plain DICA too
+
+
+def test_a_revised_confirmation_is_held_with_the_time_pad_like_any_other(ch45):
+    """Under a time pad every reservation is judged with its intervals grown by twice
+    the pad, as each of two vehicles may be that far off its plan. A confirmation
+    revised for an EV is held so too: exactly as a restarted ICA rebuilds it from the
+    journal (which pads every confirmation it adopts)."""
+    cfg = IcaConfig(time_pad_s=0.2)
+    ica = ReactiveDica(ch45, cfg)
+    scene(ica, ch45)
+    start_event(ica, ch45)
+    assert ica.acknowledge("w1") == []
+    assert isinstance(ev_request(ica, ch45, seq=1), Confirmation)
+    [w1] = ica.take_confirmations()
+    held = ica.confirmed["w1"].dtot
+    rebuilt = Dica(ch45, cfg, tables=ica.tables)
+    rebuilt.adopt(w1, 5.0, 1.8, CROSS[0])
+    want = rebuilt.confirmed["w1"].dtot
+    assert np.array_equal(held.lb_s, want.lb_s) and np.array_equal(held.ub_s, want.ub_s)

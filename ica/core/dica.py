@@ -335,11 +335,20 @@ class Dica:
 
         leader = self._leader(req.vin, lane)
         dtot, iterations, earliest = self._resolve_best(req, route, shape, traj, leader)
+        return self._store(req.vin, req.seq, dtot, iterations, earliest, req.length_m)
+
+    def _store(
+        self, vin: str, seq: int, dtot: Dtot, iterations: int, earliest: float, length_m: float
+    ) -> Confirmation:
+        """Confirm ``dtot`` to ``vin`` (its TSS drawn for a vehicle ``length_m`` long):
+        the answer, and the reservation held with its intervals grown by twice the time
+        pad, as :meth:`adopt` rebuilds it."""
+        route = dtot.route
         entry = dtot.trajectory.entry_time_s()
-        front, heading = dtot.trajectory.xy_heading(route, req.length_m)
+        front, heading = dtot.trajectory.xy_heading(route, length_m)
         conf = Confirmation(
-            vin=req.vin,
-            seq=req.seq,
+            vin=vin,
+            seq=seq,
             route_id=route.id,
             tss=Tss(dtot.trajectory.t_s, front[:, 0].copy(), front[:, 1].copy(), heading),
             entry_time_s=entry,
@@ -348,9 +357,9 @@ class Dica:
             iterations=iterations,
         )
         stored = padded(dtot, 2.0 * self.config.time_pad_s)
-        done = Confirmed.of(req.vin, stored, conf)
-        self._confirmed[req.vin] = done
-        self._rows.add(req.vin, stored, done.packed)
+        done = Confirmed.of(vin, stored, conf)
+        self._confirmed[vin] = done
+        self._rows.add(vin, stored, done.packed)
         self._version += 1
         return conf
 
@@ -698,23 +707,7 @@ class Dica:
         )  # fmt: skip
         leader = self._confirmed.get(leader_vin) if leader_vin is not None else None
         dtot, iterations, earliest = self._resolve_best(req, route, shape, traj, leader)
-        entry = dtot.trajectory.entry_time_s()
-        front, heading = dtot.trajectory.xy_heading(route, shape.length_m)
-        conf = Confirmation(
-            vin=vin,
-            seq=seq,
-            route_id=route.id,
-            tss=Tss(dtot.trajectory.t_s, front[:, 0].copy(), front[:, 1].copy(), heading),
-            entry_time_s=entry,
-            exit_time_s=float(dtot.t_s[-1]),
-            delay_s=max(0.0, entry - earliest),
-            iterations=iterations,
-        )
-        done = Confirmed.of(vin, dtot, conf)
-        self._confirmed[vin] = done
-        self._rows.add(vin, dtot, done.packed)
-        self._version += 1
-        return conf
+        return self._store(vin, seq, dtot, iterations, earliest, shape.length_m)
 
 
 _BATCHED_GET_CV = Dica.conflicts  # the getCV the compiled round loop repeats
