@@ -200,3 +200,36 @@ def test_exits_are_remembered_across_a_restart_and_for_the_memory_s_length(ch45,
         sep = ica.handover.separation_s(a.exit_speed_mps, c.exit_speed_mps, 5.0)
         assert c.exit_speed_mps > a.exit_speed_mps + 5.0
         assert c.t_s[-1] >= out_s + sep - 1e-9
+
+
+def test_an_exit_at_the_route_s_cap_up_to_rounding_does_not_bind_the_cap(ch45, monkeypatch):
+    """A right-turner leaves at its 25 km/h cap as its samples give it (a hair under).
+    For another right-turner onto that exit lane the cap does not bind, and it is
+    planned once; for a through vehicle the right-turner's speed does, and it is
+    planned twice (capped, and fast with exit spacing)."""
+    ica = make_controller("enhanced", ch45, controller_config("enhanced", 0.25, exit_spacing=True))
+    ask_right_turner(ica, ch45)
+    right, through = ch45.route(*RIGHT), ch45.route(*THROUGH)
+    out = ica.confirmed["a"].out_mps
+    assert 0.0 < right.speed_cap_mps - out < 1e-9  # the rounding case
+    assert ica.front_cap_mps(right) == right.speed_cap_mps
+    assert ica.front_cap_mps(through) == out  # a slower vehicle ahead binds
+
+    caps: list[float] = []
+    resolve = Dica._resolve
+
+    def counted(self: Dica, *args, **kw):
+        caps.append(args[5])
+        return resolve(self, *args, **kw)
+
+    monkeypatch.setattr(Dica, "_resolve", counted)
+    ica.detect("d", RIGHT[0], 0.5)  # behind "a", which has begun to enter by t = 2
+    req = propose(
+        right, vin="d", seq=0, t0_s=2.0, dist_to_entry_m=40.0, speed_mps=25 / 3.6,
+        config=ica.config,
+    )  # fmt: skip
+    assert isinstance(ica.handle(req, 2.0), Confirmation)
+    assert caps == [right.speed_cap_mps]
+    caps.clear()
+    ask_through(ica, ch45, 2.0)
+    assert caps == [out, through.speed_cap_mps]
