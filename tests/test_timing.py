@@ -343,7 +343,9 @@ def test_realtime_rdica_with_lossy_agent_links_revokes_safely(tmp_path):
     assert link["agent-1"]["dropped"] > 0
     ica = json.loads((out / "ica.json").read_text())["incarnations"][0]
     r = ica["reactive"]
-    assert r["revoked"] >= 1 and ica["revoke_acks"] >= 1
+    # answers crossed the lossy link: drops, or "kept" from vehicles that could not stop
+    # (which of the two depends on real-time timing: a run with six kept and no drop passes)
+    assert r["revoked"] >= 1 and ica["revoke_acks"] + ica["revoke_kept"] >= 1
     # answered, or its old plan over; only one decided in the run's last moments may be open
     assert r["acknowledged"] + r["restored"] + r["expired"] + r["pending"] == r["revoked"]
     assert r["pending"] == 0 or r["pending_since_s"] > 80 - 1.5
