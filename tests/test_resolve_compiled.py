@@ -61,7 +61,7 @@ def test_compiled_rounds_equal_python_rounds(
     request may be resolved twice (capped and fast), both ways each time."""
     inter = request.getfixturevalue(junction)
     python_loop = Dica._resolve
-    seen = {"requests": 0, "rounds": 0, "raised": 0, "stops": 0}
+    seen = {"requests": 0, "rounds": 0, "raised": 0, "stops": 0, "exit_delays": 0}
 
     def both(self: Dica, *args):
         assert self._compiled_rounds()
@@ -91,7 +91,6 @@ def test_compiled_rounds_equal_python_rounds(
         return late
 
     monkeypatch.setattr(Dica, "_exit_conflict", delayed)
-    seen["exit_delays"] = 0
     spec = StreamSpec(
         volume_per_10min=volume,
         n_vehicles=60,
