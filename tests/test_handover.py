@@ -233,3 +233,14 @@ def test_an_exit_at_the_route_s_cap_up_to_rounding_does_not_bind_the_cap(ch45, m
     caps.clear()
     ask_through(ica, ch45, 2.0)
     assert caps == [out, through.speed_cap_mps]
+
+
+@pytest.mark.parametrize(("under_cap", "binds"), [(1e-10, False), (1e-8, True)])
+def test_the_rounding_allowance_is_1e_9_m_s_and_no_more(ch45, monkeypatch, under_cap, binds):
+    """Either side of the allowance: an exit 1e-10 m/s under the route's cap does not
+    bind the cap, one 1e-8 m/s under does."""
+    ica = make_controller("enhanced", ch45, controller_config("enhanced", 0.25, exit_spacing=True))
+    right = ch45.route(*RIGHT)
+    v_out = right.speed_cap_mps - under_cap
+    monkeypatch.setattr(Dica, "_exits", lambda self, lane: [(5.0, v_out, "a")])
+    assert ica.front_cap_mps(right) == (v_out if binds else right.speed_cap_mps)

@@ -354,3 +354,23 @@ def test_a_revised_confirmation_is_held_with_the_time_pad_like_any_other(ch45):
     rebuilt.adopt(w1, 5.0, 1.8, CROSS[0])
     want = rebuilt.confirmed["w1"].dtot
     assert np.array_equal(held.lb_s, want.lb_s) and np.array_equal(held.ub_s, want.ub_s)
+
+
+def test_a_requested_confirmation_is_held_with_the_time_pad_and_no_more(ch45):
+    """The request path beside the revision above: held grown by twice the pad on each
+    side of the intervals a pad-free ICA holds for the same plan, as a restart
+    rebuilds it; and with no pad, exactly those intervals."""
+    held = {}
+    for pad in (0.0, 0.2):
+        cfg = IcaConfig(time_pad_s=pad)
+        ica = Dica(ch45, cfg)
+        w1 = scene(ica, ch45)
+        held[pad] = ica.confirmed["w1"].dtot
+        rebuilt = Dica(ch45, cfg, tables=ica.tables)
+        rebuilt.adopt(w1, 5.0, 1.8, CROSS[0])
+        want = rebuilt.confirmed["w1"].dtot
+        assert np.array_equal(held[pad].lb_s, want.lb_s)
+        assert np.array_equal(held[pad].ub_s, want.ub_s)
+    assert np.array_equal(held[0.2].t_s, held[0.0].t_s)  # the same plan
+    assert np.allclose(held[0.2].lb_s, held[0.0].lb_s - 0.4)
+    assert np.allclose(held[0.2].ub_s, held[0.0].ub_s + 0.4)
