@@ -75,6 +75,8 @@ def test_first_conflict_is_the_sorted_get_cv_head(request, monkeypatch, junction
                 batch.row_hi[order],
                 batch.codes,
                 batch.width,
+                np.ascontiguousarray(g.packed[batch.m[order], 0]),
+                batch.span_s,
                 bound,
             )
             head = [c for c in found if c.first_time_s <= bound][:1]

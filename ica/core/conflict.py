@@ -250,7 +250,9 @@ class ConfirmedBatch:
     of the route is other than APART from them. ``row`` is each one's row in
     the route's :class:`~ica.core.zones.PairStack`, ``row_lo`` and ``row_hi``
     the first and last grid point of the route not APART from it; ``codes``
-    is the flat stack, ``width`` its row length.
+    is the flat stack, ``width`` its row length. The rows come in ascending
+    ``lb_j``; ``span_s`` is the longest interval among them (NaN if a bound
+    is NaN), for :func:`ica.core.kernels.first_conflict`.
     """
 
     gathered: Gathered
@@ -260,6 +262,7 @@ class ConfirmedBatch:
     row_hi: np.ndarray
     codes: np.ndarray
     width: int
+    span_s: float
 
     def __len__(self) -> int:
         return len(self.m)
@@ -285,10 +288,10 @@ class ConfirmedBatch:
                 offset[key] = off
             first_row[v] = off
         stack = tables.stack(route, shape)  # after the offsets: they may have grown it
-        m, row, lo, hi = select_rows(
+        m, row, lo, hi, span = select_rows(
             gathered.packed, gathered.vid, first_row, stack.row_lo, stack.row_hi
         )
-        return ConfirmedBatch(gathered, m, row, lo, hi, stack.codes, stack.width)
+        return ConfirmedBatch(gathered, m, row, lo, hi, stack.codes, stack.width, span)
 
 
 def get_cv_batch(i: Dtot, batch: ConfirmedBatch) -> list[Conflict]:

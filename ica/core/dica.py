@@ -603,7 +603,7 @@ class Dica:
             grid.fwd_m, grid.back_m,
             shape.length_m / 2.0 + cfg.margin_m, shape.width_m / 2.0 + cfg.margin_m,
             g.packed, g.vid, batch.m, batch.row, batch.row_lo, batch.row_hi, batch.codes,
-            batch.width, len(g.vins),
+            batch.width, len(g.vins), batch.span_s,
             *lead_args, 2.0 * cfg.margin_m,
             cfg.max_iterations, max_wait_s, first_round, b_wait0,
         )  # fmt: skip

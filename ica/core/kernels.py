@@ -517,7 +517,7 @@ def first_conflict(
     lb_i: np.ndarray, ub_i: np.ndarray, g_i: np.ndarray, centre_i: np.ndarray,
     heading_i: np.ndarray, la: float, wa: float, packed: np.ndarray, vid: np.ndarray,
     m_idx: np.ndarray, row: np.ndarray, row_lo: np.ndarray, row_hi: np.ndarray,
-    codes: np.ndarray, width: int, bound: float,
+    codes: np.ndarray, width: int, lbs: np.ndarray, span_s: float, bound: float,
 ) -> tuple[int, float, float]:  # fmt: skip
     """The first conflicting vehicle of :func:`batch_conflicts` and its two values.
 
@@ -528,7 +528,10 @@ def first_conflict(
     then holds the least firstTimeAtCollision of all, rows after the
     requester's crossing or after that time cannot change the choice, and
     only the chosen vehicle's later rows are searched for its delay (a
-    maximum: the order does not change it).
+    maximum: the order does not change it). ``lbs`` are those ``lb_j``, and no
+    row's interval is longer than ``span_s``: the rows that start more than
+    that before the requester's crossing end before it and are skipped by
+    binary search.
     """
     n = len(lb_i)
     if n == 0:
@@ -548,7 +551,8 @@ def first_conflict(
     best_first = 0.0
     best_delay = 0.0
     rows = len(m_idx)
-    c = 0
+    # ub_j <= lb_j + span_s < t_lo below that (1e-6 s over rounding)
+    c = _search(lbs, t_lo - span_s - 1e-6, False)
     while c < rows:
         q = m_idx[c]
         lb_j, ub_j = packed[q, 0], packed[q, 1]
@@ -813,7 +817,8 @@ def limit_checks(
 
 
 @njit(
-    "UniTuple(int64[::1], 4)(float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1])",
+    "Tuple((int64[::1], int64[::1], int64[::1], int64[::1], float64))("
+    "float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1])",
     cache=True,
     nogil=True,
 )
@@ -823,12 +828,17 @@ def select_rows(
     first_row: np.ndarray,
     stack_lo: np.ndarray,
     stack_hi: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
     """Occupancies of a gathered confirmed set that a route's grid can touch.
 
     ``first_row[v]`` is vehicle v's block in the route's pair stack (-1: a
-    compatible route). Returns the occupancies kept, their stack rows and the
-    first and last grid point of the route not APART from each.
+    compatible route). Returns the occupancies kept in ascending ``lb_j``,
+    their stack rows, the first and last grid point of the route not APART
+    from each, and the longest interval ``ub_j - lb_j`` among them: a round
+    of :func:`first_conflict` skips the rows that end before the requester
+    starts by binary search instead of reading them all. The span is NaN
+    where a bound is NaN (never from a real DTOT): the rows are then not in
+    order and every round searches them all.
     """
     total = len(vid)
     keep = np.zeros(total, np.bool_)
@@ -842,19 +852,27 @@ def select_rows(
             keep[q] = True
             count += 1
     m = np.empty(count, np.int64)
-    row = np.empty(count, np.int64)
-    lo = np.empty(count, np.int64)
-    hi = np.empty(count, np.int64)
+    lbs = np.empty(count)
+    span = 0.0
     c = 0
     for q in range(total):
         if keep[q]:
-            r = first_row[vid[q]] + np.int64(packed[q, 8])
             m[c] = q
-            row[c] = r
-            lo[c] = stack_lo[r]
-            hi[c] = stack_hi[r]
+            lbs[c] = packed[q, 0]
+            d = packed[q, 1] - packed[q, 0]
+            span = math.nan if np.isnan(d) or np.isnan(span) else max(span, d)
             c += 1
-    return m, row, lo, hi
+    m = m[np.argsort(lbs)]
+    row = np.empty(count, np.int64)
+    lo = np.empty(count, np.int64)
+    hi = np.empty(count, np.int64)
+    for c in range(count):
+        q = m[c]
+        r = first_row[vid[q]] + np.int64(packed[q, 8])
+        row[c] = r
+        lo[c] = stack_lo[r]
+        hi[c] = stack_hi[r]
+    return m, row, lo, hi, span
 
 
 # -- Algorithm 1's round loop, whole --------------------------------------
@@ -1002,7 +1020,7 @@ def _entry_time(t0: float, step: float, s: np.ndarray) -> float:
     " float64[::1], float64[::1], float64[::1], float64, float64, float64,"
     " float64[::1], float64[::1], float64, float64,"  # route, grid, half extents
     " float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1],"
-    " int8[::1], int64, int64,"  # confirmed batch
+    " int8[::1], int64, int64, float64,"  # confirmed batch
     " boolean, float64, float64, float64[::1], float64, float64,"  # lane leader
     " int64, float64, int64, float64)",  # max_iterations, max_wait_s, first_round, b_wait0
     cache=True,
@@ -1018,7 +1036,7 @@ def resolve_rounds(
     half_l: float, half_w: float,
     packed: np.ndarray, vid: np.ndarray, m_idx: np.ndarray, row: np.ndarray,
     row_lo: np.ndarray, row_hi: np.ndarray, codes: np.ndarray, width: int, nv: int,
-    has_leader: bool, lead_t0: float, lead_step: float, lead_s: np.ndarray,
+    span_s: float, has_leader: bool, lead_t0: float, lead_step: float, lead_s: np.ndarray,
     lead_length_m: float, gap_m: float,
     max_iterations: int, max_wait_s: float, first_round: int, b_wait0: float,
 ) -> tuple[int, int, np.ndarray]:  # fmt: skip
@@ -1031,23 +1049,18 @@ def resolve_rounds(
     raises with its message. ``first_round`` and ``b_wait0`` (-1: none) go on from
     a round the caller made (a delay for an exit rule, which this loop does not
     know). The planner's constants per request come from
-    ``Planner.plan_constants``; the confirmed set from ``ConfirmedBatch``.
+    ``Planner.plan_constants``; the confirmed set from ``ConfirmedBatch``, its
+    rows in ascending ``lb_j`` with their longest interval ``span_s`` (NaN: a
+    NaN bound, never from a real DTOT; every round then searches all rows).
     """
     segs = np.empty((_MAX_SEGS, 4))
     hit = np.zeros(nv, np.bool_)
     first = np.empty(nv)
     delay = np.empty(nv)
-    # the confirmed rows in ascending lb_j, for first_conflict; with a NaN
-    # bound (never from a real DTOT) every round searches all rows instead
-    rows = len(m_idx)
-    lbs = np.empty(rows)
-    ordered = True
-    for c in range(rows):
+    ordered = not np.isnan(span_s)
+    lbs = np.empty(len(m_idx))
+    for c in range(len(m_idx)):
         lbs[c] = packed[m_idx[c], 0]
-        if np.isnan(lbs[c]) or np.isnan(packed[m_idx[c], 1]):
-            ordered = False
-    order = np.argsort(lbs)
-    m_s, row_s, lo_s, hi_s = m_idx[order], row[order], row_lo[order], row_hi[order]
     s = s_init
     b_wait = b_wait0  # the current plan's wait if it is of the stop family, else -1
     for it in range(first_round, max_iterations + 1):
@@ -1083,8 +1096,8 @@ def resolve_rounds(
         best_delay = 0.0
         if ordered:
             best, best_first, best_delay = first_conflict(
-                lb, ub, g, centre, heading, half_l, half_w, packed, vid, m_s, row_s,
-                lo_s, hi_s, codes, width, f_first if found else math.inf,
+                lb, ub, g, centre, heading, half_l, half_w, packed, vid, m_idx, row,
+                row_lo, row_hi, codes, width, lbs, span_s, f_first if found else math.inf,
             )  # fmt: skip
         else:
             hit[:] = False
