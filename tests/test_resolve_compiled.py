@@ -3,8 +3,11 @@ gives every answer of the Python loop of ``Dica._resolve``, bit for bit."""
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
+import ica.core.dica as dica_module
 from ica.core.baselines import controller_config, make_controller
 from ica.core.config import IcaConfig, Techniques
 from ica.core.dica import Dica
@@ -22,7 +25,10 @@ def _resolve(resolve, ica: Dica, compiled: bool, args: tuple):
         return ("raised", e.reason, e.detail), e
     finally:
         del ica.compiled_loop
-    d, iterations, earliest = found
+    route, shape = args[1], args[2]
+    d = ica._dtot(found, route, shape)
+    assert (found.out_s, found.out_mps) == (float(d.t_s[-1]), d.exit_speed_mps)
+    iterations, earliest = found.iterations, found.earliest
     key = (
         d.trajectory.t0_s,
         d.trajectory.step_s,
@@ -61,7 +67,7 @@ def test_compiled_rounds_equal_python_rounds(
     request may be resolved twice (capped and fast), both ways each time."""
     inter = request.getfixturevalue(junction)
     python_loop = Dica._resolve
-    seen = {"requests": 0, "rounds": 0, "raised": 0, "stops": 0, "exit_delays": 0}
+    seen = {"requests": 0, "rounds": 0, "raised": 0, "stops": 0, "exit_delays": 0, "planned": 0}
 
     def both(self: Dica, *args):
         assert self._compiled_rounds()
@@ -72,7 +78,7 @@ def test_compiled_rounds_equal_python_rounds(
         if isinstance(out, RequestError):
             seen["raised"] += 1
             raise out
-        seen["rounds"] += out[1]
+        seen["rounds"] += out.iterations
         return out
 
     monkeypatch.setattr(Dica, "_resolve", both)
@@ -91,6 +97,13 @@ def test_compiled_rounds_equal_python_rounds(
         return late
 
     monkeypatch.setattr(Dica, "_exit_conflict", delayed)
+    rounds = dica_module.resolve_rounds
+
+    def planning(*args):
+        seen["planned"] += not math.isnan(args[-1])  # the loop plans its first entry
+        return rounds(*args)
+
+    monkeypatch.setattr(dica_module, "resolve_rounds", planning)
     spec = StreamSpec(
         volume_per_10min=volume,
         n_vehicles=60,
@@ -104,6 +117,7 @@ def test_compiled_rounds_equal_python_rounds(
     assert seen["stops"] > 0  # plans of the stop family too
     assert seen["requests"] >= 60
     assert seen["rounds"] > 3 * seen["requests"]  # most requests took several rounds
+    assert seen["planned"] > 0  # a first plan over the cap, or after an exit delay
     if exit_spacing:
         assert seen["exit_delays"] > 0  # exit rules delayed plans: the compiled loop went on
 

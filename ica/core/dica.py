@@ -49,7 +49,7 @@ from ica.core.conflict import (
 from ica.core.dtot import Dtot, build_dtot
 from ica.core.handover import Handover
 from ica.core.intersection import Intersection
-from ica.core.kernels import BLOCKED, RESOLVED, TOO_LATE, resolve_rounds
+from ica.core.kernels import BLOCKED, RESOLVED, TOO_LATE, dtot_span, resolve_rounds
 from ica.core.planner import Planner
 from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
 from ica.core.route import Route
@@ -73,6 +73,31 @@ class Confirmed:
     def of(cls, vin: str, dtot: Dtot, confirmation: Confirmation) -> Confirmed:
         """Keep what each later request asks of this reservation, worked out once."""
         return cls(vin, dtot, confirmation, pack(dtot), float(dtot.t_s[-1]), dtot.exit_speed_mps)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class _Found:
+    """One search's conflict-free plan. Its exit (time the rear leaves, speed) is all
+    the exit rules and the choice between two searches ask of it; its DTOT is built
+    for the plan kept only, unless the search built it anyway (the Python loop)."""
+
+    traj: Trajectory
+    out_s: float
+    out_mps: float
+    iterations: int
+    earliest: float
+    dtot: Dtot | None = None
+
+
+def _exit_of(traj: Trajectory, s_end: float) -> tuple[float, float]:
+    """(``t_s[-1]``, ``exit_speed_mps``) of the DTOT that ``build_dtot`` makes of
+    ``traj`` with the grid, without building it (the same arithmetic)."""
+    s = traj.s_m
+    _, k1 = dtot_span(s, s_end)
+    if len(s) < 2:
+        return traj.t0_s + traj.step_s * k1, 0.0
+    k = min(max(k1 - 1, 0), len(s) - 2)
+    return traj.t0_s + traj.step_s * k1, float(s[k + 1] - s[k]) / traj.step_s
 
 
 def _too_late(max_wait_s: float) -> RequestError:
@@ -334,8 +359,9 @@ class Dica:
             self._withdraw(req.vin)
 
         leader = self._leader(req.vin, lane)
-        dtot, iterations, earliest = self._resolve_best(req, route, shape, traj, leader)
-        return self._store(req.vin, req.seq, dtot, iterations, earliest, req.length_m)
+        found = self._resolve_best(req, route, shape, traj, leader)
+        dtot = self._dtot(found, route, shape)
+        return self._store(req.vin, req.seq, dtot, found.iterations, found.earliest, req.length_m)
 
     def _store(
         self, vin: str, seq: int, dtot: Dtot, iterations: int, earliest: float, length_m: float
@@ -363,13 +389,13 @@ class Dica:
         self._version += 1
         return conf
 
-    def exit_order(self, route: Route, dtot: Dtot) -> Conflict | None:
+    def exit_order(self, route: Route, out_s: float, out_mps: float) -> Conflict | None:
         """checkFV beyond the junction: a plan may not leave by an exit lane ahead of a
         confirmed vehicle that leaves it faster, which would run into it out there
         (nothing checks the road after the junction). The conflict with the one that
-        leaves last: delay this plan until it leaves after it."""
-        out_s = float(dtot.t_s[-1])
-        v = dtot.exit_speed_mps + self.config.speed_tol_mps
+        leaves last: delay this plan (its rear out at ``out_s``, at ``out_mps``) until
+        it leaves after it."""
+        v = out_mps + self.config.speed_tol_mps
         worst: Conflict | None = None
         for t_out, v_out, vin in self._exits(route.out_lane):
             if v_out <= v:
@@ -389,15 +415,16 @@ class Dica:
             self._exit_cache = (self._version, by_lane)
         return self._exit_cache[1].get(out_lane, [])
 
-    def exit_spacing(self, route: Route, dtot: Dtot) -> Conflict | None:
+    def exit_spacing(
+        self, route: Route, out_s: float, out_mps: float, length: float
+    ) -> Conflict | None:
         """The hand-over beyond the junction: a plan that leaves by an exit lane faster
         than a vehicle that leaves it earlier does so late enough that the driver it
         is handed to never brakes behind it (:class:`ica.core.handover.Handover`).
         Each may be ``time_pad_s`` off its plan, so the separation grows by twice
-        that. The conflict with the one that needs the latest exit."""
-        out_s = float(dtot.t_s[-1])
-        v = dtot.exit_speed_mps
-        length = dtot.shape.length_m
+        that. The conflict with the one that needs the latest exit (of a plan whose
+        rear leaves at ``out_s``, at ``out_mps``, of a vehicle ``length`` long)."""
+        v = out_mps
         tol = self.config.speed_tol_mps
         pad = 2.0 * self.config.time_pad_s
         worst: Conflict | None = None
@@ -409,10 +436,12 @@ class Dica:
                 worst = Conflict(vin, out_s, need - out_s)
         return worst
 
-    def _exit_conflict(self, route: Route, dtot: Dtot) -> Conflict | None:
-        late = self.exit_order(route, dtot)
+    def _exit_conflict(
+        self, route: Route, out_s: float, out_mps: float, length: float
+    ) -> Conflict | None:
+        late = self.exit_order(route, out_s, out_mps)
         if self.config.exit_spacing:
-            gap = self.exit_spacing(route, dtot)
+            gap = self.exit_spacing(route, out_s, out_mps, length)
             if gap is not None and (late is None or gap.delay_s > late.delay_s):
                 late = gap
         return late
@@ -437,7 +466,7 @@ class Dica:
         shape: Shape,
         traj: Trajectory,
         leader: Confirmed | None,
-    ) -> tuple[Dtot, int, float]:
+    ) -> _Found:
         """checkFV's capped plan; with exit spacing also the uncapped one that leaves
         late enough behind slower vehicles, and the one that leaves first."""
         cap = self.front_cap_mps(route)
@@ -448,12 +477,19 @@ class Dica:
         except RequestError:
             return self._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
         # a plan entering after the capped one leaves cannot leave first: stop looking there
-        give_up = min(self.config.max_wait_s, float(capped[0].t_s[-1]) - req.t0_s)
+        give_up = min(self.config.max_wait_s, capped.out_s - req.t0_s)
         try:
             fast = self._resolve(req, route, shape, traj, leader, route.speed_cap_mps, give_up)
         except RequestError:
             return capped
-        return fast if fast[0].t_s[-1] < capped[0].t_s[-1] else capped
+        return fast if fast.out_s < capped.out_s else capped
+
+    def _dtot(self, found: _Found, route: Route, shape: Shape) -> Dtot:
+        """The DTOT of a found plan (with the grid, as the compiled loop judged it)."""
+        if found.dtot is not None:
+            return found.dtot
+        grid = self.tables.grid(route, shape)
+        return build_dtot(route, shape, found.traj, self.config.margin_m, grid, True)
 
     def _resolve(
         self,
@@ -464,7 +500,7 @@ class Dica:
         leader: Confirmed | None,
         cap: float,
         max_wait_s: float | None = None,
-    ) -> tuple[Dtot, int, float]:
+    ) -> _Found:
         """Algorithm 1's rounds under crossing speed cap ``cap``, giving up on an entry
         more than ``max_wait_s`` after the state (default: the configured limit)."""
         cfg = self.config
@@ -485,9 +521,11 @@ class Dica:
             raise RequestError(
                 Reason.INFEASIBLE, "cannot slow to the crossing speed cap before the entry line"
             )
+        # a TSS faster than the cap inside is planned anew, to enter when it would
         inside = traj.s_m[:-1] >= 0.0
+        replan = math.nan
         if np.any(traj.speeds()[inside] > cap + cfg.speed_tol_mps):
-            traj = self._plan(planner, req.t0_s, traj.entry_time_s() - req.t0_s, s_end)
+            replan = traj.entry_time_s() - req.t0_s
         grid = self.tables.grid(route, shape)
         gap = 2.0 * cfg.margin_m
         # the leader as late as the tracking bound lets it be, against a requester as early
@@ -498,29 +536,31 @@ class Dica:
         if self._compiled_rounds():
             # the compiled loop knows nothing of the exit rules: a plan of it that breaks
             # one is delayed here as the loop below would, and the compiled loop goes on
-            # from there (its rounds are the loop's); where it would raise, the loop
-            # below runs from the start and raises with its message
-            first_round, b_wait0, plan = 1, -1.0, traj
+            # from there (its rounds are the loop's, and it plans the delayed entry);
+            # where it would raise, the loop below runs from the start and raises with
+            # its message
+            first_round, b_wait0, target0 = 1, -1.0, replan
             while True:
                 found = self._resolve_compiled(
-                    req, route, shape, plan, leader, lag, planner, grid, s_end, max_wait_s,
-                    first_round, b_wait0,
+                    req, route, shape, traj, leader, lag, planner, grid, s_end, max_wait_s,
+                    first_round, b_wait0, target0,
                 )  # fmt: skip
                 if found is None:
                     break
-                late = self._exit_conflict(route, found[0])
+                late = self._exit_conflict(route, found.out_s, found.out_mps, shape.length_m)
                 if late is None:
-                    return found[0], found[1], earliest
-                target = found[0].trajectory.entry_time_s() - req.t0_s
-                target += max(late.delay_s, cfg.step_s)
+                    return dataclasses.replace(found, earliest=earliest)
+                target = found.traj.entry_time_s() - req.t0_s + max(late.delay_s, cfg.step_s)
                 if target > max_wait_s:
                     raise _too_late(max_wait_s)
-                if found[1] >= cfg.max_iterations:
+                if found.iterations >= cfg.max_iterations:
                     break
                 wait = planner.stop_wait_s(target)
-                first_round, b_wait0 = found[1] + 1, -1.0 if wait is None else wait
-                plan = self._plan(planner, req.t0_s, target, s_end)
+                first_round, b_wait0 = found.iterations + 1, -1.0 if wait is None else wait
+                target0 = target
 
+        if not math.isnan(replan):
+            traj = self._plan(planner, req.t0_s, replan, s_end)
         b_wait: float | None = None  # the current plan's wait if of the stop family
         for iteration in range(1, cfg.max_iterations + 1):
             dtot = build_dtot(route, shape, traj, cfg.margin_m, grid, cfg.techniques.estimated_oti)
@@ -538,12 +578,13 @@ class Dica:
                         raise _blocked(req.vin, leader.vin)
                     conflicts.append(Conflict(leader.vin, *found))
                     conflicts.sort(key=lambda c: c.first_time_s)
-            late = self._exit_conflict(route, dtot)
+            out_s, out_mps = float(dtot.t_s[-1]), dtot.exit_speed_mps
+            late = self._exit_conflict(route, out_s, out_mps, shape.length_m)
             if late is not None:
                 conflicts.append(late)
                 conflicts.sort(key=lambda c: c.first_time_s)
             if not conflicts:
-                return dtot, iteration, earliest
+                return _Found(traj, out_s, out_mps, iteration, earliest, dtot)
             first = conflicts[0]
             target = traj.entry_time_s() - req.t0_s + max(first.delay_s, cfg.step_s)
             if target > max_wait_s:
@@ -580,10 +621,12 @@ class Dica:
         max_wait_s: float,
         first_round: int = 1,
         b_wait0: float = -1.0,
-    ) -> tuple[Dtot, int] | None:
+        target0: float = math.nan,
+    ) -> _Found | None:
         """The loop of :meth:`_resolve` in one compiled call
         (:func:`ica.core.kernels.resolve_rounds`): the same plans round for
-        round, so the same answer. None where the loop would raise."""
+        round, so the same answer (its earliest entry left to the caller). None
+        where the loop would raise."""
         cfg = self.config
         batch = self._confirmed_batch(route, shape)
         g = batch.gathered
@@ -605,7 +648,7 @@ class Dica:
             g.packed, g.vid, batch.m, batch.row, batch.row_lo, batch.row_hi, batch.codes,
             batch.width, len(g.vins), batch.span_s,
             *lead_args, 2.0 * cfg.margin_m,
-            cfg.max_iterations, max_wait_s, first_round, b_wait0,
+            cfg.max_iterations, max_wait_s, first_round, b_wait0, target0,
         )  # fmt: skip
         if status == BLOCKED:
             raise _blocked(req.vin, leader.vin if leader is not None else "")
@@ -614,7 +657,7 @@ class Dica:
         if status != RESOLVED:
             return None
         final = Trajectory(req.t0_s, cfg.step_s, s)
-        return build_dtot(route, shape, final, cfg.margin_m, grid, True), iteration
+        return _Found(final, *_exit_of(final, s_end), iteration, math.nan)
 
     def conflicts(self, dtot: Dtot) -> list[Conflict]:
         """getCV: confirmed vehicles in space-time conflict with ``dtot``.
@@ -706,8 +749,9 @@ class Dica:
             dist_to_entry_m, speed_mps, Tss(none, none, none, none),
         )  # fmt: skip
         leader = self._confirmed.get(leader_vin) if leader_vin is not None else None
-        dtot, iterations, earliest = self._resolve_best(req, route, shape, traj, leader)
-        return self._store(vin, seq, dtot, iterations, earliest, shape.length_m)
+        found = self._resolve_best(req, route, shape, traj, leader)
+        dtot = self._dtot(found, route, shape)
+        return self._store(vin, seq, dtot, found.iterations, found.earliest, shape.length_m)
 
 
 _BATCHED_GET_CV = Dica.conflicts  # the getCV the compiled round loop repeats

@@ -1011,6 +1011,40 @@ def _entry_time(t0: float, step: float, s: np.ndarray) -> float:
     return t0 + (k + (0.0 - s0) / (s1 - s0)) * step
 
 
+@njit(cache=True, nogil=True)
+def _next_plan(
+    target: float, a: float, br: float, v0: float, d: float, cap: float, s_end: float,
+    v_hi: float, hi_ok: bool, hi_t: float, v_lo: float, lo_ok: bool, lo_t: float,
+    t_b0: float, b_segs: np.ndarray, b_state: np.ndarray, step: float, segs: np.ndarray,
+    s: np.ndarray,
+) -> tuple[bool, np.ndarray, float]:  # fmt: skip
+    """``Planner.at_or_after(target)``, sampled: (built, its samples, its wait if of the
+    stop family else -1); (False, ``s``, -1) where the Python loop raises."""
+    if not hi_ok:
+        return False, s, -1.0
+    b_wait = -1.0
+    if target <= hi_t + 1e-9:
+        ns = _build_a(a, br, v0, d, cap, s_end, v_hi, segs)
+    elif lo_ok and target <= lo_t:
+        v = bisect_cruise(a, br, v0, d, cap, v_lo, v_hi, target)
+        ns = _build_a(a, br, v0, d, cap, s_end, v, segs)
+    elif not math.isfinite(t_b0):
+        ns = 0
+    else:
+        b_wait = _py_max(0.0, target - t_b0)
+        ns = _build_b(a, cap, s_end, b_wait, b_segs, b_state, segs)
+    if ns == 0:
+        return False, s, -1.0
+    t_out = _time_at(segs, ns, s_end)
+    if not math.isfinite(t_out):
+        return False, s, -1.0
+    count = math.ceil(t_out / step - 1e-9) + 1
+    out = np.empty(count)
+    p = np.ascontiguousarray(segs[:ns].T)
+    profile_position(p[0], p[1], p[2], p[3], step, out)
+    return True, out, b_wait
+
+
 @njit(
     "Tuple((int64, int64, float64[::1]))("
     "float64, float64, float64, float64, float64, float64,"  # a, br, v0, d, cap, s_end
@@ -1022,7 +1056,7 @@ def _entry_time(t0: float, step: float, s: np.ndarray) -> float:
     " float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1],"
     " int8[::1], int64, int64, float64,"  # confirmed batch
     " boolean, float64, float64, float64[::1], float64, float64,"  # lane leader
-    " int64, float64, int64, float64)",  # max_iterations, max_wait_s, first_round, b_wait0
+    " int64, float64, int64, float64, float64)",  # max_iterations, ..., b_wait0, target0
     cache=True,
     nogil=True,
 )
@@ -1039,6 +1073,7 @@ def resolve_rounds(
     span_s: float, has_leader: bool, lead_t0: float, lead_step: float, lead_s: np.ndarray,
     lead_length_m: float, gap_m: float,
     max_iterations: int, max_wait_s: float, first_round: int, b_wait0: float,
+    target0: float,
 ) -> tuple[int, int, np.ndarray]:  # fmt: skip
     """The rounds of ``Dica._resolve`` (enhanced DICA) from the first plan ``s_init``.
 
@@ -1048,7 +1083,8 @@ def resolve_rounds(
     leader, a plan that never leaves): the caller then runs the Python loop, which
     raises with its message. ``first_round`` and ``b_wait0`` (-1: none) go on from
     a round the caller made (a delay for an exit rule, which this loop does not
-    know). The planner's constants per request come from
+    know); with ``target0`` (NaN: none) the first plan is ``Planner.at_or_after``
+    that entry, sampled, instead of ``s_init``. The planner's constants per request come from
     ``Planner.plan_constants``; the confirmed set from ``ConfirmedBatch``, its
     rows in ascending ``lb_j`` with their longest interval ``span_s`` (NaN: a
     NaN bound, never from a real DTOT; every round then searches all rows).
@@ -1062,6 +1098,13 @@ def resolve_rounds(
     for c in range(len(m_idx)):
         lbs[c] = packed[m_idx[c], 0]
     s = s_init
+    if not np.isnan(target0):
+        ok, s, _ = _next_plan(
+            target0, a, br, v0, d, cap, s_end, v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, t_b0,
+            b_segs, b_state, step, segs, s,
+        )  # fmt: skip
+        if not ok:
+            return FALL_BACK, first_round, s
     b_wait = b_wait0  # the current plan's wait if it is of the stop family, else -1
     for it in range(first_round, max_iterations + 1):
         # the DTOT (ica.core.dtot.build_dtot with the grid)
@@ -1119,27 +1162,10 @@ def resolve_rounds(
         target = _entry_time(t0, step, s) - t0 + _py_max(best_delay, step)
         if target > max_wait_s:
             return TOO_LATE, it, s
-        # the next plan: Planner.at_or_after, then sample
-        if not hi_ok:
+        ok, s, b_wait = _next_plan(
+            target, a, br, v0, d, cap, s_end, v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, t_b0,
+            b_segs, b_state, step, segs, s,
+        )  # fmt: skip
+        if not ok:
             return FALL_BACK, it, s
-        b_wait = -1.0
-        if target <= hi_t + 1e-9:
-            ns = _build_a(a, br, v0, d, cap, s_end, v_hi, segs)
-        elif lo_ok and target <= lo_t:
-            v = bisect_cruise(a, br, v0, d, cap, v_lo, v_hi, target)
-            ns = _build_a(a, br, v0, d, cap, s_end, v, segs)
-        elif not math.isfinite(t_b0):
-            ns = 0
-        else:
-            b_wait = _py_max(0.0, target - t_b0)
-            ns = _build_b(a, cap, s_end, b_wait, b_segs, b_state, segs)
-        if ns == 0:
-            return FALL_BACK, it, s
-        t_out = _time_at(segs, ns, s_end)
-        if not math.isfinite(t_out):
-            return FALL_BACK, it, s
-        count = math.ceil(t_out / step - 1e-9) + 1
-        s = np.empty(count)
-        p = np.ascontiguousarray(segs[:ns].T)
-        profile_position(p[0], p[1], p[2], p[3], step, s)
     return FALL_BACK, max_iterations, s
