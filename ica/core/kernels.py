@@ -1013,13 +1013,13 @@ def _entry_time(t0: float, step: float, s: np.ndarray) -> float:
 
 @njit(cache=True, nogil=True)
 def _next_plan(
-    target: float, a: float, br: float, v0: float, d: float, cap: float, s_end: float,
-    v_hi: float, hi_ok: bool, hi_t: float, v_lo: float, lo_ok: bool, lo_t: float,
-    t_b0: float, b_segs: np.ndarray, b_state: np.ndarray, step: float, segs: np.ndarray,
-    s: np.ndarray,
+    target: float, planner: tuple, b_segs: np.ndarray, b_state: np.ndarray, step: float,
+    segs: np.ndarray, s: np.ndarray,
 ) -> tuple[bool, np.ndarray, float]:  # fmt: skip
     """``Planner.at_or_after(target)``, sampled: (built, its samples, its wait if of the
-    stop family else -1); (False, ``s``, -1) where the Python loop raises."""
+    stop family else -1); (False, ``s``, -1) where the Python loop raises. ``planner``
+    is (a, br, v0, d, cap, s_end, v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, t_b0)."""
+    a, br, v0, d, cap, s_end, v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, t_b0 = planner
     if not hi_ok:
         return False, s, -1.0
     b_wait = -1.0
@@ -1093,16 +1093,14 @@ def resolve_rounds(
     hit = np.zeros(nv, np.bool_)
     first = np.empty(nv)
     delay = np.empty(nv)
+    planner = (a, br, v0, d, cap, s_end, v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, t_b0)
     ordered = not np.isnan(span_s)
     lbs = np.empty(len(m_idx))
     for c in range(len(m_idx)):
         lbs[c] = packed[m_idx[c], 0]
     s = s_init
     if not np.isnan(target0):
-        ok, s, _ = _next_plan(
-            target0, a, br, v0, d, cap, s_end, v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, t_b0,
-            b_segs, b_state, step, segs, s,
-        )  # fmt: skip
+        ok, s, _ = _next_plan(target0, planner, b_segs, b_state, step, segs, s)
         if not ok:
             return FALL_BACK, first_round, s
     b_wait = b_wait0  # the current plan's wait if it is of the stop family, else -1
@@ -1162,10 +1160,7 @@ def resolve_rounds(
         target = _entry_time(t0, step, s) - t0 + _py_max(best_delay, step)
         if target > max_wait_s:
             return TOO_LATE, it, s
-        ok, s, b_wait = _next_plan(
-            target, a, br, v0, d, cap, s_end, v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, t_b0,
-            b_segs, b_state, step, segs, s,
-        )  # fmt: skip
+        ok, s, b_wait = _next_plan(target, planner, b_segs, b_state, step, segs, s)
         if not ok:
             return FALL_BACK, it, s
     return FALL_BACK, max_iterations, s
