@@ -271,22 +271,23 @@ class ConfirmedBatch:
     def of(
         route: Route, shape: Shape, gathered: Gathered, tables: ConflictTables
     ) -> ConfirmedBatch:
-        offset: dict[tuple[str, float, float], int] = {}
-        first_row = np.empty(len(gathered.vins), np.int64)
-        for v, seen in enumerate(gathered.routes):
+        rows = tables.rows_of(route, shape)
+        first: list[int] = []
+        for seen in gathered.routes:
             if seen is None:  # a vehicle that has left
-                first_row[v] = -1
+                first.append(-1)
                 continue
             other, sh = seen
             key = (other.id, sh.length_m, sh.width_m)
-            off = offset.get(key)
+            off = rows.get(key)
             if off is None:
                 if tables.compatible(other, sh, route, shape):
                     off = -1
                 else:
                     off = tables.stack_offset(route, shape, other, sh)
-                offset[key] = off
-            first_row[v] = off
+                rows[key] = off
+            first.append(off)
+        first_row = np.array(first, dtype=np.int64)
         stack = tables.stack(route, shape)  # after the offsets: they may have grown it
         m, row, lo, hi, span = select_rows(
             gathered.packed, gathered.vid, first_row, stack.row_lo, stack.row_hi

@@ -521,11 +521,14 @@ class Dica:
             raise RequestError(
                 Reason.INFEASIBLE, "cannot slow to the crossing speed cap before the entry line"
             )
-        # a TSS faster than the cap inside is planned anew, to enter when it would
-        inside = traj.s_m[:-1] >= 0.0
+        # a TSS faster than the cap inside is planned anew, to enter when it would (under
+        # the route's own cap it cannot be: validation holds a TSS to that cap, the
+        # planner a plan to its own, both as this test does)
         replan = math.nan
-        if np.any(traj.speeds()[inside] > cap + cfg.speed_tol_mps):
-            replan = traj.entry_time_s() - req.t0_s
+        if cap < route.speed_cap_mps:
+            inside = traj.s_m[:-1] >= 0.0
+            if np.any(traj.speeds()[inside] > cap + cfg.speed_tol_mps):
+                replan = traj.entry_time_s() - req.t0_s
         grid = self.tables.grid(route, shape)
         gap = 2.0 * cfg.margin_m
         # the leader as late as the tracking bound lets it be, against a requester as early

@@ -202,6 +202,9 @@ class ConflictTables:
     _zones: dict[tuple[str, Shape, str, Shape], np.ndarray] = field(default_factory=dict)
     _compatible: dict[tuple[str, Shape, str, Shape], bool] = field(default_factory=dict)
     _stacks: dict[tuple[str, Shape], PairStack] = field(default_factory=dict)
+    _rows_of: dict[tuple[str, Shape], dict[tuple[str, float, float], int]] = field(
+        default_factory=dict
+    )
 
     def grid(self, route: Route, shape: Shape) -> RouteGrid:
         key = (route.id, shape)
@@ -264,6 +267,12 @@ class ConflictTables:
         if off is None:
             off = st.append((rb.id, sb), self.pairs(ra, sa, rb, sb))
         return off
+
+    def rows_of(self, ra: Route, sa: Shape) -> dict[tuple[str, float, float], int]:
+        """Route a's rows by (route b's id, length, width): route b's block in route a's
+        :class:`PairStack`, -1 where the two are compatible. Filled by the caller as
+        it meets route b (``ConfirmedBatch.of``, once per request), kept for good."""
+        return self._rows_of.setdefault((ra.id, sa), {})
 
     def precompute(self, shape: Shape) -> None:
         """Build every table for one shape now (the offline step, done at start-up)."""
