@@ -255,13 +255,21 @@ def grid_dtot(
         g[k] = i
         behind[k] = s[k] - back_m[i]
         ahead[k] = s[k] + fwd_m[i]
-    # where s rises, the skipped samples are one range found by binary search;
-    # else (a rounding error off monotone) they are skipped one by one
+    # where s rises, the skipped samples are one range, found by a walk from the last
+    # sample's (np.searchsorted's answer on sorted s, in a step or two); else (a
+    # rounding error off monotone) they are skipped one by one
     sorted_s = _nondecreasing(s)
+    p_lo = 0  # first index with s > behind[k]
+    p_hi = 0  # first index with s >= ahead[k]
     for k in range(n):
         j = k - 1
         if sorted_s:
-            j = min(_search(s, behind[k], True) - 1, j)
+            key = behind[k]
+            while p_lo < n and s[p_lo] <= key:
+                p_lo += 1
+            while p_lo > 0 and s[p_lo - 1] > key:
+                p_lo -= 1
+            j = min(p_lo - 1, j)
         while j >= 0:
             if behind[k] < s[j] <= s[k] or _self_overlap(centre, heading, half_l, half_w, k, j):
                 j -= 1
@@ -270,7 +278,12 @@ def grid_dtot(
         lb[k] = t[j] if j >= 0 else t[0]
         j = k + 1
         if sorted_s:
-            j = max(_search(s, ahead[k], False), j)
+            key = ahead[k]
+            while p_hi < n and s[p_hi] < key:
+                p_hi += 1
+            while p_hi > 0 and s[p_hi - 1] >= key:
+                p_hi -= 1
+            j = max(p_hi, j)
         while j < n:
             if s[k] <= s[j] < ahead[k] or _self_overlap(centre, heading, half_l, half_w, k, j):
                 j += 1
