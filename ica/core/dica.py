@@ -49,7 +49,14 @@ from ica.core.conflict import (
 from ica.core.dtot import Dtot, build_dtot
 from ica.core.handover import Handover
 from ica.core.intersection import Intersection
-from ica.core.kernels import BLOCKED, RESOLVED, TOO_LATE, dtot_span, resolve_rounds
+from ica.core.kernels import (
+    BLOCKED,
+    RESOLVED,
+    TOO_LATE,
+    dtot_span,
+    over_cap,
+    resolve_rounds,
+)
 from ica.core.planner import Planner
 from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
 from ica.core.route import Route
@@ -525,10 +532,8 @@ class Dica:
         # the route's own cap it cannot be: validation holds a TSS to that cap, the
         # planner a plan to its own, both as this test does)
         replan = math.nan
-        if cap < route.speed_cap_mps:
-            inside = traj.s_m[:-1] >= 0.0
-            if np.any(traj.speeds()[inside] > cap + cfg.speed_tol_mps):
-                replan = traj.entry_time_s() - req.t0_s
+        if cap < route.speed_cap_mps and over_cap(traj.s_m, cfg.step_s, cap + cfg.speed_tol_mps):
+            replan = traj.entry_time_s() - req.t0_s
         grid = self.tables.grid(route, shape)
         gap = 2.0 * cfg.margin_m
         # the leader as late as the tracking bound lets it be, against a requester as early

@@ -147,6 +147,30 @@ def route_points(s: np.ndarray, route_s: np.ndarray, route_xy: np.ndarray) -> np
     return out
 
 
+@njit(
+    "Tuple((float64[:, ::1], float64[::1]))(float64[:], float64, float64[::1], float64[:, ::1])",
+    cache=True,
+    nogil=True,
+)
+def front_heading(
+    s: np.ndarray, length_m: float, route_s: np.ndarray, route_xy: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``Trajectory.xy_heading``: front points at ``s`` and the heading from the rear
+    point ``length_m`` behind, ``np.arctan2`` of their difference."""
+    n = len(s)
+    front_s = np.empty(n)
+    rear_s = np.empty(n)
+    for k in range(n):
+        front_s[k] = s[k]
+        rear_s[k] = s[k] - length_m
+    front = route_points(front_s, route_s, route_xy)
+    rear = route_points(rear_s, route_s, route_xy)
+    heading = np.empty(n)
+    for k in range(n):
+        heading[k] = np.arctan2(front[k, 1] - rear[k, 1], front[k, 0] - rear[k, 0])
+    return front, heading
+
+
 @njit("UniTuple(int64, 2)(float64[::1], float64)", cache=True, nogil=True)
 def dtot_span(s: np.ndarray, s_end_m: float) -> tuple[int, int]:
     """(entry_index, exit_index) of :class:`ica.core.trajectory.Trajectory`."""
@@ -827,6 +851,66 @@ def limit_checks(
         if acc < -decel_mps2 - slack:
             return 3, 0.0
     return 0, 0.0
+
+
+@njit("boolean(float64[:], float64, float64)", cache=True, nogil=True)
+def over_cap(s: np.ndarray, step_s: float, lim_mps: float) -> bool:
+    """``np.any(np.diff(s)[s[:-1] >= 0] / step_s > lim_mps)``: faster than ``lim_mps``
+    over a step that starts inside the junction."""
+    for k in range(len(s) - 1):  # noqa: SIM110 (a plain loop compiles best)
+        if s[k] >= 0.0 and (s[k + 1] - s[k]) / step_s > lim_mps:
+            return True
+    return False
+
+
+@njit(
+    "Tuple((int64, int64, float64, float64[::1]))(float64[::1], float64[::1], float64[::1],"
+    " float64[::1], float64, float64, float64[:, ::1], float64[::1], float64, float64, float64,"
+    " float64, float64, float64, float64, float64, float64, float64, float64, float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def request_checks(
+    t: np.ndarray, x: np.ndarray, y: np.ndarray, h: np.ndarray, step_s: float, t0_s: float,
+    route_xy: np.ndarray, route_s: np.ndarray, off_tol_m: float, dist_to_entry_m: float,
+    start_tol_m: float, s_end_m: float, length_m: float, heading_tol_rad: float,
+    v0_mps: float, road_lim_mps: float, cap_lim_mps: float, accel_mps2: float,
+    decel_mps2: float, accel_tol_mps2: float, first_slack_mps2: float,
+) -> tuple[int, int, float, np.ndarray]:  # fmt: skip
+    """Every numeric check of ``validate._check_tss`` in one call, in its order:
+    :func:`tss_checks`, the heading against the route's, :func:`limit_checks`.
+
+    Returns (stage, failed check, value, arc length): stage 0 all passed, 1 a
+    TSS check failed, 2 the heading deviates (value: the largest deviation),
+    3 a limit check failed. One call instead of a dozen numpy ones, each of
+    which costs a request more than its work when the caches are cold.
+    """
+    failed, value, s = tss_checks(
+        t, x, y, h, step_s, t0_s, route_xy, route_s, off_tol_m, dist_to_entry_m, start_tol_m,
+        s_end_m,
+    )  # fmt: skip
+    if failed:
+        return 1, failed, value, s
+    n = len(s)
+    rear = np.empty(n)
+    for k in range(n):
+        rear[k] = s[k] - length_m
+    front = route_points(s, route_s, route_xy)
+    back = route_points(rear, route_s, route_xy)
+    worst = 0.0
+    for k in range(n):  # np.abs((h - expect + pi) % (2 pi) - pi), its maximum
+        expect = np.arctan2(front[k, 1] - back[k, 1], front[k, 0] - back[k, 0])
+        dh = abs((h[k] - expect + np.pi) % (2 * np.pi) - np.pi)
+        worst = dh if k == 0 else max(worst, dh)
+    if worst > heading_tol_rad:
+        return 2, 0, worst, s
+    failed, value = limit_checks(
+        s, step_s, v0_mps, road_lim_mps, cap_lim_mps, accel_mps2, decel_mps2, accel_tol_mps2,
+        first_slack_mps2,
+    )  # fmt: skip
+    if failed:
+        return 3, failed, value, s
+    return 0, 0, 0.0, s
 
 
 @njit(

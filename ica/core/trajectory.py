@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.kernels import profile_position
+from ica.core.kernels import front_heading, profile_position
 from ica.core.planner import Profile
 from ica.core.route import Route
 
@@ -64,10 +64,8 @@ class Trajectory:
 
     def xy_heading(self, route: Route, length_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Front-bumper points (N, 2) and headings [rad, CCW from +x], rear-to-front."""
-        front = route.points(self.s_m)
-        rear = route.points(self.s_m - length_m)
-        d = front - rear
-        return front, np.arctan2(d[:, 1], d[:, 0])
+        xy = np.ascontiguousarray(route.xy, dtype=float)
+        return front_heading(np.asarray(self.s_m, dtype=float), float(length_m), route.s, xy)
 
 
 def sample(profile: Profile, t0_s: float, step_s: float, s_end_m: float) -> Trajectory:

@@ -12,7 +12,7 @@ import numpy as np
 
 from ica.core.config import IcaConfig
 from ica.core.intersection import Intersection
-from ica.core.kernels import limit_checks, tss_checks
+from ica.core.kernels import request_checks
 from ica.core.request import Reason, Request, RequestError
 from ica.core.route import Route
 from ica.core.trajectory import Trajectory
@@ -89,49 +89,24 @@ def check_request(
 def _check_tss(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
     t, x, y, h = _tss_arrays(req, cfg)
     tol = min(cfg.on_route_tol_m, cfg.margin_m) + 1e-3
-    s_end = route.cross_length_m + req.length_m
-    failed, value, s = tss_checks(
-        np.ascontiguousarray(t),
-        np.ascontiguousarray(x),
-        np.ascontiguousarray(y),
-        np.ascontiguousarray(h),
-        cfg.step_s,
-        float(req.t0_s),
-        np.ascontiguousarray(route.xy, dtype=float),
-        route.s,
-        tol,
-        float(req.dist_to_entry_m),
-        cfg.on_route_tol_m,
-        s_end,
-    )
-    if failed:
-        raise _tss_error(failed, value, req, route, cfg, tol)
-    front = route.points(s)
-    rear = route.points(s - req.length_m)
-    d = front - rear
-    expect = np.arctan2(d[:, 1], d[:, 0])
-    dh = np.abs((h - expect + np.pi) % (2 * np.pi) - np.pi)
-    if float(dh.max()) > cfg.heading_tol_rad:
-        raise RequestError(
-            Reason.OFF_ROUTE, f"TSS heading deviates from the route by {float(dh.max()):.2f} rad"
-        )
-
-    traj = Trajectory(float(t[0]), cfg.step_s, s)
     kin = cfg.kinematics
-    failed, value = limit_checks(
-        s,
-        cfg.step_s,
+    stage, failed, value, s = request_checks(
+        t, x, y, h, cfg.step_s, float(req.t0_s), np.ascontiguousarray(route.xy, dtype=float),
+        route.s, tol, float(req.dist_to_entry_m), cfg.on_route_tol_m,
+        route.cross_length_m + req.length_m, float(req.length_m), cfg.heading_tol_rad,
         float(req.speed_mps),
-        cfg.caps.road_mps + cfg.speed_tol_mps,
-        route.speed_cap_mps + cfg.speed_tol_mps,
-        kin.accel_mps2,
-        kin.decel_mps2,
-        cfg.accel_tol_mps2,
-        max(kin.accel_mps2, kin.decel_mps2),
-    )
-    if failed:
+        cfg.caps.road_mps + cfg.speed_tol_mps, route.speed_cap_mps + cfg.speed_tol_mps,
+        kin.accel_mps2, kin.decel_mps2, cfg.accel_tol_mps2, max(kin.accel_mps2, kin.decel_mps2),
+    )  # fmt: skip
+    if stage == 1:
+        raise _tss_error(failed, value, req, route, cfg, tol)
+    if stage == 2:
+        raise RequestError(
+            Reason.OFF_ROUTE, f"TSS heading deviates from the route by {value:.2f} rad"
+        )
+    if stage == 3:
         raise _limit_error(failed, value, route)
-    return traj
+    return Trajectory(float(t[0]), cfg.step_s, s)
 
 
 def _tss_arrays(req: Request, cfg: IcaConfig) -> tuple[np.ndarray, ...]:
@@ -147,8 +122,8 @@ def _tss_arrays(req: Request, cfg: IcaConfig) -> tuple[np.ndarray, ...]:
         raise RequestError(
             Reason.BAD_STATE, f"TSS must have 2..{cfg.max_tss_samples} samples, has {n}"
         )
-    try:
-        return tuple(a.astype(float) for a in arrays)
+    try:  # contiguous float copies (the request's arrays stay the sender's)
+        return tuple(np.array(a, dtype=float, order="C") for a in arrays)
     except (TypeError, ValueError):
         raise RequestError(Reason.NOT_FINITE, "TSS holds values that are not numbers") from None
 
