@@ -172,6 +172,36 @@ def test_route_points_are_the_numpy_ones(request, junction):
             assert route.points(s).shape == route.points_reference(s).shape
 
 
+@pytest.mark.parametrize("junction", ["ch45", "tee"])
+def test_trajectory_fronts_headings_and_entries_are_the_numpy_ones(request, junction):
+    """A TSS's front points and headings (the answer to a request) and a plan's entry
+    time (Algorithm 1's next target) come from compiled calls: bit for bit numpy's."""
+    inter = request.getfixturevalue(junction)
+    shape = SHAPES[0]
+    seen = 0
+    for route in inter.routes:
+        for traj in trajectories(route, shape, seed=len(route.id)):
+            front, heading = traj.xy_heading(route, shape.length_m)
+            ref_front = route.points_reference(traj.s_m)
+            d = ref_front - route.points_reference(traj.s_m - shape.length_m)
+            assert np.array_equal(front, ref_front)
+            assert np.array_equal(heading, np.arctan2(d[:, 1], d[:, 0]))
+            assert traj.entry_time_s() == traj.entry_time_reference()
+            seen += 1
+    edges = [
+        np.array([-3.0, -2.0, -1.0]),  # never enters
+        np.array([0.5, 1.0]),  # inside from the first sample
+        np.array([-1.0, 0.0, 0.0, 2.0]),  # stands on the line
+        np.array([-1.0, np.nan, 1.0]),
+        np.array([-0.1]),
+    ]
+    for s in edges:
+        traj = Trajectory(3.0, 0.05, s)
+        fast, slow = traj.entry_time_s(), traj.entry_time_reference()
+        assert np.array_equal([fast], [slow], equal_nan=True)
+    assert seen > 10
+
+
 def test_plan_phases_and_bisection_are_the_python_ones():
     rng = np.random.default_rng(8)
     kin = Kinematics()

@@ -1095,7 +1095,8 @@ def _time_at(segs: np.ndarray, n: int, s: float) -> float:
 
 @njit(cache=True, nogil=True)
 def _entry_time(t0: float, step: float, s: np.ndarray) -> float:
-    """``Trajectory.entry_time_s``."""
+    """``Trajectory.entry_time_s``: the time the front reaches s = 0, linear between
+    the samples around it."""
     n = len(s)
     k = n - 1
     for q in range(n):
@@ -1106,6 +1107,12 @@ def _entry_time(t0: float, step: float, s: np.ndarray) -> float:
         return t0 + k * step
     s0, s1 = s[k], s[k + 1]
     return t0 + (k + (0.0 - s0) / (s1 - s0)) * step
+
+
+@njit("float64(float64, float64, float64[:])", cache=True, nogil=True)
+def entry_time(t0: float, step: float, s: np.ndarray) -> float:
+    """``Trajectory.entry_time_s`` (at least one sample)."""
+    return _entry_time(t0, step, s)
 
 
 @njit(cache=True, nogil=True)

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.kernels import front_heading, profile_position
+from ica.core.kernels import entry_time, front_heading, profile_position
 from ica.core.planner import Profile
 from ica.core.route import Route
 
@@ -55,7 +55,14 @@ class Trajectory:
         return int(out[0]) if len(out) else len(self.s_m) - 1
 
     def entry_time_s(self) -> float:
-        """Time the front reaches s = 0, linear between samples as the vehicle moves."""
+        """Time the front reaches s = 0, linear between samples as the vehicle moves
+        (compiled, :func:`ica.core.kernels.entry_time`; :meth:`entry_time_reference`)."""
+        if len(self.s_m) == 0:
+            raise ValueError("a trajectory without samples has no entry time")
+        return entry_time(self.t0_s, self.step_s, np.asarray(self.s_m, dtype=float))
+
+    def entry_time_reference(self) -> float:
+        """:meth:`entry_time_s` in numpy."""
         k = self.entry_index()
         if self.s_m[k] > 0.0 or k + 1 >= len(self.s_m):
             return self.t0_s + k * self.step_s
