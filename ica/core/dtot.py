@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.kernels import dtot_span, grid_dtot
+from ica.core.kernels import grid_dtot_of
 from ica.core.occupancy import Rects, footprints, overlap_matrix, separated
 from ica.core.route import Route
 from ica.core.trajectory import Trajectory
@@ -77,7 +77,7 @@ def build_dtot(
     ``estimated``.
 
     The exhaustive intervals follow the dissertation's getOTI in numpy. With
-    the grid (one compiled call, :func:`ica.core.kernels.grid_dtot`, with
+    the grid (one compiled call, :func:`ica.core.kernels.grid_dtot_of`, with
     exactly the results of :func:`footprints`, :func:`grid_intervals` and
     ``grid.index``) they are the same intervals when the grid's tables are
     exact, and the dissertation's estimate, never narrower, when not.
@@ -87,32 +87,11 @@ def build_dtot(
     if estimated:
         if grid is None:
             raise ValueError("technique 3 needs the route's offline grid")
-        s_all = np.ascontiguousarray(traj.s_m, dtype=float)
-        k0, k1 = dtot_span(s_all, s_end)
-        s = s_all[k0 : k1 + 1]
-        n = len(s)
-        t = traj.t0_s + traj.step_s * np.arange(k0, k1 + 1)
-        centre, heading = np.empty((n, 2)), np.empty((n, 2))
-        lb, ub, g = np.empty(n), np.empty(n), np.empty(n, np.int64)
-        grid_dtot(
-            route.s,
-            grid.route_x,
-            grid.route_y,
-            shape.length_m,
-            s,
-            grid.s0_m,
-            grid.ds_m,
-            grid.fwd_m,
-            grid.back_m,
-            half_l,
-            half_w,
-            centre,
-            heading,
-            t,
-            lb,
-            ub,
-            g,
-        )
+        k0, t, s, centre, heading, lb, ub, g = grid_dtot_of(
+            np.ascontiguousarray(traj.s_m, dtype=float), s_end, traj.t0_s, traj.step_s,
+            route.s, grid.route_x, grid.route_y, shape.length_m, grid.s0_m, grid.ds_m,
+            grid.fwd_m, grid.back_m, half_l, half_w,
+        )  # fmt: skip
         rects = Rects(centre, heading, half_l, half_w)
         return Dtot(route, shape, traj, k0, t, s, rects, lb, ub, g)
     k0 = traj.entry_index()

@@ -317,6 +317,40 @@ def grid_dtot(
 
 
 @njit(
+    "Tuple((int64, float64[::1], float64[::1], float64[:, ::1], float64[:, ::1], float64[::1],"
+    " float64[::1], int64[::1]))(float64[::1], float64, float64, float64, float64[::1],"
+    " float64[::1], float64[::1], float64, float64, float64, float64[::1], float64[::1],"
+    " float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def grid_dtot_of(
+    s_all: np.ndarray, s_end_m: float, t0_s: float, step_s: float, route_s: np.ndarray,
+    route_x: np.ndarray, route_y: np.ndarray, length_m: float, s0_m: float, ds_m: float,
+    fwd_m: np.ndarray, back_m: np.ndarray, half_l: float, half_w: float,
+) -> tuple:  # fmt: skip
+    """``build_dtot`` with the grid, its arrays in one call: (k0, times, arc lengths,
+    centres, headings, lb, ub, grid index) of the occupancies of samples ``s_all``
+    (the trajectory from ``t0_s``, every ``step_s``) from the entry to the exit."""
+    k0, k1 = dtot_span(s_all, s_end_m)
+    s = s_all[k0 : k1 + 1].copy()
+    n = len(s)
+    t = np.empty(n)
+    for q in range(n):
+        t[q] = t0_s + step_s * np.float64(k0 + q)
+    centre = np.empty((n, 2))
+    heading = np.empty((n, 2))
+    lb = np.empty(n)
+    ub = np.empty(n)
+    g = np.empty(n, np.int64)
+    grid_dtot(
+        route_s, route_x, route_y, length_m, s, s0_m, ds_m, fwd_m, back_m, half_l, half_w,
+        centre, heading, t, lb, ub, g,
+    )  # fmt: skip
+    return k0, t, s, centre, heading, lb, ub, g
+
+
+@njit(
     "Tuple((boolean, float64, float64))(float64, float64, float64[::1], float64, float64,"
     " float64[::1], float64, float64)",
     cache=True,
@@ -1210,20 +1244,9 @@ def resolve_rounds(
     b_wait = b_wait0  # the current plan's wait if it is of the stop family, else -1
     for it in range(first_round, max_iterations + 1):
         # the DTOT (ica.core.dtot.build_dtot with the grid)
-        k0, k1 = dtot_span(s, s_end)
-        sd = s[k0 : k1 + 1].copy()
-        n = len(sd)
-        t = np.empty(n)
-        for q in range(n):
-            t[q] = t0 + step * np.float64(k0 + q)
-        centre = np.empty((n, 2))
-        heading = np.empty((n, 2))
-        lb = np.empty(n)
-        ub = np.empty(n)
-        g = np.empty(n, np.int64)
-        grid_dtot(
-            route_s, route_x, route_y, length_m, sd, grid_s0, grid_ds, fwd_m, back_m,
-            half_l, half_w, centre, heading, t, lb, ub, g,
+        _, _, _, centre, heading, lb, ub, g = grid_dtot_of(
+            s, s_end, t0, step, route_s, route_x, route_y, length_m, grid_s0, grid_ds, fwd_m,
+            back_m, half_l, half_w,
         )  # fmt: skip
         # the lane leader, then getCV, and the first conflict as Dica._resolve
         # sorts them (the leader after the others on a tie)
