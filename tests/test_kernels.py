@@ -239,6 +239,35 @@ def test_plan_phases_and_bisection_are_the_python_ones():
     assert bisected > 100
 
 
+def test_plan_constants_are_the_python_planners():
+    """The compiled loop's constants per planner, bit for bit the Python planner's,
+    over standing, slow and fast vehicles, near and far, holding or not, both stop
+    rules, and vehicles that cannot stop or cannot slow to the cap."""
+    rng = np.random.default_rng(9)
+    kinds = {"stops": 0, "cannot stop": 0, "infeasible": 0}
+    for k in range(1500):
+        kin = Kinematics() if k % 3 else Kinematics.at_the_line()
+        pl = Planner(
+            float(rng.choice([0.0, rng.uniform(0.0, 60), rng.uniform(0.0, 2.0)])),
+            float(rng.choice([0.0, rng.uniform(0, 19.5), rng.uniform(0, 2)])),
+            70 / 3.6,
+            float(rng.uniform(2, 18)),
+            float(rng.uniform(10, 40)),
+            kin,
+            hold=bool(k % 2),
+        )
+        fast, slow = pl.plan_constants(), pl.plan_constants_reference()
+        assert fast[:7] == slow[:7]
+        assert np.array_equal(fast[7], slow[7]) and fast[7].shape == slow[7].shape
+        assert np.array_equal(fast[8], slow[8])
+        ph = pl._a_phases_reference(pl._v_max())
+        assert pl.earliest_entry_s() == (np.inf if ph is None else ph[3])
+        kinds["stops"] += bool(np.isfinite(fast[6]) and len(fast[7]))
+        kinds["cannot stop"] += not np.isfinite(fast[6])
+        kinds["infeasible"] += not fast[1]
+    assert min(kinds.values()) > 20, kinds
+
+
 def _outcome(check, req, route, cfg):
     try:
         return ("ok", check(req, route, cfg).s_m.tolist())

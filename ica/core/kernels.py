@@ -1065,6 +1065,67 @@ def _cruise_to(st: np.ndarray, segs: np.ndarray, n: int, s1: float) -> int:
     return n
 
 
+@njit(
+    "Tuple((float64, boolean, float64, float64, boolean, float64, float64, float64[:, ::1],"
+    " float64[::1]))(float64, float64, float64, float64, float64, float64, float64, float64,"
+    " boolean, boolean, float64, float64)",
+    cache=True,
+    nogil=True,
+)
+def plan_constants_of(
+    a: float, br: float, v0: float, d: float, road: float, cap: float, creep: float,
+    stop_gap_m: float, run_up: bool, hold: bool, cap_sq: float, v0_sq: float,
+) -> tuple:  # fmt: skip
+    """``Planner.plan_constants`` (see ``Planner.plan_constants_reference``): the
+    time-optimal plan's cruise speed and entry, the slowest slow-down plan's, the stop
+    family's earliest entry and its stop-at-the-line base, expression for expression.
+    ``cap_sq`` and ``v0_sq`` are Python's ``cap ** 2`` and ``v0 ** 2`` (its power is
+    not always the product)."""
+    # Planner._v_max
+    reach = math.sqrt(v0 * v0 + 2 * a * d)
+    if reach <= cap and v0 <= cap:
+        v_hi = _py_min(reach, road)
+    else:
+        peak2 = (d + v0 * v0 / (2 * a) + cap * cap / (2 * br)) / (1 / (2 * a) + 1 / (2 * br))
+        v_hi = _py_min(road, math.sqrt(_py_max(peak2, 0.0)))
+    hi_ok, _, _, _, hi_t = a_phases(a, br, v0, d, cap, v_hi)
+    # Planner._v_min_a
+    v_lo = _py_max(creep, math.sqrt(_py_max(0.0, v0_sq - 2 * br * d)))
+    lo_ok, lo_t = False, 0.0
+    if v_lo < v_hi:
+        lo_ok, _, _, _, lo_t = a_phases(a, br, v0, d, cap, v_lo)
+    if not hi_ok:
+        hi_t = 0.0
+    if not lo_ok:
+        lo_t = 0.0
+    # Planner._stop_gap
+    if hold and v0 <= 0.0:
+        gap = d
+    else:
+        gap = stop_gap_m
+        if run_up:
+            gap = _py_max(gap, _py_min(cap_sq / (2 * a), d - v0_sq / (2 * br)))
+        gap = _py_min(gap, d)
+    # Planner.stop_entry_s: can_stop, _b_base_build, _pull_away_time
+    if not v0_sq <= 2 * br * (d - gap) + 1e-7:
+        return v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, math.inf, np.zeros((0, 4)), np.zeros(3)
+    d_stop = d - gap
+    segs = np.empty((_MAX_SEGS, 4))
+    st = np.empty(3)
+    st[0], st[1], st[2] = 0.0, -d, v0
+    peak2 = (d_stop + v0 * v0 / (2 * a)) / (1 / (2 * a) + 1 / (2 * br))
+    peak = _py_max(v0, _py_min(road, math.sqrt(_py_max(peak2, 0.0))))
+    n = _accel_to(st, segs, 0, peak, a)
+    n = _cruise_to(st, segs, n, -gap - peak * peak / (2 * br))
+    n = _accel_to(st, segs, n, 0.0, br)
+    st[1] = -gap
+    if gap <= cap * cap / (2 * a):
+        pull = math.sqrt(2 * gap / a)
+    else:
+        pull = cap / a + (gap - cap * cap / (2 * a)) / cap
+    return v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, st[0] + pull, segs[:n].copy(), st
+
+
 @njit(cache=True, nogil=True)
 def _crossing(
     st: np.ndarray, segs: np.ndarray, n: int, cap: float, accel: float, s_end: float

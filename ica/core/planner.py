@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from ica.core.kernels import a_phases, bisect_cruise
+from ica.core.kernels import a_phases, bisect_cruise, plan_constants_of
 
 _EPS = 1e-9
 
@@ -328,8 +328,8 @@ class Planner:
         return t_stop + self._pull_away_time(self._stop_gap())
 
     def earliest_entry_s(self) -> float:
-        ph = self._a_phases(self._v_max())
-        return math.inf if ph is None else ph[3]
+        _, fits, entry = self.plan_constants()[:3]
+        return entry if fits else math.inf
 
     def _entry_memo(self) -> dict[str, Any]:
         """The time-optimal plan and the slowest slow-down plan, once per planner."""
@@ -345,10 +345,22 @@ class Planner:
         """What :meth:`at_or_after` computes once, for the compiled round loop
         (:func:`ica.core.kernels.resolve_rounds`): (v_hi, hi fits, its entry
         time, v_lo, lo fits, its entry time, the stop plan's earliest entry,
-        the stop-at-the-line base as segments and as the builder's (t, s, v))."""
+        the stop-at-the-line base as segments and as the builder's (t, s, v)).
+        One compiled call (:func:`ica.core.kernels.plan_constants_of`), bit for bit
+        :meth:`plan_constants_reference`."""
+        m = self._memo
+        if "constants" not in m:
+            kin = self.kin
+            m["constants"] = plan_constants_of(
+                kin.accel_mps2, kin.decel_mps2, self.v0_mps, self.d_m, self.road_mps,
+                self.cap_mps, kin.creep_mps, kin.stop_gap_m, kin.run_up, self.hold,
+                self.cap_mps**2, self.v0_mps**2,
+            )  # fmt: skip
+        return m["constants"]
+
+    def plan_constants_reference(self) -> tuple:
+        """:meth:`plan_constants` from the Python planner."""
         m = self._entry_memo()
-        if "constants" in m:
-            return m["constants"]
         hi, lo = m["hi"], m["lo"]
         if "t_b0" not in m:
             m["t_b0"] = self.stop_entry_s()
@@ -359,12 +371,11 @@ class Planner:
             state = np.array([t, s, v], dtype=float)
         else:
             base, state = np.zeros((0, 4)), np.zeros(3)
-        m["constants"] = (
+        return (
             m["v_hi"], hi is not None, hi[3] if hi is not None else 0.0,
             m["v_lo"], lo is not None, lo[3] if lo is not None else 0.0,
             t_b0, base, state,
         )  # fmt: skip
-        return m["constants"]
 
     def stop_wait_s(self, t_entry_s: float) -> float | None:
         """The wait of the plan :meth:`at_or_after` gives if it is of the stop family,
