@@ -10,7 +10,7 @@ import pytest
 import ica.core.dica
 from ica.core import validate
 from ica.core.config import IcaConfig
-from ica.core.conflict import follow_conflict, follow_conflict_reference
+from ica.core.conflict import follow_conflict, follow_conflict_reference, pack
 from ica.core.dtot import build_dtot, grid_intervals
 from ica.core.kernels import _searchsorted
 from ica.core.occupancy import footprints
@@ -174,8 +174,9 @@ def test_route_points_are_the_numpy_ones(request, junction):
 
 @pytest.mark.parametrize("junction", ["ch45", "tee"])
 def test_trajectory_fronts_headings_and_entries_are_the_numpy_ones(request, junction):
-    """A TSS's front points and headings (the answer to a request) and a plan's entry
-    time (Algorithm 1's next target) come from compiled calls: bit for bit numpy's."""
+    """A TSS's times, front points and headings (the answer to a request), a plan's
+    entry time (Algorithm 1's next target) and a confirmed DTOT's packed rows come from
+    compiled calls: bit for bit numpy's."""
     inter = request.getfixturevalue(junction)
     shape = SHAPES[0]
     seen = 0
@@ -186,7 +187,18 @@ def test_trajectory_fronts_headings_and_entries_are_the_numpy_ones(request, junc
             d = ref_front - route.points_reference(traj.s_m - shape.length_m)
             assert np.array_equal(front, ref_front)
             assert np.array_equal(heading, np.arctan2(d[:, 1], d[:, 0]))
+            t, x, y, h = traj.tss(route, shape.length_m)
+            assert np.array_equal(t, traj.t_s)
+            assert np.array_equal(x, ref_front[:, 0]) and np.array_equal(y, ref_front[:, 1])
+            assert np.array_equal(h, heading)
             assert traj.entry_time_s() == traj.entry_time_reference()
+            for estimated in (True, False):  # a confirmed DTOT's rows for the batched getCV
+                grid = ConflictTables(inter, 0.25).grid(route, shape)
+                dt = build_dtot(route, shape, traj, 0.25, grid, estimated)
+                r = dt.rects
+                cols = [dt.lb_s, dt.ub_s, *r.centre.T, *r.heading.T]
+                cols += [np.full(len(dt), r.half_length), np.full(len(dt), r.half_width)]
+                assert np.array_equal(pack(dt), np.stack([*cols, dt.grid_idx], axis=1))
             seen += 1
     edges = [
         np.array([-3.0, -2.0, -1.0]),  # never enters

@@ -28,7 +28,7 @@ import numpy as np
 
 from ica.core.config import Techniques
 from ica.core.dtot import Dtot
-from ica.core.kernels import batch_conflicts, follow_check, select_rows
+from ica.core.kernels import batch_conflicts, follow_check, pack_rows, select_rows
 from ica.core.occupancy import overlap_matrix, overlap_pairs
 from ica.core.route import Route
 from ica.core.trajectory import Trajectory
@@ -128,15 +128,16 @@ def pack(d: Dtot) -> np.ndarray:
     """
     if d.grid_idx is None:
         raise ValueError("conflict zones need DTOTs built with their offline grid")
-    out = np.empty((len(d), len(PACKED)))
-    out[:, 0] = d.lb_s
-    out[:, 1] = d.ub_s
-    out[:, 2:4] = d.rects.centre
-    out[:, 4:6] = d.rects.heading
-    out[:, 6] = d.rects.half_length
-    out[:, 7] = d.rects.half_width
-    out[:, 8] = d.grid_idx
-    return out
+    r = d.rects
+    return pack_rows(
+        d.lb_s,
+        d.ub_s,
+        r.centre,
+        r.heading,
+        float(r.half_length),
+        float(r.half_width),
+        d.grid_idx,
+    )
 
 
 @dataclass(frozen=True, slots=True, eq=False)

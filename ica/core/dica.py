@@ -378,12 +378,11 @@ class Dica:
         pad, as :meth:`adopt` rebuilds it."""
         route = dtot.route
         entry = dtot.trajectory.entry_time_s()
-        front, heading = dtot.trajectory.xy_heading(route, length_m)
         conf = Confirmation(
             vin=vin,
             seq=seq,
             route_id=route.id,
-            tss=Tss(dtot.trajectory.t_s, front[:, 0].copy(), front[:, 1].copy(), heading),
+            tss=Tss(*dtot.trajectory.tss(route, length_m)),
             entry_time_s=entry,
             exit_time_s=float(dtot.t_s[-1]),
             delay_s=max(0.0, entry - earliest),

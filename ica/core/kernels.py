@@ -171,6 +171,57 @@ def front_heading(
     return front, heading
 
 
+@njit(
+    "UniTuple(float64[::1], 4)(float64, float64, float64[:], float64, float64[::1],"
+    " float64[:, ::1])",
+    cache=True,
+    nogil=True,
+)
+def tss_of(
+    t0_s: float, step_s: float, s: np.ndarray, length_m: float, route_s: np.ndarray,
+    route_xy: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """A trajectory as a TSS: sample times (``Trajectory.t_s``), front points and
+    headings (:func:`front_heading`), as four arrays."""
+    n = len(s)
+    t = np.empty(n)
+    for k in range(n):
+        t[k] = t0_s + step_s * np.float64(k)
+    front, heading = front_heading(s, length_m, route_s, route_xy)
+    x = np.empty(n)
+    y = np.empty(n)
+    for k in range(n):
+        x[k] = front[k, 0]
+        y[k] = front[k, 1]
+    return t, x, y, heading
+
+
+@njit(
+    "float64[:, ::1](float64[:], float64[:], float64[:, :], float64[:, :], float64, float64,"
+    " int64[:])",
+    cache=True,
+    nogil=True,
+)
+def pack_rows(
+    lb: np.ndarray, ub: np.ndarray, centre: np.ndarray, heading: np.ndarray, half_l: float,
+    half_w: float, g: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """``ica.core.conflict.pack``: a DTOT's occupancies as rows of its PACKED columns."""
+    n = len(lb)
+    out = np.empty((n, 9))
+    for k in range(n):
+        out[k, 0] = lb[k]
+        out[k, 1] = ub[k]
+        out[k, 2] = centre[k, 0]
+        out[k, 3] = centre[k, 1]
+        out[k, 4] = heading[k, 0]
+        out[k, 5] = heading[k, 1]
+        out[k, 6] = half_l
+        out[k, 7] = half_w
+        out[k, 8] = np.float64(g[k])
+    return out
+
+
 @njit("UniTuple(int64, 2)(float64[::1], float64)", cache=True, nogil=True)
 def dtot_span(s: np.ndarray, s_end_m: float) -> tuple[int, int]:
     """(entry_index, exit_index) of :class:`ica.core.trajectory.Trajectory`."""

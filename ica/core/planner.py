@@ -380,13 +380,9 @@ class Planner:
     def stop_wait_s(self, t_entry_s: float) -> float | None:
         """The wait of the plan :meth:`at_or_after` gives if it is of the stop family,
         else None. Such plans all move alike until ``stop_time_s() + wait``."""
-        m = self._entry_memo()
-        hi, lo = m["hi"], m["lo"]
-        if hi is None or t_entry_s <= hi[3] + 1e-9 or (lo is not None and t_entry_s <= lo[3]):
+        _, hi_ok, hi_t, _, lo_ok, lo_t, t_b0 = self.plan_constants()[:7]
+        if not hi_ok or t_entry_s <= hi_t + 1e-9 or (lo_ok and t_entry_s <= lo_t):
             return None
-        if "t_b0" not in m:
-            m["t_b0"] = self.stop_entry_s()
-        t_b0 = m["t_b0"]
         return max(0.0, t_entry_s - t_b0) if math.isfinite(t_b0) else None
 
     def stop_time_s(self) -> float:

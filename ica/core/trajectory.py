@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.kernels import entry_time, front_heading, profile_position
+from ica.core.kernels import entry_time, front_heading, profile_position, tss_of
 from ica.core.planner import Profile
 from ica.core.route import Route
 
@@ -68,6 +68,14 @@ class Trajectory:
             return self.t0_s + k * self.step_s
         s0, s1 = self.s_m[k], self.s_m[k + 1]
         return self.t0_s + (k + (0.0 - s0) / (s1 - s0)) * self.step_s
+
+    def tss(
+        self, route: Route, length_m: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """As a TSS: times, front-bumper x and y, headings (:meth:`xy_heading`)."""
+        xy = np.ascontiguousarray(route.xy, dtype=float)
+        s = np.asarray(self.s_m, dtype=float)
+        return tss_of(self.t0_s, self.step_s, s, float(length_m), route.s, xy)
 
     def xy_heading(self, route: Route, length_m: float) -> tuple[np.ndarray, np.ndarray]:
         """Front-bumper points (N, 2) and headings [rad, CCW from +x], rear-to-front."""
