@@ -976,16 +976,10 @@ def request_checks(
     )  # fmt: skip
     if failed:
         return 1, failed, value, s
-    n = len(s)
-    rear = np.empty(n)
-    for k in range(n):
-        rear[k] = s[k] - length_m
-    front = route_points(s, route_s, route_xy)
-    back = route_points(rear, route_s, route_xy)
+    _, expect = front_heading(s, length_m, route_s, route_xy)
     worst = 0.0
-    for k in range(n):  # np.abs((h - expect + pi) % (2 pi) - pi), its maximum
-        expect = np.arctan2(front[k, 1] - back[k, 1], front[k, 0] - back[k, 0])
-        dh = abs((h[k] - expect + np.pi) % (2 * np.pi) - np.pi)
+    for k in range(len(s)):  # np.abs((h - expect + pi) % (2 pi) - pi), its maximum
+        dh = abs((h[k] - expect[k] + np.pi) % (2 * np.pi) - np.pi)
         worst = dh if k == 0 else max(worst, dh)
     if worst > heading_tol_rad:
         return 2, 0, worst, s
