@@ -102,3 +102,36 @@ def test_first_conflict_is_the_sorted_get_cv_head(request, monkeypatch, junction
     res = run_stream(inter, IcaConfig(), spec)
     assert len(res.confirmed) == len(res.vehicles)
     assert rounds["with_conflicts"] > 20
+
+
+def _first(rows: list[tuple[float, float, int]], span: float) -> tuple[int, float, float]:
+    """first_conflict of one occupancy held from 10 to 11 s against confirmed rows
+    (lb, ub, vehicle) on a grid point that always touches it."""
+    n = len(rows)
+    packed = np.zeros((n, 9))
+    for q, (lb, ub, _) in enumerate(rows):
+        packed[q, :2] = lb, ub
+    one = np.zeros(1, np.int64)
+    return first_conflict(
+        np.array([10.0]), np.array([11.0]), one, np.zeros((1, 2)), np.array([[1.0, 0.0]]),
+        1.0, 1.0, packed, np.array([v for *_, v in rows], np.int64), np.arange(n),
+        np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64),
+        np.full(1, 2, np.int8), 1, np.array([lb for lb, *_ in rows]), span, math.inf,
+    )  # fmt: skip
+
+
+def test_first_conflict_skips_only_rows_that_end_before_the_requester():
+    """The binary-search skip of rows that start more than the longest interval before
+    the requester: a row that ends exactly when the requester starts still conflicts
+    (closed intervals), one that ends a hair before does not, whether or not it is the
+    longest; with no skip (a NaN span) the answer is the same."""
+    cases = {
+        "touching, the longest": ([(8.0, 10.0, 0)], (0, 8.0, 0.0)),
+        "touching, a longer one before it": ([(7.0, 9.999, 1), (8.0, 10.0, 0)], (0, 8.0, 0.0)),
+        "ends a hair before": ([(8.0, 10.0 - 1e-9, 0)], (-1, 0.0, 0.0)),
+        "overlaps": ([(7.0, 9.5, 1), (9.0, 10.5, 0)], (0, 9.0, 0.5)),
+    }
+    for name, (rows, want) in cases.items():
+        span = max(ub - lb for lb, ub, _ in rows)
+        assert _first(rows, span) == want, name
+        assert _first(rows, math.nan) == want, name
