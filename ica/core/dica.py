@@ -367,16 +367,15 @@ class Dica:
 
         leader = self._leader(req.vin, lane)
         found = self._resolve_best(req, route, shape, traj, leader)
-        dtot = self._dtot(found, route, shape)
-        return self._store(req.vin, req.seq, dtot, found.iterations, found.earliest, req.length_m)
+        return self._store(req.vin, req.seq, found, route, shape, req.length_m)
 
     def _store(
-        self, vin: str, seq: int, dtot: Dtot, iterations: int, earliest: float, length_m: float
+        self, vin: str, seq: int, found: _Found, route: Route, shape: Shape, length_m: float
     ) -> Confirmation:
-        """Confirm ``dtot`` to ``vin`` (its TSS drawn for a vehicle ``length_m`` long):
-        the answer, and the reservation held with its intervals grown by twice the time
-        pad, as :meth:`adopt` rebuilds it."""
-        route = dtot.route
+        """Confirm the plan ``found`` to ``vin`` (its TSS drawn for a vehicle ``length_m``
+        long): the answer, and the reservation held with its intervals grown by twice the
+        time pad, as :meth:`adopt` rebuilds it."""
+        dtot = self._dtot(found, route, shape)
         entry = dtot.trajectory.entry_time_s()
         conf = Confirmation(
             vin=vin,
@@ -385,8 +384,8 @@ class Dica:
             tss=Tss(*dtot.trajectory.tss(route, length_m)),
             entry_time_s=entry,
             exit_time_s=float(dtot.t_s[-1]),
-            delay_s=max(0.0, entry - earliest),
-            iterations=iterations,
+            delay_s=max(0.0, entry - found.earliest),
+            iterations=found.iterations,
         )
         stored = padded(dtot, 2.0 * self.config.time_pad_s)
         done = Confirmed.of(vin, stored, conf)
@@ -550,13 +549,13 @@ class Dica:
             while True:
                 found = self._resolve_compiled(
                     req, route, shape, traj, leader, lag, planner, grid, s_end, max_wait_s,
-                    first_round, b_wait0, target0,
+                    earliest, first_round, b_wait0, target0,
                 )  # fmt: skip
                 if found is None:
                     break
                 late = self._exit_conflict(route, found.out_s, found.out_mps, shape.length_m)
                 if late is None:
-                    return dataclasses.replace(found, earliest=earliest)
+                    return found
                 target = found.traj.entry_time_s() - req.t0_s + max(late.delay_s, cfg.step_s)
                 if target > max_wait_s:
                     raise _too_late(max_wait_s)
@@ -626,14 +625,15 @@ class Dica:
         grid: RouteGrid,
         s_end: float,
         max_wait_s: float,
+        earliest: float,
         first_round: int = 1,
         b_wait0: float = -1.0,
         target0: float = math.nan,
     ) -> _Found | None:
         """The loop of :meth:`_resolve` in one compiled call
         (:func:`ica.core.kernels.resolve_rounds`): the same plans round for
-        round, so the same answer (its earliest entry left to the caller). None
-        where the loop would raise."""
+        round, so the same answer (``earliest``: the request's earliest entry, kept
+        with it). None where the loop would raise."""
         cfg = self.config
         batch = self._confirmed_batch(route, shape)
         g = batch.gathered
@@ -664,7 +664,7 @@ class Dica:
         if status != RESOLVED:
             return None
         final = Trajectory(req.t0_s, cfg.step_s, s)
-        return _Found(final, *_exit_of(final, s_end), iteration, math.nan)
+        return _Found(final, *_exit_of(final, s_end), iteration, earliest)
 
     def conflicts(self, dtot: Dtot) -> list[Conflict]:
         """getCV: confirmed vehicles in space-time conflict with ``dtot``.
@@ -757,8 +757,7 @@ class Dica:
         )  # fmt: skip
         leader = self._confirmed.get(leader_vin) if leader_vin is not None else None
         found = self._resolve_best(req, route, shape, traj, leader)
-        dtot = self._dtot(found, route, shape)
-        return self._store(vin, seq, dtot, found.iterations, found.earliest, shape.length_m)
+        return self._store(vin, seq, found, route, shape, shape.length_m)
 
 
 _BATCHED_GET_CV = Dica.conflicts  # the getCV the compiled round loop repeats
