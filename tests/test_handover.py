@@ -11,7 +11,8 @@ import pytest
 
 from ica.core.baselines import controller_config, make_controller
 from ica.core.dica import Dica
-from ica.core.handover import Handover
+from ica.core.handover import Handover, separation_reference
+from ica.core.kernels import separation
 from ica.core.proposal import propose
 from ica.core.request import Confirmation
 from tests.test_run_sumo import dica
@@ -66,6 +67,26 @@ def test_the_separation_grows_with_the_follower_s_speed_and_shrinks_with_the_lea
     by_leader = [h.separation_s(v, 18.0, 5.0) for v in (3.0, 7.0, 11.0, 15.0)]
     assert by_leader == sorted(by_leader, reverse=True) and by_leader[0] > by_leader[-1]
     assert h.separation_s(7.0, 18.0, 12.0) > h.separation_s(7.0, 18.0, 5.0)  # a longer follower
+
+
+def test_the_compiled_separation_is_the_numpy_search_bit_for_bit():
+    """The compiled search (what a request runs) against the numpy one it replaces, on
+    the lookup grid (1 cm/s, 10 cm) and off it, both drivers, and the edges: a leader
+    standing, both at or above the road speed, equal speeds, a follower standing."""
+    rng = np.random.default_rng(5)
+    cases = [(0.0, ROAD_MPS, 5.0), (ROAD_MPS, ROAD_MPS, 5.0), (25.0, 30.0, 5.0),
+             (8.0, 8.0, 5.0), (12.0, 0.0, 5.0), (0.0, 0.0, 12.0)]  # fmt: skip
+    for _ in range(1500):
+        v_lead, v_follow = rng.uniform(0.0, 1.2 * ROAD_MPS, 2)
+        length = rng.uniform(3.0, 12.0)
+        if rng.uniform() < 0.5:
+            v_lead, v_follow = math.floor(v_lead * 100) / 100, math.ceil(v_follow * 100) / 100
+            length = math.ceil(length * 10) / 10
+        cases.append((float(v_lead), float(v_follow), float(length)))
+    for h in (Handover(ROAD_MPS), Handover(50.0 / 3.6, 1.5, 3.0, 1.5, 2.0, 0.5, 0.1)):
+        found = [separation(h.constants, *c) for c in cases]
+        assert found == [separation_reference(h, *c) for c in cases]
+        assert all(0.0 <= x < 120.0 for x in found)
 
 
 def confirm_pair(inter, exit_spacing: bool) -> Dica:

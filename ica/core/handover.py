@@ -25,6 +25,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ica.core.kernels import separation
+
 
 @dataclass(frozen=True, slots=True)
 class Handover:
@@ -51,6 +53,14 @@ class Handover:
             math.ceil(follow_len_m * 10.0) / 10.0,
         )
 
+    @property
+    def constants(self) -> tuple[float, float, float, float, float, float, float]:
+        """What the compiled search reads (:func:`ica.core.kernels.separation`)."""
+        return (
+            self.road_mps, self.accel_mps2, self.decel_mps2, self.tau_s, self.min_gap_m,
+            self.buffer_m, self.step_s,
+        )  # fmt: skip
+
     def _free(self, v0: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance and speed at times ``t`` >= 0 of a free run from ``v0``."""
         v_top = max(self.road_mps, v0)
@@ -73,6 +83,19 @@ class Handover:
 
 @functools.lru_cache(maxsize=4096)
 def _separation(h: Handover, v_lead: float, v_follow: float, follow_len_m: float) -> float:
+    # compiled: a miss came to about 0.4 ms in numpy (some 20 gap checks), a request
+    # can meet several new speed pairs, and the cache warms only slowly in a real run
+    return separation(h.constants, v_lead, v_follow, follow_len_m)
+
+
+def clear_separations() -> None:
+    """Forget the separations looked up so far (a benchmark's cold start)."""
+    _separation.cache_clear()
+
+
+def separation_reference(h: Handover, v_lead: float, v_follow: float, follow_len_m: float) -> float:
+    """The search :func:`ica.core.kernels.separation` compiles, over :meth:`Handover.gap_ok`
+    (doubling, then bisection to 0.01 s): the tests hold the two equal."""
     lo, hi = 0.0, 1.0
     while not h.gap_ok(v_lead, v_follow, follow_len_m, hi):
         lo, hi = hi, 2.0 * hi

@@ -1397,3 +1397,56 @@ def resolve_rounds(
         if not ok:
             return FALL_BACK, it, s
     return FALL_BACK, max_iterations, s
+
+
+@njit(cache=True, nogil=True)
+def _free_run(road: float, accel: float, v0: float, t: float) -> tuple[float, float]:
+    """``Handover._free`` at one time: distance and speed of a free run from ``v0``."""
+    v_top = max(road, v0)
+    t_acc = (v_top - v0) / accel
+    ta = min(t, t_acc)
+    x = v0 * ta + 0.5 * accel * ta * ta + v_top * max(t - t_acc, 0.0)
+    return x, min(v0 + accel * t, v_top)
+
+
+@njit(cache=True, nogil=True)
+def _gap_ok(h: tuple, v_lead: float, v_follow: float, length: float, sep: float) -> bool:
+    """``Handover.gap_ok``: the same samples (numpy's ``arange``: ``i * step``, as many
+    as ``ceil(stop / step)``) and the same arithmetic, stopping at the first short gap."""
+    road, accel, decel, tau, min_gap, buffer, step = h
+    horizon = sep + (road - min(v_lead, v_follow)) / accel + 1.0
+    n = math.ceil((horizon + step) / step)
+    floor_m = min_gap + buffer
+    for i in range(n):
+        t = i * step
+        x_l, v_l = _free_run(road, accel, v_lead, t + sep)
+        x_f, v_f = _free_run(road, accel, v_follow, t)
+        gap = x_l - x_f - length
+        need = floor_m + v_f * tau
+        need = need + (v_f * v_f - v_l * v_l) / (2.0 * decel)
+        if not gap >= need:
+            return False
+    return True
+
+
+@njit(
+    "float64(UniTuple(float64, 7), float64, float64, float64)", cache=True, nogil=True
+)  # fmt: skip
+def separation(h: tuple, v_lead: float, v_follow: float, length: float) -> float:
+    """``ica.core.handover``'s search for the least separation (doubling, then
+    bisection to 0.01 s), over :func:`_gap_ok`: ``h`` is the driver's (road speed,
+    acceleration, deceleration, tau, standstill gap, buffer, time step)."""
+    lo, hi = 0.0, 1.0
+    while not _gap_ok(h, v_lead, v_follow, length, hi):
+        lo, hi = hi, 2.0 * hi
+        if hi > 120.0:
+            return math.inf
+    if _gap_ok(h, v_lead, v_follow, length, lo):
+        return lo
+    while hi - lo > 0.01:
+        mid = 0.5 * (lo + hi)
+        if _gap_ok(h, v_lead, v_follow, length, mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
