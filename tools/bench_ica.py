@@ -14,9 +14,12 @@ requester's own lane, which would stand ahead of it).
 
 Every variant then answers exactly those requests from exactly those states
 (its own interval method applied to the confirmed trajectories), best of
-``repeat`` timings each. Ratios to basic DICA are taken per request, so
-machine noise mostly cancels. Every variant runs with exit spacing, as the
-ICA does by default: where checkFV's cap binds, a request is planned twice.
+``repeat`` timings each, each with the exit-spacing separations looked up
+anew: a run meets new speed pairs all the time, and a cache warmed by the
+other variants' answers to the same requests would hide their cost. Ratios
+to basic DICA are taken per request, so machine noise mostly cancels. Every
+variant runs with exit spacing, as the ICA does by default: where checkFV's
+cap binds, a request is planned twice.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ import numpy as np
 
 from ica.core.config import IcaConfig, Techniques
 from ica.core.dica import Dica
+from ica.core.handover import clear_separations
 from ica.core.intersection import Intersection
 from ica.core.request import Confirmation, Request, Tss
 from ica.core.zones import ConflictTables
@@ -115,6 +119,7 @@ def time_variant(
             for conf, length, width, lane in snap.confirmed:
                 ica.adopt(conf, length, width, lane)
             ica.detect(snap.request.vin, snap.request.in_lane, snap.now_s)
+            clear_separations()
             t = time.perf_counter()
             answer = ica.handle(snap.request, snap.now_s)
             best = min(best, time.perf_counter() - t)
