@@ -237,13 +237,13 @@ def test_an_exit_at_the_route_s_cap_up_to_rounding_does_not_bind_the_cap(ch45, m
     assert ica.front_cap_mps(through) == out  # a slower vehicle ahead binds
 
     caps: list[float] = []
-    resolve = Dica._resolve
+    search = Dica._search
 
     def counted(self: Dica, *args, **kw):
         caps.append(args[5])
-        return resolve(self, *args, **kw)
+        return search(self, *args, **kw)
 
-    monkeypatch.setattr(Dica, "_resolve", counted)
+    monkeypatch.setattr(Dica, "_search", counted)
     ica.detect("d", RIGHT[0], 0.5)  # behind "a", which has begun to enter by t = 2
     req = propose(
         right, vin="d", seq=0, t0_s=2.0, dist_to_entry_m=40.0, speed_mps=25 / 3.6,

@@ -5,26 +5,31 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 import ica.core.dica as dica_module
 from ica.core.baselines import controller_config, make_controller
 from ica.core.config import IcaConfig, Techniques
-from ica.core.dica import Dica
+from ica.core.dica import Dica, _finish
 from ica.core.planner import Planner
 from ica.core.request import RequestError
 from tools.stream import StreamSpec, run_stream
 
 
-def _resolve(resolve, ica: Dica, compiled: bool, args: tuple):
-    """(what to compare, the result or the exception) of one loop."""
+def _resolve(search, ica: Dica, compiled: bool, args: tuple):
+    """(what to compare, the result or the exception) of one search run to its end."""
     ica.compiled_loop = compiled
     try:
-        found = resolve(ica, *args)
+        found = _finish(search(ica, *args))
     except RequestError as e:
         return ("raised", e.reason, e.detail), e
     finally:
         del ica.compiled_loop
+    return _key(ica, found, args), found
+
+
+def _key(ica: Dica, found, args: tuple) -> tuple:
     route, shape = args[1], args[2]
     d = ica._dtot(found, route, shape)
     assert (found.out_s, found.out_mps) == (float(d.t_s[-1]), d.exit_speed_mps)
@@ -41,7 +46,7 @@ def _resolve(resolve, ica: Dica, compiled: bool, args: tuple):
         iterations,
         earliest,
     )
-    return key, found
+    return key
 
 
 @pytest.mark.parametrize(
@@ -66,13 +71,31 @@ def test_compiled_rounds_equal_python_rounds(
     exit spacing the compiled loop goes on after each exit delay, and each
     request may be resolved twice (capped and fast), both ways each time."""
     inter = request.getfixturevalue(junction)
-    python_loop = Dica._resolve
-    seen = {"requests": 0, "rounds": 0, "raised": 0, "stops": 0, "exit_delays": 0, "planned": 0}
+    search = Dica._search
+    rng = np.random.default_rng(seed)
+    seen = {"requests": 0, "rounds": 0, "raised": 0, "stops": 0, "exit_delays": 0, "planned": 0,
+            "paused": 0}  # fmt: skip
 
     def both(self: Dica, *args):
+        """The compiled search as the request runs it (paused, its bound lowered
+        meanwhile, and half the time lowered again at random), then the Python loop
+        with the bound it ended with, from the start."""
         assert self._compiled_rounds()
-        fast, out = _resolve(python_loop, self, True, args)
-        slow, _ = _resolve(python_loop, self, False, args)
+        run = search(self, *args)
+        try:
+            while True:
+                next(run)
+                seen["paused"] += 1
+                yield
+                if rng.uniform() < 0.5:  # lower it further: the search must give up there
+                    args[6][0] = rng.uniform(0.0, args[6][0])
+        except StopIteration as done:
+            out = done.value
+            fast = _key(self, out, args)
+        except RequestError as e:
+            out, fast = e, ("raised", e.reason, e.detail)
+        bound = args[6]
+        slow, _ = _resolve(search, self, False, (*args[:6], [bound[0]]))
         assert fast == slow
         seen["requests"] += 1
         if isinstance(out, RequestError):
@@ -81,7 +104,8 @@ def test_compiled_rounds_equal_python_rounds(
         seen["rounds"] += out.iterations
         return out
 
-    monkeypatch.setattr(Dica, "_resolve", both)
+    monkeypatch.setattr(Dica, "_search", both)
+    monkeypatch.setattr(dica_module, "PAUSE_ROUNDS", 3)  # pauses often: every way on is met
     build_b = Planner._build_b
 
     def counted(self: Planner, wait_s: float):
@@ -120,6 +144,7 @@ def test_compiled_rounds_equal_python_rounds(
     assert seen["planned"] > 0  # a first plan over the cap, or after an exit delay
     if exit_spacing:
         assert seen["exit_delays"] > 0  # exit rules delayed plans: the compiled loop went on
+        assert seen["paused"] > 0  # capped searches paused for the fast one, and went on
 
 
 def test_compiled_rounds_only_for_enhanced(ch45):
@@ -135,3 +160,80 @@ def test_controllers_get_tables_of_their_interval_kind(ch45):
         ica = make_controller(name, ch45, controller_config(name, 0.25))
         assert ica.tables.exact_oti is exact
         assert ica.config.techniques.exact_oti is exact
+
+
+def _in_turn(ica: Dica, req, route, shape, traj, leader):
+    """The two searches of a request planned twice, one after the other: capped first,
+    then the fast one given up once its entry is past the capped plan's exit."""
+    cap = ica.front_cap_mps(route)
+    if not ica.config.exit_spacing or cap >= route.speed_cap_mps:
+        return ica._resolve(req, route, shape, traj, leader, cap)
+    try:
+        capped = ica._resolve(req, route, shape, traj, leader, cap)
+    except RequestError:
+        return ica._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
+    give_up = min(ica.config.max_wait_s, capped.out_s - req.t0_s)
+    try:
+        fast = ica._resolve(req, route, shape, traj, leader, route.speed_cap_mps, give_up)
+    except RequestError:
+        return capped
+    return fast if fast.out_s < capped.out_s else capped
+
+
+def _outcome(resolve) -> tuple:
+    try:
+        f = resolve()
+    except RequestError as e:
+        return ("raised", e.reason, e.detail), e
+    return (f.traj.t0_s, f.traj.s_m.tobytes(), f.out_s, f.out_mps, f.iterations, f.earliest), f
+
+
+@pytest.mark.parametrize(
+    ("junction", "volume", "seed", "pause"),
+    [("ch45", 3000.0, 3, 3), ("ch45", 6000.0, 12, 12), ("skewed", 2500.0, 7, 2)],
+)
+def test_pausing_the_capped_search_for_the_fast_one_changes_no_answer(
+    request, monkeypatch, junction, volume, seed, pause
+):
+    """Every request of a heavy stream with exit spacing: ``Dica._resolve_best`` (the
+    capped search paused after ``pause`` rounds while the fast one runs) gives the plan,
+    or the error, of the two searches in turn. Fails if the paused search goes on
+    under a bound it should not have (a plan entering after the fast plan's exit, or
+    one given up too soon) or keeps the wrong plan of the two."""
+    inter = request.getfixturevalue(junction)
+    monkeypatch.setattr(dica_module, "PAUSE_ROUNDS", pause)
+    best, search = Dica._resolve_best, Dica._search
+    seen = {"twice": 0, "fast kept": 0, "paused": 0, "raised": 0}
+
+    def counted(self: Dica, *args):
+        run = search(self, *args)
+        while True:
+            try:
+                next(run)
+            except StopIteration as done:
+                return done.value
+            seen["paused"] += 1
+            yield
+
+    def compare(self: Dica, req, route, shape, traj, leader):
+        want, _ = _outcome(lambda: _in_turn(self, req, route, shape, traj, leader))
+        got, out = _outcome(lambda: best(self, req, route, shape, traj, leader))
+        assert got == want
+        cap = self.front_cap_mps(route)
+        if cap < route.speed_cap_mps:
+            seen["twice"] += 1
+            if isinstance(out, RequestError):
+                seen["raised"] += 1
+            elif out.out_mps > cap + self.config.speed_tol_mps:
+                seen["fast kept"] += 1
+        if isinstance(out, RequestError):
+            raise out
+        return out
+
+    monkeypatch.setattr(Dica, "_search", counted)
+    monkeypatch.setattr(Dica, "_resolve_best", compare)
+    spec = StreamSpec(volume_per_10min=volume, n_vehicles=60, seed=seed)
+    res = run_stream(inter, IcaConfig(exit_spacing=True), spec)
+    assert len(res.confirmed) == len(res.vehicles)
+    assert seen["paused"] > 0
+    assert 0 < seen["fast kept"] < seen["twice"]  # both searches' plans were kept

@@ -31,7 +31,7 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import math
-from collections.abc import Iterator
+from collections.abc import Generator, Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -51,6 +51,7 @@ from ica.core.handover import Handover
 from ica.core.intersection import Intersection
 from ica.core.kernels import (
     BLOCKED,
+    PAUSED,
     RESOLVED,
     TOO_LATE,
     dtot_span,
@@ -65,6 +66,9 @@ from ica.core.validate import check_request
 from ica.core.zones import ConflictTables, RouteGrid, Shape
 
 LEFT_MEMORY_S = 20.0  # [s] how long exit spacing remembers a vehicle that has left
+# rounds of the capped search of a request planned twice before the fast one runs
+# (Dica._resolve_best): most searches end sooner, a few run on for dozens
+PAUSE_ROUNDS = 12
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -94,6 +98,24 @@ class _Found:
     iterations: int
     earliest: float
     dtot: Dtot | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class _Paused:
+    """A compiled search out of rounds: it goes on from ``iterations`` + 1, entering at
+    or after ``target`` (relative to the state)."""
+
+    iterations: int
+    target: float
+
+
+def _finish(search: Generator[None, None, _Found]) -> _Found:
+    """Run a search (:meth:`Dica._search`) to its end: its plan, or its error."""
+    while True:
+        try:
+            next(search)
+        except StopIteration as done:
+            return done.value
 
 
 def _exit_of(traj: Trajectory, s_end: float) -> tuple[float, float]:
@@ -473,20 +495,45 @@ class Dica:
         leader: Confirmed | None,
     ) -> _Found:
         """checkFV's capped plan; with exit spacing also the uncapped one that leaves
-        late enough behind slower vehicles, and the one that leaves first."""
+        late enough behind slower vehicles, and the one that leaves first.
+
+        What it returns is what the two searches in turn would give, capped first
+        and the fast one given up once its entry is past the capped plan's exit.
+        The capped search is paused after ``PAUSE_ROUNDS`` rounds: then the fast one
+        runs first, and the capped one goes on given up past the fast plan's exit,
+        where it could not win (it may wander far behind slower vehicles while the
+        fast plan is found in a few rounds). Either way, each search's plans and
+        errors up to its bound are its own, so the answer is the same."""
         cap = self.front_cap_mps(route)
         if not self.config.exit_spacing or cap >= route.speed_cap_mps:
             return self._resolve(req, route, shape, traj, leader, cap)
+        max_wait = self.config.max_wait_s
+        bound = [max_wait]
+        capped_search = self._search(req, route, shape, traj, leader, cap, bound, PAUSE_ROUNDS)
         try:
-            capped = self._resolve(req, route, shape, traj, leader, cap)
+            next(capped_search)
+        except StopIteration as done:  # found within the budget: as in turn
+            capped: _Found = done.value
+            give_up = min(max_wait, capped.out_s - req.t0_s)
+            try:
+                fast = self._resolve(req, route, shape, traj, leader, route.speed_cap_mps, give_up)
+            except RequestError:
+                return capped
+            return fast if fast.out_s < capped.out_s else capped
         except RequestError:
             return self._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
-        # a plan entering after the capped one leaves cannot leave first: stop looking there
-        give_up = min(self.config.max_wait_s, capped.out_s - req.t0_s)
         try:
-            fast = self._resolve(req, route, shape, traj, leader, route.speed_cap_mps, give_up)
+            fast = self._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
+        except RequestError as fast_error:
+            try:
+                return _finish(capped_search)
+            except RequestError:
+                raise fast_error from None  # in turn: the capped search failed, then this
+        bound[0] = min(max_wait, fast.out_s - req.t0_s)
+        try:
+            capped = _finish(capped_search)
         except RequestError:
-            return capped
+            return fast
         return fast if fast.out_s < capped.out_s else capped
 
     def _dtot(self, found: _Found, route: Route, shape: Shape) -> Dtot:
@@ -508,9 +555,24 @@ class Dica:
     ) -> _Found:
         """Algorithm 1's rounds under crossing speed cap ``cap``, giving up on an entry
         more than ``max_wait_s`` after the state (default: the configured limit)."""
+        bound = [self.config.max_wait_s if max_wait_s is None else max_wait_s]
+        return _finish(self._search(req, route, shape, traj, leader, cap, bound))
+
+    def _search(
+        self,
+        req: Request,
+        route: Route,
+        shape: Shape,
+        traj: Trajectory,
+        leader: Confirmed | None,
+        cap: float,
+        bound: list[float],
+        pause_rounds: int = 0,
+    ) -> Generator[None, None, _Found]:
+        """:meth:`_resolve` as a search that can pause: with ``pause_rounds`` it yields
+        once, after that many compiled rounds, and ``bound[0]`` (the wait it gives up
+        past) may be lowered before it goes on, as if it had been that from the start."""
         cfg = self.config
-        if max_wait_s is None:
-            max_wait_s = cfg.max_wait_s
         s_end = route.cross_length_m + shape.length_m
         planner = Planner(
             d_m=max(req.dist_to_entry_m, 0.0),
@@ -546,21 +608,29 @@ class Dica:
             # where it would raise, the loop below runs from the start and raises with
             # its message
             first_round, b_wait0, target0 = 1, -1.0, replan
+            last_round = pause_rounds if pause_rounds > 0 else cfg.max_iterations
             while True:
                 found = self._resolve_compiled(
-                    req, route, shape, traj, leader, lag, planner, grid, s_end, max_wait_s,
-                    earliest, first_round, b_wait0, target0,
+                    req, route, shape, traj, leader, lag, planner, grid, s_end, bound[0],
+                    earliest, first_round, b_wait0, target0, last_round,
                 )  # fmt: skip
-                if found is None:
+                if isinstance(found, _Paused):
+                    yield  # the caller may lower the bound meanwhile
+                    target = found.target
+                    if target > bound[0]:
+                        raise _too_late(bound[0])
+                    last_round = cfg.max_iterations
+                elif found is None:
                     break
-                late = self._exit_conflict(route, found.out_s, found.out_mps, shape.length_m)
-                if late is None:
-                    return found
-                target = found.traj.entry_time_s() - req.t0_s + max(late.delay_s, cfg.step_s)
-                if target > max_wait_s:
-                    raise _too_late(max_wait_s)
-                if found.iterations >= cfg.max_iterations:
-                    break
+                else:
+                    late = self._exit_conflict(route, found.out_s, found.out_mps, shape.length_m)
+                    if late is None:
+                        return found
+                    target = found.traj.entry_time_s() - req.t0_s + max(late.delay_s, cfg.step_s)
+                    if target > bound[0]:
+                        raise _too_late(bound[0])
+                    if found.iterations >= cfg.max_iterations:
+                        break
                 wait = planner.stop_wait_s(target)
                 first_round, b_wait0 = found.iterations + 1, -1.0 if wait is None else wait
                 target0 = target
@@ -593,8 +663,8 @@ class Dica:
                 return _Found(traj, out_s, out_mps, iteration, earliest, dtot)
             first = conflicts[0]
             target = traj.entry_time_s() - req.t0_s + max(first.delay_s, cfg.step_s)
-            if target > max_wait_s:
-                raise _too_late(max_wait_s)
+            if target > bound[0]:
+                raise _too_late(bound[0])
             b_wait = planner.stop_wait_s(target)
             traj = self._plan(planner, req.t0_s, target, s_end)
         raise RequestError(
@@ -629,11 +699,13 @@ class Dica:
         first_round: int = 1,
         b_wait0: float = -1.0,
         target0: float = math.nan,
-    ) -> _Found | None:
+        last_round: int | None = None,
+    ) -> _Found | _Paused | None:
         """The loop of :meth:`_resolve` in one compiled call
         (:func:`ica.core.kernels.resolve_rounds`): the same plans round for
         round, so the same answer (``earliest``: the request's earliest entry, kept
-        with it). None where the loop would raise."""
+        with it). None where the loop would raise; paused after round ``last_round``
+        (default: none before the round limit)."""
         cfg = self.config
         batch = self._confirmed_batch(route, shape)
         g = batch.gathered
@@ -644,7 +716,9 @@ class Dica:
             )  # fmt: skip
         else:
             lead_args = (False, 0.0, 0.0, _NO_SAMPLES, 0.0)
-        status, iteration, s = resolve_rounds(
+        if last_round is None:
+            last_round = cfg.max_iterations
+        status, iteration, s, target = resolve_rounds(
             cfg.kinematics.accel_mps2, cfg.kinematics.decel_mps2, planner.v0_mps, planner.d_m,
             planner.cap_mps, s_end,
             *planner.plan_constants(),
@@ -655,12 +729,14 @@ class Dica:
             g.packed, g.vid, batch.m, batch.row, batch.row_lo, batch.row_hi, batch.codes,
             batch.width, len(g.vins), batch.span_s,
             *lead_args, 2.0 * cfg.margin_m,
-            cfg.max_iterations, max_wait_s, first_round, b_wait0, target0,
+            cfg.max_iterations, max_wait_s, first_round, b_wait0, target0, last_round,
         )  # fmt: skip
         if status == BLOCKED:
             raise _blocked(req.vin, leader.vin if leader is not None else "")
         if status == TOO_LATE:
             raise _too_late(max_wait_s)
+        if status == PAUSED:
+            return _Paused(iteration, target)
         if status != RESOLVED:
             return None
         final = Trajectory(req.t0_s, cfg.step_s, s)

@@ -1067,7 +1067,8 @@ _MAX_SEGS = 16  # a plan has at most 7 segments (stop family), 6 (slow-down fami
 # resolve_rounds' status; BLOCKED: a stop-family plan meets the lane leader where every
 # later stop-family plan goes too (the vehicle must stop behind the leader first);
 # TOO_LATE: the next entry would be later than ``max_wait_s``
-RESOLVED, FALL_BACK, BLOCKED, TOO_LATE = 0, 1, 2, 3
+# PAUSED: the round budget spent, the next entry target fourth
+RESOLVED, FALL_BACK, BLOCKED, TOO_LATE, PAUSED = 0, 1, 2, 3, 4
 
 
 @njit(cache=True, nogil=True)
@@ -1290,7 +1291,7 @@ def _next_plan(
 
 
 @njit(
-    "Tuple((int64, int64, float64[::1]))("
+    "Tuple((int64, int64, float64[::1], float64))("
     "float64, float64, float64, float64, float64, float64,"  # a, br, v0, d, cap, s_end
     " float64, boolean, float64, float64, boolean, float64,"  # v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t
     " float64, float64[:, ::1], float64[::1],"  # t_b0, b_segs, b_state
@@ -1300,7 +1301,7 @@ def _next_plan(
     " float64[:, ::1], int64[::1], int64[::1], int64[::1], int64[::1], int64[::1],"
     " int8[::1], int64, int64, float64,"  # confirmed batch
     " boolean, float64, float64, float64[::1], float64, float64,"  # lane leader
-    " int64, float64, int64, float64, float64)",  # max_iterations, ..., b_wait0, target0
+    " int64, float64, int64, float64, float64, int64)",  # max_iterations, ..., target0, last_round
     cache=True,
     nogil=True,
 )
@@ -1317,12 +1318,14 @@ def resolve_rounds(
     span_s: float, has_leader: bool, lead_t0: float, lead_step: float, lead_s: np.ndarray,
     lead_length_m: float, gap_m: float,
     max_iterations: int, max_wait_s: float, first_round: int, b_wait0: float,
-    target0: float,
-) -> tuple[int, int, np.ndarray]:  # fmt: skip
+    target0: float, last_round: int,
+) -> tuple[int, int, np.ndarray, float]:  # fmt: skip
     """The rounds of ``Dica._resolve`` (enhanced DICA) from the first plan ``s_init``.
 
-    Returns (RESOLVED, rounds, the conflict-free plan's samples), BLOCKED
-    (see the constant), TOO_LATE (the wait exceeded), or FALL_BACK where the Python
+    Returns (RESOLVED, rounds, the conflict-free plan's samples, NaN), BLOCKED
+    (see the constant), TOO_LATE (the wait exceeded), PAUSED after round
+    ``last_round`` with the next round's entry target (go on from there with
+    ``first_round`` one higher and that ``target0``), or FALL_BACK where the Python
     loop raises (no plan, the round limit exceeded, the state too close to the lane
     leader, a plan that never leaves): the caller then runs the Python loop, which
     raises with its message. ``first_round`` and ``b_wait0`` (-1: none) go on from
@@ -1346,7 +1349,7 @@ def resolve_rounds(
     if not np.isnan(target0):
         ok, s, _ = _next_plan(target0, planner, b_segs, b_state, step, segs, s)
         if not ok:
-            return FALL_BACK, first_round, s
+            return FALL_BACK, first_round, s, math.nan
     b_wait = b_wait0  # the current plan's wait if it is of the stop family, else -1
     for it in range(first_round, max_iterations + 1):
         # the DTOT (ica.core.dtot.build_dtot with the grid)
@@ -1362,9 +1365,9 @@ def resolve_rounds(
                 t0, step, s, lead_t0, lead_step, lead_s, lead_length_m, gap_m
             )
             if found and f_first <= t0 + step + 1e-9:
-                return FALL_BACK, it, s
+                return FALL_BACK, it, s, math.nan
             if found and b_wait >= 0.0 and f_first - t0 <= b_state[0] + b_wait + 1e-9:
-                return BLOCKED, it, s
+                return BLOCKED, it, s, math.nan
         best = -1
         best_first = 0.0
         best_delay = 0.0
@@ -1389,14 +1392,16 @@ def resolve_rounds(
             best_first = f_first
             best_delay = _py_max(f_delay, 0.0)
         if best < 0:
-            return RESOLVED, it, s
+            return RESOLVED, it, s, math.nan
         target = _entry_time(t0, step, s) - t0 + _py_max(best_delay, step)
         if target > max_wait_s:
-            return TOO_LATE, it, s
+            return TOO_LATE, it, s, target
+        if it >= last_round and it < max_iterations:
+            return PAUSED, it, s, target
         ok, s, b_wait = _next_plan(target, planner, b_segs, b_state, step, segs, s)
         if not ok:
-            return FALL_BACK, it, s
-    return FALL_BACK, max_iterations, s
+            return FALL_BACK, it, s, math.nan
+    return FALL_BACK, max_iterations, s, math.nan
 
 
 @njit(cache=True, nogil=True)
