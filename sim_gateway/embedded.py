@@ -132,6 +132,7 @@ class LocalDrivers:
         self.order = WindowOrder(ica) if cfg.window_s else None
         self.close_s = cfg.window_s  # when the current window closes
         if self.order is not None:
+            self.order.separations.precompute()  # none measured while a window waits
             self.link.window = []
 
     def step(self, t: float, seen: list[Seen]) -> list[Command]:
@@ -339,6 +340,7 @@ def _run(
         ica: Dica = ReactiveDica(inter, ica_cfg, reactive=reactive_config(cfg))
     else:
         ica = make_controller("fifo" if light else cfg.algorithm, inter, ica_cfg, cfg.tile_m)
+    ica.prepare()
     schedule, spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
     if given is not None:
         schedule = sorted(given, key=lambda a: a.arrival_s)

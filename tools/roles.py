@@ -182,6 +182,7 @@ def cmd_ica(args: argparse.Namespace) -> int:
         ica = ReactiveDica(inter, config, reactive=reactive)
     else:
         ica = make_controller(args.algorithm, inter, config, args.tile_size)
+    ica.prepare()  # before serving: no request waits for it
     journal_path = args.journal or (args.out / "ica-journal.msgpack" if args.out else None)
     session, log = _session(args, "ica")
     try:

@@ -216,6 +216,10 @@ class Dica:
         k, caps = self.config.kinematics, self.config.caps
         self.handover = Handover(caps.road_mps, k.accel_mps2, k.decel_mps2)
 
+    def prepare(self) -> None:
+        """Work a controller can do once before it serves, so that no request waits
+        for it (DICA's offline tables are built on construction: nothing more)."""
+
     # -- state -------------------------------------------------------------
     @property
     def confirmed(self) -> dict[str, Confirmed]:

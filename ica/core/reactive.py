@@ -220,6 +220,11 @@ class ReactiveDica(Dica):
         self._answers: list[Answer] = []
         self.events: list[EvEvent] = []
 
+    def prepare(self) -> None:
+        """Measure every separation the EV ordering can ask for (see
+        :meth:`SeparationModel.precompute`): a reorder then only looks them up."""
+        self.separations.precompute()
+
     # -- what the caller sees -------------------------------------------------------
     @property
     def event(self) -> EvEvent | None:
