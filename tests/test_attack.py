@@ -23,6 +23,7 @@ from pathlib import Path
 import msgpack
 import pytest
 
+from tests.cluster_proc import logs_tail, stop_cluster
 from tools.loopback import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -128,13 +129,15 @@ def _secured_run_under_attack(out: Path, router_rules: bool) -> tuple[dict, Atta
             time.sleep(0.1)
         attacker = Attacker(out / "zenoh", f"tls/127.0.0.1:{port}")
         attacker.start()
-        stdout, stderr = proc.communicate(timeout=300)
+        try:
+            stdout, stderr = proc.communicate(timeout=300)
+        except subprocess.TimeoutExpired:
+            pytest.fail(f"the run did not end in 300 s\n{logs_tail(out)}")
     finally:
         if attacker is not None:
             attacker.stop.set()
             attacker.join(10)
-        if proc.poll() is None:
-            proc.kill()
+        stop_cluster(proc)
     assert proc.returncode == 0, stdout + stderr
     assert attacker.error is None, attacker.error
     assert attacker.rounds > 20  # it really kept at it

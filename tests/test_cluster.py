@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.cluster_proc import logs_tail, stop_cluster
 from tools.loopback import free_port, router_and_ica
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -34,13 +35,20 @@ _free_port = free_port
 
 
 def _cluster(out: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        ["bash", "tools/run_cluster.sh", "--out", str(out), *args],
-        capture_output=True,
-        text=True,
-        cwd=ROOT,
-        timeout=timeout,
-    )
+    """run_cluster.sh to its end; one still running after ``timeout`` fails the test
+    with its roles' logs, and is stopped with every role."""
+    cmd = ["bash", "tools/run_cluster.sh", "--out", str(out), *args]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"the run did not end in {timeout:g} s\n{logs_tail(out)}")
+    finally:
+        stop_cluster(proc)
+    return subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr)
 
 
 def _rows(path: Path) -> dict[str, dict[str, str]]:

@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from tests.cluster_proc import logs_tail, stop_cluster
 from tools.loopback import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -54,12 +55,15 @@ def _start_cluster(out: Path, *args: str, gateway: tuple[str, ...] = ()) -> subp
     )
 
 
-def _finish(proc: subprocess.Popen, timeout: float = 240) -> tuple[str, str]:
+def _finish(proc: subprocess.Popen, out: Path, timeout: float = 240) -> tuple[str, str]:
+    """The run's output once it ends; a run still going after ``timeout`` fails the
+    test with the tail of every role's log, and the whole cluster is killed either way."""
     try:
         return proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"the run did not end in {timeout:g} s\n{logs_tail(out)}")
     finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
+        stop_cluster(proc)
 
 
 def _wait_for_sim_time(out: Path, t_s: int, proc: subprocess.Popen, timeout: float = 180) -> None:
@@ -80,7 +84,7 @@ def _kill(out: Path, name: str) -> int:
 def _run_safe(out: Path, *args: str) -> dict:
     """A whole cluster run to its end: its metrics, once checked safe and whole."""
     proc = _start_cluster(out, *args)
-    stdout, stderr = _finish(proc)
+    stdout, stderr = _finish(proc, out)
     assert proc.returncode == 0, stdout + stderr
     m = json.loads((out / "metrics.json").read_text())
     _safe_and_whole(m)
@@ -204,7 +208,7 @@ def test_a_killed_agent_hands_its_vehicles_over_and_the_run_goes_on(tmp_path):
     )
     _wait_for_sim_time(out, 20, proc)
     _kill(out, "agent-2")
-    stdout, stderr = _finish(proc)
+    stdout, stderr = _finish(proc, out)
     assert proc.returncode == 0, stdout + stderr
     assert "agent-2 died; restarting it" in stderr
     m = json.loads((out / "metrics.json").read_text())
@@ -232,7 +236,7 @@ def test_a_killed_ica_comes_back_from_its_journal_and_keeps_its_promises(tmp_pat
     before = sum(1 for r in records(journal)[0] if r["k"] == "confirm")
     assert before > 5
     _kill(out, "ica")
-    stdout, stderr = _finish(proc)
+    stdout, stderr = _finish(proc, out)
     assert proc.returncode == 0, stdout + stderr
     m = json.loads((out / "metrics.json").read_text())
     _safe_and_whole(m)
@@ -274,7 +278,7 @@ def test_a_killed_gateway_leaves_what_the_run_knew(tmp_path):
     )
     _wait_for_sim_time(out, 15, proc)
     _kill(out, "gateway")
-    _finish(proc, timeout=60)
+    _finish(proc, out, timeout=60)
     assert proc.returncode != 0
     m = json.loads((out / "metrics.json").read_text())
     assert m["complete"] is False and "checkpoint" in m["incomplete"]
@@ -289,7 +293,7 @@ def test_lockstep_under_delay_is_exact_and_waits_only_when_an_agent_must_act(tmp
     proc = _start_cluster(
         out, "--agents", "2", "--port", str(free_port()), "--delay", "15", *common
     )
-    stdout, stderr = _finish(proc)
+    stdout, stderr = _finish(proc, out)
     assert proc.returncode == 0, stdout + stderr
     e = subprocess.run(
         [*DICA, "run", *common, "--out", str(tmp_path / "emb"), "--quiet"],
