@@ -1067,7 +1067,7 @@ _MAX_SEGS = 16  # a plan has at most 7 segments (stop family), 6 (slow-down fami
 # resolve_rounds' status; BLOCKED: a stop-family plan meets the lane leader where every
 # later stop-family plan goes too (the vehicle must stop behind the leader first);
 # TOO_LATE: the next entry would be later than ``max_wait_s``
-# PAUSED: the round budget spent, the next entry target fourth
+# PAUSED: round ``last_round`` done, the next round's entry target returned fourth
 RESOLVED, FALL_BACK, BLOCKED, TOO_LATE, PAUSED = 0, 1, 2, 3, 4
 
 
