@@ -219,6 +219,32 @@ def test_a_killed_agent_hands_its_vehicles_over_and_the_run_goes_on(tmp_path):
     assert "restarting agent-2" in (out / "logs" / "restarts.log").read_text()
 
 
+def test_lockstep_rdica_with_a_killed_agent_answers_or_outlives_every_revocation(tmp_path):
+    """Reactive DICA in lockstep, emergency vehicles revoking plans across two agents,
+    and one agent SIGKILLed mid-run: no step waits for the dead agent's COMMAND for
+    good (the run completes), every revocation is answered or runs out with its plan,
+    and the run is safe and whole."""
+    out = tmp_path / "ls"
+    proc = _start_cluster(
+        out,
+        *("--agents", "2", "--port", str(free_port()), "--algorithm", "rdica"),
+        *("--ev-prob", "0.2", "--volume", "500", "--duration", "120", "--seed", "12"),
+    )
+    _wait_for_sim_time(out, 40, proc)
+    _kill(out, "agent-2")
+    stdout, stderr = _finish(proc, out)
+    assert proc.returncode == 0, stdout + stderr
+    assert "agent-2 died; restarting it" in stderr
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    assert m["agent_deaths"] >= 1
+    assert m["revoke_waves"] >= 1  # revocations crossed from one agent to the other
+    reactive = json.loads((out / "ica.json").read_text())["incarnations"][0]["reactive"]
+    assert reactive["revoked"] >= 1
+    done = reactive["acknowledged"] + reactive["restored"] + reactive["expired"]
+    assert done == reactive["revoked"] and reactive["pending"] == 0
+
+
 def test_a_killed_ica_comes_back_from_its_journal_and_keeps_its_promises(tmp_path):
     from ica.journal import confirmation_of, records
     from ica.netfile import load_intersection
