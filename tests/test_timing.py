@@ -199,14 +199,11 @@ def test_realtime_cluster_under_delay_jitter_loss_duplication_and_reordering(tmp
     assert sum(a["no_answer"] for a in agents.values()) > 0  # losses the agents lived through
 
 
-def test_a_killed_agent_hands_its_vehicles_over_and_the_run_goes_on(tmp_path):
-    out = tmp_path / "rt"
-    proc = _start_cluster(
-        out,
-        *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
-        *("--volume", "500", "--duration", "60", "--seed", "12", "--delay", "20"),
-    )
-    _wait_for_sim_time(out, 20, proc)
+def _agent_2_killed_at(out: Path, t_s: int, *args: str) -> dict:
+    """A two-agent cluster run whose agent-2 is SIGKILLed at sim time ``t_s``: its
+    metrics, once the run ended, restarted the agent, and was safe and whole."""
+    proc = _start_cluster(out, "--agents", "2", "--port", str(free_port()), *args)
+    _wait_for_sim_time(out, t_s, proc)
     _kill(out, "agent-2")
     stdout, stderr = _finish(proc, out)
     assert proc.returncode == 0, stdout + stderr
@@ -214,6 +211,15 @@ def test_a_killed_agent_hands_its_vehicles_over_and_the_run_goes_on(tmp_path):
     m = json.loads((out / "metrics.json").read_text())
     _safe_and_whole(m)
     assert m["agent_deaths"] >= 1
+    return m
+
+
+def test_a_killed_agent_hands_its_vehicles_over_and_the_run_goes_on(tmp_path):
+    out = tmp_path / "rt"
+    m = _agent_2_killed_at(
+        out, 20, *("--clock", "realtime", "--speed", "2", "--volume", "500"),
+        *("--duration", "60", "--seed", "12", "--delay", "20"),
+    )  # fmt: skip
     assert m["adoptions"] >= 1  # its vehicles went to a live agent
     assert m["crossed"] >= 30
     assert "restarting agent-2" in (out / "logs" / "restarts.log").read_text()
@@ -225,19 +231,10 @@ def test_lockstep_rdica_with_a_killed_agent_answers_or_outlives_every_revocation
     good (the run completes), every revocation is answered or runs out with its plan,
     and the run is safe and whole."""
     out = tmp_path / "ls"
-    proc = _start_cluster(
-        out,
-        *("--agents", "2", "--port", str(free_port()), "--algorithm", "rdica"),
-        *("--ev-prob", "0.2", "--volume", "500", "--duration", "120", "--seed", "12"),
-    )
-    _wait_for_sim_time(out, 40, proc)
-    _kill(out, "agent-2")
-    stdout, stderr = _finish(proc, out)
-    assert proc.returncode == 0, stdout + stderr
-    assert "agent-2 died; restarting it" in stderr
-    m = json.loads((out / "metrics.json").read_text())
-    _safe_and_whole(m)
-    assert m["agent_deaths"] >= 1
+    m = _agent_2_killed_at(
+        out, 40, *("--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "500"),
+        *("--duration", "120", "--seed", "12"),
+    )  # fmt: skip
     assert m["revoke_waves"] >= 1  # revocations crossed from one agent to the other
     reactive = json.loads((out / "ica.json").read_text())["incarnations"][0]["reactive"]
     assert reactive["revoked"] >= 1
