@@ -23,9 +23,9 @@ from pathlib import Path
 import msgpack
 import numpy as np
 
-from ica.core.dica import Dica
-from ica.core.reactive import ReactiveDica
-from ica.core.request import Confirmation, RequestError, Tss
+from dica.ica.core.dica import Dica
+from dica.ica.core.reactive import ReactiveDica
+from dica.ica.core.request import Confirmation, RequestError, Tss
 
 
 class JournalError(Exception):

@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 import sumolib
 
-from ica.core.intersection import Intersection
-from ica.core.route import Route, SpeedCaps, Turn, build_route, classify_turn
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.route import Route, SpeedCaps, Turn, build_route, classify_turn
 
 _DIR_TO_TURN = {"l": Turn.LEFT, "L": Turn.LEFT, "r": Turn.RIGHT, "R": Turn.RIGHT, "s": Turn.THROUGH}
 _VEHICLE_CLASS = "passenger"

@@ -46,16 +46,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ica.core import reactive
-from ica.core.dica import Dica
-from ica.core.reactive import ReactiveDica
-from ica.core.request import Confirmation, Reason, Rejection, RequestError
-from ica.journal import Journal, Replayed, replay
-from schemas import keys
-from schemas.codec import DecodeError, decode, encode, now_ns
-from schemas.convert import reject_from_core, request_to_core, response_from_core
-from schemas.link import Inbox, Item, note_refused, put, refused, reply
-from schemas.messages import (
+from dica.deploy.transport import Inbox, Item, note_refused, put, refused, reply
+from dica.ica.convert import reject_from_core, request_to_core, response_from_core
+from dica.ica.core import reactive
+from dica.ica.core.dica import Dica
+from dica.ica.core.reactive import ReactiveDica
+from dica.ica.core.request import Confirmation, Reason, Rejection, RequestError
+from dica.ica.journal import Journal, Replayed, replay
+from dica.schemas import keys
+from dica.schemas.codec import DecodeError, decode, encode, now_ns
+from dica.schemas.messages import (
     DROPPED,
     EXPIRED,
     KEPT,

@@ -22,7 +22,7 @@ from functools import cache
 import msgpack
 import numpy as np
 
-from schemas.messages import MAX_SAMPLES, MAX_VEHICLES, MESSAGES, VERSION
+from dica.schemas.messages import MAX_SAMPLES, MAX_VEHICLES, MESSAGES, VERSION
 
 MAX_PAYLOAD = 1 << 20  # [bytes] a full TSS is 4 x 64 KiB; a STATE of MAX_VEHICLES about 400 KiB
 _BY_KIND = {m.KIND: m for m in MESSAGES}

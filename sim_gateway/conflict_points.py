@@ -23,11 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.dtot import Dtot, build_dtot
-from ica.core.intersection import Intersection
-from ica.core.route import Route
-from ica.core.trajectory import Trajectory
-from ica.core.zones import ConflictTables, Shape
+from dica.ica.core.dtot import Dtot, build_dtot
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.route import Route
+from dica.ica.core.trajectory import Trajectory
+from dica.ica.core.zones import ConflictTables, Shape
 
 SAMPLE_M = 0.1  # [m] resolution of the centreline search
 MERGE_M = 3.5  # [m] conflict points closer than this become one

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.intersection import Intersection
-from ica.core.route import Route, Turn
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.route import Route, Turn
 
 ROAD_LIMIT_MPS = 70.0 / 3.6  # [m/s] the dissertation's road speed limit v_m
 

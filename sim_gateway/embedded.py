@@ -18,17 +18,17 @@ from pathlib import Path
 
 import numpy as np
 
-from ica.core.baselines import controller_config, make_controller
-from ica.core.config import IcaConfig
-from ica.core.dica import Dica
-from ica.core.intersection import Intersection
-from ica.core.reactive import DROPPED, KEPT, ReactiveConfig, ReactiveDica, Reorder
-from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
-from ica.core.window import WindowOrder
-from sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, make_arrivals
-from sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
-from sim_gateway.scenario import ScenarioError, light_net
-from sim_gateway.signals import (
+from dica.ica.core.baselines import controller_config, make_controller
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.dica import Dica
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.reactive import DROPPED, KEPT, ReactiveConfig, ReactiveDica, Reorder
+from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
+from dica.ica.core.window import WindowOrder
+from dica.sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, make_arrivals
+from dica.sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
+from dica.sim_gateway.scenario import ScenarioError, light_net
+from dica.sim_gateway.signals import (
     HOLD,
     Preemption,
     SignalLink,
@@ -37,9 +37,10 @@ from sim_gateway.signals import (
     retime,
     with_clearance,
 )
-from sim_gateway.signals import Phase as SignalPhase
-from sim_gateway.world import Seen, World, import_libsumo, start_sumo
-from vehicle_agent.machine import PENDING, Command, Phase, Vehicle
+from dica.sim_gateway.signals import Phase as SignalPhase
+from dica.sim_gateway.world import Seen, World, import_libsumo, start_sumo
+from dica.vehicle_agent.actuation import Actuation
+from dica.vehicle_agent.machine import PENDING, Phase, Vehicle
 
 __all__ = ["LIGHTS", "RunConfig", "RunError", "RunResult", "run", "schedule_for"]
 
@@ -135,7 +136,7 @@ class LocalDrivers:
             self.order.separations.precompute()  # none measured while a window waits
             self.link.window = []
 
-    def step(self, t: float, seen: list[Seen]) -> list[Command]:
+    def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
         self.ica.advance(t)
         if isinstance(self.ica, ReactiveDica):
             self.link._revoke(self.ica)  # an EV event may start as the clock moves
@@ -174,7 +175,7 @@ class LocalDrivers:
             self._answered(self.ica)
         return out
 
-    def _close_window(self, t: float) -> list[Command]:
+    def _close_window(self, t: float) -> list[Actuation]:
         """Decide the window's requests, in the order that delays them least; each
         plan starts no earlier than now, as every vehicle planned a window ahead."""
         w = self.cfg.window_s
@@ -204,7 +205,7 @@ class LocalDrivers:
             else:
                 self.kept.append((a.t_s, a.vin, "no answer before its plan ended"))
 
-    def _deliver(self, ica: ReactiveDica) -> list[Command]:
+    def _deliver(self, ica: ReactiveDica) -> list[Actuation]:
         """The cluster's way: this step's REVOKEs reach their vehicles, as they reach
         a lockstep agent before it answers the STATE whose query caused them; each
         vehicle's actuator drops its plan (or keeps it) and the vehicle tells the ICA
@@ -221,7 +222,7 @@ class LocalDrivers:
                 out.append(cmd)
         return out
 
-    def _revise(self, ica: ReactiveDica, t: float) -> list[Command]:
+    def _revise(self, ica: ReactiveDica, t: float) -> list[Actuation]:
         """The revoked vehicles of this step fly their new plans (or, without one,
         brake and ask again): the machines learn of revocation and replacement at once."""
         link = self.link
@@ -403,7 +404,7 @@ def _run(
 def _recorder(inter: Intersection, rrd_path: Path | None):
     if rrd_path is None:
         return None
-    from sim_gateway.recording import SpaceTimeRecorder
+    from dica.sim_gateway.recording import SpaceTimeRecorder
 
     try:
         rec = SpaceTimeRecorder(inter, rrd_path)

@@ -39,9 +39,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from schemas import keys
-from schemas.codec import DecodeError, decode, encode, now_ns
-from schemas.link import (
+from dica.deploy.transport import (
     Inbox,
     Item,
     every_answer,
@@ -52,12 +50,13 @@ from schemas.link import (
     refused,
     reply_body,
 )
-from schemas.messages import Clock, Command, Revoke, State, Stats, VehicleState
-from sim_gateway.embedded import ica_config, schedule_for
-from sim_gateway.runconfig import RunConfig, RunError, RunResult
-from sim_gateway.world import Seen, World
-from vehicle_agent.machine import BIG, NO_PLAN
-from vehicle_agent.machine import Command as Actuation
+from dica.schemas import keys
+from dica.schemas.codec import DecodeError, decode, encode, now_ns
+from dica.schemas.messages import Clock, Command, Revoke, State, Stats, VehicleState
+from dica.sim_gateway.embedded import ica_config, schedule_for
+from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
+from dica.sim_gateway.world import Seen, World
+from dica.vehicle_agent.actuation import BIG, NO_PLAN, Actuation
 
 CLOCKS = ("lockstep", "realtime")
 PREDICT_S = 2.0  # [s sim] how far ahead a realtime STATE says where each asker will be
@@ -631,7 +630,7 @@ def run_gateway(
     ``checkpoint_every_s`` of sim time (``why`` says it is incomplete) and,
     should the run stop early, once more with the reason.
     """
-    from sim_gateway.world import import_libsumo, start_sumo
+    from dica.sim_gateway.world import import_libsumo, start_sumo
 
     ls = import_libsumo()
     ica_cfg = ica_config(cfg)

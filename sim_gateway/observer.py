@@ -29,11 +29,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ica.core.intersection import Intersection
-from schemas import keys
-from schemas.codec import DecodeError, decode
-from schemas.link import Inbox, Item
-from schemas.messages import (
+from dica.deploy.transport import Inbox, Item
+from dica.ica.core.intersection import Intersection
+from dica.schemas import keys
+from dica.schemas.codec import DecodeError, decode
+from dica.schemas.messages import (
     DROPPED,
     EXPIRED,
     KEPT,
@@ -44,7 +44,7 @@ from schemas.messages import (
     State,
     VehicleState,
 )
-from sim_gateway.recording import SpaceTimeRecorder
+from dica.sim_gateway.recording import SpaceTimeRecorder
 
 
 @dataclass(slots=True)

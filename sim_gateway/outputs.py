@@ -16,8 +16,8 @@ import json
 import os
 from pathlib import Path
 
-from sim_gateway.metrics import summarize_ev
-from sim_gateway.runconfig import RunConfig, RunResult
+from dica.sim_gateway.metrics import summarize_ev
+from dica.sim_gateway.runconfig import RunConfig, RunResult
 
 
 def write_outputs(

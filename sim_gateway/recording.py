@@ -29,8 +29,8 @@ and at the end: a 10-minute run makes about a hundred chunks. A live
 recording sends every LIVE_FLUSH_S instead, so that viewers see the run as
 it goes.
 
-States. :data:`STATE_STYLE` is the one table of vehicle states, their names
-and colours, and :func:`vehicle_states` the one place that decides a
+States. :data:`STATUS_STYLE` is the one table of vehicle states, their names
+and colours, and :func:`vehicle_statuses` the one place that decides a
 vehicle's state: a new state (an emergency vehicle) is one row there and one
 line there.
 """
@@ -50,10 +50,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from ica.core.intersection import Intersection
-from ica.core.route import Route
-from ica.core.zones import ConflictTables, Shape
-from sim_gateway.conflict_points import (
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.route import Route
+from dica.ica.core.zones import ConflictTables, Shape
+from dica.sim_gateway.conflict_points import (
     ConflictPoints,
     Holding,
     covers,
@@ -85,7 +85,7 @@ _FRAME = (120, 120, 120)
 _FLIP_Y = np.array([1.0, -1.0])
 
 
-class State(IntEnum):
+class Status(IntEnum):
     """A vehicle's state as drawn."""
 
     REQUESTING = 1  # in the region, no confirmation yet
@@ -96,36 +96,36 @@ class State(IntEnum):
 
 
 # The one table of states, names and colours (the top view and its legend).
-STATE_STYLE: dict[State, tuple[str, tuple[int, int, int]]] = {
-    State.REQUESTING: ("requesting", (235, 150, 20)),
-    State.CONFIRMED: ("confirmed", (40, 110, 235)),
-    State.CROSSING: ("crossing", (20, 165, 60)),
-    State.CLEARED: ("cleared", (140, 140, 140)),
-    State.EMERGENCY: ("emergency vehicle", (230, 30, 30)),
+STATUS_STYLE: dict[Status, tuple[str, tuple[int, int, int]]] = {
+    Status.REQUESTING: ("requesting", (235, 150, 20)),
+    Status.CONFIRMED: ("confirmed", (40, 110, 235)),
+    Status.CROSSING: ("crossing", (20, 165, 60)),
+    Status.CLEARED: ("cleared", (140, 140, 140)),
+    Status.EMERGENCY: ("emergency vehicle", (230, 30, 30)),
 }
-_STATE_RGBA = np.zeros(max(STATE_STYLE) + 1, dtype=np.uint32)  # packed colour by state
-for _state, (_, _rgb) in STATE_STYLE.items():
+_STATE_RGBA = np.zeros(max(STATUS_STYLE) + 1, dtype=np.uint32)  # packed colour by state
+for _state, (_, _rgb) in STATUS_STYLE.items():
     _STATE_RGBA[_state] = (_rgb[0] << 24) | (_rgb[1] << 16) | (_rgb[2] << 8) | 0xFF
 RESERVED_RGBA = (40, 110, 235, 90)  # the reserved footprint's margin band
 PLAN_ALPHA = 100  # plans are the vehicle's colour, translucent
 
 
-def vehicle_states(
+def vehicle_statuses(
     confirmed: np.ndarray,
     s_m: np.ndarray,
     out_m: np.ndarray,
     emergency: np.ndarray | None = None,
 ) -> np.ndarray:
-    """State per vehicle from whether it holds a confirmation, its front's distance
+    """Status per vehicle from whether it holds a confirmation, its front's distance
     along its route ``s_m`` (NaN: unknown) and the distance at which its rear is out;
     an emergency vehicle is EMERGENCY until it has cleared the junction."""
-    st = np.full(len(s_m), int(State.REQUESTING), dtype=np.uint16)
+    st = np.full(len(s_m), int(Status.REQUESTING), dtype=np.uint16)
     s = np.nan_to_num(s_m, nan=-np.inf)
-    st[confirmed] = State.CONFIRMED
-    st[confirmed & (s > 0.0)] = State.CROSSING
-    st[confirmed & (s >= out_m)] = State.CLEARED
+    st[confirmed] = Status.CONFIRMED
+    st[confirmed & (s > 0.0)] = Status.CROSSING
+    st[confirmed & (s >= out_m)] = Status.CLEARED
     if emergency is not None:
-        st[emergency & (st != State.CLEARED)] = State.EMERGENCY
+        st[emergency & (st != Status.CLEARED)] = Status.EMERGENCY
     return st
 
 
@@ -551,7 +551,7 @@ class SpaceTimeRecorder:
         separate key shapes would drift into the text when zooming)."""
         reach = _frame_reach(self.intersection)
         x0, y0 = -reach + 11.0, -reach + 1.5  # viewer frame: y grows downwards
-        entries = [(f"{name}: outline", rgb) for name, rgb in STATE_STYLE.values()]
+        entries = [(f"{name}: outline", rgb) for name, rgb in STATUS_STYLE.values()]
         entries += [
             (f"reserved, with its {self.margin_m:g} m margin: band", RESERVED_RGBA[:3]),
             ("entry line", (30, 30, 30)),
@@ -804,7 +804,7 @@ class SpaceTimeRecorder:
         until it has cleared, and its plans and progress in the charts (call it before
         its first confirmation, so that its plan is drawn in that colour too)."""
         self._emergency.add(vin)
-        self._colors[vin] = _rgba(STATE_STYLE[State.EMERGENCY][1])
+        self._colors[vin] = _rgba(STATUS_STYLE[Status.EMERGENCY][1])
 
     def reordered(
         self,
@@ -842,7 +842,7 @@ class SpaceTimeRecorder:
             ends += [a, b]
         fields = {
             "strips": strips,
-            "colors": np.full(len(strips), _rgba(STATE_STYLE[State.EMERGENCY][1]), np.uint32),
+            "colors": np.full(len(strips), _rgba(STATUS_STYLE[Status.EMERGENCY][1]), np.uint32),
             "labels": labels,
         }
         entity = f"charts/data/lanes/{lane}/reorders"
@@ -966,7 +966,7 @@ class SpaceTimeRecorder:
         )
         out_m = np.array([p.out_m if p is not None else np.inf for p in plans])
         ev = np.array([v in self._emergency for v in vins], dtype=bool)
-        state = vehicle_states(confirmed, np.where(dist <= LANE_WIDTH_M, s, np.nan), out_m, ev)
+        state = vehicle_statuses(confirmed, np.where(dist <= LANE_WIDTH_M, s, np.nan), out_m, ev)
 
         # top view: every TOP_EVERY steps
         step_nos = self._step_no + np.arange(len(steps))

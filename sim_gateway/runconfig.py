@@ -4,10 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from ica.core.baselines import BASELINES
-from ica.core.config import Techniques
-from ica.core.ordering import SOLVERS
-from sim_gateway.metrics import TripLog
+from dica.ica.core.baselines import BASELINES
+from dica.ica.core.config import Techniques
+from dica.ica.core.ordering import SOLVERS
+from dica.sim_gateway.metrics import TripLog
 
 LIGHTS = ("fixed", "actuated", "reactive-light")  # SUMO drives; the junction is signalised
 REACTIVE = ("rdica",)  # reactive DICA: emergency vehicles first (--solver)

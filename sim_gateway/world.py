@@ -37,25 +37,25 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ica.core.config import IcaConfig
-from ica.core.intersection import Intersection
-from ica.core.planner import Planner
-from ica.core.route import Route
-from sim_gateway.demand import Arrival
-from sim_gateway.metrics import CRAWL_MPS, Trip, TripLog, summarize
-from sim_gateway.runconfig import RunConfig, RunError, RunResult
-from sim_gateway.safety import SafetyMonitor
-from vehicle_agent.control import can_stop_short, entry_time, stop_speed, track_speed
-from vehicle_agent.machine import (
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.planner import Planner
+from dica.ica.core.route import Route
+from dica.sim_gateway.demand import Arrival
+from dica.sim_gateway.metrics import CRAWL_MPS, Trip, TripLog, summarize
+from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
+from dica.sim_gateway.safety import SafetyMonitor
+from dica.vehicle_agent.actuation import (
     MODE_CONFIRMED,
     MODE_DEFAULT,
     MODE_HEAD,
     MODE_QUEUED,
     NO_PLAN,
     RELEASE,
-    Command,
-    Observation,
+    Actuation,
 )
+from dica.vehicle_agent.control import can_stop_short, entry_time, stop_speed, track_speed
+from dica.vehicle_agent.machine import Observation
 
 VTYPE = "cav"
 # [m] how far from its plan's first position a vehicle may be when the plan starts; within
@@ -397,7 +397,7 @@ class World:
                     s.obs = replace(s.obs, intent_m=tuple(fut[1:].tolist()))
         return seen
 
-    def apply(self, commands: Iterable[Command]) -> None:
+    def apply(self, commands: Iterable[Actuation]) -> None:
         """Take the drivers' new plans, then drive every vehicle in the region for one step.
 
         A plan is taken only if it arrives no later than its start (and is

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from ica.core.intersection import Intersection
-from ica.netfile import load_intersection
-from sim_gateway.scenario import Scenario, build_scenario
+from dica.ica.core.intersection import Intersection
+from dica.ica.netfile import load_intersection
+from dica.sim_gateway.scenario import Scenario, build_scenario
 from tests.netfixtures import FIXTURE_JUNCTION_ID, build_fixture_net
 
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from sim_gateway.scenario import run_netconvert
+from dica.sim_gateway.scenario import run_netconvert
 
 NETS_DIR = Path(__file__).resolve().parent / "nets"
 FIXTURE_NETS: tuple[str, ...] = ("tee", "skewed")

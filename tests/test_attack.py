@@ -23,8 +23,8 @@ from pathlib import Path
 import msgpack
 import pytest
 
+from dica.tools.loopback import free_port
 from tests.cluster_proc import logs_tail, stop_cluster
-from tools.loopback import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "tools.cli"]
@@ -49,10 +49,10 @@ class Attacker(threading.Thread):
             self.error = e
 
     def _attack(self) -> None:
-        from schemas.codec import encode, now_ns
-        from schemas.link import open_session
-        from schemas.messages import Cancel, Clock, Command, Response, Setpoint, State
-        from schemas.seal import Seal
+        from dica.deploy.seal import Seal
+        from dica.deploy.transport import open_session
+        from dica.schemas.codec import encode, now_ns
+        from dica.schemas.messages import Cancel, Clock, Command, Response, Setpoint, State
 
         seal = Seal(self.user, self.site / f"{self.user}.seal")
         s = open_session(self.site / f"{self.user}.json5", self.endpoint)

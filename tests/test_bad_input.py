@@ -7,10 +7,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from ica.core.config import IcaConfig
-from ica.core.dica import Dica
-from ica.core.proposal import propose
-from ica.core.request import Confirmation, Reason, Rejection, Tss
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.dica import Dica
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Confirmation, Reason, Rejection, Tss
 
 
 @pytest.fixture

@@ -8,11 +8,11 @@ import math
 import numpy as np
 import pytest
 
-from ica.core.config import IcaConfig, Techniques
-from ica.core.conflict import get_cv
-from ica.core.dica import Dica
-from ica.core.kernels import first_conflict
-from tools.stream import StreamSpec, run_stream
+from dica.ica.core.config import IcaConfig, Techniques
+from dica.ica.core.conflict import get_cv
+from dica.ica.core.dica import Dica
+from dica.ica.core.kernels import first_conflict
+from dica.sim_gateway.stream import StreamSpec, run_stream
 
 
 @pytest.mark.parametrize("junction", ["ch45", "skewed", "tee"])

@@ -24,8 +24,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dica.tools.loopback import free_port, router_and_ica
 from tests.cluster_proc import logs_tail, stop_cluster
-from tools.loopback import free_port, router_and_ica
 
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "tools.cli"]
@@ -141,7 +141,7 @@ def test_three_agents_make_the_same_decisions_and_the_recording_holds_them(tmp_p
 
     from rerun.chunk import RrdReader
 
-    from sim_gateway.recording import TOP_EVERY
+    from dica.sim_gateway.recording import TOP_EVERY
 
     rrd = out / "spacetime.rrd"
     steps: set[int] = set()
@@ -172,20 +172,20 @@ def ica_on_loopback(tmp_path):
 
 
 def _ask(session, key: str, payload: bytes, timeout: float = 5.0):
-    from schemas.codec import decode
+    from dica.schemas.codec import decode
 
     replies = [r for r in session.get(key, payload=payload, timeout=timeout) if r.ok is not None]
     return [decode(r.ok.payload.to_bytes()) for r in replies]
 
 
 def test_ica_refuses_garbage_and_keeps_serving(ica_on_loopback):
-    from ica.core.proposal import propose
-    from ica.netfile import load_intersection
-    from schemas import keys
-    from schemas.codec import encode, now_ns
-    from schemas.convert import request_from_core
-    from schemas.messages import Ack, Clock, Detect, Reject, Response
-    from sim_gateway.scenario import default_scenario
+    from dica.ica.convert import request_from_core
+    from dica.ica.core.proposal import propose
+    from dica.ica.netfile import load_intersection
+    from dica.schemas import keys
+    from dica.schemas.codec import encode, now_ns
+    from dica.schemas.messages import Ack, Clock, Detect, Reject, Response
+    from dica.sim_gateway.scenario import default_scenario
 
     session, ica, tmp_path = ica_on_loopback
     request, detect = keys.request("C", "tester"), keys.detect("C", "tester")
@@ -307,9 +307,9 @@ def _reactive_recording(rrd: Path) -> dict:
     whether an EV is drawn in its colour in the top view and in the lane charts."""
     from rerun.chunk import RrdReader
 
-    from sim_gateway.recording import STATE_STYLE, State
+    from dica.sim_gateway.recording import STATUS_STYLE, Status
 
-    r, g, b = STATE_STYLE[State.EMERGENCY][1]
+    r, g, b = STATUS_STYLE[Status.EMERGENCY][1]
     red = (r << 24) | (g << 16) | (b << 8) | 0xFF
     out = {"reorders": [], "kept": [], "withdrawn": [], "marks": 0, "ev_top": False,
            "ev_charts": False}  # fmt: skip

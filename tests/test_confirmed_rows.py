@@ -8,7 +8,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from ica.core.conflict import PACKED, ConfirmedRows, Gathered
+from dica.ica.core.conflict import PACKED, ConfirmedRows, Gathered
 
 
 def _live(g: Gathered) -> tuple[list[str], np.ndarray, np.ndarray]:

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from ica.core.config import BASIC, IcaConfig, Techniques
-from tools.audit import conflicts, kinematic_violations
-from tools.stream import StreamResult, StreamSpec, flown, run_stream
+from dica.ica.core.config import BASIC, IcaConfig, Techniques
+from dica.sim_gateway.audit import conflicts, kinematic_violations
+from dica.sim_gateway.stream import StreamResult, StreamSpec, flown, run_stream
 
 JUNCTIONS = ["ch3", "ch45", "tee", "skewed"]
 VARIANTS = ["basic", "enhanced", "t1", "t2", "t3", "t4", "t2+4", "t1+2+3+4"]

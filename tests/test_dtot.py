@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ica.core.dtot import build_dtot
-from ica.core.occupancy import footprints, overlap_matrix, overlap_pairs
-from ica.core.planner import Kinematics, Planner
-from ica.core.trajectory import Trajectory, sample
-from ica.core.zones import ConflictTables, Shape
+from dica.ica.core.dtot import build_dtot
+from dica.ica.core.occupancy import footprints, overlap_matrix, overlap_pairs
+from dica.ica.core.planner import Kinematics, Planner
+from dica.ica.core.trajectory import Trajectory, sample
+from dica.ica.core.zones import ConflictTables, Shape
 
 SHAPES = [Shape.of(5.0, 1.8), Shape.of(7.3, 2.2), Shape.of(3.6, 1.6)]
 

@@ -8,12 +8,12 @@ import itertools
 import numpy as np
 import pytest
 
-from ica.core.config import IcaConfig
-from ica.core.proposal import propose
-from ica.core.request import Confirmation, Tss
-from sim_gateway.demand import DemandSpec, make_arrivals
-from sim_gateway.metrics import Trip, TripLog, summarize_ev
-from sim_gateway.signals import (
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Confirmation, Tss
+from dica.sim_gateway.demand import DemandSpec, make_arrivals
+from dica.sim_gateway.metrics import Trip, TripLog, summarize_ev
+from dica.sim_gateway.signals import (
     HOLD,
     REACTIVE_GREEN_S,
     REACTIVE_RED_S,
@@ -22,7 +22,7 @@ from sim_gateway.signals import (
     phases_of,
     reactive_phases,
 )
-from vehicle_agent.machine import Phase, Vehicle
+from dica.vehicle_agent.machine import Phase, Vehicle
 
 # netconvert's plan for the chapter 4-5 junction: through and right for N-S, N-S left,
 # the same for E-W (links 3, 7, 11, 15 are the left turns)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from tools.cli import main as dica
+from dica.tools.cli import main as dica
 
 BAD = [
     (["run", "--margin", "-1"], "--margin must be between 0 and 5 m"),
@@ -60,7 +60,7 @@ def test_a_bad_value_is_one_clear_line(args, says, capsys):
 def test_experiment_passes_a_lone_option_as_extra():
     """`dica experiment --extra --no-platoon` hands the flag to every run, as a user
     would write it (argparse alone takes an option-like value for an option)."""
-    from tools.experiment import _joined_extra, parser
+    from dica.tools.experiment import _joined_extra, parser
 
     argv = ["--out", "x", "--extra", "--no-platoon", "--seeds", "1"]
     assert parser().parse_args(_joined_extra(argv)).extra == "--no-platoon"

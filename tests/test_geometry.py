@@ -8,7 +8,7 @@ import shapely
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ica.core.occupancy import Rects, footprints, overlap_matrix, overlap_pairs
+from dica.ica.core.occupancy import Rects, footprints, overlap_matrix, overlap_pairs
 
 
 def rects(cx, cy, angle, hl=2.5, hw=0.9) -> Rects:

@@ -9,12 +9,12 @@ import math
 import numpy as np
 import pytest
 
-from ica.core.baselines import controller_config, make_controller
-from ica.core.dica import Dica
-from ica.core.handover import Handover, separation_reference
-from ica.core.kernels import separation
-from ica.core.proposal import propose
-from ica.core.request import Confirmation
+from dica.ica.core.baselines import controller_config, make_controller
+from dica.ica.core.dica import Dica
+from dica.ica.core.handover import Handover, separation_reference
+from dica.ica.core.kernels import separation
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Confirmation
 from tests.test_run_sumo import dica
 
 ROAD_MPS = 70.0 / 3.6
@@ -189,8 +189,8 @@ def test_exits_are_remembered_across_a_restart_and_for_the_memory_s_length(ch45,
     """An ICA restarted from its journal still spaces a through vehicle behind the
     right-turner that left just before (the first advance files it among the exits);
     the memory keeps a vehicle LEFT_MEMORY_S after it left, and no longer."""
-    from ica.core.dica import LEFT_MEMORY_S
-    from ica.journal import Journal, replay
+    from dica.ica.core.dica import LEFT_MEMORY_S
+    from dica.ica.journal import Journal, replay
 
     cfg = controller_config("enhanced", 0.25, platoon=True, headway_s=0.3)
     ica = make_controller("enhanced", ch45, cfg)

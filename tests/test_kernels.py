@@ -7,21 +7,21 @@ import dataclasses
 import numpy as np
 import pytest
 
-import ica.core.dica
-from ica.core import validate
-from ica.core.config import IcaConfig
-from ica.core.conflict import follow_conflict, follow_conflict_reference, pack
-from ica.core.dtot import build_dtot, grid_intervals
-from ica.core.kernels import _searchsorted
-from ica.core.occupancy import footprints
-from ica.core.planner import Kinematics, Planner
-from ica.core.proposal import propose
-from ica.core.request import Reason, RequestError
-from ica.core.trajectory import Trajectory, sample
-from ica.core.zones import ConflictTables
+import dica.ica.core.dica as dica_module
+from dica.ica.core import validate
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.conflict import follow_conflict, follow_conflict_reference, pack
+from dica.ica.core.dtot import build_dtot, grid_intervals
+from dica.ica.core.kernels import _searchsorted
+from dica.ica.core.occupancy import footprints
+from dica.ica.core.planner import Kinematics, Planner
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Reason, RequestError
+from dica.ica.core.trajectory import Trajectory, sample
+from dica.ica.core.zones import ConflictTables
+from dica.sim_gateway.stream import StreamSpec, run_stream
 from tests.test_bad_input import cases, tss_with
 from tests.test_dtot import SHAPES, trajectories
-from tools.stream import StreamSpec, run_stream
 
 
 @pytest.mark.parametrize("right", [False, True])
@@ -105,10 +105,10 @@ def test_follow_conflict_is_the_numpy_one(request, monkeypatch, junction):
         calls["violations"] += fast is not None
         return fast
 
-    monkeypatch.setattr(ica.core.dica, "follow_conflict", checked)
+    monkeypatch.setattr(dica_module, "follow_conflict", checked)
     # the Python round loop calls follow_conflict (the compiled one calls the
     # kernel itself, see tests/test_resolve_compiled.py)
-    monkeypatch.setattr(ica.core.dica.Dica, "compiled_loop", False)
+    monkeypatch.setattr(dica_module.Dica, "compiled_loop", False)
     spec = StreamSpec(volume_per_10min=2400.0, n_vehicles=40, seed=9)
     res = run_stream(inter, IcaConfig(), spec)
     assert len(res.confirmed) == len(res.vehicles)

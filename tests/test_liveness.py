@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 
-from ica.core.config import IcaConfig
-from tools.audit import conflicts
-from tools.stream import StreamSpec, flown, run_stream
+from dica.ica.core.config import IcaConfig
+from dica.sim_gateway.audit import conflicts
+from dica.sim_gateway.stream import StreamSpec, flown, run_stream
 
 
 def test_ten_thousand_vehicles_all_confirmed_with_bounded_waits(ch45):

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 
-from ica.core.config import IcaConfig
-from ica.core.request import Reason, Rejection
-from vehicle_agent.machine import PENDING, Observation, Phase, Vehicle
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.request import Reason, Rejection
+from dica.vehicle_agent.machine import PENDING, Observation, Phase, Vehicle
 
 
 class Later:

@@ -12,10 +12,10 @@ import pytest
 import shapely
 import sumolib
 
-from ica.core.intersection import Intersection
-from ica.core.route import KMH, SpeedCaps, Turn, classify_turn
-from ica.netfile import NetworkError, load_intersection
-from sim_gateway.scenario import Scenario, build_scenario
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.route import KMH, SpeedCaps, Turn, classify_turn
+from dica.ica.netfile import NetworkError, load_intersection
+from dica.sim_gateway.scenario import Scenario, build_scenario
 
 VEHICLE_M = 12.0  # load_intersection's default max_vehicle_length_m
 COMM_M = 50.0

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ica.core.ordering import (
+from dica.ica.core.ordering import (
     GaParams,
     OrderingError,
     Problem,

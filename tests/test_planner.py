@@ -10,8 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from ica.core.planner import Kinematics, Planner
-from ica.core.trajectory import sample
+from dica.ica.core.planner import Kinematics, Planner
+from dica.ica.core.trajectory import sample
 
 KIN = Kinematics()
 ROAD = 70 / 3.6

@@ -9,11 +9,11 @@ import json
 import numpy as np
 import pytest
 
-from ica.core.baselines import controller_config, make_controller
-from ica.core.dica import Dica
-from ica.core.planner import Kinematics, Planner
-from ica.core.proposal import propose
-from ica.core.request import Confirmation, Reason, Rejection, RequestError
+from dica.ica.core.baselines import controller_config, make_controller
+from dica.ica.core.dica import Dica
+from dica.ica.core.planner import Kinematics, Planner
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Confirmation, Reason, Rejection, RequestError
 from tests.test_run_sumo import dica
 
 WEST = "W_in_1", "E_out_1"  # through from the west
@@ -180,7 +180,7 @@ def test_platoons_cross_heavy_traffic_safely_with_fewer_stops(tmp_path):
 
 def _actuator_at(t_s: float):
     """The gateway's actuator rules alone (World._drop, World._may_follow), no SUMO."""
-    from sim_gateway.world import Timing, World
+    from dica.sim_gateway.world import Timing, World
 
     w = World.__new__(World)
     w.t, w.h = t_s, 0.05
@@ -191,7 +191,7 @@ def _actuator_at(t_s: float):
 
 
 def _car(ch45, vin: str, s_m: float, speed: float, plan_t0: float | None = None):
-    from sim_gateway.world import Car
+    from dica.sim_gateway.world import Car
 
     c = Car(vin, ch45.route(*WEST), 1, 12.0, s_m=s_m, speed_mps=speed)
     if plan_t0 is not None:  # a plan that moves on at `speed` from where it is

@@ -20,11 +20,11 @@ ROOT = Path(__file__).resolve().parents[1]
 SCRIPTED = textwrap.dedent(
     """
     import json, sys
-    from ica.netfile import load_intersection
-    from sim_gateway.demand import Arrival
-    from sim_gateway.embedded import run
-    from sim_gateway.runconfig import RunConfig
-    from sim_gateway.scenario import default_scenario
+    from dica.ica.netfile import load_intersection
+    from dica.sim_gateway.demand import Arrival
+    from dica.sim_gateway.embedded import run
+    from dica.sim_gateway.runconfig import RunConfig
+    from dica.sim_gateway.scenario import default_scenario
 
     sc = default_scenario("ch45")
     inter = load_intersection(sc.net_path, sc.junction_id)

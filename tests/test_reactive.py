@@ -7,13 +7,13 @@ import msgpack
 import numpy as np
 import pytest
 
-from ica.core.config import IcaConfig
-from ica.core.dica import Dica
-from ica.core.proposal import propose
-from ica.core.reactive import DROPPED, EXPIRED, KEPT, Answer, ReactiveConfig, ReactiveDica
-from ica.core.request import Confirmation, Reason, Rejection
-from ica.journal import Journal, records, replay
-from tools.audit import Flown, conflicts
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.dica import Dica
+from dica.ica.core.proposal import propose
+from dica.ica.core.reactive import DROPPED, EXPIRED, KEPT, Answer, ReactiveConfig, ReactiveDica
+from dica.ica.core.request import Confirmation, Reason, Rejection
+from dica.ica.journal import Journal, records, replay
+from dica.sim_gateway.audit import Flown, conflicts
 
 CFG = IcaConfig()
 CROSS = "W_in_1", "E_out_1"  # through from the west, crossing the EV's path

@@ -27,31 +27,31 @@ import pytest
 import shapely
 from rerun.chunk import RrdReader
 
-from ica.core.dica import Dica
-from ica.core.dtot import build_dtot
-from ica.core.intersection import Intersection
-from ica.core.proposal import propose
-from ica.core.request import Confirmation
-from ica.core.trajectory import Trajectory
-from ica.core.zones import ConflictTables, Shape
-from sim_gateway.conflict_points import covers, find_conflict_points
-from sim_gateway.recording import (
+from dica.ica.core.dica import Dica
+from dica.ica.core.dtot import build_dtot
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Confirmation
+from dica.ica.core.trajectory import Trajectory
+from dica.ica.core.zones import ConflictTables, Shape
+from dica.sim_gateway.conflict_points import covers, find_conflict_points
+from dica.sim_gateway.recording import (
     CHART_EVERY,
     CHART_M_PER_S,
     PAST_S,
     ROW_M,
-    STATE_STYLE,
+    STATUS_STYLE,
     TOP_EVERY,
     RouteProjector,
     SpaceTimeRecorder,
-    State,
+    Status,
     approach_of,
     rectangles,
     sumo_heading_rad,
     vehicle_color,
-    vehicle_states,
+    vehicle_statuses,
 )
-from tools.cli import main as dica
+from dica.tools.cli import main as dica
 
 LENGTH_M, WIDTH_M, MARGIN_M = 5.0, 1.8, 0.25
 N_STEPS = 120  # actual steps recorded, then one step with no vehicles
@@ -251,7 +251,7 @@ def test_geometry_is_static_north_up_with_lane_edges_and_entry_lines(recorded, c
     assert len(_static(data["/junction/lane_edges"], "LineStrips2D:strips")) == 2 * (n_in + n_out)
     assert len(_static(data["/junction/entry_lines"], "LineStrips2D:strips")) == n_in
     legend = _static(data["/junction/legend/text"], "Points2D:labels")
-    for name, _ in STATE_STYLE.values():
+    for name, _ in STATUS_STYLE.values():
         assert any(label.startswith(name) for label in legend)
     assert any("margin" in label for label in legend)
 
@@ -405,7 +405,7 @@ def test_actual_footprints_states_and_names(recorded, ch45):
     rows = _rows(data["/junction/vehicles"], "LineStrips2D:strips")
     classes = _rows(data["/junction/vehicles"], "LineStrips2D:colors")
     rgba = {
-        st: (r << 24) | (g << 16) | (b << 8) | 0xFF for st, (_, (r, g, b)) in STATE_STYLE.items()
+        st: (r << 24) | (g << 16) | (b << 8) | 0xFF for st, (_, (r, g, b)) in STATUS_STYLE.items()
     }
     assert len(rows) == math.ceil((N_STEPS + 1) / TOP_EVERY)
     assert all(len(strips) == len(confs) for _, strips in rows[:-1])
@@ -429,11 +429,11 @@ def test_actual_footprints_states_and_names(recorded, ch45):
             i = min(round(t / 0.05), len(c.tss) - 1)
             s = ch45.route_by_id(c.route_id).project(np.array([[c.tss.x_m[i], c.tss.y_m[i]]]))[0][0]
             want = (
-                State.CONFIRMED
+                Status.CONFIRMED
                 if s <= 0
-                else State.CROSSING
+                else Status.CROSSING
                 if s < ch45.route_by_id(c.route_id).cross_length_m + LENGTH_M
-                else State.CLEARED
+                else Status.CLEARED
             )
             assert cid == rgba[want], (t, c.vin, s)
     names = _rows(data["/junction/names"], "Points2D:labels")
@@ -446,11 +446,11 @@ def test_an_emergency_vehicle_has_its_own_colour_until_it_has_cleared():
     s_m = np.array([-5.0, 3.0, 40.0, -10.0, -5.0])
     out_m = np.full(5, 30.0)
     ev = np.array([False, True, True, True, False])
-    st = vehicle_states(confirmed, s_m, out_m, ev)
+    st = vehicle_statuses(confirmed, s_m, out_m, ev)
     assert list(st) == [
-        State.CONFIRMED, State.EMERGENCY, State.CLEARED, State.EMERGENCY, State.CONFIRMED
+        Status.CONFIRMED, Status.EMERGENCY, Status.CLEARED, Status.EMERGENCY, Status.CONFIRMED
     ]  # fmt: skip
-    assert "emergency vehicle" in {name for name, _ in STATE_STYLE.values()}
+    assert "emergency vehicle" in {name for name, _ in STATUS_STYLE.values()}
 
 
 def test_an_emergency_vehicle_is_drawn_in_its_colour(ch45, tmp_path):
@@ -462,7 +462,7 @@ def test_an_emergency_vehicle_is_drawn_in_its_colour(ch45, tmp_path):
     rec.emergency(confs[0].vin)
     _fly(rec, confs, 10)
     rec.close()
-    r, g, b = STATE_STYLE[State.EMERGENCY][1]
+    r, g, b = STATUS_STYLE[Status.EMERGENCY][1]
     red = (r << 24) | (g << 16) | (b << 8) | 0xFF
     colours = _rows(_read(path)["/junction/vehicles"], "LineStrips2D:colors")
     assert colours and all(ids[0] == red and red not in ids[1:] for _, ids in colours if ids)
@@ -478,7 +478,7 @@ def test_an_emergency_vehicle_s_plan_and_progress_are_in_its_colour_in_the_chart
     _fly(rec, confs, 10)
     rec.close()
     data = _read(path)
-    r, g, b = STATE_STYLE[State.EMERGENCY][1]
+    r, g, b = STATUS_STYLE[Status.EMERGENCY][1]
     red = (r << 24) | (g << 16) | (b << 8)
     lane = ch45.route_by_id(confs[0].route_id).in_lane
     plans = _rows(data[f"/charts/data/lanes/{lane}/plans"], "LineStrips2D:colors")
@@ -572,7 +572,7 @@ def test_a_withdrawn_plan_is_drawn_in_force_until_its_withdrawal(ch45, tmp_path,
     assert all(gone[t] == kept[t] for t in kept if t < 2.0)  # in force until withdrawn
     assert all(gone[t] == kept[t] - 1 for t in kept if t >= 2.0)
     # and its vehicle is drawn confirmed until then, requesting from then on
-    orange = _rgba_of(STATE_STYLE[State.REQUESTING][1])
+    orange = _rgba_of(STATUS_STYLE[Status.REQUESTING][1])
     assert all((gone_c[t][0] == orange) == (t >= 2.0) for t in gone_c)
     assert orange not in {kept_c[t][0] for t in kept_c}
 

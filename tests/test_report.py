@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from tools.report import GROWTH, SATURATION_RHO, SLACK_S, bounded, saturation
+from dica.tools.report import GROWTH, SATURATION_RHO, SLACK_S, bounded, saturation
 
 
 def row(rho: float, middle: float, last: float, settled: float | None = None) -> dict:

@@ -8,13 +8,13 @@ import math
 import numpy as np
 import pytest
 
-import ica.core.dica as dica_module
-from ica.core.baselines import controller_config, make_controller
-from ica.core.config import IcaConfig, Techniques
-from ica.core.dica import Dica, _finish
-from ica.core.planner import Planner
-from ica.core.request import RequestError
-from tools.stream import StreamSpec, run_stream
+import dica.ica.core.dica as dica_module
+from dica.ica.core.baselines import controller_config, make_controller
+from dica.ica.core.config import IcaConfig, Techniques
+from dica.ica.core.dica import Dica, _finish
+from dica.ica.core.planner import Planner
+from dica.ica.core.request import RequestError
+from dica.sim_gateway.stream import StreamSpec, run_stream
 
 
 def _resolve(search, ica: Dica, compiled: bool, args: tuple):

@@ -232,7 +232,7 @@ def test_run_records_every_confirmation_and_footprint(tmp_path):
 
     from rerun.chunk import RrdReader
 
-    from sim_gateway.recording import TOP_EVERY
+    from dica.sim_gateway.recording import TOP_EVERY
 
     out = tmp_path / "run"
     p = dica(*("run", "--volume", "500", "--duration", "40", "--seed", "21"),
@@ -255,11 +255,11 @@ def test_run_records_every_confirmation_and_footprint(tmp_path):
 
 
 UNCHECKED = """
-from sim_gateway.embedded import ica_config, schedule_for
-from sim_gateway.runconfig import RunConfig
-from sim_gateway.scenario import default_scenario
-from sim_gateway.world import World, import_libsumo, start_sumo
-from ica.netfile import load_intersection
+from dica.sim_gateway.embedded import ica_config, schedule_for
+from dica.sim_gateway.runconfig import RunConfig
+from dica.sim_gateway.scenario import default_scenario
+from dica.sim_gateway.world import World, import_libsumo, start_sumo
+from dica.ica.netfile import load_intersection
 
 sc = default_scenario("ch45")
 inter = load_intersection(sc.net_path, sc.junction_id)

@@ -20,7 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from shapely.geometry import Polygon
 
-from sim_gateway.safety import GAP_HIST_EDGES_M, SafetyMonitor
+from dica.sim_gateway.safety import GAP_HIST_EDGES_M, SafetyMonitor
 
 ROOT = Path(__file__).resolve().parents[1]
 L, W = 5.0, 1.8
@@ -364,12 +364,14 @@ def test_checker_imports_nothing_from_the_controller():
         import importlib.abc, sys
         class Block(importlib.abc.MetaPathFinder):
             def find_spec(self, name, path=None, target=None):
-                if name.split(".")[0] in ("ica", "libsumo", "traci", "zenoh", "rerun"):
+                if name.split(".")[0] in ("libsumo", "traci", "zenoh", "rerun") or (
+                    name == "dica.ica" or name.startswith("dica.ica.")
+                ):
                     raise ImportError(f"blocked: {name}")
                 return None
         sys.meta_path.insert(0, Block())
-        import sim_gateway.safety
-        bad = [m for m in sys.modules if m.split(".")[0] == "ica"]
+        import dica.sim_gateway.safety
+        bad = [m for m in sys.modules if m == "dica.ica" or m.startswith("dica.ica.")]
         assert not bad, bad
         print("ok")
         """

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import sumolib
 
-from sim_gateway.scenario import (
+from dica.sim_gateway.scenario import (
     APPROACH_M,
     DISSERTATION_LAYOUTS,
     OWN_LAYOUTS,
@@ -103,7 +103,7 @@ def test_only_the_listed_connections_exist(nets: dict[str, Scenario], layout: st
 @pytest.mark.parametrize("layout", OWN_LAYOUTS)
 def test_own_layouts_build_with_guessed_movements(tmp_path: Path, layout: str) -> None:
     """The skewed and T junctions: netconvert's movements, long 2-lane arms, a light on demand."""
-    from ica.netfile import load_intersection
+    from dica.ica.netfile import load_intersection
 
     sc = build_scenario(layout, tmp_path)
     assert not (tmp_path / f"{layout}.con.xml").exists()

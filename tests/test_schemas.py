@@ -11,9 +11,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from schemas import keys
-from schemas.codec import MAX_PAYLOAD, DecodeError, Why, decode, encode
-from schemas.messages import (
+from dica.schemas import keys
+from dica.schemas.codec import MAX_PAYLOAD, DecodeError, Why, decode, encode
+from dica.schemas.messages import (
     MAX_SAMPLES,
     MESSAGES,
     VERSION,

@@ -8,8 +8,8 @@ import time
 
 import pytest
 
-from schemas import keys
-from schemas.seal import Guard, Keyring, Seal, SealError, load_guard, new_key
+from dica.deploy.seal import Guard, Keyring, Seal, SealError, load_guard, new_key
+from dica.schemas import keys
 
 
 @pytest.fixture

@@ -31,8 +31,15 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from tests.test_cluster import DICA, ROOT, _cluster, _embedded, _same_decisions
-from tools.loopback import (
+from dica.deploy.site import (
+    FILES,
+    SecureConfigError,
+    add_agents,
+    revoke_agents,
+    site_agents,
+    write_secure_configs,
+)
+from dica.tools.loopback import (
     ACTIONS,
     Attempt,
     Inconclusive,
@@ -42,14 +49,7 @@ from tools.loopback import (
     router,
     tried,
 )
-from tools.secure import (
-    FILES,
-    SecureConfigError,
-    add_agents,
-    revoke_agents,
-    site_agents,
-    write_secure_configs,
-)
+from tests.test_cluster import DICA, ROOT, _cluster, _embedded, _same_decisions
 
 J = "C"  # the junction under attack
 D = "D"  # where owners hold control tokens: a witness sees a token's key, not its holder
@@ -192,7 +192,7 @@ def test_a_client_left_outside_says_where_it_waits(site, tmp_path):
     conf.insert_json5("transport/auth/usrpwd/password", json.dumps("guess"))
     bad.write_text(str(conf))
     code = (
-        "import sys; from schemas.link import open_session; "
+        "import sys; from dica.deploy.transport import open_session; "
         "open_session(sys.argv[1], sys.argv[2], waiting_note_s=0.5)"
     )
     with pytest.raises(subprocess.TimeoutExpired) as waited:

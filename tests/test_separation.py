@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ica.core.config import IcaConfig
-from ica.core.dica import Dica
-from ica.core.separation import SeparationModel
-from ica.core.zones import Shape
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.dica import Dica
+from dica.ica.core.separation import SeparationModel
+from dica.ica.core.zones import Shape
 
 
 def _model(inter) -> SeparationModel:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from sim_gateway.signals import (
+from dica.sim_gateway.signals import (
     ALL_RED,
     GREEN,
     LOST_PER_PHASE_S,

@@ -1,7 +1,7 @@
 """Timing tests: the real cluster under late, lost, repeated and reordered messages,
 and with processes killed, on real Zenoh over loopback and real SUMO.
 
-Faults are real: the link emulator (tools/linkem.py) sits between each role and
+Faults are real: the link emulator (deploy/linkem.py) sits between each role and
 the router and delays, drops, duplicates and holds back whole Zenoh batches on
 real TCP connections; crashes are SIGKILLs of real processes. Runs are short and
 paced faster than real time (``--speed``), so a wall-clock delay of D ms is
@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from dica.tools.loopback import free_port
 from tests.cluster_proc import logs_tail, stop_cluster
-from tools.loopback import free_port
 
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "tools.cli"]
@@ -103,9 +103,9 @@ def _safe_and_whole(m: dict) -> None:
 
 # -- the emulator itself, on real Zenoh sessions ------------------------------------------
 def test_the_link_emulator_delays_and_loses_real_zenoh_messages(tmp_path):
-    from schemas.link import open_session
-    from tools.linkem import Faults, Proxy, write_profile, write_spec
-    from tools.loopback import router
+    from dica.deploy.linkem import Faults, Proxy, write_profile, write_spec
+    from dica.deploy.transport import open_session
+    from dica.tools.loopback import router
 
     with router() as endpoint:
         port = int(endpoint.rsplit(":", 1)[1])
@@ -243,10 +243,10 @@ def test_lockstep_rdica_with_a_killed_agent_answers_or_outlives_every_revocation
 
 
 def test_a_killed_ica_comes_back_from_its_journal_and_keeps_its_promises(tmp_path):
-    from ica.journal import confirmation_of, records
-    from ica.netfile import load_intersection
-    from sim_gateway.scenario import default_scenario
-    from tools.audit import Flown, conflicts
+    from dica.ica.journal import confirmation_of, records
+    from dica.ica.netfile import load_intersection
+    from dica.sim_gateway.audit import Flown, conflicts
+    from dica.sim_gateway.scenario import default_scenario
 
     out = tmp_path / "rt"
     proc = _start_cluster(

@@ -6,14 +6,14 @@ import json
 import subprocess
 import sys
 
-from ica.core.config import IcaConfig
-from ica.core.dica import Dica
-from ica.core.proposal import propose
-from ica.core.request import Confirmation
-from ica.core.window import WindowOrder
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.dica import Dica
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Confirmation
+from dica.ica.core.window import WindowOrder
+from dica.sim_gateway.audit import conflicts
 from tests.test_reactive import flown
 from tests.test_run_sumo import ROOT
-from tools.audit import conflicts
 
 CFG = IcaConfig()
 FAR = "W_in_1", "E_out_1"  # through from the west

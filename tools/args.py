@@ -16,8 +16,8 @@ class UsageError(Exception):
 
 
 def intersection(args: argparse.Namespace):
-    from ica.netfile import NetworkError, load_intersection
-    from sim_gateway.scenario import ScenarioError, default_scenario
+    from dica.ica.netfile import NetworkError, load_intersection
+    from dica.sim_gateway.scenario import ScenarioError, default_scenario
 
     try:
         if args.net:
@@ -31,7 +31,7 @@ def intersection(args: argparse.Namespace):
 
 
 def add_net_args(p: argparse.ArgumentParser) -> None:
-    from sim_gateway.scenario import LAYOUTS
+    from dica.sim_gateway.scenario import LAYOUTS
 
     p.add_argument(
         "--layout",
@@ -47,14 +47,14 @@ def run_config(args: argparse.Namespace):
     """The RunConfig and intersection the run options name (shared with `dica gateway`)."""
     import shlex
 
-    from sim_gateway.runconfig import LIGHTS, RunConfig, RunError
+    from dica.sim_gateway.runconfig import LIGHTS, RunConfig, RunError
 
     if args.net:
         if not args.junction:
             raise UsageError("--net needs --junction (the junction id in that network)")
         net, junction = str(args.net), args.junction
     else:
-        from sim_gateway.scenario import ScenarioError, default_scenario
+        from dica.sim_gateway.scenario import ScenarioError, default_scenario
 
         tls = None
         if args.algorithm in LIGHTS:

@@ -25,20 +25,20 @@ from pathlib import Path
 
 import numpy as np
 
-from tools.loopback import router_and_ica
+from dica.tools.loopback import router_and_ica
 
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "tools.cli"]
 
 
 def round_trips(n: int) -> dict:
-    from ica.core.proposal import propose
-    from ica.netfile import load_intersection
-    from schemas import keys
-    from schemas.codec import decode, encode, now_ns
-    from schemas.convert import request_from_core
-    from schemas.messages import Clock, Detect, Response
-    from sim_gateway.scenario import default_scenario
+    from dica.ica.convert import request_from_core
+    from dica.ica.core.proposal import propose
+    from dica.ica.netfile import load_intersection
+    from dica.schemas import keys
+    from dica.schemas.codec import decode, encode, now_ns
+    from dica.schemas.messages import Clock, Detect, Response
+    from dica.sim_gateway.scenario import default_scenario
 
     sc = default_scenario("ch45")
     inter = load_intersection(sc.net_path, sc.junction_id)

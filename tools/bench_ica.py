@@ -35,13 +35,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.config import IcaConfig, Techniques
-from ica.core.dica import Dica
-from ica.core.handover import clear_separations
-from ica.core.intersection import Intersection
-from ica.core.request import Confirmation, Request, Tss
-from ica.core.zones import ConflictTables
-from tools.stream import StreamSpec, run_stream
+from dica.ica.core.config import IcaConfig, Techniques
+from dica.ica.core.dica import Dica
+from dica.ica.core.handover import clear_separations
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.request import Confirmation, Request, Tss
+from dica.ica.core.zones import ConflictTables
+from dica.sim_gateway.stream import StreamSpec, run_stream
 
 BUCKETS = {5: (4, 6), 10: (9, 11), 20: (17, 23)}
 SYNTHETIC_N = 40
@@ -136,8 +136,8 @@ def run(
     layout: str = "ch45",
     variants: tuple[str, ...] = VARIANTS,
 ) -> dict:
-    from ica.netfile import load_intersection
-    from sim_gateway.scenario import default_scenario
+    from dica.ica.netfile import load_intersection
+    from dica.sim_gateway.scenario import default_scenario
 
     sc = default_scenario(layout)
     inter = load_intersection(sc.net_path, sc.junction_id)

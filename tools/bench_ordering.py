@@ -25,8 +25,8 @@ import time
 
 import numpy as np
 
-from ica.core.intersection import Intersection
-from ica.core.ordering import (
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.ordering import (
     EXHAUSTIVE_LIMIT,
     Problem,
     better,
@@ -35,9 +35,9 @@ from ica.core.ordering import (
     exhaustive,
     ga,
 )
-from ica.core.planner import Kinematics
-from ica.core.separation import SeparationModel
-from ica.core.zones import ConflictTables, Shape
+from dica.ica.core.planner import Kinematics
+from dica.ica.core.separation import SeparationModel
+from dica.ica.core.zones import ConflictTables, Shape
 
 
 def event(
@@ -178,7 +178,7 @@ def main(argv: list[str] | None = None) -> int:
             "dica bench ordering: --fixed, --events and --limit must be at least 1", file=sys.stderr
         )
         return 2
-    from tools.args import UsageError, intersection
+    from dica.tools.args import UsageError, intersection
 
     try:
         inter = intersection(argparse.Namespace(net=None, junction=None, layout="ch45"))

@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parent.parent
 
 def shown_after_s(rrd: Path, timeout_s: float) -> float:
     """Seconds from opening the page until the whole recording is drawn."""
-    from tools.webshot import Browser, Viewer, last_time_ns, wait_loaded
+    from dica.tools.webshot import Browser, Viewer, last_time_ns, wait_loaded
 
     end = last_time_ns(rrd)
     with Viewer([rrd]) as viewer, Browser() as browser:

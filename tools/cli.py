@@ -14,7 +14,7 @@ import sys
 import time
 from pathlib import Path
 
-from tools.args import (
+from dica.tools.args import (
     UsageError,
     add_net_args,
     add_plan_args,
@@ -40,7 +40,7 @@ EXAMPLES = """examples:
 
 # -- scenario -------------------------------------------------------------------
 def cmd_scenario(args: argparse.Namespace) -> int:
-    from sim_gateway.scenario import ScenarioError, build_scenario
+    from dica.sim_gateway.scenario import ScenarioError, build_scenario
 
     try:
         sc = build_scenario(args.layout, args.out)
@@ -52,7 +52,7 @@ def cmd_scenario(args: argparse.Namespace) -> int:
 
 # -- geometry -------------------------------------------------------------------
 def cmd_geometry(args: argparse.Namespace) -> int:
-    from ica.core.zones import ConflictTables, Shape
+    from dica.ica.core.zones import ConflictTables, Shape
 
     inter = intersection(args)
     tables = ConflictTables(inter, margin_m=args.margin)
@@ -90,9 +90,9 @@ def cmd_geometry(args: argparse.Namespace) -> int:
 def cmd_stream(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from ica.core.config import IcaConfig, Techniques
-    from tools.audit import conflicts, kinematic_violations
-    from tools.stream import StreamSpec, flown, run_stream
+    from dica.ica.core.config import IcaConfig, Techniques
+    from dica.sim_gateway.audit import conflicts, kinematic_violations
+    from dica.sim_gateway.stream import StreamSpec, flown, run_stream
 
     if not 1 <= args.vehicles <= 100_000:
         raise UsageError("--vehicles must be between 1 and 100000")
@@ -173,8 +173,8 @@ def _jsonable(x):
 def cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from sim_gateway.embedded import RunError, run
-    from sim_gateway.outputs import write_outputs
+    from dica.sim_gateway.embedded import RunError, run
+    from dica.sim_gateway.outputs import write_outputs
 
     cfg, inter = run_config(args)
     out = args.out or Path("runs") / time.strftime(f"run-{cfg.algorithm}-%Y%m%d-%H%M%S")
@@ -220,7 +220,7 @@ its open session and its log-ins go on.
 
 
 def cmd_secure_config(args: argparse.Namespace) -> int:
-    from tools import secure
+    from dica.deploy import site
 
     run = f"dica router --config {args.out.resolve() / 'router.json5'}"
     try:
@@ -228,35 +228,33 @@ def cmd_secure_config(args: argparse.Namespace) -> int:
         if (args.add_agent or args.revoke_agent) and any(x is not None for x in new_site_only):
             raise UsageError("--host, --days and --junction make a new site (--agents)")
         if args.add_agent:
-            added = secure.add_agents(args.out, args.add_agent, args.force)
+            added = site.add_agents(args.out, args.add_agent, args.force)
             for name, path in added.items():
                 print(f"{name + ':':10}dica agent --zenoh-config {path} --id {name} ...")
             print(f"restart the router to let {', '.join(added)} in: {run}")
             return 0
         if args.revoke_agent:
-            gone = secure.names(args.revoke_agent)
-            left = secure.revoke_agents(args.out, gone)
+            gone = site.names(args.revoke_agent)
+            left = site.revoke_agents(args.out, gone)
             print(f"revoked {', '.join(gone)}; the site's agents: {', '.join(left) or '(none)'}")
             print(f"restart the router to refuse them (until then they stay in): {run}")
             return 0
-        hosts = tuple(args.host) if args.host else secure.DEFAULT_HOSTS
+        hosts = tuple(args.host) if args.host else site.DEFAULT_HOSTS
         days = 365 if args.days is None else args.days
-        junctions = args.junction or secure.DEFAULT_JUNCTIONS
-        paths = secure.write_secure_configs(
-            args.out, args.force, hosts, days, args.agents, junctions
-        )
-    except secure.SecureConfigError as e:
+        junctions = args.junction or site.DEFAULT_JUNCTIONS
+        paths = site.write_secure_configs(args.out, args.force, hosts, days, args.agents, junctions)
+    except site.SecureConfigError as e:
         raise UsageError(str(e)) from None
     print(f"router:   {run}")
-    for role in secure.ROLES:
+    for role in site.ROLES:
         print(f"{role + ':':10}dica {role} --zenoh-config {paths[role + '.json5']} ...")
-    for name in secure.agent_names(args.agents):
+    for name in site.agent_names(args.agents):
         print(f"{name + ':':10}dica agent --zenoh-config {paths[name + '.json5']} --id {name} ...")
     return 0
 
 
 def cmd_view(args: argparse.Namespace) -> int:
-    from tools import view
+    from dica.tools import view
 
     try:
         return view.main(args)
@@ -270,7 +268,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 # -- bench -----------------------------------------------------------------------
 def cmd_bench(args: argparse.Namespace) -> int:
     if args.what == "ica":
-        from tools import bench_ica
+        from dica.tools import bench_ica
 
         return bench_ica.main(args.rest)
     raise UsageError(f"unknown benchmark {args.what!r}")
@@ -285,9 +283,9 @@ def parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    from sim_gateway.scenario import LAYOUTS
-    from tools.view import DESCRIPTION as VIEW_DESCRIPTION
-    from tools.view import add_arguments as view_arguments
+    from dica.sim_gateway.scenario import LAYOUTS
+    from dica.tools.view import DESCRIPTION as VIEW_DESCRIPTION
+    from dica.tools.view import add_arguments as view_arguments
 
     sc = sub.add_parser("scenario", help="build a built-in intersection with netconvert")
     sc.add_argument("action", choices=["build"])
@@ -366,7 +364,7 @@ def parser() -> argparse.ArgumentParser:
     )
     r.set_defaults(func=cmd_run)
 
-    from tools.roles import add_role_parsers
+    from dica.tools.roles import add_role_parsers
 
     add_role_parsers(sub)
 
@@ -454,14 +452,14 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     # these subcommands parse their own options (and --help)
     if argv and argv[0] in ("experiment", "report"):
-        from tools import experiment, report
+        from dica.tools import experiment, report
 
         try:
             return (experiment if argv[0] == "experiment" else report).main(argv[1:])
         except KeyboardInterrupt:
             return 130
     if argv and argv[0] == "link":
-        from tools import linkem
+        from dica.deploy import linkem
 
         try:
             return linkem.main(argv[1:])
@@ -469,7 +467,7 @@ def main(argv: list[str] | None = None) -> int:
             return 130
     benches = ("ica", "run", "cluster", "timing", "ordering")
     if len(argv) >= 2 and argv[0] == "bench" and argv[1] in benches:
-        from tools import bench_cluster, bench_ica, bench_ordering, bench_run, bench_timing
+        from dica.tools import bench_cluster, bench_ica, bench_ordering, bench_run, bench_timing
 
         bench = {
             "ica": bench_ica,

@@ -63,7 +63,7 @@ def parser() -> argparse.ArgumentParser:
         description="Run a grid of SUMO simulations (algorithms x volumes x seeds) in parallel. "
         "Cells already done are skipped; run `dica report OUT` afterwards.",
     )
-    from sim_gateway.scenario import LAYOUTS
+    from dica.sim_gateway.scenario import LAYOUTS
 
     p.add_argument("--layout", choices=LAYOUTS, default="ch45")
     p.add_argument(

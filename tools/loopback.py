@@ -74,8 +74,8 @@ def router_and_ica(
 ) -> Iterator[tuple[object, subprocess.Popen]]:
     """A client session to a fresh router with an ICA serving ``junction``; both
     stopped by process group (SIGTERM, then SIGKILL) on exit."""
-    from schemas import keys
-    from schemas.link import open_session
+    from dica.deploy.transport import open_session
+    from dica.schemas import keys
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     procs: list[subprocess.Popen] = []

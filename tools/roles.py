@@ -15,7 +15,7 @@ import json
 import time
 from pathlib import Path
 
-from tools.args import (
+from dica.tools.args import (
     UsageError,
     add_net_args,
     add_plan_args,
@@ -52,8 +52,8 @@ def _add_link_args(p: argparse.ArgumentParser) -> None:
 
 def _session(args: argparse.Namespace, role: str, signer: str | None = None):
     """The role's logger and Zenoh session; on a secured site its seal and keyring first."""
-    from schemas.link import LinkError, open_session, setup_logging, use_guard
-    from schemas.seal import SealError, load_guard
+    from dica.deploy.seal import SealError, load_guard
+    from dica.deploy.transport import LinkError, open_session, setup_logging, use_guard
 
     log = setup_logging(role, args.verbose)
     try:
@@ -70,10 +70,11 @@ def _session(args: argparse.Namespace, role: str, signer: str | None = None):
 def cmd_router(args: argparse.Namespace) -> int:
     import zenoh
 
-    from schemas.link import Inbox, setup_logging
+    from dica.deploy import ZENOH_CONFIGS
+    from dica.deploy.transport import Inbox, setup_logging
 
     log = setup_logging("router", args.verbose)
-    path = args.config or Path(__file__).resolve().parent.parent / "deploy/zenoh/router.json5"
+    path = args.config or ZENOH_CONFIGS / "router.json5"
     say_ready = _log_refused(log) if args.log_refused else _say_ready
     try:
         conf = zenoh.Config.from_file(str(path))
@@ -151,9 +152,9 @@ def _log_refused(log):
 
 # -- ica -----------------------------------------------------------------------
 def cmd_ica(args: argparse.Namespace) -> int:
-    from ica.core.baselines import controller_config, make_controller
-    from ica.journal import Journal, JournalError
-    from ica.service import IcaService, write_stats
+    from dica.ica.core.baselines import controller_config, make_controller
+    from dica.ica.journal import Journal, JournalError
+    from dica.ica.service import IcaService, write_stats
 
     if not 0.1 <= args.tile_size <= 10.0:
         raise UsageError("--tile-size must be between 0.1 and 10 m")
@@ -174,7 +175,7 @@ def cmd_ica(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise UsageError(str(e)) from None
     if args.algorithm == "rdica":
-        from ica.core.reactive import ReactiveConfig, ReactiveDica
+        from dica.ica.core.reactive import ReactiveConfig, ReactiveDica
 
         # revoked vehicles drop their plans and ask again: the ICA cannot re-plan a
         # vehicle over a link that may lose the new plan after the old one is gone
@@ -220,9 +221,9 @@ def cmd_ica(args: argparse.Namespace) -> int:
 
 # -- agent ---------------------------------------------------------------------
 def cmd_agent(args: argparse.Namespace) -> int:
-    from ica.core.baselines import controller_config
-    from schemas.keys import KeyChunkError
-    from vehicle_agent.agent import Agent
+    from dica.ica.core.baselines import controller_config
+    from dica.schemas.keys import KeyChunkError
+    from dica.vehicle_agent.agent import Agent
 
     inter = intersection(args)
     lead = None if args.lead == "auto" else _seconds(args.lead, "--lead", 0.0, 9.0)
@@ -268,9 +269,9 @@ def _seconds(text: str, flag: str, lo: float, hi: float) -> float:
 
 # -- gateway -------------------------------------------------------------------
 def cmd_gateway(args: argparse.Namespace) -> int:
-    from sim_gateway.gateway import ZenohDrivers, run_gateway
-    from sim_gateway.outputs import write_outputs
-    from sim_gateway.runconfig import LIGHTS, RunError
+    from dica.sim_gateway.gateway import ZenohDrivers, run_gateway
+    from dica.sim_gateway.outputs import write_outputs
+    from dica.sim_gateway.runconfig import LIGHTS, RunError
 
     if args.algorithm in LIGHTS:
         raise UsageError("the cluster runs ICA controllers; run the light baselines with dica run")
@@ -340,7 +341,7 @@ def cmd_gateway(args: argparse.Namespace) -> int:
 def cmd_observer(args: argparse.Namespace) -> int:
     inter = intersection(args)
     session, log = _session(args, "observer")
-    from sim_gateway.observer import Observer
+    from dica.sim_gateway.observer import Observer
 
     if not 1 <= args.grpc_port <= 65535:
         session.close()

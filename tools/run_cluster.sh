@@ -186,8 +186,8 @@ py=.venv/bin/python
 if [ -z "$net" ]; then
   read -r net junction < <("$py" -c "
 import sys
-import ica.core.dica
-from sim_gateway.scenario import ScenarioError, default_scenario
+import dica.ica.core.dica
+from dica.sim_gateway.scenario import ScenarioError, default_scenario
 try:
     sc = default_scenario(sys.argv[1])
 except ScenarioError as e:
@@ -312,7 +312,7 @@ if [ "${#proxy_json[@]}" -gt 0 ]; then
   "$py" - "$out/link/faults.json" "$delay" "$jitter" "$loss" "$dup" "$reorder" "${faulty_roles[@]}" <<'PY'
 import sys
 from pathlib import Path
-from tools.linkem import Faults, write_profile
+from dica.deploy.linkem import Faults, write_profile
 path, d, j, l, du, r, *roles = sys.argv[1:]
 f = Faults(float(d), float(j), float(l), float(du), float(r))
 write_profile(Path(path), {role: f for role in roles})

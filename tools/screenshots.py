@@ -55,9 +55,9 @@ def layouts(rrd_dir: Path):
     """The recorder's own views, each alone, plus the lane charts together."""
     import rerun.blueprint as rrb
 
-    from ica.netfile import load_intersection
-    from sim_gateway.recording import SpaceTimeRecorder, approach_of
-    from sim_gateway.scenario import default_scenario
+    from dica.ica.netfile import load_intersection
+    from dica.sim_gateway.recording import SpaceTimeRecorder, approach_of
+    from dica.sim_gateway.scenario import default_scenario
 
     sc = default_scenario("ch45")
     inter = load_intersection(sc.net_path, sc.junction_id)
@@ -111,7 +111,14 @@ def main(argv: list[str] | None = None) -> int:
         print("screenshots: --at must be positive", file=sys.stderr)
         return 2
     ensure_chromium()
-    from tools.webshot import Browser, Viewer, last_time_ns, set_time, show_blueprint, wait_loaded
+    from dica.tools.webshot import (
+        Browser,
+        Viewer,
+        last_time_ns,
+        set_time,
+        show_blueprint,
+        wait_loaded,
+    )
 
     args.out.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory() as tmp:

@@ -32,7 +32,7 @@ from pathlib import Path
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from tools.view import rerun_binary, viewer_command, web_url
+from dica.tools.view import rerun_binary, viewer_command, web_url
 
 CHROME_FLAGS = (
     "--headless=new",

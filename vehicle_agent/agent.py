@@ -35,13 +35,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ica.core.config import IcaConfig
-from ica.core.intersection import Intersection
-from ica.core.request import Reason, Rejection, Request
-from schemas import keys
-from schemas.codec import DecodeError, decode, encode, now_ns
-from schemas.convert import reject_to_core, request_from_core, response_to_core
-from schemas.link import (
+from dica.deploy.transport import (
     Inbox,
     Item,
     every_answer,
@@ -53,7 +47,13 @@ from schemas.link import (
     reply,
     reply_body,
 )
-from schemas.messages import (
+from dica.ica.convert import reject_to_core, request_from_core, response_to_core
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.request import Reason, Rejection, Request
+from dica.schemas import keys
+from dica.schemas.codec import DecodeError, decode, encode, now_ns
+from dica.schemas.messages import (
     KEPT,
     Ack,
     Cancel,
@@ -67,7 +67,7 @@ from schemas.messages import (
     State,
     Stats,
 )
-from vehicle_agent.machine import PENDING, Observation, Phase, Vehicle
+from dica.vehicle_agent.machine import PENDING, Observation, Phase, Vehicle
 
 LAG_WARN_S = 0.5  # [s wall] a STATE older than this when acted on is worth a warning
 FORGET_S = 60.0  # [s wall] a vehicle no STATE has named for this long is forgotten

@@ -35,22 +35,12 @@ from typing import Final, Protocol
 
 import numpy as np
 
-from ica.core.config import IcaConfig
-from ica.core.proposal import propose
-from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
-from ica.core.route import Route
-from vehicle_agent.control import predict_stop
-
-MODE_CONFIRMED = 32  # SUMO speed mode while flying a plan: obey the speed, no own checks
-MODE_DEFAULT = 31  # SUMO's default checks
-# stopping short of the line (vehicle_agent.control): the head of a lane by its own stop law
-# alone (SUMO keeps only its acceleration limits), a queued vehicle also by SUMO's
-# car-following, but never by SUMO's right-of-way logic at the junction ahead
-MODE_HEAD = 6
-MODE_QUEUED = 7
-RELEASE = -1.0  # a commanded speed of -1 gives the vehicle back to SUMO
-BIG = 1e9  # [s] "never" for wake_s
-NO_PLAN = -1  # plan sequence number meaning "none"
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
+from dica.ica.core.route import Route
+from dica.vehicle_agent.actuation import BIG, NO_PLAN, Actuation
+from dica.vehicle_agent.control import predict_stop
 
 
 class _Pending:
@@ -112,30 +102,6 @@ class Observation:
         return self.head or self.follows
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class Command:
-    """What the actuator is told: a plan to fly by position, and when to wake the vehicle.
-
-    ``s_m`` are route positions [m] (0 at the entry line), one per step from
-    ``t0_s``; empty when there is no new plan. ``wake_s`` is when the vehicle
-    may next talk to the ICA (DETECT or REQUEST): -BIG at once, BIG never; a
-    lockstep gateway uses it to keep the order of ICA contacts across agents.
-    """
-
-    vin: str
-    seq: int = NO_PLAN
-    t0_s: float = math.nan
-    s_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    wake_s: float = BIG
-    # give up every plan up to ``seq`` (revoked) and stop short of the line; the actuator
-    # refuses (``kept_seq``) if the vehicle can no longer stop short of it
-    drop: bool = False
-
-    @property
-    def has_plan(self) -> bool:
-        return self.seq != NO_PLAN and len(self.s_m) > 0
-
-
 @dataclass(slots=True)
 class Vehicle:
     vin: str
@@ -151,7 +117,7 @@ class Vehicle:
     last_seq: int = NO_PLAN  # the newest REQUEST sent; only its answer counts
     pending: bool = False  # a REQUEST awaits its answer
     announcing: bool = False  # a DETECT awaits its answer
-    held: Command | None = None  # a plan sent to the actuator, its verdict not yet seen
+    held: Actuation | None = None  # a plan sent to the actuator, its verdict not yet seen
     confirmation: Confirmation | None = None  # the plan the actuator flies
     rejections: dict[str, int] = field(default_factory=dict)
     _answer: Confirmation | None = None  # the confirmation behind ``held``
@@ -159,7 +125,7 @@ class Vehicle:
     revoked_seq: int = NO_PLAN  # the newest revoked plan whose verdict the ICA was told
     revoke_dropped: bool = True  # that verdict
 
-    def step(self, obs: Observation, link: IcaLink) -> Command | None:
+    def step(self, obs: Observation, link: IcaLink) -> Actuation | None:
         """Advance one step; what the actuator must be told, or None for nothing new."""
         if self.revoking != NO_PLAN:
             done = self._revoke_verdict(obs, link)
@@ -200,7 +166,7 @@ class Vehicle:
                 return self._unflown(self.last_seq, obs, link)
         return None
 
-    def detected(self, rej: Rejection | None, now_s: float) -> Command | None:
+    def detected(self, rej: Rejection | None, now_s: float) -> Actuation | None:
         """The ICA's answer to this vehicle's DETECT (None: accepted)."""
         self.announcing = False
         if self.phase is Phase.REQUESTING and rej is not None:
@@ -210,16 +176,16 @@ class Vehicle:
             if self.pending or self.held is not None:
                 return None
             self.phase = Phase.APPROACHING
-            return Command(self.vin, wake_s=-BIG)
+            return Actuation(self.vin, wake_s=-BIG)
         if self.phase is not Phase.APPROACHING:
             return None
         if rej is not None:
             self._count(rej.reason.value)
-            return Command(self.vin, wake_s=-BIG)  # announce again next step; never enter
+            return Actuation(self.vin, wake_s=-BIG)  # announce again next step; never enter
         self.phase = Phase.REQUESTING
-        return Command(self.vin, wake_s=self.next_request_s)  # it may ask once head
+        return Actuation(self.vin, wake_s=self.next_request_s)  # it may ask once head
 
-    def answered(self, answer: Confirmation | Rejection, now_s: float) -> Command | None:
+    def answered(self, answer: Confirmation | Rejection, now_s: float) -> Actuation | None:
         """The ICA's answer to a REQUEST; answers to any but the newest are stale, and
         so is one whose plan has been revoked meanwhile."""
         if answer.seq != self.last_seq or self.phase is not Phase.REQUESTING:
@@ -232,12 +198,12 @@ class Vehicle:
         if isinstance(answer, Confirmation):
             self._answer = answer
             t0 = float(answer.tss.t_s[0])
-            self.held = Command(self.vin, answer.seq, t0, _positions(self.route, answer), BIG)
+            self.held = Actuation(self.vin, answer.seq, t0, _positions(self.route, answer), BIG)
             return self.held
         self._count(answer.reason.value)
         if answer.reason is Reason.NOT_DETECTED:  # the ICA lost track of it: announce again
             self.phase = Phase.APPROACHING
-            return Command(self.vin, wake_s=-BIG)
+            return Actuation(self.vin, wake_s=-BIG)
         if answer.reason is Reason.NO_ANSWER:
             wait = self.config.step_s  # the query has waited its timeout already
         elif answer.reason is Reason.NOT_HEAD:
@@ -245,9 +211,9 @@ class Vehicle:
         else:
             wait = self.retry_s
         self.next_request_s = now_s + wait
-        return Command(self.vin, wake_s=self.next_request_s)
+        return Actuation(self.vin, wake_s=self.next_request_s)
 
-    def _verdict(self, obs: Observation, link: IcaLink) -> Command | None:
+    def _verdict(self, obs: Observation, link: IcaLink) -> Actuation | None:
         """Whether the actuator flies the held plan, or it never will.
 
         Taken is not flown: an actuator that took a plan still refuses it at
@@ -265,7 +231,7 @@ class Vehicle:
             self.phase = Phase.CONFIRMED if obs.lane == self.route.in_lane else Phase.CROSSING
         return None
 
-    def _unflown(self, seq: int, obs: Observation, link: IcaLink) -> Command:
+    def _unflown(self, seq: int, obs: Observation, link: IcaLink) -> Actuation:
         """Never flown, and it never will be: free the reservation and ask again."""
         self._count("unflown")
         self.held = None
@@ -274,9 +240,9 @@ class Vehicle:
         self.phase = Phase.REQUESTING
         link.cancel(self.vin, seq)
         self.next_request_s = obs.t_s
-        return Command(self.vin, wake_s=obs.t_s)
+        return Actuation(self.vin, wake_s=obs.t_s)
 
-    def revoked(self, confirmation: Confirmation | None, now_s: float) -> Command:
+    def revoked(self, confirmation: Confirmation | None, now_s: float) -> Actuation:
         """The ICA revoked this vehicle's confirmation (reactive DICA) and, unless
         ``confirmation`` is None, confirmed it again under the next seq, from where
         its old plan has it at the new plan's start. The actuator flies the old
@@ -291,7 +257,7 @@ class Vehicle:
         self.phase = Phase.REQUESTING
         if confirmation is None:
             self.next_request_s = now_s
-            return Command(self.vin, self.last_seq, wake_s=now_s, drop=True)
+            return Actuation(self.vin, self.last_seq, wake_s=now_s, drop=True)
         h = self.config.step_s
         s_new = _positions(self.route, confirmation)
         t0 = float(confirmation.tss.t_s[0])
@@ -306,10 +272,10 @@ class Vehicle:
             t0 = now_s
         self.last_seq = max(self.last_seq, confirmation.seq)
         self._answer = confirmation
-        self.held = Command(self.vin, confirmation.seq, t0, s_new, BIG)
+        self.held = Actuation(self.vin, confirmation.seq, t0, s_new, BIG)
         return self.held
 
-    def revoke(self, seq: int, link: IcaLink) -> Command | None:
+    def revoke(self, seq: int, link: IcaLink) -> Actuation | None:
         """The ICA revoked plan ``seq`` and will not plan this vehicle again (the
         cluster's way): the actuator is told to drop every plan up to ``seq``. The
         next observation says whether it did (the vehicle then asks again like any
@@ -323,9 +289,9 @@ class Vehicle:
         self.revoking = max(self.revoking, seq)
         if self.pending and self.last_seq <= seq and self.phase is Phase.REQUESTING:
             self.pending = False  # its answer, whatever it is, would be revoked too
-        return Command(self.vin, self.revoking, drop=True)
+        return Actuation(self.vin, self.revoking, drop=True)
 
-    def _revoke_verdict(self, obs: Observation, link: IcaLink) -> Command | None:
+    def _revoke_verdict(self, obs: Observation, link: IcaLink) -> Actuation | None:
         """The actuator's verdict on the drop of ``revoking``, once it shows."""
         r = self.revoking
         if obs.kept_seq >= r or (obs.plan_seq != NO_PLAN and obs.plan_seq <= r and obs.exited):
@@ -333,7 +299,7 @@ class Vehicle:
             link.answer_revoke(self.vin, r, False)
             return None  # it flies on, as before
         if obs.refused_seq < r:
-            return Command(self.vin, r, drop=True)  # not heard yet (a lost COMMAND): again
+            return Actuation(self.vin, r, drop=True)  # not heard yet (a lost COMMAND): again
         self.revoking, self.revoked_seq, self.revoke_dropped = NO_PLAN, r, True
         link.answer_revoke(self.vin, r, True)
         lost = self.phase is Phase.REQUESTING and self.held is None and self.last_seq <= r
@@ -350,9 +316,9 @@ class Vehicle:
         if obs.exited:
             return None
         cmd = self.step(obs, link)  # it may ask at once, being head of its lane
-        return cmd if cmd is not None else Command(self.vin, wake_s=self.next_request_s)
+        return cmd if cmd is not None else Actuation(self.vin, wake_s=self.next_request_s)
 
-    def _request(self, obs: Observation, link: IcaLink) -> Command | None:
+    def _request(self, obs: Observation, link: IcaLink) -> Actuation | None:
         cfg = self.config
         h = cfg.step_s
         lead = max(round(self.lead_s / h), 0)
@@ -403,7 +369,7 @@ class Vehicle:
             self.phase = Phase.CONFIRMED if obs.lane == self.route.in_lane else Phase.CROSSING
             self.last_seq = obs.plan_seq
 
-    def resend(self) -> Command | None:
+    def resend(self) -> Actuation | None:
         """The held plan again (for a link that may have lost it), while it can be flown."""
         return self.held
 

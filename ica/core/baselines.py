@@ -23,14 +23,14 @@ from collections import defaultdict
 
 import numpy as np
 
-from ica.core.config import ENHANCED, IcaConfig, Techniques
-from ica.core.conflict import Conflict
-from ica.core.dica import Dica
-from ica.core.dtot import Dtot
-from ica.core.intersection import Intersection
-from ica.core.occupancy import Rects, overlap_matrix
-from ica.core.planner import Kinematics
-from ica.core.zones import ConflictTables
+from dica.ica.core.config import ENHANCED, IcaConfig, Techniques
+from dica.ica.core.conflict import Conflict
+from dica.ica.core.dica import Dica
+from dica.ica.core.dtot import Dtot
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.occupancy import Rects, overlap_matrix
+from dica.ica.core.planner import Kinematics
+from dica.ica.core.zones import ConflictTables
 
 
 class Fifo(Dica):

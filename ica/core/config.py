@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 
-from ica.core.planner import Kinematics
-from ica.core.route import SpeedCaps
+from dica.ica.core.planner import Kinematics
+from dica.ica.core.route import SpeedCaps
 
 
 @dataclass(frozen=True, slots=True)

@@ -26,13 +26,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.config import Techniques
-from ica.core.dtot import Dtot
-from ica.core.kernels import batch_conflicts, follow_check, pack_rows, select_rows
-from ica.core.occupancy import overlap_matrix, overlap_pairs
-from ica.core.route import Route
-from ica.core.trajectory import Trajectory
-from ica.core.zones import MAYBE, TOUCH, ConflictTables, Shape
+from dica.ica.core.config import Techniques
+from dica.ica.core.dtot import Dtot
+from dica.ica.core.kernels import batch_conflicts, follow_check, pack_rows, select_rows
+from dica.ica.core.occupancy import overlap_matrix, overlap_pairs
+from dica.ica.core.route import Route
+from dica.ica.core.trajectory import Trajectory
+from dica.ica.core.zones import MAYBE, TOUCH, ConflictTables, Shape
 
 
 @dataclass(frozen=True, slots=True)

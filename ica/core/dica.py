@@ -36,8 +36,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.config import IcaConfig
-from ica.core.conflict import (
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.conflict import (
     ConfirmedBatch,
     ConfirmedRows,
     Conflict,
@@ -46,10 +46,10 @@ from ica.core.conflict import (
     get_cv_batch,
     pack,
 )
-from ica.core.dtot import Dtot, build_dtot
-from ica.core.handover import Handover
-from ica.core.intersection import Intersection
-from ica.core.kernels import (
+from dica.ica.core.dtot import Dtot, build_dtot
+from dica.ica.core.handover import Handover
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.kernels import (
     BLOCKED,
     PAUSED,
     RESOLVED,
@@ -58,12 +58,12 @@ from ica.core.kernels import (
     over_cap,
     resolve_rounds,
 )
-from ica.core.planner import Planner
-from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
-from ica.core.route import Route
-from ica.core.trajectory import Trajectory, sample
-from ica.core.validate import check_request
-from ica.core.zones import ConflictTables, RouteGrid, Shape
+from dica.ica.core.planner import Planner
+from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
+from dica.ica.core.route import Route
+from dica.ica.core.trajectory import Trajectory, sample
+from dica.ica.core.validate import check_request
+from dica.ica.core.zones import ConflictTables, RouteGrid, Shape
 
 LEFT_MEMORY_S = 20.0  # [s] how long exit spacing remembers a vehicle that has left
 # rounds of the capped search of a request planned twice before the fast one runs

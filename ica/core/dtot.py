@@ -18,11 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.kernels import grid_dtot_of
-from ica.core.occupancy import Rects, footprints, overlap_matrix, separated
-from ica.core.route import Route
-from ica.core.trajectory import Trajectory
-from ica.core.zones import RouteGrid, Shape
+from dica.ica.core.kernels import grid_dtot_of
+from dica.ica.core.occupancy import Rects, footprints, overlap_matrix, separated
+from dica.ica.core.route import Route
+from dica.ica.core.trajectory import Trajectory
+from dica.ica.core.zones import RouteGrid, Shape
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.kernels import separation
+from dica.ica.core.kernels import separation
 
 
 @dataclass(frozen=True, slots=True)

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ica.core.route import Route
+from dica.ica.core.route import Route
 
 
 @dataclass(frozen=True, slots=True, eq=False)

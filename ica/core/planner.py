@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from ica.core.kernels import a_phases, bisect_cruise, plan_constants_of
+from dica.ica.core.kernels import a_phases, bisect_cruise, plan_constants_of
 
 _EPS = 1e-9
 

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-from ica.core.config import IcaConfig
-from ica.core.planner import Planner
-from ica.core.request import Reason, Request, RequestError, Tss
-from ica.core.route import Route
-from ica.core.trajectory import sample
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.planner import Planner
+from dica.ica.core.request import Reason, Request, RequestError, Tss
+from dica.ica.core.route import Route
+from dica.ica.core.trajectory import sample
 
 
 def propose(

@@ -59,10 +59,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from ica.core.config import IcaConfig
-from ica.core.dica import Dica
-from ica.core.intersection import Intersection
-from ica.core.ordering import (
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.dica import Dica
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.ordering import (
     EXHAUSTIVE_LIMIT,
     SOLVERS,
     GaParams,
@@ -71,11 +71,11 @@ from ica.core.ordering import (
     evaluate,
     solve,
 )
-from ica.core.planner import Planner
-from ica.core.request import Confirmation, Reason, Request, RequestError
-from ica.core.route import Route
-from ica.core.separation import SeparationModel
-from ica.core.zones import ConflictTables, Shape
+from dica.ica.core.planner import Planner
+from dica.ica.core.request import Confirmation, Reason, Request, RequestError
+from dica.ica.core.route import Route
+from dica.ica.core.separation import SeparationModel
+from dica.ica.core.zones import ConflictTables, Shape
 
 STOP_SLACK_STEPS, STOP_SLACK_M = 2, 0.5  # room kept beyond the stopping bound
 _ASIDE = "~revoked"  # suffix of a revoked reservation's key while it awaits acknowledgement

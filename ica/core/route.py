@@ -17,7 +17,7 @@ from enum import StrEnum
 
 import numpy as np
 
-from ica.core.kernels import project, route_points
+from dica.ica.core.kernels import project, route_points
 
 KMH = 1.0 / 3.6  # [m/s per km/h]
 

@@ -35,14 +35,14 @@ from enum import IntEnum
 
 import numpy as np
 
-from ica.core.config import ENHANCED, Techniques
-from ica.core.conflict import follow_conflict, get_cv
-from ica.core.dtot import Dtot, build_dtot
-from ica.core.intersection import Intersection
-from ica.core.planner import Kinematics
-from ica.core.route import Route
-from ica.core.trajectory import Trajectory
-from ica.core.zones import ConflictTables, Shape
+from dica.ica.core.config import ENHANCED, Techniques
+from dica.ica.core.conflict import follow_conflict, get_cv
+from dica.ica.core.dtot import Dtot, build_dtot
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.planner import Kinematics
+from dica.ica.core.route import Route
+from dica.ica.core.trajectory import Trajectory
+from dica.ica.core.zones import ConflictTables, Shape
 
 SPEED_LEVELS_MPS = (1.4, 3.0, 6.0, 10.0, 14.0, 18.0, 20.0)  # entry speeds measured
 

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ica.core.kernels import entry_time, front_heading, profile_position, tss_of
-from ica.core.planner import Profile
-from ica.core.route import Route
+from dica.ica.core.kernels import entry_time, front_heading, profile_position, tss_of
+from dica.ica.core.planner import Profile
+from dica.ica.core.route import Route
 
 
 @dataclass(frozen=True, slots=True, eq=False)

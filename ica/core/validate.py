@@ -10,13 +10,13 @@ import math
 
 import numpy as np
 
-from ica.core.config import IcaConfig
-from ica.core.intersection import Intersection
-from ica.core.kernels import request_checks
-from ica.core.request import Reason, Request, RequestError
-from ica.core.route import Route
-from ica.core.trajectory import Trajectory
-from ica.core.zones import Shape
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.kernels import request_checks
+from dica.ica.core.request import Reason, Request, RequestError
+from dica.ica.core.route import Route
+from dica.ica.core.trajectory import Trajectory
+from dica.ica.core.zones import Shape
 
 
 def _finite(name: str, x: float) -> None:

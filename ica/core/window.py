@@ -25,13 +25,13 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ica.core.dica import Dica
-from ica.core.ordering import OrderingError, Problem, solve
-from ica.core.planner import Planner
-from ica.core.request import Request
-from ica.core.route import Route
-from ica.core.separation import SeparationModel
-from ica.core.zones import Shape
+from dica.ica.core.dica import Dica
+from dica.ica.core.ordering import OrderingError, Problem, solve
+from dica.ica.core.planner import Planner
+from dica.ica.core.request import Request
+from dica.ica.core.route import Route
+from dica.ica.core.separation import SeparationModel
+from dica.ica.core.zones import Shape
 
 
 class WindowOrder:

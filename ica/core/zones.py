@@ -31,9 +31,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ica.core.intersection import Intersection
-from ica.core.occupancy import Rects, footprints, overlap_matrix
-from ica.core.route import Route
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.occupancy import Rects, footprints, overlap_matrix
+from dica.ica.core.route import Route
 
 
 @dataclass(frozen=True, slots=True)

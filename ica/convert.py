@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import math
 
-from ica.core import request as core
-from schemas import messages as m
-from schemas.codec import now_ns
+from dica.ica.core import request as core
+from dica.schemas import messages as m
+from dica.schemas.codec import now_ns
 
 
 def request_to_core(msg: m.Request) -> core.Request:

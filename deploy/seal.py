@@ -29,7 +29,7 @@ from pathlib import Path
 
 import msgpack
 
-from schemas.messages import VERSION
+from dica.schemas.messages import VERSION
 
 SEALED = "sealed"
 

@@ -21,11 +21,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from schemas import keys, seal
+from dica.deploy import ZENOH_CONFIGS, seal
+from dica.schemas import keys
 
-DEFAULT_CLIENT_CONFIG = Path(__file__).resolve().parent.parent / "deploy" / "zenoh" / "client.json5"
+DEFAULT_CLIENT_CONFIG = ZENOH_CONFIGS / "client.json5"
 
-# what this process seals what it sends with and opens what it acts on with (schemas.seal);
+# what this process seals what it sends with and opens what it acts on with (dica.deploy.seal);
 # an open site passes everything through
 GUARD = seal.NONE
 

@@ -20,7 +20,7 @@ only its owner can read:
 * ``ica.seal``, ``gateway.seal`` and ``<agent>.seal``: each writer's own
   signing key, and ``keyring.json``: every writer's public key, which every
   role checks what it acts on against (``--seal`` and ``--keyring``, see
-  :mod:`schemas.seal`): a message a role may not write is refused even if the
+  :mod:`dica.deploy.seal`): a message a role may not write is refused even if the
   router's rules let it through.
 
 Each file stands alone: copy a role's file to the host that runs it. The
@@ -47,9 +47,10 @@ import secrets
 from collections.abc import Sequence
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-ROUTER_TEMPLATE = ROOT / "deploy" / "zenoh" / "secure" / "router.json5"
-CLIENT_TEMPLATE = ROOT / "deploy" / "zenoh" / "client.json5"
+from dica.deploy import ZENOH_CONFIGS
+
+ROUTER_TEMPLATE = ZENOH_CONFIGS / "secure" / "router.json5"
+CLIENT_TEMPLATE = ZENOH_CONFIGS / "client.json5"
 ROLES = ("ica", "gateway", "observer")  # one identity each; agents have one apiece
 SIGNERS = ("ica", "gateway")  # roles that write (the observer only listens); agents too
 KEYRING = "keyring.json"
@@ -105,7 +106,7 @@ def names(agents: str | Sequence[str]) -> tuple[str, ...]:
 
 def junction_names(junctions: str | Sequence[str]) -> tuple[str, ...]:
     """The junctions' ids (comma-separated or a list), checked as key chunks."""
-    from schemas.keys import KeyChunkError, chunk
+    from dica.schemas.keys import KeyChunkError, chunk
 
     if isinstance(junctions, str):
         junctions = [j.strip() for j in junctions.split(",")]
@@ -436,7 +437,7 @@ def _b64(pem: bytes) -> str:
 
 def _seals(names: Sequence[str], keyring: dict[str, str]) -> dict[str, str]:
     """A fresh signing key for each of ``names``, and the keyring with them added."""
-    from schemas.seal import new_key
+    from dica.deploy.seal import new_key
 
     texts = {}
     keyring = dict(keyring)

@@ -19,16 +19,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ica.core.baselines import make_controller
-from ica.core.config import IcaConfig
-from ica.core.dica import Dica
-from ica.core.intersection import Intersection
-from ica.core.planner import Planner
-from ica.core.proposal import propose
-from ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
-from ica.core.route import Route
-from sim_gateway.demand import DemandSpec, make_arrivals
-from tools.audit import Flown
+from dica.ica.core.baselines import make_controller
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.dica import Dica
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.planner import Planner
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
+from dica.ica.core.route import Route
+from dica.sim_gateway.audit import Flown
+from dica.sim_gateway.demand import DemandSpec, make_arrivals
 
 QUEUE_SPACING_M = 2.5  # [m] standstill gap behind the vehicle ahead
 

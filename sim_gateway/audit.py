@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from ica.core.route import Route
+from dica.ica.core.route import Route
 
 
 @dataclass(frozen=True)
