@@ -23,8 +23,7 @@ from pathlib import Path
 import msgpack
 import numpy as np
 
-from dica.ica.core.dica import Dica
-from dica.ica.core.reactive import ReactiveDica
+from dica.ica.core.controller import Controller
 from dica.ica.core.request import Confirmation, RequestError, Tss
 
 
@@ -131,7 +130,7 @@ def confirmation_of(rec: dict) -> Confirmation:
     )
 
 
-def replay(path: Path, ica: Dica) -> Replayed:
+def replay(path: Path, ica: Controller) -> Replayed:
     """Rebuild the core's state from the journal (before serving again)."""
     out = Replayed()
     recs, out.truncated = records(path)
@@ -139,17 +138,14 @@ def replay(path: Path, ica: Dica) -> Replayed:
         try:
             kind = rec.get("k")
             if kind == "detect":
-                if isinstance(ica, ReactiveDica):
-                    speed = rec.get("speed")  # absent or None in older journals
-                    ica.detect(
-                        rec["vin"],
-                        rec["lane"],
-                        float(rec["t"]),
-                        emergency=rec.get("ev", False) is True,
-                        speed_mps=None if speed is None else float(speed),
-                    )
-                else:
-                    ica.detect(rec["vin"], rec["lane"], float(rec["t"]))
+                speed = rec.get("speed")  # absent or None in older journals
+                ica.detect(
+                    rec["vin"],
+                    rec["lane"],
+                    float(rec["t"]),
+                    emergency=rec.get("ev", False) is True,
+                    speed_mps=None if speed is None else float(speed),
+                )
                 out.detects += 1
             elif kind == "confirm":
                 ica.adopt(

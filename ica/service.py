@@ -49,8 +49,7 @@ import numpy as np
 from dica.deploy.transport import Inbox, Item, note_refused, put, refused, reply
 from dica.ica.convert import reject_from_core, request_to_core, response_from_core
 from dica.ica.core import reactive
-from dica.ica.core.dica import Dica
-from dica.ica.core.reactive import ReactiveDica
+from dica.ica.core.controller import Controller
 from dica.ica.core.request import Confirmation, Reason, Rejection, RequestError
 from dica.ica.journal import Journal, Replayed, replay
 from dica.schemas import keys
@@ -136,7 +135,7 @@ class IcaService:
     def __init__(
         self,
         session,
-        ica: Dica,
+        ica: Controller,
         junction: str,
         log: logging.Logger,
         journal: Journal | None = None,
@@ -277,8 +276,6 @@ class IcaService:
         then has it before it answers its STATE.
         """
         ica = self.ica
-        if not isinstance(ica, ReactiveDica):
-            return
         for r in ica.take_reorders():
             if r.revoked:
                 self.log.info(
@@ -324,15 +321,16 @@ class IcaService:
 
     def note_reactive(self) -> None:
         """Reactive DICA's figures into the statistics."""
-        if isinstance(self.ica, ReactiveDica):
-            self.stats.reactive = self.ica.summary()
+        summary = self.ica.summary()
+        if summary is not None:
+            self.stats.reactive = summary
 
     def _on_revoke_answer(self, item: Item, ack: Ack) -> None:
         """A vehicle's answer to a REVOKE: its old reservation goes (plan dropped, and
         journalled as a cancel first, so a restart does not bring it back) or is its own
         again (it could not stop)."""
         ica = self.ica
-        if not isinstance(ica, ReactiveDica) or not self._speaks_for(item, ack.vin):
+        if not self._speaks_for(item, ack.vin):
             return
         if ack.vin not in ica.pending() or ack.seq < 0:
             return  # answered already (a repeat), or about nothing pending
@@ -342,12 +340,12 @@ class IcaService:
             return
         if self.journal is not None:
             self.journal.cancel(ack.vin, ack.seq)
-        before = ica.acknowledged
+        counts = ica.revoked_seq(ack.vin) == ack.seq  # else an answer about another plan
         ica.acknowledge(ack.vin, ack.seq)
-        self.stats.revoke_acks += ica.acknowledged - before
+        self.stats.revoke_acks += counts
 
     def _revoked_seq(self, vin: str) -> int | None:
-        return self.ica.revoked_seq(vin) if isinstance(self.ica, ReactiveDica) else None
+        return self.ica.revoked_seq(vin)
 
     def _on_clock(self, item: Item) -> None:
         if item.key != self._clock_key:
@@ -461,14 +459,9 @@ class IcaService:
             self.stats.not_theirs += 1
             self._reject(item.query, msg.vin, -1, Reason.BAD_STATE, "another agent's vehicle")
             return
-        known = msg.vin in self.ica._lane_of
+        known = self.ica.knows(msg.vin)
         try:
-            if isinstance(self.ica, ReactiveDica):
-                self.ica.detect(
-                    msg.vin, msg.lane, msg.t_s, emergency=msg.ev, speed_mps=msg.speed_mps
-                )
-            else:
-                self.ica.detect(msg.vin, msg.lane, msg.t_s)
+            self.ica.detect(msg.vin, msg.lane, msg.t_s, emergency=msg.ev, speed_mps=msg.speed_mps)
         except RequestError as e:
             self._count(Rejection(msg.vin, -1, e.reason, e.detail))
             self._reject(item.query, msg.vin, -1, e.reason, e.detail)

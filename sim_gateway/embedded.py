@@ -18,12 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from dica.ica.core.baselines import controller_config, make_controller
-from dica.ica.core.config import IcaConfig
-from dica.ica.core.dica import Dica
+from dica.ica.core.controller import Controller, build_controller
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.reactive import DROPPED, KEPT, ReactiveConfig, ReactiveDica, Reorder
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
+from dica.ica.core.revocation import DROPPED, KEPT, Reorder
 from dica.ica.core.window import WindowOrder
 from dica.sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, make_arrivals
 from dica.sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
@@ -48,7 +46,7 @@ __all__ = ["LIGHTS", "RunConfig", "RunError", "RunResult", "run", "schedule_for"
 class LocalLink:
     """A vehicle's link to an ICA in the same process: a direct, timed call."""
 
-    def __init__(self, ica: Dica) -> None:
+    def __init__(self, ica: Controller) -> None:
         self.ica = ica
         self.compute_s: list[float] = []
         # what the region's detector reads as a vehicle passes it: EV or not, and its speed
@@ -60,21 +58,19 @@ class LocalLink:
 
     def detect(self, vin: str, lane: str, t_s: float) -> Rejection | None:
         try:
-            if isinstance(self.ica, ReactiveDica):
-                ev, speed = self.detector.get(vin, (False, None))
-                self.ica.detect(vin, lane, t_s, emergency=ev, speed_mps=speed)
-                self._revoke(self.ica)
-            else:
-                self.ica.detect(vin, lane, t_s)
+            ev, speed = self.detector.get(vin, (False, None))
+            self.ica.detect(vin, lane, t_s, emergency=ev, speed_mps=speed)
+            self._revoke()
         except RequestError as e:
             return Rejection(vin, -1, e.reason, e.detail)
         return None
 
-    def _revoke(self, ica: ReactiveDica) -> bool:
+    def _revoke(self) -> bool:
         """In process a revocation reaches its vehicle at once: acknowledge it now.
-        True if anything was revoked. (Not in the cluster's way, ``replan_revoked``
+        True if anything was revoked. (Not in the cluster's way, ``replans_revoked``
         off: there the vehicles answer for themselves, see LocalDrivers._deliver.)"""
-        if not ica.reactive.replan_revoked:
+        ica = self.ica
+        if not ica.replans_revoked:
             return False
         revoked = False
         for r in ica.take_reorders():
@@ -94,12 +90,7 @@ class LocalLink:
     def decide(self, req: Request, now_s: float) -> Confirmation | Rejection:
         t_c = time.perf_counter()
         answer = self.ica.handle(req, now_s)
-        if (
-            isinstance(self.ica, ReactiveDica)
-            and self._revoke(self.ica)
-            and isinstance(answer, Rejection)
-            and answer.reason is Reason.HELD
-        ):
+        if self._revoke() and isinstance(answer, Rejection) and answer.reason is Reason.HELD:
             # an EV's request started its event; the revocations have reached their
             # vehicles (in process, at once), so the EV asks again straight away
             answer = self.ica.handle(req, now_s)
@@ -110,17 +101,16 @@ class LocalLink:
         self.ica.cancel(vin, seq)
 
     def answer_revoke(self, vin: str, seq: int, dropped: bool) -> None:
-        if isinstance(self.ica, ReactiveDica):
-            if dropped:
-                self.ica.acknowledge(vin, seq)
-            else:
-                self.ica.restore(vin, seq)
+        if dropped:
+            self.ica.acknowledge(vin, seq)
+        else:
+            self.ica.restore(vin, seq)
 
 
 class LocalDrivers:
     """The vehicles' machines, all in this process, with the ICA beside them."""
 
-    def __init__(self, ica: Dica, cfg: RunConfig) -> None:
+    def __init__(self, ica: Controller, cfg: RunConfig) -> None:
         self.ica = ica
         self.cfg = cfg
         self.link = LocalLink(ica)
@@ -138,8 +128,7 @@ class LocalDrivers:
 
     def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
         self.ica.advance(t)
-        if isinstance(self.ica, ReactiveDica):
-            self.link._revoke(self.ica)  # an EV event may start as the clock moves
+        self.link._revoke()  # an EV event may start as the clock moves
         out = []
         for s in seen:
             v = self.vehicles.get(s.car.vin)
@@ -167,12 +156,11 @@ class LocalDrivers:
                 self.link.detector.pop(s.car.vin, None)
         if self.order is not None and t + 1e-9 >= self.close_s:
             out += self._close_window(t)
-        if isinstance(self.ica, ReactiveDica):
-            if self.ica.reactive.replan_revoked:
-                out += self._revise(self.ica, t)
-            else:
-                out += self._deliver(self.ica)
-            self._answered(self.ica)
+        if self.ica.replans_revoked:
+            out += self._revise(t)
+        else:
+            out += self._deliver()
+        self._answered()
         return out
 
     def _close_window(self, t: float) -> list[Actuation]:
@@ -190,11 +178,11 @@ class LocalDrivers:
                 out.append(cmd)
         return out
 
-    def _answered(self, ica: ReactiveDica) -> None:
+    def _answered(self) -> None:
         """What became of revoked plans this step, to record: a plan is withdrawn once
         its vehicle has dropped it, not when the revocation is sent (it may be kept)."""
-        answers = ica.take_answers()
-        if ica.reactive.replan_revoked:
+        answers = self.ica.take_answers()
+        if self.ica.replans_revoked:
             return  # withdrawn with their replacements, at once (see _revise)
         for a in answers:
             if a.outcome == DROPPED:
@@ -205,14 +193,14 @@ class LocalDrivers:
             else:
                 self.kept.append((a.t_s, a.vin, "no answer before its plan ended"))
 
-    def _deliver(self, ica: ReactiveDica) -> list[Actuation]:
+    def _deliver(self) -> list[Actuation]:
         """The cluster's way: this step's REVOKEs reach their vehicles, as they reach
         a lockstep agent before it answers the STATE whose query caused them; each
         vehicle's actuator drops its plan (or keeps it) and the vehicle tells the ICA
         at its next observation (see _answered)."""
-        self.link.reorders += ica.take_reorders()
+        self.link.reorders += self.ica.take_reorders()
         out = []
-        for vin, seq in ica.due_revocations():
+        for vin, seq in self.ica.due_revocations():
             if (vin, seq) in self.delivered:
                 continue
             self.delivered.add((vin, seq))
@@ -222,10 +210,10 @@ class LocalDrivers:
                 out.append(cmd)
         return out
 
-    def _revise(self, ica: ReactiveDica, t: float) -> list[Actuation]:
+    def _revise(self, t: float) -> list[Actuation]:
         """The revoked vehicles of this step fly their new plans (or, without one,
         brake and ask again): the machines learn of revocation and replacement at once."""
-        link = self.link
+        link, ica = self.link, self.ica
         ica.settle()
         link.revised.update((c.vin, c) for c in ica.take_confirmations())
         out = []
@@ -287,25 +275,6 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
     return [v for v in schedule if v.arrival_s <= horizon], spec, horizon
 
 
-def reactive_config(cfg: RunConfig) -> ReactiveConfig:
-    """Reactive DICA's settings for a run (the cluster's ICA builds the same)."""
-    return ReactiveConfig(
-        solver=cfg.solver, seed=cfg.seed, replan_revoked=cfg.revocation == "replan"
-    )
-
-
-def ica_config(cfg: RunConfig) -> IcaConfig:
-    return controller_config(
-        cfg.algorithm,
-        cfg.margin_m,
-        cfg.time_pad_s,
-        cfg.platoon,
-        cfg.headway_s,
-        cfg.run_up,
-        cfg.exit_spacing,
-    )
-
-
 def run(
     cfg: RunConfig,
     inter: Intersection,
@@ -336,11 +305,9 @@ def _run(
 ) -> RunResult:
     ls = import_libsumo()
     light = cfg.algorithm in LIGHTS
-    ica_cfg = ica_config(cfg)
-    if cfg.algorithm == "rdica":
-        ica: Dica = ReactiveDica(inter, ica_cfg, reactive=reactive_config(cfg))
-    else:
-        ica = make_controller("fifo" if light else cfg.algorithm, inter, ica_cfg, cfg.tile_m)
+    spec = cfg.controller_spec()
+    ica_cfg = spec.config
+    ica = build_controller(spec, inter)
     ica.prepare()
     schedule, spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
     if given is not None:
@@ -392,8 +359,9 @@ def _run(
                 recorder.close()
         result = world.result(drivers.requests(), cmd)
         result.signal = signal
-        if isinstance(ica, ReactiveDica):
-            result.extra["reactive"] = _reactive_summary(ica)
+        summary = ica.summary(events=True)
+        if summary is not None:
+            result.extra["reactive"] = summary
         if preempt is not None:
             result.extra["preemption"] = preempt.summary()
         return result
@@ -556,33 +524,6 @@ def _signal_links(ls, tls: str) -> list[SignalLink | None]:
             via = next((lk[4] for lk in ls.lane.getLinks(via) if lk[0] == out_lane), "")
         out.append(SignalLink(in_lane, v_in, length, v_min))
     return out
-
-
-# -- reactive DICA's log ------------------------------------------------------------------
-def _reactive_summary(ica: ReactiveDica) -> dict:
-    out = ica.summary()
-    out["events_log"] = [
-        {
-            "ev": e.ev,
-            "detected_s": round(e.detected_s, 3),
-            "candidates": len(e.reorder.order) if e.reorder else 0,
-            "revoked": len(e.reorder.revoked) if e.reorder else 0,
-            "solve_ms": round(e.reorder.solve_s * 1e3, 3) if e.reorder else None,
-            "prepare_ms": round(e.reorder.prepare_s * 1e3, 3) if e.reorder else None,
-            "unplanned": len(e.unplanned),
-            "refused": e.reorder.refused if e.reorder else "",
-            "ev_entry_model_before_s": _r(e.reorder.ev_entry_before_s) if e.reorder else None,
-            "ev_entry_model_after_s": _r(e.reorder.ev_entry_after_s) if e.reorder else None,
-            "ev_entry_s": _r(e.ev_entry_s),
-            "replan_failed": len(e.failed),
-        }
-        for e in ica.events
-    ]
-    return out
-
-
-def _r(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(x, 3)
 
 
 # -- the reactive light ---------------------------------------------------------------------

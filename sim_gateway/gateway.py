@@ -53,7 +53,7 @@ from dica.deploy.transport import (
 from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode, encode, now_ns
 from dica.schemas.messages import Clock, Command, Revoke, State, Stats, VehicleState
-from dica.sim_gateway.embedded import ica_config, schedule_for
+from dica.sim_gateway.embedded import schedule_for
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.world import Seen, World
 from dica.vehicle_agent.actuation import BIG, NO_PLAN, Actuation
@@ -125,7 +125,7 @@ class ZenohDrivers:
         self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
         self.age_ms: list[float] = []
         self.wait_s: list[float] = []
-        self.step_s = ica_config(cfg).step_s
+        self.step_s = cfg.controller_spec().config.step_s
         self._pending: tuple[int, int, dict[str, list[VehicleState]], list[Actuation]] = (
             0, 0, {}, []
         )  # fmt: skip
@@ -633,7 +633,7 @@ def run_gateway(
     from dica.sim_gateway.world import import_libsumo, start_sumo
 
     ls = import_libsumo()
-    ica_cfg = ica_config(cfg)
+    ica_cfg = cfg.controller_spec().config
     schedule, _spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
     drivers.wait_for_peers(peers_timeout_s)
     cmd = start_sumo(ls, cfg, ica_cfg.step_s)

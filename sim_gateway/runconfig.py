@@ -4,13 +4,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from dica.ica.core.baselines import BASELINES
 from dica.ica.core.config import Techniques
+from dica.ica.core.controller import BASELINES, REACTIVE, ControllerSpec
 from dica.ica.core.ordering import SOLVERS
 from dica.sim_gateway.metrics import TripLog
 
 LIGHTS = ("fixed", "actuated", "reactive-light")  # SUMO drives; the junction is signalised
-REACTIVE = ("rdica",)  # reactive DICA: emergency vehicles first (--solver)
 REVOCATIONS = ("replan", "drop")  # how rdica's revoked vehicles get their next plan
 
 
@@ -58,6 +57,14 @@ class RunConfig:
     # [s] the ICA decides the REQUESTs of each window together, in the order that delays
     # them least (ica/core/window.py); 0: one by one as they come. Embedded runs only
     window_s: float = 0.0
+
+    def controller_spec(self) -> ControllerSpec:
+        """The controller this run drives (a light runs FIFO underneath, never asked)."""
+        return ControllerSpec.of(
+            "fifo" if self.algorithm in LIGHTS else self.algorithm,
+            self.margin_m, self.time_pad_s, self.platoon, self.headway_s, self.run_up,
+            self.exit_spacing, self.tile_m, self.solver, self.seed, self.revocation == "replan",
+        )  # fmt: skip
 
     @property
     def plan_lead_s(self) -> float:

@@ -19,9 +19,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dica.ica.core.baselines import make_controller
 from dica.ica.core.config import IcaConfig
-from dica.ica.core.dica import Dica
+from dica.ica.core.controller import Controller, ControllerSpec, build_controller
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.planner import Planner
 from dica.ica.core.proposal import propose
@@ -96,7 +95,7 @@ def run_stream(
     spec: StreamSpec,
     *,
     progress: Callable[[int], None] | None = None,
-    before_request: Callable[[Dica, Request, float], None] | None = None,
+    before_request: Callable[[Controller, Request, float], None] | None = None,
     controller: str | None = None,
     tile_m: float = 1.0,
 ) -> StreamResult:
@@ -105,7 +104,7 @@ def run_stream(
     ``controller`` names a baseline (fifo, concurrent, tiles); by default the
     DICA variant of ``config`` decides.
     """
-    ica = make_controller(controller or "dica", inter, config, tile_m)
+    ica = build_controller(ControllerSpec(controller or "dica", config, tile_m), inter)
     h = config.step_s
     vehicles = [
         Vehicle(a.vin, a.route, a.arrival_s, a.speed_mps, a.length_m, a.width_m)
@@ -187,7 +186,7 @@ def run_stream(
 
 
 def _request(
-    ica: Dica,
+    ica: Controller,
     v: Vehicle,
     now: float,
     d: float,
@@ -196,7 +195,7 @@ def _request(
     events: list[tuple[float, float, str, str]],
     rejections: dict[str, int],
     request_times: list[float],
-    before_request: Callable[[Dica, Request, float], None] | None = None,
+    before_request: Callable[[Controller, Request, float], None] | None = None,
 ) -> None:
     h = config.step_s
     try:

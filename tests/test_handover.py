@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from dica.ica.core.baselines import controller_config, make_controller
+from dica.ica.core.controller import ControllerSpec, build_controller
 from dica.ica.core.dica import Dica
 from dica.ica.core.handover import Handover, separation_reference
 from dica.ica.core.kernels import separation
@@ -91,10 +91,10 @@ def test_the_compiled_separation_is_the_numpy_search_bit_for_bit():
 
 def confirm_pair(inter, exit_spacing: bool) -> Dica:
     """A right-turner near the line, then a through vehicle onto the same exit lane."""
-    cfg = controller_config(
+    cfg = ControllerSpec.of(
         "enhanced", 0.25, platoon=True, headway_s=0.3, exit_spacing=exit_spacing
     )
-    ica = make_controller("enhanced", inter, cfg)
+    ica = build_controller(cfg, inter)
     ica.advance(0.0)
     for vin, lanes, d, v in (("a", RIGHT, 10.0, 25 / 3.6), ("b", THROUGH, 50.0, 15.0)):
         ica.detect(vin, lanes[0], 0.0)
@@ -155,8 +155,8 @@ def test_a_vehicle_that_has_left_still_spaces_the_next(ch45, pad):
     asking just after still leaves late enough behind it: the ICA remembers
     recent exits, as the road's driver will still be closing in. With a time
     pad each may be that far off its plan, and the separation grows by twice it."""
-    cfg = controller_config("enhanced", 0.25, pad, platoon=True, headway_s=0.3)
-    ica = make_controller("enhanced", ch45, cfg)
+    cfg = ControllerSpec.of("enhanced", 0.25, pad, platoon=True, headway_s=0.3)
+    ica = build_controller(cfg, ch45)
     ask_right_turner(ica, ch45)
     a = ica.confirmed["a"].dtot
     t = float(a.end_s) + 0.01
@@ -192,8 +192,8 @@ def test_exits_are_remembered_across_a_restart_and_for_the_memory_s_length(ch45,
     from dica.ica.core.dica import LEFT_MEMORY_S
     from dica.ica.journal import Journal, replay
 
-    cfg = controller_config("enhanced", 0.25, platoon=True, headway_s=0.3)
-    ica = make_controller("enhanced", ch45, cfg)
+    cfg = ControllerSpec.of("enhanced", 0.25, platoon=True, headway_s=0.3)
+    ica = build_controller(cfg, ch45)
     journal = Journal(tmp_path / "ica.journal")
     conf_a = ask_right_turner(ica, ch45)
     journal.detect("a", RIGHT[0], 0.0)
@@ -202,7 +202,7 @@ def test_exits_are_remembered_across_a_restart_and_for_the_memory_s_length(ch45,
     a = ica.confirmed["a"].dtot
     out_s = float(a.t_s[-1])
     if case == "restarted":
-        ica = make_controller("enhanced", ch45, cfg)
+        ica = build_controller(cfg, ch45)
         assert replay(tmp_path / "ica.journal", ica).confirmations == 1
         t = float(a.end_s) + 0.01
     elif case == "remembered":
@@ -228,7 +228,7 @@ def test_an_exit_at_the_route_s_cap_up_to_rounding_does_not_bind_the_cap(ch45, m
     For another right-turner onto that exit lane the cap does not bind, and it is
     planned once; for a through vehicle the right-turner's speed does, and it is
     planned twice (capped, and fast with exit spacing)."""
-    ica = make_controller("enhanced", ch45, controller_config("enhanced", 0.25, exit_spacing=True))
+    ica = build_controller(ControllerSpec.of("enhanced", 0.25, exit_spacing=True), ch45)
     ask_right_turner(ica, ch45)
     right, through = ch45.route(*RIGHT), ch45.route(*THROUGH)
     out = ica.confirmed["a"].out_mps
@@ -260,7 +260,7 @@ def test_an_exit_at_the_route_s_cap_up_to_rounding_does_not_bind_the_cap(ch45, m
 def test_the_rounding_allowance_is_1e_9_m_s_and_no_more(ch45, monkeypatch, under_cap, binds):
     """Either side of the allowance: an exit 1e-10 m/s under the route's cap does not
     bind the cap, one 1e-8 m/s under does."""
-    ica = make_controller("enhanced", ch45, controller_config("enhanced", 0.25, exit_spacing=True))
+    ica = build_controller(ControllerSpec.of("enhanced", 0.25, exit_spacing=True), ch45)
     right = ch45.route(*RIGHT)
     v_out = right.speed_cap_mps - under_cap
     monkeypatch.setattr(Dica, "_exits", lambda self, lane: [(5.0, v_out, "a")])

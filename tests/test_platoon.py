@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 
-from dica.ica.core.baselines import controller_config, make_controller
+from dica.ica.core.controller import ControllerSpec, build_controller
 from dica.ica.core.dica import Dica
 from dica.ica.core.planner import Kinematics, Planner
 from dica.ica.core.proposal import propose
@@ -22,8 +22,8 @@ LENGTH, MARGIN = 5.0, 0.25
 
 
 def ica_for(inter, platoon: bool, headway_s: float = 0.3) -> Dica:
-    cfg = controller_config("enhanced", MARGIN, platoon=platoon, headway_s=headway_s)
-    return make_controller("enhanced", inter, cfg)
+    cfg = ControllerSpec.of("enhanced", MARGIN, platoon=platoon, headway_s=headway_s)
+    return build_controller(cfg, inter)
 
 
 def ask(ica: Dica, inter, vin: str, lanes, t: float, d: float, v: float, seq: int = 0):
@@ -184,7 +184,7 @@ def _actuator_at(t_s: float):
 
     w = World.__new__(World)
     w.t, w.h = t_s, 0.05
-    w.ica_cfg = controller_config("enhanced", MARGIN, platoon=True, headway_s=0.3)
+    w.ica_cfg = ControllerSpec.of("enhanced", MARGIN, platoon=True, headway_s=0.3).config
     w.timing = Timing()
     w.cfg = dataclasses.make_dataclass("Cfg", [("length_m", float)])(LENGTH)
     return w

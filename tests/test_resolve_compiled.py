@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 import dica.ica.core.dica as dica_module
-from dica.ica.core.baselines import controller_config, make_controller
 from dica.ica.core.config import IcaConfig, Techniques
+from dica.ica.core.controller import ControllerSpec, build_controller
 from dica.ica.core.dica import Dica, _finish
 from dica.ica.core.planner import Planner
 from dica.ica.core.request import RequestError
@@ -155,9 +155,9 @@ def test_compiled_rounds_only_for_enhanced(ch45):
 
 
 def test_controllers_get_tables_of_their_interval_kind(ch45):
-    """make_controller hands each DICA variant offline tables of its kind of intervals."""
+    """build_controller hands each DICA variant offline tables of its kind of intervals."""
     for name, exact in (("enhanced", True), ("basic", True), ("t3", False), ("t1+2+3+4", False)):
-        ica = make_controller(name, ch45, controller_config(name, 0.25))
+        ica = build_controller(ControllerSpec.of(name, 0.25), ch45)
         assert ica.tables.exact_oti is exact
         assert ica.config.techniques.exact_oti is exact
 

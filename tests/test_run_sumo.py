@@ -255,7 +255,7 @@ def test_run_records_every_confirmation_and_footprint(tmp_path):
 
 
 UNCHECKED = """
-from dica.sim_gateway.embedded import ica_config, schedule_for
+from dica.sim_gateway.embedded import schedule_for
 from dica.sim_gateway.runconfig import RunConfig
 from dica.sim_gateway.scenario import default_scenario
 from dica.sim_gateway.world import World, import_libsumo, start_sumo
@@ -264,7 +264,7 @@ from dica.ica.netfile import load_intersection
 sc = default_scenario("ch45")
 inter = load_intersection(sc.net_path, sc.junction_id)
 cfg = RunConfig(str(sc.net_path), sc.junction_id, volume_per_10min=300, duration_s=60)
-ica_cfg = ica_config(cfg)
+ica_cfg = cfg.controller_spec().config
 schedule, _, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
 ls = import_libsumo()
 start_sumo(ls, cfg, ica_cfg.step_s)

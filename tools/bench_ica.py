@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from dica.ica.core.config import IcaConfig, Techniques
-from dica.ica.core.dica import Dica
+from dica.ica.core.controller import Controller, ControllerSpec, build_controller
 from dica.ica.core.handover import clear_separations
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.request import Confirmation, Request, Tss
@@ -73,7 +73,7 @@ def collect(inter: Intersection, per_bucket: int, seed: int) -> dict[int, list[S
     """Run one heavy stream and keep up to ``per_bucket`` states per n."""
     found: dict[int, list[Snapshot]] = {n: [] for n in (*BUCKETS, SYNTHETIC_N)}
 
-    def keep(ica: Dica, req: Request, now: float) -> None:
+    def keep(ica: Controller, req: Request, now: float) -> None:
         n = len(ica.confirmed)
         conf = [
             (c.confirmation, c.dtot.shape.length_m, c.dtot.shape.width_m, c.dtot.route.in_lane)
@@ -106,16 +106,15 @@ def time_variant(
     shared: dict[bool, ConflictTables],
 ) -> list[float]:
     cfg = IcaConfig(techniques=Techniques.parse(variant), exit_spacing=True)
-    tables = shared.get(cfg.techniques.exact_oti)
-    if tables is None:  # the offline tables of this interval kind, built once
-        tables = shared[cfg.techniques.exact_oti] = Dica(
-            inter, cfg, ConflictTables(inter, cfg.margin_m, exact_oti=cfg.techniques.exact_oti)
-        ).tables
+    spec = ControllerSpec(variant, cfg)
+    exact = cfg.techniques.exact_oti
+    if exact not in shared:  # the offline tables of this interval kind, built once
+        shared[exact] = ConflictTables(inter, cfg.margin_m, exact_oti=exact)
     out = []
     for snap in snaps:
         best = float("inf")
         for _ in range(repeat):
-            ica = Dica(inter, cfg, tables=tables)
+            ica = build_controller(spec, inter, shared[exact])
             for conf, length, width, lane in snap.confirmed:
                 ica.adopt(conf, length, width, lane)
             ica.detect(snap.request.vin, snap.request.in_lane, snap.now_s)

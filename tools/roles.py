@@ -152,7 +152,7 @@ def _log_refused(log):
 
 # -- ica -----------------------------------------------------------------------
 def cmd_ica(args: argparse.Namespace) -> int:
-    from dica.ica.core.baselines import controller_config, make_controller
+    from dica.ica.core.controller import ControllerSpec, build_controller
     from dica.ica.journal import Journal, JournalError
     from dica.ica.service import IcaService, write_stats
 
@@ -162,27 +162,19 @@ def cmd_ica(args: argparse.Namespace) -> int:
         raise UsageError("--idle-exit must be between 0 and 86400 s")
     inter = intersection(args)
     try:
-        config = controller_config(
-            args.algorithm,
-            args.margin,
-            args.time_pad,
-            args.platoon,
-            headway_s(args),
-            args.run_up,
-            args.exit_spacing,
+        # reactive DICA's revoked vehicles drop their plans and ask again: the ICA cannot
+        # re-plan a vehicle over a link that may lose the new plan after the old one is gone
+        spec = ControllerSpec.of(
+            args.algorithm, args.margin, args.time_pad, args.platoon, headway_s(args),
+            args.run_up, args.exit_spacing, args.tile_size, args.solver, args.seed,
+            replan_revoked=False,
+        )  # fmt: skip
+        spec = dataclasses.replace(
+            spec, config=dataclasses.replace(spec.config, max_request_age_s=args.max_age)
         )
-        config = dataclasses.replace(config, max_request_age_s=args.max_age)
     except ValueError as e:
         raise UsageError(str(e)) from None
-    if args.algorithm == "rdica":
-        from dica.ica.core.reactive import ReactiveConfig, ReactiveDica
-
-        # revoked vehicles drop their plans and ask again: the ICA cannot re-plan a
-        # vehicle over a link that may lose the new plan after the old one is gone
-        reactive = ReactiveConfig(solver=args.solver, seed=args.seed, replan_revoked=False)
-        ica = ReactiveDica(inter, config, reactive=reactive)
-    else:
-        ica = make_controller(args.algorithm, inter, config, args.tile_size)
+    ica = build_controller(spec, inter)
     ica.prepare()  # before serving: no request waits for it
     journal_path = args.journal or (args.out / "ica-journal.msgpack" if args.out else None)
     session, log = _session(args, "ica")
@@ -221,7 +213,7 @@ def cmd_ica(args: argparse.Namespace) -> int:
 
 # -- agent ---------------------------------------------------------------------
 def cmd_agent(args: argparse.Namespace) -> int:
-    from dica.ica.core.baselines import controller_config
+    from dica.ica.core.controller import ControllerSpec
     from dica.schemas.keys import KeyChunkError
     from dica.vehicle_agent.agent import Agent
 
@@ -229,7 +221,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
     lead = None if args.lead == "auto" else _seconds(args.lead, "--lead", 0.0, 9.0)
     _seconds(str(args.retry), "--retry", 0.05, 60.0)
     try:
-        config = controller_config("enhanced", args.margin)
+        config = ControllerSpec.of("enhanced", args.margin).config
     except ValueError as e:
         raise UsageError(str(e)) from None
     session, log = _session(args, f"agent {args.id}", signer=args.id)

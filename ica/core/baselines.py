@@ -23,14 +23,12 @@ from collections import defaultdict
 
 import numpy as np
 
-from dica.ica.core.config import ENHANCED, IcaConfig, Techniques
+from dica.ica.core.config import IcaConfig
 from dica.ica.core.conflict import Conflict
 from dica.ica.core.dica import Dica
 from dica.ica.core.dtot import Dtot
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.occupancy import Rects, overlap_matrix
-from dica.ica.core.planner import Kinematics
-from dica.ica.core.zones import ConflictTables
 
 
 class Fifo(Dica):
@@ -125,45 +123,3 @@ class Tiles(Dica):
 
 
 BASELINES = ("fifo", "concurrent", "tiles")
-
-
-def make_controller(
-    name: str, intersection: Intersection, config: IcaConfig, tile_m: float = 1.0
-) -> Dica:
-    """A controller by name: a DICA variant (basic, enhanced, t1..t4) or a baseline."""
-    if name == "fifo":
-        return Fifo(intersection, config)
-    if name == "concurrent":
-        return Concurrent(intersection, config)
-    if name == "tiles":
-        return Tiles(intersection, config, tile_m)
-    # the kind of technique 3's intervals lives in the offline tables
-    tables = ConflictTables(intersection, config.margin_m, exact_oti=config.techniques.exact_oti)
-    return Dica(intersection, config, tables)
-
-
-def controller_config(
-    algorithm: str,
-    margin_m: float,
-    time_pad_s: float = 0.0,
-    platoon: bool = False,
-    headway_s: float = 0.0,
-    run_up: bool = True,
-    exit_spacing: bool = True,
-) -> IcaConfig:
-    """The ICA settings for a controller name: a DICA variant's techniques, else enhanced.
-
-    Raises ValueError for settings out of range (see :class:`IcaConfig`)."""
-    try:
-        techniques = Techniques.parse(algorithm)
-    except ValueError:
-        techniques = ENHANCED  # baselines and lights keep the enhanced machinery underneath
-    return IcaConfig(
-        techniques=techniques,
-        margin_m=margin_m,
-        time_pad_s=time_pad_s,
-        platoon=platoon,
-        headway_s=headway_s,
-        kinematics=Kinematics() if run_up else Kinematics.at_the_line(),
-        exit_spacing=exit_spacing,
-    )

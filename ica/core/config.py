@@ -33,7 +33,7 @@ class Techniques:
     interval travels with the ICA's offline tables
     (:func:`ica.core.zones.ConflictTables` ``exact_oti``), so an ICA built
     with another kind must be given matching tables
-    (:func:`ica.core.baselines.make_controller` does).
+    (:func:`dica.ica.core.controller.build_controller` does).
     """
 
     reduced_set: bool = True

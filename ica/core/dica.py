@@ -60,6 +60,7 @@ from dica.ica.core.kernels import (
 )
 from dica.ica.core.planner import Planner
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
+from dica.ica.core.revocation import Answer, Reorder
 from dica.ica.core.route import Route
 from dica.ica.core.trajectory import Trajectory, sample
 from dica.ica.core.validate import check_request
@@ -228,8 +229,18 @@ class Dica:
     def confirmed_dtots(self) -> Iterator[tuple[str, Dtot]]:
         return ((vin, c.dtot) for vin, c in self._confirmed.items())
 
-    def detect(self, vin: str, lane: str, t_s: float) -> None:
-        """A vehicle crossed the communication region's entry line on ``lane``."""
+    def detect(
+        self,
+        vin: str,
+        lane: str,
+        t_s: float,
+        emergency: bool = False,
+        speed_mps: float | None = None,
+    ) -> None:
+        """A vehicle crossed the communication region's entry line on ``lane``.
+
+        ``emergency`` (an EV, as the region's detector reads it) and ``speed_mps``
+        (its speed there, if measured) matter to reactive DICA only."""
         if lane not in self._lanes:
             raise RequestError(
                 Reason.UNKNOWN_LANE, f"{lane!r} is not an incoming lane of this junction"
@@ -243,6 +254,10 @@ class Dica:
         self._arrivals += 1
         bisect.insort(self._lanes[lane], (t_s, self._arrivals, vin))
         self._lane_of[vin] = lane
+
+    def knows(self, vin: str) -> bool:
+        """Whether ``vin`` has been detected and is still in its lane's queue."""
+        return vin in self._lane_of
 
     def advance(self, now_s: float) -> list[str]:
         """Move the ICA's clock: forget who has left (their reservation has ended)."""
@@ -353,6 +368,50 @@ class Dica:
                 break
             leader = self._confirmed.get(ahead, leader)
         return leader
+
+    # -- revocations: plain DICA never takes a confirmation back ----------------------
+    # (reactive DICA, ica/core/reactive.py, overrides these; see ica/core/controller.py)
+    replans_revoked = False  # revoked vehicles are re-planned by the ICA at once
+
+    def take_reorders(self) -> list[Reorder]:
+        """Reorderings decided since the last call (each once)."""
+        return []
+
+    def take_answers(self) -> list[Answer]:
+        """What became of revoked confirmations since the last call (each once)."""
+        return []
+
+    def take_confirmations(self) -> list[Confirmation]:
+        """Confirmations the ICA made of its own accord since the last call."""
+        return []
+
+    def due_revocations(self) -> list[tuple[str, int]]:
+        """Revocations to send now, as (vin, seq of the plan taken back)."""
+        return []
+
+    def pending(self) -> tuple[str, ...]:
+        """Revoked vehicles whose answer is awaited."""
+        return ()
+
+    def revoked_seq(self, vin: str) -> int | None:
+        """The seq of ``vin``'s revoked plan while its answer is awaited, else None."""
+        return None
+
+    def acknowledge(self, vin: str, seq: int | None = None) -> list[Confirmation]:
+        """``vin`` dropped revoked plan ``seq``; returns confirmations this made."""
+        return []
+
+    def restore(self, vin: str, seq: int | None = None) -> tuple[str, ...]:
+        """``vin`` could not drop revoked plan ``seq``; returns who got theirs back."""
+        return ()
+
+    def settle(self) -> None:
+        """End of a step: re-plan what revocations left waiting."""
+
+    def summary(self, events: bool = False) -> dict | None:
+        """The controller's own figures for a run's report (None: nothing beyond
+        the request statistics); ``events`` adds a log per event."""
+        return None
 
     # -- REQUEST -----------------------------------------------------------
     def handle(self, req: Request, now_s: float) -> Confirmation | Rejection:

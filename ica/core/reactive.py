@@ -73,6 +73,7 @@ from dica.ica.core.ordering import (
 )
 from dica.ica.core.planner import Planner
 from dica.ica.core.request import Confirmation, Reason, Request, RequestError
+from dica.ica.core.revocation import DROPPED, EXPIRED, KEPT, Answer, Reorder
 from dica.ica.core.route import Route
 from dica.ica.core.separation import SeparationModel
 from dica.ica.core.zones import ConflictTables, Shape
@@ -107,41 +108,6 @@ class ReactiveConfig:
             raise ValueError("revoke_latency_s must not be negative")
         if self.start_at not in ("head", "detection"):
             raise ValueError(f"start_at must be 'head' or 'detection', not {self.start_at!r}")
-
-
-@dataclass(frozen=True, slots=True)
-class Reorder:
-    """One EV event's decision, for the protocol layer to carry out."""
-
-    t_s: float  # when it was decided
-    effective_s: float  # when the revocations take effect
-    ev: str
-    solver: str
-    order: tuple[str, ...]  # the modifiable vehicles, the EV among them, in crossing order
-    revoked: tuple[str, ...]  # withdrawn confirmations, pending until acknowledged
-    ev_entry_before_s: float  # the EV's entry by the ordering model, present order kept
-    ev_entry_after_s: float  # the same in the new order
-    solve_s: float  # the solver's wall time
-    prepare_s: float  # the wall time of finding the candidates and measuring separations
-    refused: str = ""  # why the solver gave no order (the present order is kept)
-    lane: str = ""  # the EV's incoming lane
-    seqs: tuple[int, ...] = ()  # the seq of each revoked confirmation, as in ``revoked``
-
-
-DROPPED = "dropped"  # the vehicle gave up the revoked plan: its reservation is gone
-KEPT = "kept"  # it could not stop short of the line: its reservation is its own again
-EXPIRED = "expired"  # no answer came before the revoked plan ended
-
-
-@dataclass(frozen=True, slots=True)
-class Answer:
-    """What became of one revoked confirmation, and when the ICA learnt it [sim s]:
-    only a DROPPED plan is withdrawn; a KEPT one is still flown."""
-
-    vin: str
-    seq: int
-    outcome: str  # DROPPED, KEPT or EXPIRED
-    t_s: float
 
 
 @dataclass(slots=True)
@@ -229,6 +195,10 @@ class ReactiveDica(Dica):
     @property
     def event(self) -> EvEvent | None:
         return self._event
+
+    @property
+    def replans_revoked(self) -> bool:  # type: ignore[override]
+        return self.reactive.replan_revoked
 
     def take_reorders(self) -> list[Reorder]:
         """Decisions made since the last call (each once)."""
@@ -399,8 +369,15 @@ class ReactiveDica(Dica):
             ev.confirmations.extend(out)
         return out
 
-    def summary(self) -> dict:
-        """Per-run figures of the events: counts, solver time, the EV's entries."""
+    def summary(self, events: bool = False) -> dict:
+        """Per-run figures of the events: counts, solver time, the EV's entries;
+        with ``events`` also a log line per event."""
+        out = self._figures()
+        if events:
+            out["events_log"] = [_event_log(e) for e in self.events]
+        return out
+
+    def _figures(self) -> dict:
         solve_ms = [e.reorder.solve_s * 1e3 for e in self.events if e.reorder is not None]
         arr = np.array(solve_ms) if solve_ms else np.zeros(0)
         return {
@@ -817,6 +794,29 @@ def _sized(req: Request) -> bool:
         and 0 < req.length_m < 50
         and 0 < req.width_m < 10
     )
+
+
+def _event_log(e: EvEvent) -> dict:
+    """One EV event as a run's report lists it."""
+    o = e.reorder
+    return {
+        "ev": e.ev,
+        "detected_s": round(e.detected_s, 3),
+        "candidates": len(o.order) if o else 0,
+        "revoked": len(o.revoked) if o else 0,
+        "solve_ms": round(o.solve_s * 1e3, 3) if o else None,
+        "prepare_ms": round(o.prepare_s * 1e3, 3) if o else None,
+        "unplanned": len(e.unplanned),
+        "refused": o.refused if o else "",
+        "ev_entry_model_before_s": _rounded(o.ev_entry_before_s) if o else None,
+        "ev_entry_model_after_s": _rounded(o.ev_entry_after_s) if o else None,
+        "ev_entry_s": _rounded(e.ev_entry_s),
+        "replan_failed": len(e.failed),
+    }
+
+
+def _rounded(x: float | None) -> float | None:
+    return None if x is None or not math.isfinite(x) else round(x, 3)
 
 
 def _mean(values: list[float]) -> float | None:
