@@ -9,9 +9,11 @@ import pytest
 
 from dica.ica.core.config import IcaConfig
 from dica.ica.core.dica import Dica
+from dica.ica.core.ev_event import ReactiveConfig
 from dica.ica.core.proposal import propose
-from dica.ica.core.reactive import DROPPED, EXPIRED, KEPT, Answer, ReactiveConfig, ReactiveDica
+from dica.ica.core.reactive import ReactiveDica
 from dica.ica.core.request import Confirmation, Reason, Rejection
+from dica.ica.core.revocation import DROPPED, EXPIRED, KEPT, Answer
 from dica.ica.journal import Journal, records, replay
 from dica.sim_gateway.audit import Flown, conflicts
 

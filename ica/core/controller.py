@@ -16,9 +16,10 @@ from typing import Protocol
 from dica.ica.core.baselines import BASELINES, Concurrent, Fifo, Tiles
 from dica.ica.core.config import ENHANCED, IcaConfig, Techniques
 from dica.ica.core.dica import Confirmed, Dica
+from dica.ica.core.ev_event import ReactiveConfig
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.planner import Kinematics
-from dica.ica.core.reactive import ReactiveConfig, ReactiveDica
+from dica.ica.core.reactive import ReactiveDica
 from dica.ica.core.request import Confirmation, Rejection, Request
 from dica.ica.core.revocation import Answer, Reorder
 from dica.ica.core.zones import ConflictTables

@@ -55,17 +55,23 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import numpy as np
 
 from dica.ica.core.config import IcaConfig
 from dica.ica.core.dica import Dica
+from dica.ica.core.ev_event import (
+    Candidate,
+    EvEvent,
+    ReactiveConfig,
+    Replan,
+    event_figures,
+    event_log,
+    lane_candidates,
+)
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.ordering import (
-    EXHAUSTIVE_LIMIT,
-    SOLVERS,
-    GaParams,
     OrderingError,
     Problem,
     evaluate,
@@ -80,72 +86,6 @@ from dica.ica.core.zones import ConflictTables, Shape
 
 STOP_SLACK_STEPS, STOP_SLACK_M = 2, 0.5  # room kept beyond the stopping bound
 _ASIDE = "~revoked"  # suffix of a revoked reservation's key while it awaits acknowledgement
-
-
-@dataclass(frozen=True, slots=True)
-class ReactiveConfig:
-    """How reactive DICA orders (``solver``: exact, ga or exhaustive) and when a
-    revocation takes effect after it is decided (``revoke_latency_s``)."""
-
-    solver: str = "exact"
-    seed: int = 0  # the GA's seed; each event draws from (seed, event number)
-    ga: GaParams = field(default_factory=GaParams)
-    exhaustive_limit: int = EXHAUSTIVE_LIMIT
-    revoke_latency_s: float = 0.0
-    # when an EV's event starts: "head", when the EV asks as head of its lane;
-    # "detection", as soon as it is detected (the dissertation's choice)
-    start_at: str = "head"
-    # True: revoked vehicles are re-confirmed by the ICA in the solver's order (in process,
-    # where a revocation reaches its vehicle at once). False: over a real link, each
-    # revoked vehicle drops its plan, stops short of the line and asks again like any
-    # head of lane; revocations go out together, each lane's from the back (due_revocations)
-    replan_revoked: bool = True
-
-    def __post_init__(self) -> None:
-        if self.solver not in SOLVERS:
-            raise ValueError(f"unknown solver {self.solver!r}: use {', '.join(SOLVERS)}")
-        if self.revoke_latency_s < 0:
-            raise ValueError("revoke_latency_s must not be negative")
-        if self.start_at not in ("head", "detection"):
-            raise ValueError(f"start_at must be 'head' or 'detection', not {self.start_at!r}")
-
-
-@dataclass(slots=True)
-class EvEvent:
-    """The log of one EV event (mutable: filled in as it goes)."""
-
-    ev: str
-    lane: str
-    detected_s: float
-    started_s: float
-    reorder: Reorder | None = None
-    confirmations: list[Confirmation] = field(default_factory=list)
-    failed: list[str] = field(default_factory=list)  # revoked, but no new plan was found
-    unplanned: list[str] = field(default_factory=list)  # revoked behind the EV, to ask again
-    ev_confirmed_s: float | None = None
-    ev_entry_s: float | None = None  # the EV's confirmed entry
-    closed_s: float | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class _Replan:
-    vin: str
-    seq: int
-    route: Route
-    shape: Shape
-    t0_s: float
-    dist_m: float
-    speed_mps: float
-
-
-@dataclass(frozen=True, slots=True)
-class _Candidate:
-    vin: str
-    lane: str
-    routes: tuple[Route, ...]  # its route, or every route of its lane if not known yet
-    release_s: float
-    entry_mps: float  # expected entry speed, for the separations
-    state: _Replan | None  # a confirmed vehicle's state at the effective time
 
 
 class ReactiveDica(Dica):
@@ -179,8 +119,8 @@ class ReactiveDica(Dica):
         self.acknowledged = 0  # revocations the vehicle confirmed (its plan dropped)
         self.restored = 0  # reservations given back: the vehicle could no longer stop
         self.expired = 0  # set-aside reservations that ended unanswered
-        self._before: list[_Replan] = []  # re-confirmations ahead of the EV, awaiting acks
-        self._after: list[_Replan] = []  # re-confirmations behind the EV
+        self._before: list[Replan] = []  # re-confirmations ahead of the EV, awaiting acks
+        self._after: list[Replan] = []  # re-confirmations behind the EV
         self._late: list[Confirmation] = []  # re-confirmations made outside acknowledge()
         self._outbox: list[Reorder] = []
         self._answers: list[Answer] = []
@@ -340,7 +280,7 @@ class ReactiveDica(Dica):
         out, self._late = self._late, []
         return out
 
-    def _replan(self, replans: list[_Replan]) -> list[Confirmation]:
+    def _replan(self, replans: list[Replan]) -> list[Confirmation]:
         """Re-confirm revoked vehicles in order; those without a plan are left to ask."""
         out = []
         ev = self._event
@@ -370,47 +310,19 @@ class ReactiveDica(Dica):
         return out
 
     def summary(self, events: bool = False) -> dict:
-        """Per-run figures of the events: counts, solver time, the EV's entries;
-        with ``events`` also a log line per event."""
-        out = self._figures()
-        if events:
-            out["events_log"] = [_event_log(e) for e in self.events]
-        return out
-
-    def _figures(self) -> dict:
-        solve_ms = [e.reorder.solve_s * 1e3 for e in self.events if e.reorder is not None]
-        arr = np.array(solve_ms) if solve_ms else np.zeros(0)
-        return {
-            "solver": self.reactive.solver,
-            "events": len(self.events),
-            "reordered": sum(1 for e in self.events if e.reorder and not e.reorder.refused),
-            "refused": sum(1 for e in self.events if e.reorder and e.reorder.refused),
-            "revoked": sum(len(e.reorder.revoked) for e in self.events if e.reorder),
-            "replan_failed": sum(len(e.failed) for e in self.events),
-            "candidates_max": max(
-                (len(e.reorder.order) for e in self.events if e.reorder), default=0
-            ),
-            "solve_ms_mean": float(arr.mean()) if len(arr) else None,
-            "solve_ms_max": float(arr.max()) if len(arr) else None,
-            "solve_s_total": float(arr.sum() / 1e3),
-            "prepare_s_total": float(
-                sum(e.reorder.prepare_s for e in self.events if e.reorder is not None)
-            ),
-            "unplanned": sum(len(e.unplanned) for e in self.events),
+        """Per-run figures of the events (counts, solver time, the EV's entries) and of
+        the revocations' answers; with ``events`` also a log line per event."""
+        out = event_figures(self.reactive.solver, self.events) | {
             "acknowledged": self.acknowledged,
             "restored": self.restored,
             "expired": self.expired,
             "pending": len(self._pending),
             # when the oldest revocation still unanswered was decided [sim s]
             "pending_since_s": min((self._revoked_at[v] for v in self._pending), default=None),
-            "ev_entry_model_gain_s_mean": _mean(
-                [
-                    e.reorder.ev_entry_before_s - e.reorder.ev_entry_after_s
-                    for e in self.events
-                    if e.reorder and not e.reorder.refused
-                ]
-            ),
         }
+        if events:
+            out["events_log"] = [event_log(e) for e in self.events]
+        return out
 
     # -- DICA's entry points ------------------------------------------------------------
     def detect(
@@ -670,7 +582,7 @@ class ReactiveDica(Dica):
     def _classify(self, t_eff: float) -> tuple[list[tuple[Route, float, float]], list]:
         """Confirmed reservations split into fixed ones (route, entry, entry speed) and
         modifiable vehicles (vin, state at ``t_eff``), lane by lane from the back."""
-        modifiable: list[tuple[str, _Replan]] = []
+        modifiable: list[tuple[str, Replan]] = []
         for queue in map(self.queue, self._lanes):
             confirmed = [v for v in queue if v in self._confirmed]
             ok = True
@@ -684,7 +596,7 @@ class ReactiveDica(Dica):
         modifiable.sort(key=lambda m: (m[1].route.in_lane, self._detected.get(m[0], (0,))[0]))
         return fixed, modifiable
 
-    def _state_at(self, vin: str, t_eff: float) -> _Replan | None:
+    def _state_at(self, vin: str, t_eff: float) -> Replan | None:
         """The state of a confirmed vehicle at ``t_eff`` on its plan, if it can still stop."""
         c = self._confirmed[vin]
         traj = c.dtot.trajectory
@@ -698,7 +610,7 @@ class ReactiveDica(Dica):
             v = float(traj.s_m[k] - traj.s_m[k - 1]) / traj.step_s
         else:
             v = float(traj.s_m[1] - traj.s_m[0]) / traj.step_s
-        st = _Replan(
+        st = Replan(
             # re-confirmed under the next seq: a plan the actuator takes over the old one
             vin, c.confirmation.seq + 1, c.dtot.route, c.dtot.shape, traj.t0_s + k * traj.step_s,
             -s, v,
@@ -711,7 +623,7 @@ class ReactiveDica(Dica):
             return None
         return st
 
-    def _planner(self, st: _Replan) -> Planner:
+    def _planner(self, st: Replan) -> Planner:
         cfg = self.config
         return Planner(
             d_m=st.dist_m,
@@ -723,49 +635,25 @@ class ReactiveDica(Dica):
             hold=cfg.platoon,
         )
 
-    def _confirmed_candidate(self, vin: str, st: _Replan) -> _Candidate:
+    def _confirmed_candidate(self, vin: str, st: Replan) -> Candidate:
         pl = self._planner(st)
         fastest = pl.fastest()
         entry_mps = fastest.entry_speed_mps if fastest is not None else 0.0
         release = st.t0_s + pl.earliest_entry_s()
-        return _Candidate(vin, st.route.in_lane, (st.route,), release, entry_mps, st)
+        return Candidate(vin, st.route.in_lane, (st.route,), release, entry_mps, st)
 
-    def _lane_candidates(self, ev: EvEvent, t_eff: float) -> list[_Candidate]:
-        """The unconfirmed vehicles ahead of the EV in its lane, and the EV, with
-        releases estimated from their detection (their state is not known here)."""
-        routes = self.intersection.routes_from(ev.lane)
-        comm = self.intersection.comm_length_m
-        out = []
-        queue = [v for v in self.queue(ev.lane) if v not in self._confirmed]
-        nothing_ahead = queue[:1] == [ev.ev] and not any(
-            v in self._confirmed for v in self.queue(ev.lane)
-        )
-        for vin in queue:
-            _, t_det, v_det = self._detected.get(vin, (0, t_eff, None))
-            v0 = self.config.caps.road_mps if v_det is None else max(v_det, 0.0)
-            earliest = -math.inf
-            entry_mps = math.inf
-            for r in routes:
-                pl = Planner(
-                    comm, v0, self.config.caps.road_mps, r.speed_cap_mps,
-                    r.cross_length_m + self._shape.length_m, self.config.kinematics,
-                )  # fmt: skip
-                e = pl.earliest_entry_s()
-                earliest = max(earliest, t_det + e if math.isfinite(e) else t_eff)
-                fast = pl.fastest()
-                entry_mps = min(entry_mps, fast.entry_speed_mps if fast else 0.0)
-            if not (vin == ev.ev and nothing_ahead):  # waiting unconfirmed: stop and go
-                entry_mps = min(self.separations.stop_and_go_entry_mps(r) for r in routes)
-            out.append(_Candidate(vin, ev.lane, routes, max(earliest, t_eff), entry_mps, None))
-            if vin == ev.ev:
-                break
-        return out
+    def _lane_candidates(self, ev: EvEvent, t_eff: float) -> list[Candidate]:
+        queue = self.queue(ev.lane)
+        return lane_candidates(
+            ev, t_eff, queue, [v in self._confirmed for v in queue], self._detected,
+            self.intersection, self.config, self._shape, self.separations,
+        )  # fmt: skip
 
     def _sep(self, a: tuple[Route, ...], a_mps: float, b: tuple[Route, ...], b_mps: float) -> float:
         """The largest separation over the routes each vehicle may take."""
         return max(self.separations.separation_s(ra, a_mps, rb, b_mps) for ra in a for rb in b)
 
-    def _release(self, c: _Candidate, fixed: list[tuple[Route, float, float]]) -> float:
+    def _release(self, c: Candidate, fixed: list[tuple[Route, float, float]]) -> float:
         """Earliest entry, and no earlier than the fixed reservations allow."""
         return self.separations.release_after(c.release_s, c.routes, c.entry_mps, fixed)
 
@@ -794,30 +682,3 @@ def _sized(req: Request) -> bool:
         and 0 < req.length_m < 50
         and 0 < req.width_m < 10
     )
-
-
-def _event_log(e: EvEvent) -> dict:
-    """One EV event as a run's report lists it."""
-    o = e.reorder
-    return {
-        "ev": e.ev,
-        "detected_s": round(e.detected_s, 3),
-        "candidates": len(o.order) if o else 0,
-        "revoked": len(o.revoked) if o else 0,
-        "solve_ms": round(o.solve_s * 1e3, 3) if o else None,
-        "prepare_ms": round(o.prepare_s * 1e3, 3) if o else None,
-        "unplanned": len(e.unplanned),
-        "refused": o.refused if o else "",
-        "ev_entry_model_before_s": _rounded(o.ev_entry_before_s) if o else None,
-        "ev_entry_model_after_s": _rounded(o.ev_entry_after_s) if o else None,
-        "ev_entry_s": _rounded(e.ev_entry_s),
-        "replan_failed": len(e.failed),
-    }
-
-
-def _rounded(x: float | None) -> float | None:
-    return None if x is None or not math.isfinite(x) else round(x, 3)
-
-
-def _mean(values: list[float]) -> float | None:
-    return float(np.mean(values)) if values else None
