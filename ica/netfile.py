@@ -13,7 +13,8 @@ import numpy as np
 import sumolib
 
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.route import Route, SpeedCaps, Turn, build_route, classify_turn
+from dica.ica.core.limits import SpeedCaps, Turn
+from dica.ica.core.route import Route, build_route, classify_turn
 
 _DIR_TO_TURN = {"l": Turn.LEFT, "L": Turn.LEFT, "r": Turn.RIGHT, "R": Turn.RIGHT, "s": Turn.THROUGH}
 _VEHICLE_CLASS = "passenger"

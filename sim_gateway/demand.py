@@ -21,7 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.route import Route, Turn
+from dica.ica.core.limits import Turn
+from dica.ica.core.route import Route
 
 ROAD_LIMIT_MPS = 70.0 / 3.6  # [m/s] the dissertation's road speed limit v_m
 

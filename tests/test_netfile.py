@@ -13,7 +13,8 @@ import shapely
 import sumolib
 
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.route import KMH, SpeedCaps, Turn, classify_turn
+from dica.ica.core.limits import KMH, SpeedCaps, Turn
+from dica.ica.core.route import classify_turn
 from dica.ica.netfile import NetworkError, load_intersection
 from dica.sim_gateway.scenario import Scenario, build_scenario
 

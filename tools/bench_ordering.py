@@ -26,6 +26,7 @@ import time
 import numpy as np
 
 from dica.ica.core.intersection import Intersection
+from dica.ica.core.limits import Kinematics
 from dica.ica.core.ordering import (
     EXHAUSTIVE_LIMIT,
     Problem,
@@ -35,9 +36,9 @@ from dica.ica.core.ordering import (
     exhaustive,
     ga,
 )
-from dica.ica.core.planner import Kinematics
 from dica.ica.core.separation import SeparationModel
 from dica.ica.core.zones import ConflictTables, Shape
+from dica.tools import options
 
 
 def event(
@@ -157,12 +158,12 @@ def render(r: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = options.Parser(
         prog="dica bench ordering",
         description="Time of the EV ordering solvers on problems drawn on the chapter 4-5 "
         "junction, and how close the GA comes to the exact optimum.",
     )
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    options.add(p, "--json", "--seed")
     p.add_argument("--fixed", type=int, default=200, help="20-vehicle problems timed (default 200)")
     p.add_argument("--events", type=int, default=300, help="events of 3-20 vehicles (default 300)")
     p.add_argument(
@@ -171,8 +172,7 @@ def main(argv: list[str] | None = None) -> int:
         default=EXHAUSTIVE_LIMIT,
         help=f"exhaustive search's limit in orders (default {EXHAUSTIVE_LIMIT:,})",
     )
-    p.add_argument("--seed", type=int, default=12)
-    args = p.parse_args(argv)
+    args = options.parse(p, argv)
     if args.fixed < 1 or args.events < 1 or args.limit < 1:
         print(
             "dica bench ordering: --fixed, --events and --limit must be at least 1", file=sys.stderr

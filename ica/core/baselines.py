@@ -120,6 +120,3 @@ class Tiles(Dica):
 
     def _forget(self, vin: str) -> None:
         self._tiles.pop(vin, None)
-
-
-BASELINES = ("fifo", "concurrent", "tiles")

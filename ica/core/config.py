@@ -4,8 +4,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
 
-from dica.ica.core.planner import Kinematics
-from dica.ica.core.route import SpeedCaps
+from dica.ica.core.limits import Kinematics, SpeedCaps
+
+BASELINES = ("fifo", "concurrent", "tiles")  # reservation baselines (ica/core/baselines.py)
+REACTIVE = ("rdica",)  # reactive DICA: emergency vehicles first (ica/core/reactive.py)
+SOLVERS = ("exact", "ga", "exhaustive")  # its ordering solvers (ica/core/ordering/)
 
 
 @dataclass(frozen=True, slots=True)

@@ -13,18 +13,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from dica.ica.core.baselines import BASELINES, Concurrent, Fifo, Tiles
-from dica.ica.core.config import ENHANCED, IcaConfig, Techniques
+from dica.ica.core.baselines import Concurrent, Fifo, Tiles
+from dica.ica.core.config import BASELINES, ENHANCED, REACTIVE, IcaConfig, Techniques
 from dica.ica.core.dica import Confirmed, Dica
 from dica.ica.core.ev_event import ReactiveConfig
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.planner import Kinematics
+from dica.ica.core.limits import Kinematics
 from dica.ica.core.reactive import ReactiveDica
 from dica.ica.core.request import Confirmation, Rejection, Request
 from dica.ica.core.revocation import Answer, Reorder
 from dica.ica.core.zones import ConflictTables
-
-REACTIVE = ("rdica",)
 
 
 class Controller(Protocol):
@@ -128,6 +126,11 @@ class ControllerSpec:
         try:
             techniques = Techniques.parse(algorithm)
         except ValueError:
+            if algorithm not in BASELINES + REACTIVE:
+                raise ValueError(
+                    f"unknown controller {algorithm!r}: use basic, enhanced, t1..t4 (t2+4), "
+                    + ", ".join(BASELINES + REACTIVE)
+                ) from None
             techniques = ENHANCED
         config = IcaConfig(
             techniques=techniques,

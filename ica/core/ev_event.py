@@ -13,9 +13,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dica.ica.core.config import IcaConfig
+from dica.ica.core.config import SOLVERS, IcaConfig
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.ordering import EXHAUSTIVE_LIMIT, SOLVERS, GaParams
+from dica.ica.core.ordering import EXHAUSTIVE_LIMIT, GaParams
 from dica.ica.core.planner import Planner
 from dica.ica.core.request import Confirmation
 from dica.ica.core.revocation import Reorder

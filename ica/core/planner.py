@@ -35,36 +35,9 @@ from typing import Any
 import numpy as np
 
 from dica.ica.core.kernels import a_phases, bisect_cruise, plan_constants_of
+from dica.ica.core.limits import Kinematics
 
 _EPS = 1e-9
-
-
-@dataclass(frozen=True, slots=True)
-class Kinematics:
-    """Vehicle limits used for planning [m/s^2, m/s, m]: the dissertation's
-    accelerations, and how a vehicle that must wait approaches the line.
-
-    With ``run_up`` (the default) it enters at speed: a slow-down plan may cruise
-    as slowly as ``creep_mps``, and the stop family stands where pulling away
-    reaches the crossing cap at the line (as far back as the vehicle can still
-    stop), so the vehicle crosses quickly and frees the conflict zones early.
-    :meth:`at_the_line` is the earlier rule: slow to no less than 2 m/s, else stop
-    ``stop_gap_m`` short of the line and pull away from there.
-    ``min_cross_mps`` is the slowest crossing cap checkFV imposes behind a slow
-    vehicle.
-    """
-
-    accel_mps2: float = 2.0
-    decel_mps2: float = 4.5
-    creep_mps: float = 0.5
-    stop_gap_m: float = 0.5
-    run_up: bool = True
-    min_cross_mps: float = 2.0
-
-    @classmethod
-    def at_the_line(cls) -> Kinematics:
-        """Slow to 2 m/s at least, else stop at the line (``--no-run-up``)."""
-        return cls(creep_mps=2.0, run_up=False)
 
 
 @dataclass(frozen=True, slots=True, eq=False)

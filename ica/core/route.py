@@ -13,37 +13,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from enum import StrEnum
 
 import numpy as np
 
 from dica.ica.core.kernels import project, route_points
-
-KMH = 1.0 / 3.6  # [m/s per km/h]
-
-
-class Turn(StrEnum):
-    LEFT = "left"
-    THROUGH = "through"
-    RIGHT = "right"
-
-
-@dataclass(frozen=True, slots=True)
-class SpeedCaps:
-    """Speed limits [m/s]: the road's, and the comfortable caps inside the junction.
-
-    Defaults are the dissertation's: 70 km/h road, 25 / 35 / 65 km/h for right,
-    left and through movements.
-    """
-
-    road_mps: float = 70.0 * KMH
-    left_mps: float = 35.0 * KMH
-    through_mps: float = 65.0 * KMH
-    right_mps: float = 25.0 * KMH
-
-    def for_turn(self, turn: Turn) -> float:
-        cap = {Turn.LEFT: self.left_mps, Turn.THROUGH: self.through_mps, Turn.RIGHT: self.right_mps}
-        return min(cap[turn], self.road_mps)
+from dica.ica.core.limits import SpeedCaps, Turn
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -39,7 +39,7 @@ from dica.ica.core.config import ENHANCED, Techniques
 from dica.ica.core.conflict import follow_conflict, get_cv
 from dica.ica.core.dtot import Dtot, build_dtot
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.planner import Kinematics
+from dica.ica.core.limits import Kinematics
 from dica.ica.core.route import Route
 from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.zones import ConflictTables, Shape

@@ -55,13 +55,13 @@ import time
 
 import numpy as np
 
+from dica.ica.core.config import SOLVERS
 from dica.ica.core.ordering.exact import exact
 from dica.ica.core.ordering.exhaustive import exhaustive
 from dica.ica.core.ordering.ga import ga
 from dica.ica.core.ordering.problem import (
     EPS_S,
     EXHAUSTIVE_LIMIT,
-    SOLVERS,
     GaParams,
     OrderingError,
     Problem,

@@ -10,7 +10,6 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-SOLVERS = ("exact", "ga", "exhaustive")
 EPS_S = 1e-9  # [s] entry times closer than this count as equal
 EXHAUSTIVE_LIMIT = 1_000_000  # orders; about a second of search at 12 candidates
 _NEG = -np.inf
