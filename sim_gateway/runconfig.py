@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
-from dica.ica.core.config import Techniques
-from dica.ica.core.controller import BASELINES, REACTIVE, ControllerSpec
-from dica.ica.core.ordering import SOLVERS
+from dica.ica.core.config import BASELINES, REACTIVE, SOLVERS, Techniques
 from dica.sim_gateway.metrics import TripLog
+
+if TYPE_CHECKING:
+    from dica.ica.core.controller import ControllerSpec
 
 LIGHTS = ("fixed", "actuated", "reactive-light")  # SUMO drives; the junction is signalised
 REVOCATIONS = ("replan", "drop")  # how rdica's revoked vehicles get their next plan
@@ -15,6 +17,55 @@ REVOCATIONS = ("replan", "drop")  # how rdica's revoked vehicles get their next 
 
 class RunError(Exception):
     """A run that cannot start or cannot go on (bad input, SUMO refused, a peer died)."""
+
+
+@dataclass(frozen=True, slots=True)
+class Limit:
+    """The range a setting may take, and the one sentence that refuses a value outside
+    it (the command line's option names it: ``flag``)."""
+
+    flag: str
+    lo: float
+    hi: float
+    unit: str = ""
+    lo_open: bool = False  # the least value itself is out
+
+    def holds(self, x: float) -> bool:
+        return (self.lo < x if self.lo_open else self.lo <= x) and x <= self.hi
+
+    def text(self, x: float) -> str:
+        unit = f" {self.unit}" if self.unit else ""
+        low = "above" if self.lo_open else "between"
+        high = "and at most" if self.lo_open else "and"
+        lo, hi, got = _plain(self.lo), _plain(self.hi), _plain(x)
+        return f"{self.flag} must be {low} {lo} {high} {hi}{unit}, got {got}"
+
+    def check(self, x: float) -> None:
+        if not self.holds(x):
+            raise RunError(self.text(x))
+
+
+def _plain(x: float) -> str:
+    """A number as a person writes it: 1000000, not 1e+06."""
+    return str(int(x)) if float(x).is_integer() and abs(x) < 1e15 else f"{x:g}"
+
+
+# what a run's settings may be (the command line refuses the same values with the same words)
+LIMITS = {
+    "volume_per_10min": Limit("--volume", 1.0, 2000.0, "vehicles per 10 min"),
+    "volume_end_per_10min": Limit("--volume-end", 1.0, 2000.0, "vehicles per 10 min"),
+    "duration_s": Limit("--duration", 0.0, 1e7, "s", lo_open=True),
+    "until_left": Limit("--until-left", 1, 1_000_000),
+    "seed": Limit("--seed", 0, 2**32 - 1),
+    "tile_m": Limit("--tile-size", 0.1, 10.0, "m"),
+    "margin_m": Limit("--margin", 0.0, 5.0, "m"),
+    "lead_s": Limit("--lead", 0.0, 9.0, "s"),
+    "window_s": Limit("--window", 0.0, 5.0, "s"),
+    "headway_s": Limit("--headway", 0.0, 5.0, "s"),
+    "time_pad_s": Limit("--time-pad", 0.0, 5.0, "s"),
+    "retry_s": Limit("--retry", 0.05, 60.0, "s"),
+    "ev_prob": Limit("--ev-prob", 0.0, 1.0),
+}
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,6 +111,8 @@ class RunConfig:
 
     def controller_spec(self) -> ControllerSpec:
         """The controller this run drives (a light runs FIFO underneath, never asked)."""
+        from dica.ica.core.controller import ControllerSpec  # the compiled core, when needed
+
         return ControllerSpec.of(
             "fifo" if self.algorithm in LIGHTS else self.algorithm,
             self.margin_m, self.time_pad_s, self.platoon, self.headway_s, self.run_up,
@@ -72,14 +125,10 @@ class RunConfig:
         return max(self.lead_s, self.window_s)
 
     def __post_init__(self) -> None:
-        if not 1.0 <= self.volume_per_10min <= 2000.0:
-            raise RunError(
-                f"volume {self.volume_per_10min:g} is out of range: 1 to 2000 vehicles per 10 min"
-            )
-        if self.duration_s <= 0:
-            raise RunError("duration must be positive")
-        if self.until_left is not None and self.until_left < 1:
-            raise RunError("--until-left must be at least 1")
+        for name, limit in LIMITS.items():
+            value = getattr(self, name)
+            if value is not None:
+                limit.check(value)
         if self.algorithm not in BASELINES + LIGHTS + REACTIVE:
             try:
                 Techniques.parse(self.algorithm)
@@ -88,26 +137,8 @@ class RunConfig:
                     f"unknown algorithm {self.algorithm!r}: use basic, enhanced, t1..t4 (t2+4), "
                     + ", ".join(BASELINES + LIGHTS + REACTIVE)
                 ) from None
-        if self.volume_end_per_10min is not None and not 1.0 <= self.volume_end_per_10min <= 2000:
-            raise RunError("--volume-end is out of range: 1 to 2000 vehicles per 10 min")
-        if not 0.1 <= self.tile_m <= 10.0:
-            raise RunError("--tile-size must be between 0.1 and 10 m")
-        if not 0.0 <= self.margin_m <= 5.0:
-            raise RunError(f"--margin must be between 0 and 5 m, got {self.margin_m:g}")
-        if not 0.0 <= self.lead_s <= 10.0:
-            raise RunError(f"--lead must be between 0 and 10 s, got {self.lead_s:g}")
-        if not 0.0 <= self.window_s <= 5.0:
-            raise RunError(f"--window must be between 0 and 5 s, got {self.window_s:g}")
         if self.window_s and self.algorithm in BASELINES + LIGHTS + REACTIVE:
             raise RunError(f"--window orders DICA's requests; {self.algorithm} does not take it")
-        if not 0.0 <= self.headway_s <= 5.0:
-            raise RunError(f"--headway must be between 0 and 5 s, got {self.headway_s:g}")
-        if not 0.0 <= self.time_pad_s <= 5.0:
-            raise RunError(f"--time-pad must be between 0 and 5 s, got {self.time_pad_s:g}")
-        if not 0.05 <= self.retry_s <= 60.0:
-            raise RunError(f"retry must be between 0.05 and 60 s, got {self.retry_s:g}")
-        if not 0.0 <= self.ev_prob <= 1.0:
-            raise RunError(f"--ev-prob {self.ev_prob:g} is not a probability (0 to 1)")
         if self.revocation not in REVOCATIONS:
             raise RunError(
                 f"unknown revocation {self.revocation!r}: use {' or '.join(REVOCATIONS)}"

@@ -249,7 +249,7 @@ def test_realtime_clock_is_paced_and_safe(tmp_path):
         (["--agents", "0"], "--agents wants a positive integer"),
         (["--layout", "ch9"], "unknown layout"),
         (["--bogus"], "unknown option --bogus"),
-        (["--volume", "5000", "--duration", "5"], "volume 5000 is out of range"),
+        (["--volume", "5000", "--duration", "5"], "--volume must be between 1 and 2000"),
         (["--agents", "1", "--per-agent", "1", "--no-record", "--duration", "120"], "has room"),
     ],
 )

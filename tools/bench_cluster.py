@@ -15,7 +15,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
@@ -25,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from dica.tools import options
 from dica.tools.loopback import router_and_ica
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -137,19 +137,19 @@ def lockstep(volume: float, duration: float, seed: int, agents: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(
+    ap = options.Parser(
         prog="dica bench cluster",
         description="REQUEST round trip over Zenoh on loopback, and the lockstep real-time "
         "factor of a cluster run next to the embedded run of the same seed.",
     )
     ap.add_argument("--requests", type=int, default=500, help="round trips per kind (500)")
-    ap.add_argument("--volume", type=float, default=500.0)
-    ap.add_argument("--duration", type=float, default=600.0)
-    ap.add_argument("--seed", type=int, default=12)
-    ap.add_argument("--agents", type=int, default=2)
+    options.add(
+        ap, "--volume", "--duration", "--seed", "--agents", "--json",
+        volume=options.VOLUME_500,
+        agents={"default": 2, "help": "vehicle-agent processes (default 2)"},
+    )  # fmt: skip
     ap.add_argument("--skip-run", action="store_true", help="only the round trips")
-    ap.add_argument("--json", action="store_true")
-    args = ap.parse_args(argv)
+    args = options.parse(ap, argv)
     if args.requests < 1:
         ap.error("--requests must be at least 1")
     res = {"round_trip": round_trips(args.requests)}

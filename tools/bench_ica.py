@@ -24,7 +24,6 @@ cap binds, a request is planned twice.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import platform
@@ -42,6 +41,7 @@ from dica.ica.core.intersection import Intersection
 from dica.ica.core.request import Confirmation, Request, Tss
 from dica.ica.core.zones import ConflictTables
 from dica.sim_gateway.stream import StreamSpec, run_stream
+from dica.tools import options
 
 BUCKETS = {5: (4, 6), 10: (9, 11), 20: (17, 23)}
 SYNTHETIC_N = 40
@@ -211,23 +211,22 @@ def render(result: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = options.Parser(
         prog="dica bench ica",
         description="Seconds per REQUEST of basic DICA, each chapter-4 technique alone and "
         "enhanced DICA, on the same states and requests; ratios to basic.",
     )
-    p.add_argument("--json", action="store_true", help="print the result as JSON")
+    options.add(p, "--json", "--seed")
     p.add_argument("--per-bucket", type=int, default=25, help="requests timed per n (default 25)")
     p.add_argument(
         "--repeat", type=int, default=3, help="timings per request, best kept (default 3)"
     )
-    p.add_argument("--seed", type=int, default=12)
     p.add_argument(
         "--variants",
         default=",".join(VARIANTS),
         help="comma-separated DICA variants to time (basic always, as the reference)",
     )
-    args = p.parse_args(argv)
+    args = options.parse(p, argv)
     if args.per_bucket < 1 or args.repeat < 1:
         p.error("--per-bucket and --repeat must be at least 1")
     variants = tuple(v.strip() for v in args.variants.split(",") if v.strip())

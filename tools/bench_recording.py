@@ -11,7 +11,6 @@ is taken within one run.
 
 from __future__ import annotations
 
-import argparse
 import re
 import subprocess
 import sys
@@ -20,6 +19,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from dica.tools import options
 
 ROOT = Path(__file__).resolve().parent.parent
 LOOP = re.compile(r"simulated in ([0-9.]+) s")
@@ -41,11 +42,10 @@ def one_run(out: Path, record: bool, volume: int, duration_s: float) -> tuple[fl
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="bench_recording", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--volume", type=int, default=500)
-    ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds")
+    ap = options.Parser(prog="bench_recording", description=__doc__.split("\n\n")[0])
+    options.add(ap, "--volume", "--duration", volume=options.VOLUME_500)
     ap.add_argument("--repeats", type=int, default=3)
-    args = ap.parse_args(argv)
+    args = options.parse(ap, argv)
     if args.repeats < 1 or args.duration <= 0:
         print("bench_recording: need --repeats >= 1 and --duration > 0", file=sys.stderr)
         return 2

@@ -9,12 +9,13 @@ ratio of the two. Targets: at least 50x real time, at most 1.5x the light.
 
 from __future__ import annotations
 
-import argparse
 import json
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
+
+from dica.tools import options
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,13 +46,10 @@ def one(algorithm: str, volume: float, duration: float, seed: int) -> dict:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="dica bench run", description=__doc__.splitlines()[0])
-    p.add_argument("--volume", type=float, default=500.0)
-    p.add_argument("--duration", type=float, default=600.0)
-    p.add_argument("--seed", type=int, default=12)
-    p.add_argument("--repeat", type=int, default=3)
-    p.add_argument("--json", action="store_true")
-    args = p.parse_args(argv)
+    p = options.Parser(prog="dica bench run", description=__doc__.splitlines()[0])
+    options.add(p, "--volume", "--duration", "--seed", "--json", volume=options.VOLUME_500)
+    p.add_argument("--repeat", type=int, default=3, help="runs of each controller (default 3)")
+    args = options.parse(p, argv)
     best: dict[str, dict] = {}
     for _ in range(args.repeat):
         for alg in ("enhanced", "fixed"):

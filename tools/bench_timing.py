@@ -21,6 +21,8 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from dica.tools import options
+
 ROOT = Path(__file__).resolve().parents[1]
 BEGIN, END = "<!-- timing:begin -->", "<!-- timing:end -->"
 
@@ -189,17 +191,18 @@ def write_benchmarks(text: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = options.Parser(
         prog="dica bench timing",
         description="Real-time cluster runs across fault profiles (delay with jitter, loss, "
         "duplication, reordering on every role's link): safety, throughput, trip time and "
         "plan adherence against the fault level. Takes about the runs' duration each, over "
         "--jobs at a time.",
     )
-    p.add_argument("--duration", type=float, default=120.0, help="sim seconds per run (120)")
-    p.add_argument("--speed", type=float, default=1.0, help="real-time speed factor (1)")
-    p.add_argument("--volume", type=float, default=500.0)
-    p.add_argument("--agents", type=int, default=2)
+    options.add(
+        p, "--duration", "--speed", "--volume", "--agents", "--json",
+        duration={"default": 120.0, "help": "sim seconds per run (default 120)"},
+        volume=options.VOLUME_500, agents={"default": 2, "help": "vehicle agents (default 2)"},
+    )  # fmt: skip
     p.add_argument("--seeds", default="12", help="comma-separated seeds (default 12)")
     p.add_argument(
         "--profiles",
@@ -208,10 +211,16 @@ def main(argv: list[str] | None = None) -> int:
         "reorder), or names from the sweep separated by ';'",
     )
     p.add_argument("--jobs", type=int, default=2, help="runs at a time (default 2)")
-    p.add_argument("--out", type=Path, default=ROOT / "runs" / "bench-timing")
-    p.add_argument("--json", action="store_true", help="print the rows as JSON")
+    options.add(
+        p,
+        "--out",
+        out={
+            "default": ROOT / "runs" / "bench-timing",
+            "help": "where the runs go (default runs/bench-timing)",
+        },
+    )
     p.add_argument("--write", action="store_true", help="put the table and plot into BENCHMARKS.md")
-    args = p.parse_args(argv)
+    args = options.parse(p, argv)
     try:
         seeds = [int(s) for s in args.seeds.split(",") if s]
     except ValueError:

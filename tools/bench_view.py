@@ -14,7 +14,6 @@ other work on the machine changes the figures up to 2x.
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import subprocess
@@ -22,6 +21,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+from dica.tools import options
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -56,15 +57,14 @@ def chunks(rrd: Path) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="bench_view", description=__doc__.split("\n\n")[0])
+    ap = options.Parser(prog="bench_view", description=__doc__.split("\n\n")[0])
     ap.add_argument("--rrd", type=Path, help="measure this recording instead of making one")
-    ap.add_argument("--volume", type=int, default=500)
-    ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds")
+    options.add(ap, "--volume", "--duration", volume=options.VOLUME_500)
     ap.add_argument("--timeout", type=float, default=900.0, help="[s] before giving up")
     ap.add_argument(
         "--repeat", type=int, default=1, help="measurements of each recording, alternating"
     )
-    args = ap.parse_args(argv)
+    args = options.parse(ap, argv)
     if args.rrd is not None and not args.rrd.is_file():
         print(f"bench_view: no recording {args.rrd}", file=sys.stderr)
         return 2

@@ -14,15 +14,9 @@ import sys
 import time
 from pathlib import Path
 
-from dica.tools.args import (
-    UsageError,
-    add_net_args,
-    add_plan_args,
-    add_run_args,
-    intersection,
-    report_run,
-    run_config,
-)
+from dica.tools import options
+from dica.tools.args import add_run_args, intersection, report_run, run_config
+from dica.tools.options import UsageError
 
 EXAMPLES = """examples:
   dica scenario build --layout ch45 --out nets/
@@ -94,10 +88,6 @@ def cmd_stream(args: argparse.Namespace) -> int:
     from dica.sim_gateway.audit import conflicts, kinematic_violations
     from dica.sim_gateway.stream import StreamSpec, flown, run_stream
 
-    if not 1 <= args.vehicles <= 100_000:
-        raise UsageError("--vehicles must be between 1 and 100000")
-    if not 1.0 <= args.volume <= 20_000.0:
-        raise UsageError("--volume must be between 1 and 20000 vehicles per 10 min")
     try:
         tech = Techniques.parse(args.variant)
         cfg = IcaConfig(techniques=tech, margin_m=args.margin)
@@ -105,8 +95,7 @@ def cmd_stream(args: argparse.Namespace) -> int:
         raise UsageError(str(e)) from None
     inter = intersection(args)
     spec = StreamSpec(volume_per_10min=args.volume, n_vehicles=args.vehicles, seed=args.seed)
-    out = args.out or Path("runs") / time.strftime("stream-%Y%m%d-%H%M%S")
-    out.mkdir(parents=True, exist_ok=True)
+    out = options.out_dir(args.out or Path("runs") / time.strftime("stream-%Y%m%d-%H%M%S"))
 
     t0 = time.perf_counter()
     with tqdm(total=args.vehicles, desc="confirmed", unit="veh", disable=args.quiet) as bar:
@@ -177,7 +166,9 @@ def cmd_run(args: argparse.Namespace) -> int:
     from dica.sim_gateway.outputs import write_outputs
 
     cfg, inter = run_config(args)
-    out = args.out or Path("runs") / time.strftime(f"run-{cfg.algorithm}-%Y%m%d-%H%M%S")
+    out = options.out_dir(
+        args.out or Path("runs") / time.strftime(f"run-{cfg.algorithm}-%Y%m%d-%H%M%S")
+    )
     total = None if cfg.until_left else cfg.duration_s
     with tqdm(total=total, desc="sim time", unit="s", disable=args.quiet) as bar:
         last = [0.0]
@@ -275,7 +266,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = options.Parser(
         prog="dica",
         description="Signal-free intersection control (DICA, enhanced DICA) for connected "
         "autonomous vehicles.",
@@ -283,22 +274,19 @@ def parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
-    from dica.sim_gateway.scenario import LAYOUTS
     from dica.tools.view import DESCRIPTION as VIEW_DESCRIPTION
     from dica.tools.view import add_arguments as view_arguments
 
     sc = sub.add_parser("scenario", help="build a built-in intersection with netconvert")
     sc.add_argument("action", choices=["build"])
-    sc.add_argument("--layout", choices=LAYOUTS, default="ch45")
-    sc.add_argument(
-        "--out", type=Path, required=True, help="directory for the .net.xml and plain XML"
-    )
+    options.add(
+        sc, "--layout", "--out",
+        out={"help": "directory for the .net.xml and plain XML", "required": True},
+    )  # fmt: skip
     sc.set_defaults(func=cmd_scenario)
 
     g = sub.add_parser("geometry", help="routes, turn classes and conflicts of a junction")
-    add_net_args(g)
-    g.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
-    g.add_argument("--json", action="store_true")
+    options.add(g, *options.NET, "--margin", "--json")
     g.set_defaults(func=cmd_geometry)
 
     s = sub.add_parser(
@@ -308,17 +296,11 @@ def parser() -> argparse.ArgumentParser:
         "request when head of their lane, and every confirmed trajectory is audited by an "
         "independent brute-force check. Writes summary.json, vehicles.csv and config.json.",
     )
-    add_net_args(s)
-    s.add_argument(
-        "--variant", default="enhanced", help="basic, enhanced, or t1..t4 / t2+4 (default enhanced)"
-    )
-    s.add_argument("--volume", type=float, default=300.0, help="vehicles per 10 min (default 300)")
-    s.add_argument("--vehicles", type=int, default=500, help="how many vehicles (default 500)")
-    s.add_argument("--seed", type=int, default=12)
-    s.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
-    s.add_argument("--out", type=Path, help="output directory (default runs/stream-TIMESTAMP)")
+    options.add(
+        s, *options.NET, "--variant", "--volume", "--vehicles", "--seed", "--margin", "--out",
+        "--quiet", out={"help": "output directory (default runs/stream-TIMESTAMP)"},
+    )  # fmt: skip
     s.add_argument("--no-audit", dest="audit", action="store_false", help="skip the audit")
-    s.add_argument("--quiet", action="store_true", help="no progress bars")
     s.set_defaults(func=cmd_stream)
 
     r = sub.add_parser(
@@ -331,32 +313,10 @@ def parser() -> argparse.ArgumentParser:
         "collision was seen.",
     )
     add_run_args(r)
-    add_plan_args(r)
-    r.add_argument(
-        "--lead",
-        type=float,
-        default=0.0,
-        help="vehicles plan each REQUEST this far ahead of what they observed [s], from where "
-        "their stop law will have taken them: what a link with delay needs (default 0)",
-    )
-    r.add_argument(
-        "--window",
-        type=float,
-        default=0.0,
-        help="collect the REQUESTs of this many seconds and decide them in the order that "
-        "delays them least, each lane's order kept (0: first come, first served; default). "
-        "Vehicles then plan at least this far ahead (--lead); DICA's controllers only",
-    )
-    r.add_argument(
-        "--revocation",
-        choices=("replan", "drop"),
-        default="replan",
-        help="rdica's revoked vehicles: replan (the ICA plans them again in the solver's "
-        "order, at once; default) or drop (each drops its plan, stops short of the line and "
-        "asks again, answering the ICA one step later: what the cluster does)",
-    )
-    r.add_argument("--out", type=Path, help="output directory (default runs/run-ALG-TIMESTAMP)")
-    r.add_argument("--quiet", action="store_true", help="no progress bar")
+    options.add(
+        r, "--run-up", "--exit-spacing", "--lead", "--window", "--revocation", "--out",
+        "--quiet", out={"help": "output directory (default runs/run-ALG-TIMESTAMP)"},
+    )  # fmt: skip
     r.add_argument(
         "--record",
         action="store_true",
@@ -384,44 +344,8 @@ def parser() -> argparse.ArgumentParser:
         description=SECURE_CONFIG_DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    sc.add_argument("--out", type=Path, required=True, help="the site's directory")
-    issue = sc.add_mutually_exclusive_group()
-    issue.add_argument(
-        "--agents",
-        default="1",
-        help="a new site's vehicle agents: a number N (agent-1 ... agent-N, as run_cluster.sh "
-        "names them) or comma-separated names, each its --id (default 1)",
-    )
-    issue.add_argument(
-        "--add-agent",
-        metavar="NAMES",
-        help="issue identities to more agents on the site in --out (comma-separated names)",
-    )
-    issue.add_argument(
-        "--revoke-agent",
-        metavar="NAMES",
-        help="withdraw agents' identities on the site in --out (comma-separated names)",
-    )
-    sc.add_argument(
-        "--host",
-        action="append",
-        help="a new site: a name or address clients reach the router by; repeat for more "
-        "(the router's certificate is valid for these only; the first is the clients' "
-        "default endpoint; default 127.0.0.1 and localhost)",
-    )
-    sc.add_argument("--days", type=int, help="a new site: certificate lifetime (default 365)")
-    sc.add_argument(
-        "--junction",
-        action="append",
-        help="a new site: a junction it serves (the roles' --junction); repeat for more; the "
-        "rules name these and no other (default C, the built-in layouts' junction)",
-    )
-    sc.add_argument(
-        "--force",
-        action="store_true",
-        help="replace a site written before; with --add-agent, a new password for an agent "
-        "the site has",
-    )
+    options.add(sc, "site", "--host", "--days", "site-junction", "--force")
+    options.add(sc.add_mutually_exclusive_group(), "site-agents", "--add-agent", "--revoke-agent")
     sc.set_defaults(func=cmd_secure_config)
 
     sub.add_parser("experiment", help="a grid of runs in parallel, resumable (see its --help)")
@@ -450,23 +374,31 @@ def parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
+    try:
+        return _dispatch(argv)
+    except UsageError as e:
+        print(f"dica: {e}", file=sys.stderr)
+        return 2
+    except SystemExit as e:  # --help, or a command line refused in one line (options.Parser)
+        return e.code if isinstance(e.code, int) else 1
+    except KeyboardInterrupt:
+        print("dica: interrupted", file=sys.stderr)
+        return 130
+    except BrokenPipeError:  # output piped into head and the like
+        sys.stderr.close()
+        return 0
+
+
+BENCHES = ("ica", "run", "cluster", "timing", "ordering")
+
+
+def _dispatch(argv: list[str]) -> int:
     # these subcommands parse their own options (and --help)
-    if argv and argv[0] in ("experiment", "report"):
-        from dica.tools import experiment, report
+    if argv and argv[0] in ("experiment", "report", "link"):
+        from dica.tools import experiment, link, report
 
-        try:
-            return (experiment if argv[0] == "experiment" else report).main(argv[1:])
-        except KeyboardInterrupt:
-            return 130
-    if argv and argv[0] == "link":
-        from dica.deploy import linkem
-
-        try:
-            return linkem.main(argv[1:])
-        except KeyboardInterrupt:
-            return 130
-    benches = ("ica", "run", "cluster", "timing", "ordering")
-    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in benches:
+        return {"experiment": experiment, "report": report, "link": link}[argv[0]].main(argv[1:])
+    if len(argv) >= 2 and argv[0] == "bench" and argv[1] in BENCHES:
         from dica.tools import bench_cluster, bench_ica, bench_ordering, bench_run, bench_timing
 
         bench = {
@@ -476,22 +408,9 @@ def main(argv: list[str] | None = None) -> int:
             "timing": bench_timing,
             "ordering": bench_ordering,
         }[argv[1]]
-        try:
-            return bench.main(argv[2:])
-        except KeyboardInterrupt:
-            return 130
-    args = parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except UsageError as e:
-        print(f"dica: {e}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("dica: interrupted", file=sys.stderr)
-        return 130
-    except BrokenPipeError:  # output piped into head and the like
-        sys.stderr.close()
-        return 0
+        return bench.main(argv[2:])
+    args = options.parse(parser(), argv)
+    return args.func(args)
 
 
 if __name__ == "__main__":

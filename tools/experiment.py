@@ -26,6 +26,8 @@ from concurrent.futures import ThreadPoolExecutor, as_completed
 from itertools import product
 from pathlib import Path
 
+from dica.tools import options
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -58,14 +60,12 @@ _ramps = _list_of(_ramp, "ramps FROM-TO (volumes)")
 
 
 def parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = options.Parser(
         prog="dica experiment",
         description="Run a grid of SUMO simulations (algorithms x volumes x seeds) in parallel. "
         "Cells already done are skipped; run `dica report OUT` afterwards.",
     )
-    from dica.sim_gateway.scenario import LAYOUTS
-
-    p.add_argument("--layout", choices=LAYOUTS, default="ch45")
+    options.add(p, "--layout")
     p.add_argument(
         "--algorithms",
         default="enhanced,fixed,actuated",
@@ -84,11 +84,10 @@ def parser() -> argparse.ArgumentParser:
         help="also volumes rising linearly over the run, FROM-TO comma-separated (100-1000)",
     )
     p.add_argument("--seeds", type=_ints, default=[12, 21, 66])
-    p.add_argument("--duration", type=float, default=600.0)
+    options.add(p, "--duration")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel runs")
-    p.add_argument("--out", type=Path, required=True, help="grid directory")
+    options.add(p, "--out", "--quiet", out={"help": "grid directory", "required": True})
     p.add_argument("--extra", default="", help="extra options for every `dica run`, quoted")
-    p.add_argument("--quiet", action="store_true")
     return p
 
 
@@ -111,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from tqdm import tqdm
 
-    args = parser().parse_args(_joined_extra(sys.argv[1:] if argv is None else argv))
+    args = options.parse(parser(), _joined_extra(sys.argv[1:] if argv is None else argv))
     if args.jobs < 1:
         print("dica experiment: --jobs must be at least 1", file=sys.stderr)
         return 2
@@ -152,7 +151,7 @@ def main(argv: list[str] | None = None) -> int:
             *shlex.split(args.extra),
         ]
         cells.append((cell, cmd))
-    args.out.mkdir(parents=True, exist_ok=True)
+    options.out_dir(args.out)
     (args.out / "experiment.json").write_text(
         json.dumps({"layout": args.layout, "cells": [c[1][3:] for c in cells]}, indent=2)
     )

@@ -30,7 +30,6 @@ solver (``rdica-exact``, ``rdica-ga``, ``rdica-exhaustive``).
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 import sys
@@ -38,6 +37,8 @@ from collections import defaultdict
 from pathlib import Path
 
 import numpy as np
+
+from dica.tools import options
 
 FIELDS = [
     ("throughput", "rho", "{:.3f}"),
@@ -441,15 +442,17 @@ def plots(agg: dict[tuple, dict], out: Path) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    p = options.Parser(
         prog="dica report",
         description="Tables (markdown) and plots (PNG) from a directory of `dica run` outputs, "
         "averaged over seeds.",
     )
     p.add_argument("runs", type=Path, help="directory holding run directories (any depth)")
-    p.add_argument("--out", type=Path, help="where report.md and the PNGs go (default RUNS/report)")
-    p.add_argument("--json", action="store_true", help="also write report.json")
-    args = p.parse_args(argv)
+    options.add(
+        p, "--out", "--json", out={"help": "where report.md and the PNGs go (default RUNS/report)"},
+        json={"help": "also write report.json"},
+    )  # fmt: skip
+    args = options.parse(p, argv)
     if not args.runs.is_dir():
         print(f"dica report: no such directory: {args.runs}", file=sys.stderr)
         return 2

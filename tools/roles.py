@@ -15,17 +15,9 @@ import json
 import time
 from pathlib import Path
 
-from dica.tools.args import (
-    UsageError,
-    add_net_args,
-    add_plan_args,
-    add_platoon_arg,
-    add_run_args,
-    headway_s,
-    intersection,
-    report_run,
-    run_config,
-)
+from dica.tools import options
+from dica.tools.args import add_run_args, headway_s, intersection, report_run, run_config
+from dica.tools.options import UsageError
 
 
 def _add_link_args(p: argparse.ArgumentParser) -> None:
@@ -47,7 +39,7 @@ def _add_link_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--seal", type=Path, help="this role's signing key (NAME.seal): seal what it sends"
     )
-    p.add_argument("--verbose", action="store_true", help="debug logging")
+    options.add(p, "--verbose")
 
 
 def _session(args: argparse.Namespace, role: str, signer: str | None = None):
@@ -156,10 +148,6 @@ def cmd_ica(args: argparse.Namespace) -> int:
     from dica.ica.journal import Journal, JournalError
     from dica.ica.service import IcaService, write_stats
 
-    if not 0.1 <= args.tile_size <= 10.0:
-        raise UsageError("--tile-size must be between 0.1 and 10 m")
-    if args.idle_exit is not None and not 0 < args.idle_exit <= 86400:
-        raise UsageError("--idle-exit must be between 0 and 86400 s")
     inter = intersection(args)
     try:
         # reactive DICA's revoked vehicles drop their plans and ask again: the ICA cannot
@@ -218,8 +206,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
     from dica.vehicle_agent.agent import Agent
 
     inter = intersection(args)
-    lead = None if args.lead == "auto" else _seconds(args.lead, "--lead", 0.0, 9.0)
-    _seconds(str(args.retry), "--retry", 0.05, 60.0)
+    lead = None if args.lead == "auto" else args.lead
     try:
         config = ControllerSpec.of("enhanced", args.margin).config
     except ValueError as e:
@@ -249,16 +236,6 @@ def cmd_agent(args: argparse.Namespace) -> int:
     return 0
 
 
-def _seconds(text: str, flag: str, lo: float, hi: float) -> float:
-    try:
-        x = float(text)
-    except ValueError:
-        raise UsageError(f"{flag} wants a number of seconds, got {text!r}") from None
-    if not lo <= x <= hi:
-        raise UsageError(f"{flag} must be between {lo:g} and {hi:g} s, got {x:g}")
-    return x
-
-
 # -- gateway -------------------------------------------------------------------
 def cmd_gateway(args: argparse.Namespace) -> int:
     from dica.sim_gateway.gateway import ZenohDrivers, run_gateway
@@ -267,24 +244,10 @@ def cmd_gateway(args: argparse.Namespace) -> int:
 
     if args.algorithm in LIGHTS:
         raise UsageError("the cluster runs ICA controllers; run the light baselines with dica run")
-    if not 0 < args.speed <= 100:
-        raise UsageError("--speed must be in (0, 100]")
-    if not 0.05 <= args.resend <= 30:
-        raise UsageError("--resend must be between 0.05 and 30 s")
-    if not 1 <= args.step_timeout <= 3600:
-        raise UsageError("--step-timeout must be between 1 and 3600 s")
-    if not 1 <= args.checkpoint_every <= 3600:
-        raise UsageError("--checkpoint-every must be between 1 and 3600 s")
-    for flag, value, lo in (("--agents", args.agents, 1), ("--observers", args.observers, 0),
-                            ("--per-agent", args.per_agent, 0)):  # fmt: skip
-        if not lo <= value <= 10_000:
-            raise UsageError(f"{flag} must be between {lo} and 10000, got {value}")
-    if not 0 < args.peers_timeout <= 3600 or not 0 < args.progress_every <= 86400:
-        raise UsageError("--peers-timeout and --progress-every must be positive")
     cfg, inter = run_config(args)
     if cfg.algorithm == "rdica":  # the cluster's way: no ICA re-plans over a link
         cfg = dataclasses.replace(cfg, revocation="drop")
-    out = args.out or Path("runs") / time.strftime("cluster-%Y%m%d-%H%M%S")
+    out = options.out_dir(args.out or Path("runs") / time.strftime("cluster-%Y%m%d-%H%M%S"))
     session, log = _session(args, "gateway")
     try:
         drivers = ZenohDrivers(
@@ -335,9 +298,6 @@ def cmd_observer(args: argparse.Namespace) -> int:
     session, log = _session(args, "observer")
     from dica.sim_gateway.observer import Observer
 
-    if not 1 <= args.grpc_port <= 65535:
-        session.close()
-        raise UsageError("--grpc-port must be between 1 and 65535")
     live = args.grpc_port if args.live else None
     try:
         obs = Observer(
@@ -383,7 +343,7 @@ def add_role_parsers(sub) -> None:
         help="log every message its access rules refuse, with the user who sent it (costs "
         "some CPU: Zenoh traces every decision, and the router keeps the refusals)",
     )
-    r.add_argument("--verbose", action="store_true")
+    options.add(r, "--verbose")
     r.set_defaults(func=cmd_router)
 
     i = sub.add_parser(
@@ -393,43 +353,15 @@ def add_role_parsers(sub) -> None:
         "confirmations on dica/<junction>/confirmed/<vin>, follows the sim clock. Stops on "
         "SIGTERM or when the clock announces the end of the run.",
     )
-    add_net_args(i)
-    i.add_argument(
-        "--algorithm",
-        default="enhanced",
-        help="basic, enhanced, t1..t4, fifo, ..., or rdica (reactive DICA: emergency vehicles "
-        "first; revoked vehicles drop their plans and ask again)",
-    )
-    i.add_argument(
-        "--solver",
-        choices=("exact", "ga", "exhaustive"),
-        default="exact",
-        help="rdica's ordering solver (default exact)",
-    )
-    i.add_argument("--seed", type=int, default=12, help="rdica's GA seed (the run's seed)")
-    i.add_argument("--margin", type=float, default=0.25, help="safety margin per side [m]")
-    i.add_argument(
-        "--time-pad",
-        type=float,
-        default=0.0,
-        help="how far off its plan in time a vehicle may be [s]: every confirmed occupancy "
-        "interval is grown by it on each side (default 0: exact actuators, as in lockstep)",
-    )
-    add_platoon_arg(i)
-    add_plan_args(i)
-    i.add_argument(
-        "--max-age",
-        type=float,
-        default=1.0,
-        help="oldest observation a REQUEST may be planned from [sim s] (default 1)",
-    )
-    i.add_argument("--tile-size", type=float, default=1.0, help="tile edge for tiles [m]")
-    i.add_argument(
-        "--out",
-        type=Path,
-        help="directory for ica.json (request statistics) and, unless --journal says "
-        "otherwise, the journal ica-journal.msgpack",
-    )
+    options.add(
+        i, *options.NET, "--algorithm", "--solver", "--seed", *options.PLAN, "--max-age",
+        "--tile-size", "--out", "--idle-exit",
+        algorithm={"help": options.ALGORITHMS_HELP + " (revoked vehicles drop their plans "
+                   "and ask again)"},
+        seed={"help": "rdica's GA seed (the run's seed; default 12)"},
+        out={"help": "directory for ica.json (request statistics) and, unless --journal says "
+             "otherwise, the journal ica-journal.msgpack"},
+    )  # fmt: skip
     i.add_argument(
         "--journal",
         type=Path,
@@ -441,7 +373,6 @@ def add_role_parsers(sub) -> None:
         action="store_true",
         help="do not fsync each journal record (faster, less safe)",
     )
-    i.add_argument("--idle-exit", type=float, help="stop after this many seconds without traffic")
     _add_link_args(i)
     i.set_defaults(func=cmd_ica)
 
@@ -454,16 +385,13 @@ def add_role_parsers(sub) -> None:
         "(--per-agent).",
     )
     a.add_argument("--id", required=True, help="this agent's name (letters, digits, _.:-+)")
-    add_net_args(a)
-    a.add_argument("--margin", type=float, default=0.25, help="the ICA's margin [m]")
-    a.add_argument("--retry", type=float, default=0.5, help="sim seconds before asking again")
-    a.add_argument(
-        "--lead",
-        default="auto",
-        help="realtime: how far ahead of its observation a REQUEST's plan starts [sim s]; "
-        "auto (default) uses the measured round trip plus a margin. Lockstep always plans "
-        "from the observed state.",
-    )
+    options.add(
+        a, *options.NET, "--margin", "--retry", "--lead",
+        lead={"type": options.seconds_or_auto, "default": "auto",
+              "help": "realtime: how far ahead of its observation a REQUEST's plan starts "
+              "[sim s]; auto (default) uses the measured round trip plus a margin. Lockstep "
+              "always plans from the observed state."},
+    )  # fmt: skip
     _add_link_args(a)
     a.set_defaults(func=cmd_agent)
 
@@ -475,26 +403,14 @@ def add_role_parsers(sub) -> None:
         "recording over gRPC on 127.0.0.1 while it writes, for dica view --live. Stops at the "
         "run's end or on SIGTERM.",
     )
-    add_net_args(o)
+    options.add(o, *options.NET, "--margin", "--time-pad")
     o.add_argument("--rrd", type=Path, required=True, help="the .rrd file to write")
-    o.add_argument("--margin", type=float, default=0.25, help="the ICA's margin [m]")
-    o.add_argument(
-        "--time-pad",
-        type=float,
-        default=0.0,
-        help="the ICA's time padding [s]: reserved intervals are drawn that much wider",
-    )
     o.add_argument(
         "--live",
         action="store_true",
         help="also serve the recording on 127.0.0.1 as it is made (watch: dica view --live)",
     )
-    o.add_argument(
-        "--grpc-port",
-        type=int,
-        default=9876,
-        help="port of the live recording on 127.0.0.1 (with --live; default 9876)",
-    )
+    options.add(o, "--grpc-port")
     _add_link_args(o)
     o.set_defaults(func=cmd_observer)
 
@@ -505,31 +421,11 @@ def add_role_parsers(sub) -> None:
         "the agents' commands, and writes the same metrics.json, vehicles.csv and "
         "timeseries.csv as dica run. Waits for the ICA and --agents agents first.",
     )
-    add_run_args(g)
-    g.add_argument("--agents", type=int, default=1, help="vehicle-agent processes to wait for")
-    g.add_argument(
-        "--observers", type=int, default=0, help="observer processes to wait for (default 0)"
-    )
-    g.add_argument(
-        "--per-agent", type=int, default=0, help="most vehicles one agent hosts (0: no limit)"
-    )
-    g.add_argument("--clock", choices=["lockstep", "realtime"], default="lockstep")
-    g.add_argument("--speed", type=float, default=1.0, help="realtime clock: x wall-clock speed")
-    g.add_argument("--step-timeout", type=float, default=30.0, help="lockstep: wait per step [s]")
-    g.add_argument(
-        "--resend",
-        type=float,
-        default=0.5,
-        help="lockstep: send a STATE again after this many wall seconds without its COMMAND",
-    )
-    g.add_argument(
-        "--checkpoint-every",
-        type=float,
-        default=30.0,
-        help="write what the run knows (marked incomplete) every N sim seconds (default 30)",
-    )
-    g.add_argument("--peers-timeout", type=float, default=60.0, help="wait for peers at start [s]")
-    g.add_argument("--progress-every", type=float, default=30.0, help="log a line every N sim s")
-    g.add_argument("--out", type=Path, help="output directory (default runs/cluster-TIMESTAMP)")
+    add_run_args(g, algorithm={"help": options.ALGORITHMS_HELP})
+    options.add(
+        g, "--agents", "--observers", "--per-agent", "--clock", "--speed", "--step-timeout",
+        "--resend", "--checkpoint-every", "--peers-timeout", "--progress-every", "--out",
+        out={"help": "output directory (default runs/cluster-TIMESTAMP)"},
+    )  # fmt: skip
     _add_link_args(g)
     g.set_defaults(func=cmd_gateway)

@@ -92,7 +92,7 @@ prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1
 layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
 delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
-max_age="" restart=1 router_rules=1 ev_prob="" solver=exact platoon=(--platoon) headway="" run_up=(--run-up)
+max_age="" restart=1 router_rules=1 ev_prob="" solver="" platoon=(--platoon) headway="" run_up=(--run-up)
 exit_spacing=(--exit-spacing)
 extra=()
 while [ $# -gt 0 ]; do
@@ -145,8 +145,9 @@ prob --loss "$loss"; prob --dup "$dup"; prob --reorder "$reorder"
 [ -z "$max_age" ] || number --max-age "$max_age"
 [ -z "$ev_prob" ] || number --ev-prob "$ev_prob"
 [ -z "$headway" ] || { number --headway "$headway"; platoon+=(--headway "$headway"); }
-case "$solver" in exact|ga|exhaustive) ;; *) die "--solver must be exact, ga or exhaustive" ;; esac
-ev_args=(--solver "$solver")
+solver_args=()  # the roles refuse a --solver that is not rdica's, and one they do not know
+[ -z "$solver" ] || solver_args=(--solver "$solver")
+ev_args=("${solver_args[@]}")
 [ -z "$ev_prob" ] || ev_args+=(--ev-prob "$ev_prob")
 [ "$lead" = auto ] || number --lead "$lead"
 [ -z "$port" ] || [[ "$port" =~ ^[0-9]+$ ]] || die "--port wants a port number"
@@ -330,7 +331,8 @@ link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to
 }
 link_for ica ica
 start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" \
-  --time-pad "$time_pad" --max-age "$max_age" --solver "$solver" --seed "$seed" "${platoon[@]}" \
+  --time-pad "$time_pad" --max-age "$max_age" --seed "$seed" "${solver_args[@]}" \
+  "${platoon[@]}" \
   "${run_up[@]}" "${exit_spacing[@]}" "${role_link[@]}"
 if [ "$record" = 1 ]; then
   link_for observer observer

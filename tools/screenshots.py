@@ -12,13 +12,14 @@ the whole script takes a few minutes.
 
 from __future__ import annotations
 
-import argparse
 import io
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
+
+from dica.tools import options
 
 ROOT = Path(__file__).resolve().parent.parent
 WIDTH_PX, HEIGHT_PX = 1600, 1000  # the browser window
@@ -101,12 +102,19 @@ def settled(browser, before: bytes, timeout_s: float = 60.0) -> bytes:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="screenshots", description=__doc__.split("\n\n")[0])
-    ap.add_argument("--out", type=Path, default=ROOT / "docs" / "recording")
+    ap = options.Parser(prog="screenshots", description=__doc__.split("\n\n")[0])
+    options.add(
+        ap,
+        "--out",
+        out={
+            "default": ROOT / "docs" / "recording",
+            "help": "where the PNGs go (default docs/recording)",
+        },
+    )
     ap.add_argument("--at", type=float, default=80.0, help="sim time of the pictures [s]")
     ap.add_argument("--rrd", type=Path, help="use this recording instead of making one")
     ap.add_argument("--timeout", type=float, default=600.0, help="[s] for the viewer to load")
-    args = ap.parse_args(argv)
+    args = options.parse(ap, argv)
     if args.at <= 0:
         print("screenshots: --at must be positive", file=sys.stderr)
         return 2

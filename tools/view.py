@@ -20,6 +20,8 @@ from pathlib import Path
 from types import FrameType
 from urllib.parse import quote
 
+from dica.tools import options
+
 DESCRIPTION = """Open the Rerun recording (.rrd) of a run directory, or watch a run live.
 
 Without --web, starts Rerun's desktop viewer on the recording. With --web,
@@ -174,23 +176,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="watch a running observer (started with --live) instead of a file",
     )
-    p.add_argument(
-        "--port", type=int, default=9090, help="web viewer HTTP port (with --web; default 9090)"
-    )
-    p.add_argument(
-        "--grpc-port",
-        type=int,
-        default=9876,
-        help="port the web viewer streams the recording from (with --web), or the live "
-        "observer's port (with --live); default 9876",
-    )
+    options.add(
+        p, "--port", "--grpc-port",
+        grpc_port={"help": "port the web viewer streams the recording from (with --web), or "
+                   "the live observer's port (with --live); default 9876"},
+    )  # fmt: skip
 
 
 def main(args: argparse.Namespace) -> int:
     """Entry point for ``dica view``; raises ViewError (exit 2) or ViewerFailed (exit 1)."""
-    for name in ("port", "grpc_port"):
-        if not 1 <= getattr(args, name) <= 65535:
-            raise ViewError(f"--{name.replace('_', '-')} must be between 1 and 65535")
     if args.web and args.port == args.grpc_port:
         raise ViewError("--port and --grpc-port must differ")
     if args.live:
