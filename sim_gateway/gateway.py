@@ -30,6 +30,7 @@ incomplete), so a crash of the gateway itself loses at most that interval.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import math
@@ -534,6 +535,11 @@ class ZenohDrivers:
                 )  # fmt: skip
                 for vin in gone:
                     self.known.discard(vin)
+                    # handed over now, not at the next step: a restarted agent of the same
+                    # name may be back by then and would find them still its own
+                    if any(a != name for a in self.alive):
+                        with contextlib.suppress(RunError):  # no room: the next step says so
+                            self._assign(vin)
         elif item.what == "observer" and item.key.startswith(self._observer_key):
             if not _is_name(name):
                 return

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -29,7 +30,7 @@ from dica.tools.loopback import free_port
 from tests.cluster_proc import logs_tail, stop_cluster
 
 ROOT = Path(__file__).resolve().parents[1]
-DICA = [sys.executable, "-m", "tools.cli"]
+DICA = [sys.executable, "-m", "dica.tools.cli"]
 
 
 def _start_cluster(out: Path, *args: str, gateway: tuple[str, ...] = ()) -> subprocess.Popen:
@@ -220,7 +221,12 @@ def test_a_killed_agent_hands_its_vehicles_over_and_the_run_goes_on(tmp_path):
         out, 20, *("--clock", "realtime", "--speed", "2", "--volume", "500"),
         *("--duration", "60", "--seed", "12", "--delay", "20"),
     )  # fmt: skip
-    assert m["adoptions"] >= 1  # its vehicles went to a live agent
+    # every vehicle it hosted went to the live agent at once, however soon it came back
+    # (under load a restarted agent-2 could be back before the gateway's next step)
+    log = (out / "logs" / "gateway.log").read_text()
+    handed = [int(n) for n in re.findall(r"agent agent-2 is gone; (\d+) of its vehicles", log)]
+    assert handed and handed[0] >= 1, log[-2000:]
+    assert m["adoptions"] >= handed[0]
     assert m["crossed"] >= 30
     assert "restarting agent-2" in (out / "logs" / "restarts.log").read_text()
 
