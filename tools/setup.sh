@@ -28,5 +28,8 @@ if [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
   .venv/bin/python -m pip install -q --upgrade pip
   # the build backend warns about editable installs on every run; nothing to act on
   PYTHONWARNINGS=ignore .venv/bin/python -m pip install -q -e '.[dev]'
+  # numba's on-disk caches of the compiled kernels name the modules they came from; one
+  # written under an older layout fails to load once a module has moved: compile anew
+  find ica sim_gateway vehicle_agent -name '*.nb[ic]' -delete 2>/dev/null || true
   echo "$want" > "$stamp"
 fi
