@@ -27,7 +27,7 @@ from dica.tools.loopback import free_port
 from tests.cluster_proc import logs_tail, stop_cluster
 
 ROOT = Path(__file__).resolve().parents[1]
-DICA = [sys.executable, "-m", "tools.cli"]
+DICA = [sys.executable, "-m", "dica.tools.cli"]
 COMMON = ["--volume", "500", "--duration", "40", "--seed", "21"]
 
 

@@ -28,7 +28,7 @@ from dica.tools.loopback import free_port, router_and_ica
 from tests.cluster_proc import logs_tail, stop_cluster
 
 ROOT = Path(__file__).resolve().parents[1]
-DICA = [sys.executable, "-m", "tools.cli"]
+DICA = [sys.executable, "-m", "dica.tools.cli"]
 
 
 _free_port = free_port

@@ -63,7 +63,7 @@ def scripted(algorithm: str) -> dict:
 
 def dica(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
+        [sys.executable, "-m", "dica.tools.cli", *args],
         capture_output=True,
         text=True,
         cwd=ROOT,

@@ -782,7 +782,7 @@ def test_view_without_a_recording_is_one_line_and_status_2(case, tmp_path, capsy
 def test_view_web_serves_on_loopback_and_stops_its_viewer(recorded):
     path, _, _ = recorded
     port, grpc = _free_port(), _free_port()
-    cmd = [sys.executable, "-m", "tools.cli", "view", "--web", "--port", str(port)]
+    cmd = [sys.executable, "-m", "dica.tools.cli", "view", "--web", "--port", str(port)]
     cmd += ["--grpc-port", str(grpc), str(path.parent)]
     proc = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True
@@ -811,7 +811,7 @@ def test_view_live_web_points_the_page_at_the_live_observer(ch45, tmp_path):
     live = _free_port()
     rec = SpaceTimeRecorder(ch45, tmp_path / "live.rrd", live_port=live)
     port = _free_port()
-    cmd = [sys.executable, "-m", "tools.cli", "view", "--live", "--web", "--port", str(port)]
+    cmd = [sys.executable, "-m", "dica.tools.cli", "view", "--live", "--web", "--port", str(port)]
     cmd += ["--grpc-port", str(live)]
     proc = subprocess.Popen(
         cmd, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True, start_new_session=True

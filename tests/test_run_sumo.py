@@ -31,7 +31,7 @@ KEYS = {
 
 def dica(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
     return subprocess.run(
-        [sys.executable, "-m", "tools.cli", *args],
+        [sys.executable, "-m", "dica.tools.cli", *args],
         capture_output=True,
         text=True,
         cwd=ROOT,

@@ -118,7 +118,7 @@ def test_lights_never_collide_on_junctions_signalised_by_netconvert(
     args = ["--net", str(net), "--junction", "J", "--algorithm", algorithm, "--volume", "500"]
     args += ["--duration", "180", "--seed", "12", "--out", str(out), "--quiet"]
     p = subprocess.run(
-        [sys.executable, "-m", "tools.cli", "run", *args],
+        [sys.executable, "-m", "dica.tools.cli", "run", *args],
         capture_output=True,
         text=True,
         cwd=ROOT,

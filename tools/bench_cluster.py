@@ -28,7 +28,7 @@ from dica.tools import options
 from dica.tools.loopback import router_and_ica
 
 ROOT = Path(__file__).resolve().parents[1]
-DICA = [sys.executable, "-m", "tools.cli"]
+DICA = [sys.executable, "-m", "dica.tools.cli"]
 
 
 def round_trips(n: int) -> dict:

@@ -28,7 +28,7 @@ LOOP = re.compile(r"simulated in ([0-9.]+) s")
 
 def one_run(out: Path, record: bool, volume: int, duration_s: float) -> tuple[float, float]:
     """(loop seconds, whole command seconds) of one ``dica run``."""
-    cmd = [sys.executable, "-m", "tools.cli", "run", "--volume", str(volume)]
+    cmd = [sys.executable, "-m", "dica.tools.cli", "run", "--volume", str(volume)]
     cmd += ["--duration", str(duration_s), "--out", str(out)]
     if record:
         cmd.append("--record")

@@ -25,7 +25,7 @@ def one(algorithm: str, volume: float, duration: float, seed: int) -> dict:
         cmd = [
             sys.executable,
             "-m",
-            "tools.cli",
+            "dica.tools.cli",
             "run",
             "--algorithm",
             algorithm,

@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
         rrd = args.rrd
         if rrd is None:
             out = Path(tmp) / "run"
-            cmd = [sys.executable, "-m", "tools.cli", "run", "--volume", str(args.volume)]
+            cmd = [sys.executable, "-m", "dica.tools.cli", "run", "--volume", str(args.volume)]
             cmd += ["--duration", str(args.duration), "--record", "--quiet", "--out", str(out)]
             subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
             rrd = out / "spacetime.rrd"

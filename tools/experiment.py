@@ -131,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         cmd = [
             sys.executable,
             "-m",
-            "tools.cli",
+            "dica.tools.cli",
             "run",
             "--layout",
             args.layout,

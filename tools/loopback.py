@@ -16,7 +16,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-DICA = [sys.executable, "-m", "tools.cli"]
+DICA = [sys.executable, "-m", "dica.tools.cli"]
 
 
 def free_port() -> int:

@@ -35,7 +35,7 @@ def ensure_chromium() -> None:
 
 
 def make_recording(out: Path, volume: int, duration_s: float, seed: int) -> Path:
-    cmd = [sys.executable, "-m", "tools.cli", "run", "--volume", str(volume)]
+    cmd = [sys.executable, "-m", "dica.tools.cli", "run", "--volume", str(volume)]
     cmd += ["--duration", str(duration_s), "--seed", str(seed), "--record", "--quiet"]
     cmd += ["--out", str(out)]
     subprocess.run(cmd, check=True, cwd=ROOT, stdout=subprocess.DEVNULL)
