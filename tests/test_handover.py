@@ -168,6 +168,7 @@ def test_a_vehicle_that_has_left_still_spaces_the_next(ch45, pad):
     assert c.t_s[-1] >= a.t_s[-1] + sep + 2.0 * pad - 1e-9
 
 
+@pytest.mark.sumo
 def test_heavy_traffic_with_exit_spacing_is_safe_and_waits_less(tmp_path):
     """Volume 800 on the chapter 4-5 layout: zero collisions by both checks with
     and without exit spacing, and less delay from the schedule with it."""

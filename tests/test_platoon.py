@@ -154,6 +154,7 @@ def test_stop_law_bound_is_kept_for_a_standing_vehicle():
     assert moving.stop_time_s() > 0.0
 
 
+@pytest.mark.sumo
 def test_platoons_cross_heavy_traffic_safely_with_fewer_stops(tmp_path):
     """Volume 500 on the chapter 4-5 junction, the same seed with and without platoons:
     zero collisions by both checks in both, and platoons stop fewer vehicles (over
@@ -247,6 +248,7 @@ def test_a_vehicle_may_follow_only_a_leader_with_a_plan_far_enough_ahead(ch45):
     assert w._may_follow(back, 0.0, 10.0)  # standing, it may (it can wait where it is)
 
 
+@pytest.mark.sumo
 def test_plans_asked_ahead_of_time_start_where_the_vehicles_will_be(tmp_path):
     """With a lead, a platoon's follower is told where its actuator will take it behind
     its moving leader (Observation.intent_m): no plan is found off its start."""

@@ -6,6 +6,8 @@ import json
 import subprocess
 import sys
 
+import pytest
+
 from dica.ica.core.config import IcaConfig
 from dica.ica.core.dica import Dica
 from dica.ica.core.proposal import propose
@@ -78,10 +80,11 @@ def test_a_lane_s_order_is_kept_and_unknown_requests_come_last(ch45):
     assert sorted(order) == ["a", "b", "ghost", "x"]
 
 
+@pytest.mark.sumo
 def test_a_windowed_run_in_sumo_is_safe_and_reorders(tmp_path):
     out = tmp_path / "w"
     p = subprocess.run(
-        [sys.executable, "-m", "tools.cli", "run", "--volume", "500", "--duration", "150",
+        [sys.executable, "-m", "dica.tools.cli", "run", "--volume", "500", "--duration", "150",
          "--window", "0.5", "--out", str(out), "--quiet"],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )  # fmt: skip
