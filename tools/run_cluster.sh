@@ -391,7 +391,7 @@ complete=$("$py" -c 'import json, sys; print(json.load(open(sys.argv[1])).get("c
 if [ "$complete" != True ]; then  # exit 1 with complete metrics: the run finished, and collided
   [ "$status" = 0 ] && status=1
   echo "run_cluster: the gateway stopped the run (exit status $status):" >&2
-  grep -E 'ERROR|dica:' "$out/logs/gateway.log" | tail -n 5 >&2 || true
+  grep -E 'ERROR|^dica( [a-z-]+)?: ' "$out/logs/gateway.log" | tail -n 5 >&2 || true
   if [ -f "$out/metrics.json" ]; then
     echo "run_cluster: what the run knew by then (marked incomplete): $out/metrics.json" >&2
   fi
