@@ -164,7 +164,7 @@ def test_without_evs_the_files_have_no_ev_column(tmp_path):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--ev-prob", "1.5"], "--ev-prob 1.5 is not a probability"),
+        (["--ev-prob", "1.5"], "--ev-prob must be between 0 and 1, got 1.5"),
         (["--algorithm", "rdica", "--solver", "annealing"], "invalid choice"),
     ],
 )
