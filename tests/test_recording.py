@@ -35,7 +35,7 @@ from dica.ica.core.request import Confirmation
 from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.zones import ConflictTables, Shape
 from dica.sim_gateway.conflict_points import covers, find_conflict_points
-from dica.sim_gateway.recording import (
+from dica.sim_gateway.recording.recorder import (
     CHART_EVERY,
     CHART_M_PER_S,
     PAST_S,
