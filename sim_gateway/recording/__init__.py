@@ -1,15 +1,11 @@
 """A Rerun recording of a run: the junction, every reservation, and what vehicles did.
 
-:class:`SpaceTimeRecorder` (in :mod:`.recorder`) composes the parts; what the
-recording shows and how to read it is in ``docs/recording.md``.
+:class:`SpaceTimeRecorder` composes the parts; what the recording shows and
+how to read it is in ``docs/recording.md``.
 """
 
-from dica.sim_gateway.recording.recorder import (
-    STATUS_STYLE,
-    TOP_EVERY,
-    SpaceTimeRecorder,
-    Status,
-    approach_of,
-)
+from dica.sim_gateway.recording.geometry import approach_of
+from dica.sim_gateway.recording.recorder import TOP_EVERY, SpaceTimeRecorder
+from dica.sim_gateway.recording.style import STATUS_STYLE, Status
 
 __all__ = ["STATUS_STYLE", "TOP_EVERY", "SpaceTimeRecorder", "Status", "approach_of"]

@@ -29,20 +29,15 @@ and at the end: a 10-minute run makes about a hundred chunks. A live
 recording sends every LIVE_FLUSH_S instead, so that viewers see the run as
 it goes.
 
-States. :data:`STATUS_STYLE` is the one table of vehicle states, their names
-and colours, and :func:`vehicle_statuses` the one place that decides a
-vehicle's state: a new state (an emergency vehicle) is one row there and one
-line there.
+How it looks (colours, states, legends) is in :mod:`.style`; the frames and
+shapes in :mod:`.geometry`.
 """
 
 from __future__ import annotations
 
-import colorsys
 import math
-import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
-from enum import IntEnum
 from pathlib import Path
 from typing import Any
 
@@ -61,9 +56,44 @@ from dica.sim_gateway.conflict_points import (
     find_conflict_points,
     holding,
 )
+from dica.sim_gateway.recording.geometry import (
+    FLIP_Y,
+    LANE_WIDTH_M,
+    RouteProjector,
+    across,
+    approach_of,
+    clipped,
+    lane_major,
+    offset,
+    outlines,
+    route_lanes,
+    sumo_heading_rad,
+)
+from dica.sim_gateway.recording.style import (
+    EMERGENCY_RGBA,
+    ENTRY_RGB,
+    FRAME_RGB,
+    GRID_RGB,
+    LANE_CHART_LEGEND,
+    LANE_EDGE_RGB,
+    NOW_RGBA,
+    OVERRUN_RGB,
+    PLAN_ALPHA,
+    REGION_RGB,
+    REGION_START_RGB,
+    ROUTE_RGB,
+    ROW_GRID_RGB,
+    STATUS_RGBA,
+    TEXT_RGB,
+    ZONE_LEGEND,
+    VehicleColours,
+    rgba,
+    row_styles,
+    top_legend,
+    vehicle_statuses,
+)
 
 TIMELINE = "sim_time"
-LANE_WIDTH_M = 3.2  # [m] SUMO's default; to draw lane edges and to tell "on the route"
 STEP_S = 0.05  # [s] the simulation step the recorder expects
 CHART_M_PER_S = 2.0  # [chart units] width of 1 s in the charts
 PAST_S = 40.0  # [s] of history every chart shows left of "now"
@@ -78,144 +108,6 @@ START_WAIT_S = 60.0  # [s] how long the recording waits for a first confirmation
 FLUSH_S = 20.0  # [s] of simulated time buffered before it is sent (saved file)
 LIVE_FLUSH_S = 1.0  # [s] the same when viewers watch live (and rows are sent then)
 MAX_ROWS = 4096  # rows of one entity sent as one chunk (Rerun's own compaction limit)
-_STRIP_RADIUS_M = 0.08  # [m] outline half-width in the top view
-_OVERRUN = (220, 30, 30)  # actual holding outside its reserved interval
-_GRID = (185, 185, 185)
-_FRAME = (120, 120, 120)
-_FLIP_Y = np.array([1.0, -1.0])
-
-
-class Status(IntEnum):
-    """A vehicle's state as drawn."""
-
-    REQUESTING = 1  # in the region, no confirmation yet
-    CONFIRMED = 2  # confirmed, front before the entry line
-    CROSSING = 3  # front past the entry line, rear not yet past the exit line
-    CLEARED = 4  # rear past the exit line
-    EMERGENCY = 5  # an emergency vehicle, in the region, whatever its state
-
-
-# The one table of states, names and colours (the top view and its legend).
-STATUS_STYLE: dict[Status, tuple[str, tuple[int, int, int]]] = {
-    Status.REQUESTING: ("requesting", (235, 150, 20)),
-    Status.CONFIRMED: ("confirmed", (40, 110, 235)),
-    Status.CROSSING: ("crossing", (20, 165, 60)),
-    Status.CLEARED: ("cleared", (140, 140, 140)),
-    Status.EMERGENCY: ("emergency vehicle", (230, 30, 30)),
-}
-_STATE_RGBA = np.zeros(max(STATUS_STYLE) + 1, dtype=np.uint32)  # packed colour by state
-for _state, (_, _rgb) in STATUS_STYLE.items():
-    _STATE_RGBA[_state] = (_rgb[0] << 24) | (_rgb[1] << 16) | (_rgb[2] << 8) | 0xFF
-RESERVED_RGBA = (40, 110, 235, 90)  # the reserved footprint's margin band
-PLAN_ALPHA = 100  # plans are the vehicle's colour, translucent
-
-
-def vehicle_statuses(
-    confirmed: np.ndarray,
-    s_m: np.ndarray,
-    out_m: np.ndarray,
-    emergency: np.ndarray | None = None,
-) -> np.ndarray:
-    """Status per vehicle from whether it holds a confirmation, its front's distance
-    along its route ``s_m`` (NaN: unknown) and the distance at which its rear is out;
-    an emergency vehicle is EMERGENCY until it has cleared the junction."""
-    st = np.full(len(s_m), int(Status.REQUESTING), dtype=np.uint16)
-    s = np.nan_to_num(s_m, nan=-np.inf)
-    st[confirmed] = Status.CONFIRMED
-    st[confirmed & (s > 0.0)] = Status.CROSSING
-    st[confirmed & (s >= out_m)] = Status.CLEARED
-    if emergency is not None:
-        st[emergency & (st != Status.CLEARED)] = Status.EMERGENCY
-    return st
-
-
-def approach_of(lane: str) -> str:
-    """The incoming edge of a lane id (``N_in_2`` -> ``N_in``)."""
-    return lane.rsplit("_", 1)[0]
-
-
-def rectangles(
-    x_m: np.ndarray,
-    y_m: np.ndarray,
-    heading_rad: np.ndarray,
-    length_m: np.ndarray | float,
-    width_m: np.ndarray | float,
-) -> np.ndarray:
-    """Closed outlines (N, 5, 2) of vehicles given by front-bumper centre and heading.
-
-    Heading is counter-clockwise from +x. The outline is in the viewer's
-    frame, (x, -y), because ``Boxes2D`` cannot rotate and 2D views are y-down.
-    """
-    x = np.asarray(x_m, dtype=float).reshape(-1)
-    y = np.asarray(y_m, dtype=float).reshape(-1)
-    h = np.asarray(heading_rad, dtype=float).reshape(-1)
-    half_l = np.broadcast_to(np.asarray(length_m, dtype=float), x.shape) / 2.0
-    half_w = np.broadcast_to(np.asarray(width_m, dtype=float), x.shape) / 2.0
-    c, s = np.cos(h), np.sin(h)
-    return _outlines(x - c * half_l, y - s * half_l, c, s, half_l, half_w)
-
-
-def _outlines(cx, cy, c, s, half_l, half_w) -> np.ndarray:
-    """Closed outlines (N, 5, 2), viewer frame, of rectangles by centre and unit heading."""
-    along = np.array([1.0, 1.0, -1.0, -1.0, 1.0])
-    across = np.array([1.0, -1.0, -1.0, 1.0, 1.0])
-    dl = along[None, :] * np.reshape(half_l, (-1, 1))
-    dw = across[None, :] * np.reshape(half_w, (-1, 1))
-    px = cx[:, None] + dl * c[:, None] - dw * s[:, None]
-    py = cy[:, None] + dl * s[:, None] + dw * c[:, None]
-    return np.stack([px, -py], axis=-1)
-
-
-def sumo_heading_rad(angle_deg: np.ndarray) -> np.ndarray:
-    """SUMO's angle (degrees, 0 = north, clockwise) as radians CCW from +x."""
-    return np.pi / 2.0 - np.radians(np.asarray(angle_deg, dtype=float))
-
-
-def vehicle_color(vin: str, alpha: int = 0xFF) -> int:
-    """A colour (0xRRGGBBAA) fixed by the VIN, so a plan and its progress match; its hue
-    keeps 25 degrees away from red, the emergency vehicles' colour in the charts."""
-    hue = (25 + zlib.crc32(vin.encode()) % 310) / 360.0
-    r, g, b = (round(c * 255) for c in colorsys.hsv_to_rgb(hue, 0.8, 0.85))
-    return (r << 24) | (g << 16) | (b << 8) | alpha
-
-
-def _rgba(rgb: tuple[int, ...], alpha: int = 255) -> int:
-    r, g, b = rgb[:3]
-    return (r << 24) | (g << 16) | (b << 8) | alpha
-
-
-class RouteProjector:
-    """``Route.project`` for many vehicles on different routes in one numpy pass.
-
-    Routes are padded to the same number of segments by repeating their last
-    segment, which changes no nearest point.
-    """
-
-    def __init__(self, routes: Sequence[Route]) -> None:
-        self.index = {r.id: i for i, r in enumerate(routes)}
-        n_seg = max(len(r.xy) for r in routes) - 1
-        a = np.empty((len(routes), n_seg, 2))
-        d = np.empty_like(a)
-        s0 = np.empty((len(routes), n_seg))
-        for i, r in enumerate(routes):
-            m = len(r.xy) - 1
-            pad = [*range(m), *([m - 1] * (n_seg - m))]
-            a[i] = r.xy[:-1][pad]
-            d[i] = (r.xy[1:] - r.xy[:-1])[pad]
-            s0[i] = r.s[:-1][pad]
-        self._a, self._d, self._s0 = a, d, s0
-        self._len2 = np.einsum("rij,rij->ri", d, d)
-
-    def project(self, route_idx: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Arc length [m] and distance to the route [m] of each point on its own route."""
-        a, d, len2 = self._a[route_idx], self._d[route_idx], self._len2[route_idx]
-        w = xy[:, None, :] - a
-        u = np.clip(np.einsum("nij,nij->ni", w, d) / len2, 0.0, 1.0)
-        dist2 = np.sum((w - u[..., None] * d) ** 2, axis=-1)
-        k = np.argmin(dist2, axis=1)
-        rows = np.arange(len(xy))
-        s = self._s0[route_idx, k] + u[rows, k] * np.sqrt(len2[rows, k])
-        return s, np.sqrt(dist2[rows, k])
 
 
 @dataclass(slots=True)
@@ -274,9 +166,8 @@ class SpaceTimeRecorder:
         routes = intersection.routes
         self.lanes: tuple[str, ...] = intersection.in_lanes
         self._projector = RouteProjector(routes)
-        self._route_lane = np.array([self.lanes.index(r.in_lane) for r in routes])
+        self._route_lane = route_lanes(intersection)
         self._route_end_m = np.array([r.s_max for r in routes])
-        self._route_cross_m = np.array([r.cross_length_m for r in routes])
         self._label_at = _LabelPlaces(intersection)
         shape = shape or Shape(5.0, 1.8)
         self._top_m = max(r.cross_length_m for r in routes) + shape.length_m
@@ -284,8 +175,7 @@ class SpaceTimeRecorder:
             intersection, ConflictTables(intersection, margin_m), shape
         )
         self._plans: dict[str, _Plan] = {}
-        self._emergency: set[str] = set()  # VINs drawn as emergency vehicles
-        self._colors: dict[str, int] = {}
+        self._colours = VehicleColours()
         self._steps: list[_Step] = []
         self._step_no = 0
         self._buf_t0 = 0.0
@@ -296,7 +186,7 @@ class SpaceTimeRecorder:
         self._start_s: float | None = None  # the timeline starts at the first confirmation
         self._rows: dict[str, _Rows] = {}
         self._later: list[tuple[float, str, Any, int, dict]] = []  # see _again
-        self._splat: dict[str, dict[str, Any]] = {}  # per entity: one value for every row
+        self._splat = row_styles(self.lanes, margin_m)  # per entity: one value for every row
 
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
         self.rec.set_log_time_enabled(False)  # only sim_time: wall clock would mislead
@@ -305,7 +195,10 @@ class SpaceTimeRecorder:
         if live_port is not None:
             sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=live_port))
         self.rec.set_sinks(*sinks, default_blueprint=self.blueprint())
-        self._static_styles()
+        log = self.rec.log
+        log("counts/vehicles", rr.SeriesLines(names="vehicles in the region"), static=True)
+        log("counts/confirmed", rr.SeriesLines(names="confirmed so far"), static=True)
+        log("counts/rejected", rr.SeriesLines(names="rejected so far"), static=True)
 
     def __enter__(self) -> SpaceTimeRecorder:
         return self
@@ -344,7 +237,7 @@ class SpaceTimeRecorder:
             start=rrb.TimeRangeBoundary.cursor_relative(seconds=-HISTORY_S),
             end=rrb.TimeRangeBoundary.cursor_relative(),
         )
-        lanes = sorted(self.lanes, key=lambda ln: (ln.rsplit("_", 1)[1], ln))  # lane-major
+        lanes = lane_major(self.lanes)
         charts = [
             rrb.Spatial2DView(
                 origin="charts",
@@ -417,7 +310,7 @@ class SpaceTimeRecorder:
         """Top view and conflict points on the left; lane charts, counts and tables on
         the right; paused at the start, the time panel folded to its play bar."""
         v = self.views()
-        lanes = sorted(self.lanes, key=lambda ln: (ln.rsplit("_", 1)[1], ln))  # lane-major
+        lanes = lane_major(self.lanes)
         n_cols = len({approach_of(ln) for ln in self.lanes})
         bottom = rrb.Horizontal(
             v["counts"], v["confirmed"], v["rejected"], v["reorders"], column_shares=[2, 4, 3, 3]
@@ -433,54 +326,6 @@ class SpaceTimeRecorder:
         )
 
     # -- static geometry -----------------------------------------------------
-    def _static_styles(self) -> None:
-        """Sizes, colours and draw orders that never change. They ride along with each
-        row (one value, which Rerun applies to every instance) rather than as a static
-        chunk per entity: every chunk costs the viewer time to load."""
-        half_margin = max(self.margin_m / 2.0, 0.05)
-        splat = self._splat
-        splat["junction/vehicles"] = {"radii": _STRIP_RADIUS_M}
-        splat["junction/reserved"] = {
-            "radii": half_margin,
-            "colors": _rgba(RESERVED_RGBA[:3], RESERVED_RGBA[3]),
-            "draw_order": 5.0,
-        }
-        splat["junction/names"] = {
-            "radii": 0.05,
-            "colors": _rgba((60, 60, 60)),
-            "show_labels": True,
-        }
-        for lane in self.lanes:
-            splat[f"charts/data/lanes/{lane}/plans"] = {
-                "radii": 0.15,
-                "draw_order": 10.0,
-                "show_labels": False,
-            }
-            splat[f"charts/data/lanes/{lane}/reorders"] = {
-                "radii": 0.3,
-                "draw_order": 25.0,
-                "show_labels": True,
-            }
-            splat[f"charts/data/lanes/{lane}/actual"] = {
-                "radii": 0.45,
-                "draw_order": 20.0,
-                "show_labels": False,
-            }
-        splat["charts/data/zones/reserved"] = {
-            "radii": 0.12,
-            "draw_order": 10.0,
-            "show_labels": False,
-        }
-        splat["charts/data/zones/held"] = {
-            "radii": 0.45,
-            "draw_order": 20.0,
-            "show_labels": False,
-        }
-        log = self.rec.log
-        log("counts/vehicles", rr.SeriesLines(names="vehicles in the region"), static=True)
-        log("counts/confirmed", rr.SeriesLines(names="confirmed so far"), static=True)
-        log("counts/rejected", rr.SeriesLines(names="rejected so far"), static=True)
-
     def geometry(self) -> None:
         """Static drawings: the junction, lane edges, entry lines, legends and chart frames."""
         inter = self.intersection
@@ -489,7 +334,7 @@ class SpaceTimeRecorder:
         region = np.asarray(inter.region, dtype=float)
         log(
             "junction/region",
-            rr.LineStrips2D([np.vstack([region, region[:1]]) * _FLIP_Y], colors=[(90, 90, 90)]),
+            rr.LineStrips2D([np.vstack([region, region[:1]]) * FLIP_Y], colors=[REGION_RGB]),
             static=True,
         )
         edges, entry, start, lane_names = [], [], [], []
@@ -502,40 +347,40 @@ class SpaceTimeRecorder:
         for lane in self.lanes:
             r = first[lane]
             for side in (-1.0, 1.0):
-                edges.append(_offset(r, -comm - 5.0, 0.0, side * LANE_WIDTH_M / 2.0))
-            entry.append(_across(r, 0.0))
-            start.append(_across(r, -comm))
+                edges.append(offset(r, -comm - 5.0, 0.0, side * LANE_WIDTH_M / 2.0))
+            entry.append(across(r, 0.0))
+            start.append(across(r, -comm))
             lane_names.append(lane)
         for r in outs.values():
             a = r.cross_length_m
             for side in (-1.0, 1.0):
-                edges.append(_offset(r, a, a + comm, side * LANE_WIDTH_M / 2.0))
+                edges.append(offset(r, a, a + comm, side * LANE_WIDTH_M / 2.0))
         log(
             "junction/lane_edges",
-            rr.LineStrips2D(edges, radii=0.06, colors=[(170, 170, 170)], draw_order=1.0),
+            rr.LineStrips2D(edges, radii=0.06, colors=[LANE_EDGE_RGB], draw_order=1.0),
             static=True,
         )
         log(
             "junction/entry_lines",
             rr.LineStrips2D(
-                entry, radii=0.15, colors=[(30, 30, 30)], labels=lane_names, show_labels=False
+                entry, radii=0.15, colors=[ENTRY_RGB], labels=lane_names, show_labels=False
             ),
             static=True,
         )
         log(
             "junction/region_start_lines",
             rr.LineStrips2D(
-                start, radii=0.15, colors=[(150, 60, 150)], labels=lane_names, show_labels=False
+                start, radii=0.15, colors=[REGION_START_RGB], labels=lane_names, show_labels=False
             ),
             static=True,
         )
-        routes = [_clipped(r, 0.0, r.cross_length_m) * _FLIP_Y for r in inter.routes]
+        routes = [clipped(r, 0.0, r.cross_length_m) * FLIP_Y for r in inter.routes]
         log(
             "junction/routes",
             rr.LineStrips2D(
                 routes,
                 radii=0.04,
-                colors=[(205, 205, 205)],
+                colors=[ROUTE_RGB],
                 labels=[r.id for r in inter.routes],
                 show_labels=False,
                 draw_order=0.5,
@@ -551,18 +396,13 @@ class SpaceTimeRecorder:
         separate key shapes would drift into the text when zooming)."""
         reach = _frame_reach(self.intersection)
         x0, y0 = -reach + 11.0, -reach + 1.5  # viewer frame: y grows downwards
-        entries = [(f"{name}: outline", rgb) for name, rgb in STATUS_STYLE.values()]
-        entries += [
-            (f"reserved, with its {self.margin_m:g} m margin: band", RESERVED_RGBA[:3]),
-            ("entry line", (30, 30, 30)),
-            ("communication region starts", (150, 60, 150)),
-        ]
+        entries = top_legend(self.margin_m)
         self.rec.log(
             "junction/legend/text",
             rr.Points2D(
                 [(x0, y0 + i * 2.4) for i in range(len(entries))],
                 radii=0.01,
-                colors=[_rgba(rgb) for _, rgb in entries],
+                colors=[rgba(rgb) for _, rgb in entries],
                 labels=[text for text, _ in entries],
                 show_labels=True,
             ),
@@ -581,7 +421,7 @@ class SpaceTimeRecorder:
             rr.LineStrips2D(
                 [[(0.0, -self._top_m - 2.0), (0.0, comm + 4.0)], [(0.0, -3.0), (0.0, n * ROW_M)]],
                 radii=0.25,
-                colors=[(0, 0, 0, 160)],
+                colors=[NOW_RGBA],
                 draw_order=30.0,
             ),
             static=True,
@@ -609,7 +449,7 @@ class SpaceTimeRecorder:
                 rr.LineStrips2D(
                     [[(x0, -s), (x1, -s)] for s, _ in lines],
                     radii=0.18,
-                    colors=[(150, 60, 150)] + [(30, 30, 30)] * (len(lines) - 1),
+                    colors=[REGION_START_RGB] + [ENTRY_RGB] * (len(lines) - 1),
                     labels=[f"{name} {s:g} m" for s, name in lines],
                     show_labels=False,
                     draw_order=1.0,
@@ -628,8 +468,8 @@ class SpaceTimeRecorder:
                 rr.Points2D(
                     pos,
                     radii=0.01,
-                    colors=[_FRAME] * len(marks) + [(60, 60, 60)],
-                    labels=[*marks.values(), "line: plan · dots: actual"],
+                    colors=[FRAME_RGB] * len(marks) + [TEXT_RGB],
+                    labels=[*marks.values(), LANE_CHART_LEGEND],
                     show_labels=True,
                 ),
                 static=True,
@@ -640,7 +480,7 @@ class SpaceTimeRecorder:
             rr.Points2D(
                 [(x0 - 19.0, (i + 0.5) * ROW_M) for i in range(n)],
                 radii=0.01,
-                colors=[_FRAME],
+                colors=[FRAME_RGB],
                 labels=names,
                 show_labels=True,
             ),
@@ -651,7 +491,7 @@ class SpaceTimeRecorder:
             rr.LineStrips2D(
                 [[(x0, i * ROW_M), (x1, i * ROW_M)] for i in range(n + 1)],
                 radii=0.04,
-                colors=[(225, 225, 225)],
+                colors=[ROW_GRID_RGB],
                 draw_order=0.0,
             ),
             static=True,
@@ -661,8 +501,8 @@ class SpaceTimeRecorder:
             rr.Points2D(
                 [(x0 + 12.0, n * ROW_M + 2.5), (x0 + 55.0, n * ROW_M + 2.5)],
                 radii=[0.5, 0.5],
-                colors=[(60, 60, 60), _OVERRUN],
-                labels=["held, as reserved", "held outside its reservation"],
+                colors=[rgb for _, rgb in ZONE_LEGEND],
+                labels=[text for text, _ in ZONE_LEGEND],
                 show_labels=True,
             ),
             static=True,
@@ -710,7 +550,7 @@ class SpaceTimeRecorder:
         dtot = dtot_of_tss(route, t, x_m, y_m, length_m, width_m, margin)
         r = dtot.rects
         half_m = margin / 2.0
-        band = _outlines(
+        band = outlines(
             r.centre[:, 0],
             r.centre[:, 1],
             r.heading[:, 0],
@@ -724,7 +564,7 @@ class SpaceTimeRecorder:
         self._plans[vin] = _Plan(
             now, ridx, route.cross_length_m + length_m, float(dtot.t_s[0]), band, hold
         )
-        color = self._color(vin)
+        color = self._colours.of(vin)
         k = CHART_M_PER_S
         s, _ = route.project(np.stack([np.asarray(x_m, float), np.asarray(y_m, float)], -1))
         keep = np.unique(np.append(np.arange(0, n, CHART_EVERY), n - 1))
@@ -803,8 +643,7 @@ class SpaceTimeRecorder:
         """Draw ``vin`` in the emergency vehicles' colour from now on: in the top view
         until it has cleared, and its plans and progress in the charts (call it before
         its first confirmation, so that its plan is drawn in that colour too)."""
-        self._emergency.add(vin)
-        self._colors[vin] = _rgba(STATUS_STYLE[Status.EMERGENCY][1])
+        self._colours.mark_emergency(vin)
 
     def reordered(
         self,
@@ -842,7 +681,7 @@ class SpaceTimeRecorder:
             ends += [a, b]
         fields = {
             "strips": strips,
-            "colors": np.full(len(strips), _rgba(STATUS_STYLE[Status.EMERGENCY][1]), np.uint32),
+            "colors": np.full(len(strips), EMERGENCY_RGBA, np.uint32),
             "labels": labels,
         }
         entity = f"charts/data/lanes/{lane}/reorders"
@@ -965,7 +804,7 @@ class SpaceTimeRecorder:
             dtype=bool,
         )
         out_m = np.array([p.out_m if p is not None else np.inf for p in plans])
-        ev = np.array([v in self._emergency for v in vins], dtype=bool)
+        ev = np.array([v in self._colours.emergency for v in vins], dtype=bool)
         state = vehicle_statuses(confirmed, np.where(dist <= LANE_WIDTH_M, s, np.nan), out_m, ev)
 
         # top view: every TOP_EVERY steps
@@ -976,14 +815,14 @@ class SpaceTimeRecorder:
         top = np.nonzero(top_step[step_of])[0]
         c, sn = np.cos(heading), np.sin(heading)
         tc, ts, tl, tw = c[top], sn[top], length[top], width[top]
-        strips = _outlines(x[top] - tc * tl / 2, y[top] - ts * tl / 2, tc, ts, tl / 2, tw / 2)
+        strips = outlines(x[top] - tc * tl / 2, y[top] - ts * tl / 2, tc, ts, tl / 2, tw / 2)
         self._send_rows(
             "junction/vehicles",
             rr.LineStrips2D,
             times[top_idx],
             counts[top_idx],
             strips=strips.astype(np.float32),
-            colors=_STATE_RGBA[state[top]],
+            colors=STATUS_RGBA[state[top]],
         )
         self._names(times, top_step, step_of, vins, ridx, s, dist, length)
         self._reserved(times[top_idx])
@@ -1018,7 +857,7 @@ class SpaceTimeRecorder:
             & (s >= -self.intersection.comm_length_m)
             & (s < np.where(known, self._route_end_m[np.maximum(ridx, 0)], 0.0))
         )
-        colors = self._colors_of(vins)
+        colors = self._colours.of_many(vins)
         lane_of = np.where(known, self._route_lane[np.maximum(ridx, 0)], -1)
         chart_steps = np.nonzero(chart_step)[0]
         for li, lane in enumerate(self.lanes):
@@ -1075,7 +914,7 @@ class SpaceTimeRecorder:
             rr.Points2D,
             times[top_idx],
             per,
-            positions=(pos * _FLIP_Y).astype(np.float32),
+            positions=(pos * FLIP_Y).astype(np.float32),
             labels=[vins[i] for i in idx],
         )
 
@@ -1132,8 +971,8 @@ class SpaceTimeRecorder:
             h = plans[idx[r]].hold
             m = np.nonzero(h.point == p)[0]
             inside[n] = bool(len(m)) and h.lb_s[m[0]] - 1e-9 <= t[n] <= h.ub_s[m[0]] + 1e-9
-        colors = self._colors_of([vins[idx[r]] for r in rows])
-        colors = np.where(inside, colors, np.uint32(_rgba(_OVERRUN)))
+        colors = self._colours.of_many([vins[idx[r]] for r in rows])
+        colors = np.where(inside, colors, np.uint32(rgba(OVERRUN_RGB)))
         per = np.bincount(
             np.searchsorted(chart_steps, step_of[idx[rows]]), minlength=len(chart_steps)
         )
@@ -1171,7 +1010,7 @@ class SpaceTimeRecorder:
             at,
             1,
             strips=[np.array([(x, -self._top_m - 2.0), (x, n * ROW_M + 60.0)], np.float32)],
-            colors=np.array([_rgba(_GRID)], np.uint32),
+            colors=np.array([rgba(GRID_RGB)], np.uint32),
         )
         label = [f"{t0:g} s"]
         self._row(
@@ -1238,15 +1077,6 @@ class SpaceTimeRecorder:
             return np.array([self._projector.index[r] if r else -1 for r in route_ids], dtype=int)
         except KeyError as e:
             raise ValueError(f"unknown route {e.args[0]!r}") from None
-
-    def _color(self, vin: str) -> int:
-        c = self._colors.get(vin)
-        if c is None:
-            c = self._colors[vin] = vehicle_color(vin)
-        return c
-
-    def _colors_of(self, vins: Sequence[str]) -> np.ndarray:
-        return np.fromiter((self._color(v) for v in vins), dtype=np.uint32, count=len(vins))
 
 
 class _Rows:
@@ -1346,27 +1176,3 @@ def _frame_reach(inter: Intersection) -> float:
     """Half the side of the top view's opening frame: the junction and 22 m around it."""
     region = np.asarray(inter.region, dtype=float)
     return float(np.abs(region).max()) + 22.0
-
-
-def _clipped(route: Route, s_from: float, s_to: float) -> np.ndarray:
-    """The route's polyline from arc length ``s_from`` to ``s_to``."""
-    inner = route.xy[(route.s > s_from) & (route.s < s_to)]
-    return np.vstack([route.points(s_from)[None], inner, route.points(s_to)[None]])
-
-
-def _offset(route: Route, s_from: float, s_to: float, left_m: float) -> np.ndarray:
-    """The route's polyline between two arc lengths, shifted sideways (viewer frame)."""
-    p = _clipped(route, s_from, s_to)
-    d = np.gradient(p, axis=0)
-    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-9)
-    n = np.stack([-d[:, 1], d[:, 0]], -1)
-    return (p + n * left_m) * _FLIP_Y
-
-
-def _across(route: Route, s: float) -> np.ndarray:
-    """A lane-wide segment across the route at arc length ``s``, in the viewer frame."""
-    a, b = route.points(s - 0.5), route.points(s + 0.5)
-    d = (b - a) / max(float(np.linalg.norm(b - a)), 1e-9)
-    n = np.array([-d[1], d[0]]) * LANE_WIDTH_M / 2.0
-    p = route.points(s)
-    return np.array([p - n, p + n]) * _FLIP_Y
