@@ -37,7 +37,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -56,6 +55,7 @@ from dica.sim_gateway.conflict_points import (
     find_conflict_points,
     holding,
 )
+from dica.sim_gateway.recording.batch import Plan, Step, StepBatch
 from dica.sim_gateway.recording.geometry import (
     FLIP_Y,
     LANE_WIDTH_M,
@@ -67,8 +67,8 @@ from dica.sim_gateway.recording.geometry import (
     offset,
     outlines,
     route_lanes,
-    sumo_heading_rad,
 )
+from dica.sim_gateway.recording.rows import TIMELINE, RowBuffer
 from dica.sim_gateway.recording.style import (
     EMERGENCY_RGBA,
     ENTRY_RGB,
@@ -90,10 +90,8 @@ from dica.sim_gateway.recording.style import (
     rgba,
     row_styles,
     top_legend,
-    vehicle_statuses,
 )
 
-TIMELINE = "sim_time"
 STEP_S = 0.05  # [s] the simulation step the recorder expects
 CHART_M_PER_S = 2.0  # [chart units] width of 1 s in the charts
 PAST_S = 40.0  # [s] of history every chart shows left of "now"
@@ -107,32 +105,6 @@ LABEL_GAP_M = 4.0  # [m] names start this far beyond the kerb
 START_WAIT_S = 60.0  # [s] how long the recording waits for a first confirmation
 FLUSH_S = 20.0  # [s] of simulated time buffered before it is sent (saved file)
 LIVE_FLUSH_S = 1.0  # [s] the same when viewers watch live (and rows are sent then)
-MAX_ROWS = 4096  # rows of one entity sent as one chunk (Rerun's own compaction limit)
-
-
-@dataclass(slots=True)
-class _Plan:
-    """What the recorder keeps of one confirmation."""
-
-    t_confirmed_s: float
-    route_idx: int
-    out_m: float  # front distance at which the rear is out
-    t0_s: float  # first DTOT sample time
-    band: np.ndarray  # (K, 5, 2) reserved outlines at the DTOT samples, viewer frame
-    hold: Holding
-    until_s: float = math.inf  # withdrawn from this time on
-
-
-@dataclass(slots=True)
-class _Step:
-    t_s: float
-    vins: list[str]
-    x: np.ndarray
-    y: np.ndarray
-    angle: np.ndarray
-    length: np.ndarray
-    width: np.ndarray
-    routes: np.ndarray  # route index per vehicle, -1 unknown
 
 
 class SpaceTimeRecorder:
@@ -174,9 +146,9 @@ class SpaceTimeRecorder:
         self.points: ConflictPoints = find_conflict_points(
             intersection, ConflictTables(intersection, margin_m), shape
         )
-        self._plans: dict[str, _Plan] = {}
+        self._plans: dict[str, Plan] = {}
         self._colours = VehicleColours()
-        self._steps: list[_Step] = []
+        self._steps: list[Step] = []
         self._step_no = 0
         self._buf_t0 = 0.0
         self._tick_enter = 0.0  # next tick to log as it enters the window
@@ -184,9 +156,7 @@ class SpaceTimeRecorder:
         self._n_confirmed = 0
         self._n_rejected = 0
         self._start_s: float | None = None  # the timeline starts at the first confirmation
-        self._rows: dict[str, _Rows] = {}
-        self._later: list[tuple[float, str, Any, int, dict]] = []  # see _again
-        self._splat = row_styles(self.lanes, margin_m)  # per entity: one value for every row
+        self._rows = RowBuffer(row_styles(self.lanes, margin_m))
 
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
         self.rec.set_log_time_enabled(False)  # only sim_time: wall clock would mislead
@@ -561,7 +531,7 @@ class SpaceTimeRecorder:
         hold = holding(dtot, self.points)
         if time_pad_s > 0.0:
             hold = Holding(hold.point, hold.lb_s - time_pad_s, hold.ub_s + time_pad_s)
-        self._plans[vin] = _Plan(
+        self._plans[vin] = Plan(
             now, ridx, route.cross_length_m + length_m, float(dtot.t_s[0]), band, hold
         )
         color = self._colours.of(vin)
@@ -575,8 +545,8 @@ class SpaceTimeRecorder:
             "labels": [f"{vin} plan"],
         }
         entity = f"charts/data/lanes/{route.in_lane}/plans"
-        self._row(entity, rr.LineStrips2D, now, 1, **plan)
-        self._again(float(t[-1]), now, entity, rr.LineStrips2D, 1, plan)
+        self._rows.add(entity, rr.LineStrips2D, now, 1, **plan)
+        self._rows.again(float(t[-1]), now, entity, rr.LineStrips2D, 1, plan)
         if len(hold):
             centers = np.stack([(hold.lb_s + hold.ub_s) / 2 * k, (hold.point + 0.5) * ROW_M], -1)
             halves = np.stack(
@@ -592,13 +562,15 @@ class SpaceTimeRecorder:
                 ],
             }
             entity = "charts/data/zones/reserved"
-            self._row(entity, rr.Boxes2D, now, len(hold), **boxes)
-            self._again(float(hold.ub_s.max()), now, entity, rr.Boxes2D, len(hold), boxes)
+            self._rows.add(entity, rr.Boxes2D, now, len(hold), **boxes)
+            self._rows.again(float(hold.ub_s.max()), now, entity, rr.Boxes2D, len(hold), boxes)
         self._n_confirmed += 1
-        self._row("counts/confirmed", rr.Scalars, now, 1, scalars=np.array([self._n_confirmed]))
+        self._rows.add(
+            "counts/confirmed", rr.Scalars, now, 1, scalars=np.array([self._n_confirmed])
+        )
         delay = f"{delay_s:6.2f}" if math.isfinite(delay_s) else "     -"
         rounds_txt = f"{rounds:3d}" if rounds >= 0 else "  -"
-        self._row(
+        self._rows.add(
             "tables/confirmed",
             rr.TextLog,
             now,
@@ -614,8 +586,8 @@ class SpaceTimeRecorder:
         """One rejection: a row in the rejections table and the count."""
         self._n_rejected += 1
         text = f"{vin:<8} {reason:<17} {detail[:60]}".rstrip()
-        self._row("tables/rejected", rr.TextLog, float(t_s), 1, text=[text])
-        self._row(
+        self._rows.add("tables/rejected", rr.TextLog, float(t_s), 1, text=[text])
+        self._rows.add(
             "counts/rejected", rr.Scalars, float(t_s), 1, scalars=np.array([self._n_rejected])
         )
 
@@ -631,12 +603,7 @@ class SpaceTimeRecorder:
             plan.until_s = float(t_s)
             self.flush()
             self._plans.pop(vin, None)
-        mine = (f"{vin} plan", f"{vin} P")
-        self._later = [
-            item
-            for item in self._later
-            if not any(str(lb).startswith(mine) for lb in item[4].get("labels", ()))
-        ]
+        self._rows.forget((f"{vin} plan", f"{vin} P"))
         self.rejected(t_s, vin, why)
 
     def emergency(self, vin: str) -> None:
@@ -685,8 +652,8 @@ class SpaceTimeRecorder:
             "labels": labels,
         }
         entity = f"charts/data/lanes/{lane}/reorders"
-        self._row(entity, rr.LineStrips2D, t, len(strips), **fields)
-        self._again(max(ends), t, entity, rr.LineStrips2D, len(strips), fields)
+        self._rows.add(entity, rr.LineStrips2D, t, len(strips), **fields)
+        self._rows.again(max(ends), t, entity, rr.LineStrips2D, len(strips), fields)
         star = set(revoked)
         listed = " ".join(f"{v}*" if v in star else v for v in order)
         if refused:
@@ -695,12 +662,12 @@ class SpaceTimeRecorder:
             text = (
                 f"{ev:<8} {solver:<10} {ev_entry_before_s:7.2f} {ev_entry_after_s:7.2f}  {listed}"
             )
-        self._row("tables/reorders", rr.TextLog, t, 1, text=[text])
+        self._rows.add("tables/reorders", rr.TextLog, t, 1, text=[text])
 
     def kept(self, t_s: float, vin: str, why: str) -> None:
         """A revoked plan that stands after all (the vehicle could not stop short of the
         line, or no answer came before the plan ended): it stays drawn; a row says why."""
-        self._row("tables/reorders", rr.TextLog, float(t_s), 1, text=[f"{vin:<8} {why}"])
+        self._rows.add("tables/reorders", rr.TextLog, float(t_s), 1, text=[f"{vin:<8} {why}"])
 
     def footprints(
         self,
@@ -735,7 +702,7 @@ class SpaceTimeRecorder:
         length = np.broadcast_to(np.asarray(length_m, dtype=float), (n,))
         width = np.broadcast_to(np.asarray(width_m, dtype=float), (n,))
         t = float(t_s)
-        self._steps.append(_Step(t, list(vins), x, y, angle, length, width, ridx))
+        self._steps.append(Step(t, list(vins), x, y, angle, length, width, ridx))
         self._maybe_flush(t)
 
     def _maybe_flush(self, t_s: float) -> None:
@@ -763,9 +730,7 @@ class SpaceTimeRecorder:
             if kept:
                 self._draw_steps(kept)
             self._steps = []
-        for rows in self._rows.values():
-            if final or self.live or rows.n_rows >= MAX_ROWS:
-                rows.send(self.rec)
+        self._rows.send(self.rec, everything=final or self.live)
 
     def close(self) -> None:
         """Send what is buffered and finish the file (Rerun writes its footer on disconnect)."""
@@ -774,72 +739,47 @@ class SpaceTimeRecorder:
         self.rec.disconnect()
 
     # -- drawing a batch of steps --------------------------------------------
-    def _draw_steps(self, steps: list[_Step]) -> None:
-        counts = np.array([len(s.vins) for s in steps])
-        times = np.array([s.t_s for s in steps])
-        step_of = np.repeat(np.arange(len(steps)), counts)
-        vins = [v for s in steps for v in s.vins]
-        nrow = len(vins)
-        x = np.concatenate([s.x for s in steps]) if nrow else np.zeros(0)
-        y = np.concatenate([s.y for s in steps]) if nrow else np.zeros(0)
-        heading = sumo_heading_rad(np.concatenate([s.angle for s in steps])) if nrow else x
-        length = np.concatenate([s.length for s in steps]) if nrow else x
-        width = np.concatenate([s.width for s in steps]) if nrow else x
-        ridx = np.concatenate([s.routes for s in steps]) if nrow else np.zeros(0, int)
-        t_row = times[step_of]
-
-        known = ridx >= 0
-        s = np.full(nrow, np.nan)
-        dist = np.full(nrow, np.inf)
-        if known.any():
-            s[known], dist[known] = self._projector.project(
-                ridx[known], np.stack([x[known], y[known]], -1)
-            )
-        plans = [self._plans.get(v) for v in vins]
-        confirmed = np.array(
-            [
-                p is not None and p.t_confirmed_s - 1e-9 <= t < p.until_s - 1e-9
-                for p, t in zip(plans, t_row, strict=True)
-            ],
-            dtype=bool,
+    def _draw_steps(self, steps: list[Step]) -> None:
+        b = StepBatch.of(
+            steps, self._step_no, self._projector, self._plans, self._colours.emergency
         )
-        out_m = np.array([p.out_m if p is not None else np.inf for p in plans])
-        ev = np.array([v in self._colours.emergency for v in vins], dtype=bool)
-        state = vehicle_statuses(confirmed, np.where(dist <= LANE_WIDTH_M, s, np.nan), out_m, ev)
+        self._step_no += len(steps)
+        times, counts, step_of, vins = b.times, b.counts, b.step_of, b.vins
+        x, y, length, width, ridx, s, dist = b.x, b.y, b.length, b.width, b.route_idx, b.s, b.dist
+        plans, confirmed, c, sn = b.plans, b.confirmed, b.cos, b.sin
+        t_row = times[step_of]
+        known = ridx >= 0
 
         # top view: every TOP_EVERY steps
-        step_nos = self._step_no + np.arange(len(steps))
-        self._step_no += len(steps)
-        top_step = step_nos % TOP_EVERY == 0
+        top_step = b.every(TOP_EVERY)
         top_idx = np.nonzero(top_step)[0]
         top = np.nonzero(top_step[step_of])[0]
-        c, sn = np.cos(heading), np.sin(heading)
         tc, ts, tl, tw = c[top], sn[top], length[top], width[top]
         strips = outlines(x[top] - tc * tl / 2, y[top] - ts * tl / 2, tc, ts, tl / 2, tw / 2)
-        self._send_rows(
+        self._rows.add_many(
             "junction/vehicles",
             rr.LineStrips2D,
             times[top_idx],
             counts[top_idx],
             strips=strips.astype(np.float32),
-            colors=STATUS_RGBA[state[top]],
+            colors=STATUS_RGBA[b.state[top]],
         )
         self._names(times, top_step, step_of, vins, ridx, s, dist, length)
         self._reserved(times[top_idx])
 
         # charts: every CHART_EVERY steps
-        chart_step = step_nos % CHART_EVERY == 0
+        chart_step = b.every(CHART_EVERY)
         k = CHART_M_PER_S
         if chart_step.any():
             ct = times[chart_step]
-            self._send_rows(
+            self._rows.add_many(
                 "counts/vehicles",
                 rr.Scalars,
                 ct,
                 np.ones(len(ct), int),
                 scalars=counts[chart_step].astype(float),
             )
-            self._send_rows(
+            self._rows.add_many(
                 "charts/data",
                 rr.Transform3D,
                 ct,
@@ -848,7 +788,7 @@ class SpaceTimeRecorder:
             )
         self._ticks(times[-1] if len(times) else 0.0)
         if len(times):
-            self._due(float(times[-1]))
+            self._rows.due(float(times[-1]))
         at_chart = chart_step[step_of]
         on_chart = (
             at_chart
@@ -868,7 +808,7 @@ class SpaceTimeRecorder:
             per = np.bincount(
                 np.searchsorted(chart_steps, step_of[idx]), minlength=len(chart_steps)
             )
-            self._send_rows(
+            self._rows.add_many(
                 f"charts/data/lanes/{lane}/actual",
                 rr.Points2D,
                 times[chart_steps],
@@ -909,7 +849,7 @@ class SpaceTimeRecorder:
             if len(idx)
             else np.zeros((0, 2))
         )
-        self._send_rows(
+        self._rows.add_many(
             "junction/names",
             rr.Points2D,
             times[top_idx],
@@ -945,7 +885,7 @@ class SpaceTimeRecorder:
             per = np.bincount(step_idx, minlength=len(times))
         else:
             bands, per = np.zeros((0, 5, 2), np.float32), np.zeros(len(times), int)
-        self._send_rows("junction/reserved", rr.LineStrips2D, times, per, strips=bands)
+        self._rows.add_many("junction/reserved", rr.LineStrips2D, times, per, strips=bands)
 
     def _held(
         self, times, chart_steps, step_of, vins, plans, sel, x, y, c, sn, length, width
@@ -976,7 +916,7 @@ class SpaceTimeRecorder:
         per = np.bincount(
             np.searchsorted(chart_steps, step_of[idx[rows]]), minlength=len(chart_steps)
         )
-        self._send_rows(
+        self._rows.add_many(
             "charts/data/zones/held",
             rr.Points2D,
             times[chart_steps],
@@ -1004,7 +944,7 @@ class SpaceTimeRecorder:
     def _tick(self, t0: float, at: float) -> None:
         x = t0 * CHART_M_PER_S
         n = max(len(self.points), 1)
-        self._row(
+        self._rows.add(
             "charts/data/ticks/lines",
             rr.LineStrips2D,
             at,
@@ -1013,7 +953,7 @@ class SpaceTimeRecorder:
             colors=np.array([rgba(GRID_RGB)], np.uint32),
         )
         label = [f"{t0:g} s"]
-        self._row(
+        self._rows.add(
             "charts/data/ticks/lane_labels",
             rr.Points2D,
             at,
@@ -1021,7 +961,7 @@ class SpaceTimeRecorder:
             positions=np.array([(x, -self._top_m)], np.float32),
             labels=label,
         )
-        self._row(
+        self._rows.add(
             "charts/data/ticks/zone_labels",
             rr.Points2D,
             at,
@@ -1031,41 +971,6 @@ class SpaceTimeRecorder:
         )
 
     # -- helpers -------------------------------------------------------------
-    def _again(
-        self, t_end: float, now: float, entity: str, archetype: Any, n: int, fields: dict
-    ) -> None:
-        """Log a row once more when what it draws ends, if that is later than now:
-        a chart shows the rows of the last PAST_S, and a plan or a reserved interval
-        must stay as long as any of it is in the window."""
-        if t_end > now + 1e-9:
-            self._later.append((t_end, entity, archetype, n, fields))
-
-    def _due(self, t_s: float) -> None:
-        """Emit the rows of :meth:`_again` that the run has reached."""
-        keep = []
-        for item in self._later:
-            if item[0] <= t_s + 1e-9:
-                t_end, entity, archetype, n, fields = item
-                self._row(entity, archetype, t_end, n, **fields)
-            else:
-                keep.append(item)
-        self._later = keep
-
-    def _row(self, entity: str, archetype: Any, t_s: float, n: int, **fields: Any) -> None:
-        rows = self._rows.get(entity)
-        if rows is None:
-            rows = self._rows[entity] = _Rows(entity, archetype, self._splat.get(entity))
-        rows.add(t_s, n, **fields)
-
-    def _send_rows(
-        self, entity: str, archetype: Any, times: np.ndarray, lengths: np.ndarray, **fields: Any
-    ) -> None:
-        """Many rows at once: ``lengths[i]`` instances at ``times[i]``."""
-        rows = self._rows.get(entity)
-        if rows is None:
-            rows = self._rows[entity] = _Rows(entity, archetype, self._splat.get(entity))
-        rows.add_many(times, lengths, **fields)
-
     def _route(self, route_id: str) -> Route:
         route = self.intersection.route_by_id(route_id)
         if route is None:
@@ -1077,67 +982,6 @@ class SpaceTimeRecorder:
             return np.array([self._projector.index[r] if r else -1 for r in route_ids], dtype=int)
         except KeyError as e:
             raise ValueError(f"unknown route {e.args[0]!r}") from None
-
-
-class _Rows:
-    """Rows of one entity, kept until they are sent as one column chunk."""
-
-    def __init__(self, entity: str, archetype: Any, splat: dict[str, Any] | None = None) -> None:
-        self.entity = entity
-        self.archetype = archetype
-        self.splat = splat or {}  # fields with one value for every row
-        self.times: list[np.ndarray] = []
-        self.lengths: list[np.ndarray] = []
-        self.fields: dict[str, list[Any]] = {}
-
-    def add(self, t_s: float, n: int, **fields: Any) -> None:
-        self.add_many(np.array([t_s]), np.array([n]), **fields)
-
-    @property
-    def n_rows(self) -> int:
-        return sum(len(t) for t in self.times)
-
-    def add_many(self, times: np.ndarray, lengths: np.ndarray, **fields: Any) -> None:
-        self.times.append(np.asarray(times, dtype=float))
-        self.lengths.append(np.asarray(lengths, dtype=int))
-        for k, v in fields.items():
-            self.fields.setdefault(k, []).append(v)
-
-    def send(self, rec: rr.RecordingStream) -> None:
-        if not self.times:
-            return
-        times = np.concatenate(self.times)
-        lengths = np.concatenate(self.lengths)
-        order = np.argsort(times, kind="stable")
-        data = {k: _joined(v) for k, v in self.fields.items()}
-        if not np.all(order == np.arange(len(order))):  # rows added out of time order
-            starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
-            take = np.concatenate([np.arange(starts[i], starts[i] + lengths[i]) for i in order])
-            data = {k: _take(v, take) for k, v in data.items()}
-            times, lengths = times[order], lengths[order]
-        cols = list(self.archetype.columns(**data).partition(lengths))
-        if self.splat:
-            n = len(times)
-            each = {k: [v] * n for k, v in self.splat.items()}
-            cols += list(self.archetype.columns(**each).partition(np.ones(n, dtype=int)))
-        rec.send_columns(
-            self.entity, indexes=[rr.TimeColumn(TIMELINE, duration=times)], columns=cols
-        )
-        self.times, self.lengths, self.fields = [], [], {}
-
-
-def _joined(parts: list[Any]) -> Any:
-    """Rows of one field as one batch; floats as float32, which Rerun converts twice as fast."""
-    if isinstance(parts[0], list):
-        return [x for part in parts for x in part]
-    joined = np.concatenate([np.asarray(p) for p in parts])
-    return joined.astype(np.float32) if joined.dtype == np.float64 else joined
-
-
-def _take(v: Any, take: np.ndarray) -> Any:
-    if isinstance(v, list):
-        return [v[i] for i in take]
-    return v[take]
 
 
 class _LabelPlaces:
