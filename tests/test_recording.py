@@ -42,8 +42,8 @@ from dica.sim_gateway.recording import (
     Status,
     approach_of,
 )
+from dica.sim_gateway.recording.chart_frame import CHART_EVERY, CHART_M_PER_S, PAST_S, ROW_M
 from dica.sim_gateway.recording.geometry import RouteProjector, rectangles, sumo_heading_rad
-from dica.sim_gateway.recording.recorder import CHART_EVERY, CHART_M_PER_S, PAST_S, ROW_M
 from dica.sim_gateway.recording.style import vehicle_color, vehicle_statuses
 from dica.tools.cli import main as dica
 

@@ -5,7 +5,8 @@ how to read it is in ``docs/recording.md``.
 """
 
 from dica.sim_gateway.recording.geometry import approach_of
-from dica.sim_gateway.recording.recorder import TOP_EVERY, SpaceTimeRecorder
+from dica.sim_gateway.recording.recorder import SpaceTimeRecorder
 from dica.sim_gateway.recording.style import STATUS_STYLE, Status
+from dica.sim_gateway.recording.top_view import TOP_EVERY
 
 __all__ = ["STATUS_STYLE", "TOP_EVERY", "SpaceTimeRecorder", "Status", "approach_of"]
