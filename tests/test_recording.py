@@ -36,21 +36,15 @@ from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.zones import ConflictTables, Shape
 from dica.sim_gateway.conflict_points import covers, find_conflict_points
 from dica.sim_gateway.recording import (
-    CHART_EVERY,
-    CHART_M_PER_S,
-    PAST_S,
-    ROW_M,
     STATUS_STYLE,
     TOP_EVERY,
-    RouteProjector,
     SpaceTimeRecorder,
     Status,
     approach_of,
-    rectangles,
-    sumo_heading_rad,
-    vehicle_color,
-    vehicle_statuses,
 )
+from dica.sim_gateway.recording.chart_frame import CHART_EVERY, CHART_M_PER_S, PAST_S, ROW_M
+from dica.sim_gateway.recording.geometry import RouteProjector, rectangles, sumo_heading_rad
+from dica.sim_gateway.recording.style import vehicle_color, vehicle_statuses
 from dica.tools.cli import main as dica
 
 LENGTH_M, WIDTH_M, MARGIN_M = 5.0, 1.8, 0.25

@@ -1,0 +1,351 @@
+"""A Rerun recording of a run: the junction, every reservation, and what vehicles did.
+
+The recorder sits beside the control loop, never inside it: the ICA core does
+not know it exists, and it takes plain arrays and strings, so the embedded
+runner, a Zenoh process or a test can all feed it. It writes to its own
+:class:`rerun.RecordingStream` (never Rerun's global one), to a ``.rrd`` file
+and, when asked, to a gRPC server on loopback that viewers can watch live.
+``docs/recording.md`` says how to read each view.
+
+It composes the views, each in its own module: the top view
+(:mod:`.top_view`), the lane charts (:mod:`.lane_charts`), the conflict-point
+chart (:mod:`.conflict_chart`), the counts and tables (:mod:`.tables`), laid
+out by :mod:`.layout`; all of them add rows to one :class:`RowBuffer`.
+
+Cost. A Rerun call costs 0.1-0.5 ms, so a step only appends its arrays to a
+buffer; every ``flush_s`` of simulated time the buffer is drawn with numpy
+into rows per entity (:class:`StepBatch`), which are sent as one column
+chunk per entity once it holds MAX_ROWS of them, and at the end: a 10-minute
+run makes about a hundred chunks. A live recording sends every LIVE_FLUSH_S
+instead, so that viewers see the run as it goes.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.route import Route
+from dica.ica.core.zones import ConflictTables, Shape
+from dica.sim_gateway.conflict_points import ConflictPoints, dtot_of_tss, find_conflict_points
+from dica.sim_gateway.recording.batch import Plan, Step, StepBatch
+from dica.sim_gateway.recording.chart_frame import CHART_EVERY, ChartFrame
+from dica.sim_gateway.recording.conflict_chart import ConflictChart
+from dica.sim_gateway.recording.geometry import RouteProjector
+from dica.sim_gateway.recording.lane_charts import LaneCharts
+from dica.sim_gateway.recording.layout import Layout
+from dica.sim_gateway.recording.rows import RowBuffer
+from dica.sim_gateway.recording.style import VehicleColours, row_styles
+from dica.sim_gateway.recording.tables import Tables
+from dica.sim_gateway.recording.top_view import TopView, reserved_bands
+
+START_WAIT_S = 60.0  # [s] how long the recording waits for a first confirmation
+FLUSH_S = 20.0  # [s] of simulated time buffered before it is sent (saved file)
+LIVE_FLUSH_S = 1.0  # [s] the same when viewers watch live (and rows are sent then)
+
+
+class SpaceTimeRecorder:
+    """Logs one junction's run into a ``.rrd`` file; see the module docstring.
+
+    Raises ValueError for arrays of unequal length or an unknown route id:
+    those are the caller's bugs. A caller that must not stop because of the
+    recording (a live run) should catch and log them.
+    """
+
+    def __init__(
+        self,
+        intersection: Intersection,
+        path: str | Path,
+        *,
+        application_id: str = "dica",
+        recording_id: str | None = None,
+        margin_m: float = 0.25,
+        shape: Shape | None = None,
+        flush_s: float = FLUSH_S,
+        live_port: int | None = None,
+    ) -> None:
+        """``live_port``: also serve the recording over gRPC on 127.0.0.1 at that port
+        (viewers attach with ``rerun+http://127.0.0.1:PORT/proxy``); sends every
+        ``LIVE_FLUSH_S`` then."""
+        self.intersection = intersection
+        self.path = Path(path)
+        self.margin_m = margin_m
+        self.live = live_port is not None
+        self.flush_s = LIVE_FLUSH_S if self.live else flush_s
+        routes = intersection.routes
+        self.lanes: tuple[str, ...] = intersection.in_lanes
+        self._projector = RouteProjector(routes)
+        shape = shape or Shape(5.0, 1.8)
+        top_m = max(r.cross_length_m for r in routes) + shape.length_m
+        self.points: ConflictPoints = find_conflict_points(
+            intersection, ConflictTables(intersection, margin_m), shape
+        )
+        self._plans: dict[str, Plan] = {}
+        self._colours = VehicleColours()
+        self._steps: list[Step] = []
+        self._step_no = 0
+        self._buf_t0 = 0.0
+        self._start_s: float | None = None  # the timeline starts at the first confirmation
+        self._rows = RowBuffer(row_styles(self.lanes, margin_m))
+        self._layout = Layout(intersection, top_m, len(self.points))
+        self._top = TopView(intersection, self._rows, margin_m)
+        self._lane_charts = LaneCharts(intersection, self._rows, self._colours, top_m)
+        self._conflicts = ConflictChart(self.points, self._rows, self._colours)
+        self._frame = ChartFrame(self._rows, top_m, len(self.points))
+        self._tables = Tables(self._rows)
+
+        self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
+        self.rec.set_log_time_enabled(False)  # only sim_time: wall clock would mislead
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        sinks: list[Any] = [rr.FileSink(str(self.path))]
+        if live_port is not None:
+            sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=live_port))
+        self.rec.set_sinks(*sinks, default_blueprint=self.blueprint())
+        self._tables.series(self.rec)
+
+    def __enter__(self) -> SpaceTimeRecorder:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # -- layout --------------------------------------------------------------
+    def chart_bounds(self) -> rrb.VisualBounds2D:
+        """The one window and distance scale every space-time chart shares."""
+        return self._layout.chart_bounds()
+
+    def zone_bounds(self) -> rrb.VisualBounds2D:
+        return self._layout.zone_bounds()
+
+    def views(self) -> dict[str, Any]:
+        """Every view of the layout by name (see :meth:`Layout.views`)."""
+        return self._layout.views()
+
+    def blueprint(self) -> rrb.Blueprint:
+        return self._layout.blueprint()
+
+    def geometry(self) -> None:
+        """Static drawings: the junction, lane edges, entry lines, legends and chart frames."""
+        self._top.geometry(self.rec)
+        self._frame.now_line(self.rec, self.intersection.comm_length_m)
+        self._lane_charts.frames(self.rec)
+        self._conflicts.frames(self.rec)
+
+    # -- confirmations and rejections ----------------------------------------
+    def confirmed(
+        self,
+        vin: str,
+        route_id: str,
+        t_s: np.ndarray,
+        x_m: np.ndarray,
+        y_m: np.ndarray,
+        heading_rad: np.ndarray,
+        length_m: float,
+        width_m: float,
+        entry_time_s: float,
+        exit_time_s: float,
+        *,
+        now_s: float | None = None,
+        delay_s: float = math.nan,
+        rounds: int = -1,
+        margin_m: float | None = None,
+        time_pad_s: float = 0.0,
+    ) -> None:
+        """One confirmation, logged at ``now_s`` (default: the TSS's first time).
+
+        Its plan goes to its lane's chart, the intervals in which it holds
+        each conflict point (from its DTOT, computed by the core) to the
+        conflict-point chart, and its reserved footprints with their margin to
+        the top view, step by step as the run reaches them. ``margin_m``: the
+        ICA's margin (default: the recorder's); ``time_pad_s``: the ICA's time
+        padding, which it adds to every interval on each side.
+        """
+        route = self._route(route_id)
+        t = np.asarray(t_s, dtype=float)
+        n = len(t)
+        if n == 0 or not all(len(a) == n for a in (x_m, y_m, heading_rad)):
+            raise ValueError(f"{vin}: TSS arrays must be non-empty and of equal length")
+        now = float(t[0]) if now_s is None else float(now_s)
+        if self._start_s is None:
+            self._start_s = now
+        margin = self.margin_m if margin_m is None else float(margin_m)
+        dtot = dtot_of_tss(route, t, x_m, y_m, length_m, width_m, margin)
+        hold = self._conflicts.holding(dtot, time_pad_s)
+        self._plans[vin] = Plan(
+            now,
+            self._projector.index[route_id],
+            route.cross_length_m + length_m,
+            float(dtot.t_s[0]),
+            reserved_bands(dtot, margin),
+            hold,
+        )
+        self._lane_charts.plan(now, vin, route, t, x_m, y_m)
+        self._conflicts.reserved(now, vin, hold)
+        self._tables.confirmed(now, vin, route_id, entry_time_s, exit_time_s, delay_s, rounds)
+        self._maybe_flush(now)
+
+    def rejected(self, t_s: float, vin: str, reason: str, detail: str = "") -> None:
+        """One rejection: a row in the rejections table and the count."""
+        self._tables.rejected(float(t_s), vin, reason, detail)
+
+    # -- what really happened ------------------------------------------------
+    def withdrawn(self, t_s: float, vin: str, why: str) -> None:
+        """``vin``'s confirmation no longer holds (revoked): from ``t_s`` its reserved
+        footprint is no longer drawn and its plan and reserved intervals are not
+        logged again, so they leave the charts with the window; a row says why.
+        The steps buffered so far are drawn first, with the plan in force before
+        ``t_s`` (which may lie a little in the past) and withdrawn from it."""
+        plan = self._plans.get(vin)
+        if plan is not None:
+            plan.until_s = float(t_s)
+            self.flush()
+            self._plans.pop(vin, None)
+        self._rows.forget((f"{vin} plan", f"{vin} P"))
+        self.rejected(t_s, vin, why)
+
+    def emergency(self, vin: str) -> None:
+        """Draw ``vin`` in the emergency vehicles' colour from now on: in the top view
+        until it has cleared, and its plans and progress in the charts (call it before
+        its first confirmation, so that its plan is drawn in that colour too)."""
+        self._colours.mark_emergency(vin)
+
+    def reordered(
+        self,
+        t_s: float,
+        ev: str,
+        lane: str,
+        solver: str,
+        order: Sequence[str],
+        ev_entry_before_s: float,
+        ev_entry_after_s: float,
+        *,
+        revoked: Sequence[str] = (),
+        refused: str = "",
+    ) -> None:
+        """Reactive DICA reordered the vehicles for emergency vehicle ``ev`` at ``t_s``.
+
+        On the EV's lane chart: a line across the chart at ``t_s`` and one along
+        the entry line from the EV's entry in the present order to its entry in
+        the new one (by the ordering model), in the EV's colour and labelled; a
+        row in the reorders table with the solver, both entries and the new
+        order, revoked vehicles starred (``refused``: the present order was kept).
+        """
+        if lane not in self.lanes:
+            raise ValueError(f"unknown lane {lane!r}")
+        t = float(t_s)
+        self._lane_charts.reorder(t, ev, lane, solver, ev_entry_before_s, ev_entry_after_s)
+        self._tables.reordered(
+            t, ev, solver, order, ev_entry_before_s, ev_entry_after_s, revoked, refused
+        )
+
+    def kept(self, t_s: float, vin: str, why: str) -> None:
+        """A revoked plan that stands after all (the vehicle could not stop short of the
+        line, or no answer came before the plan ended): it stays drawn; a row says why."""
+        self._tables.kept(float(t_s), vin, why)
+
+    def footprints(
+        self,
+        t_s: float,
+        vins: Sequence[str],
+        x_m: np.ndarray,
+        y_m: np.ndarray,
+        angle_deg: np.ndarray,
+        length_m: np.ndarray | float,
+        width_m: np.ndarray | float,
+        route_ids: Sequence[str | None] | None = None,
+    ) -> None:
+        """All vehicles of one SUMO step, in SUMO's frame (front bumper, degrees from north).
+
+        Call it every step, even with no vehicles, so that vehicles that left
+        vanish from the top view. ``route_ids`` (None or "" where the route is
+        not known yet) put a vehicle on its lane's chart and give it a state.
+        Only buffers: the drawing is done in batches (:meth:`flush`).
+        """
+        n = len(vins)
+        x = np.asarray(x_m, dtype=float).reshape(-1)
+        y = np.asarray(y_m, dtype=float).reshape(-1)
+        angle = np.asarray(angle_deg, dtype=float).reshape(-1)
+        if not len(x) == len(y) == len(angle) == n:
+            raise ValueError("footprints: vins, x_m, y_m and angle_deg must have equal length")
+        if route_ids is None:
+            ridx = np.full(n, -1)
+        else:
+            if len(route_ids) != n:
+                raise ValueError("footprints: route_ids must have one entry per vehicle")
+            ridx = self._route_indices(route_ids)
+        length = np.broadcast_to(np.asarray(length_m, dtype=float), (n,))
+        width = np.broadcast_to(np.asarray(width_m, dtype=float), (n,))
+        t = float(t_s)
+        self._steps.append(Step(t, list(vins), x, y, angle, length, width, ridx))
+        self._maybe_flush(t)
+
+    def _maybe_flush(self, t_s: float) -> None:
+        if t_s - self._buf_t0 >= self.flush_s:
+            self.flush()
+            self._buf_t0 = t_s
+
+    def flush(self, final: bool = False) -> None:
+        """Draw the buffered steps (done every ``flush_s`` of simulated time) and send
+        the rows of entities that have MAX_ROWS of them; ``final`` (on close), or a
+        live recording: send everything.
+
+        The recording starts at the first confirmation, so that a viewer opens
+        on it; steps before it are dropped. A run with no confirmation within
+        START_WAIT_S (a signalised baseline) starts at its first step.
+        """
+        steps = self._steps
+        if steps and self._start_s is None:
+            if not final and steps[-1].t_s - steps[0].t_s < START_WAIT_S:
+                return  # keep waiting for the first confirmation
+            self._start_s = steps[0].t_s
+        if steps:
+            start = self._start_s or 0.0
+            kept = [st for st in steps if st.t_s >= start - 1e-9]
+            if kept:
+                self._draw(kept)
+            self._steps = []
+        self._rows.send(self.rec, everything=final or self.live)
+
+    def close(self) -> None:
+        """Send what is buffered and finish the file (Rerun writes its footer on disconnect)."""
+        self.flush(final=True)
+        self.rec.flush()
+        self.rec.disconnect()
+
+    def _draw(self, steps: list[Step]) -> None:
+        """A batch of steps into rows: the top view every TOP_EVERY steps, the charts
+        and the vehicle count every CHART_EVERY steps, and the rows due again."""
+        batch = StepBatch.of(
+            steps, self._step_no, self._projector, self._plans, self._colours.emergency
+        )
+        self._step_no += len(steps)
+        self._top.draw(batch, self._plans)
+        chart_step = batch.every(CHART_EVERY)
+        if chart_step.any():
+            self._tables.vehicles(batch.times[chart_step], batch.counts[chart_step])
+            self._frame.shift(batch.times[chart_step])
+        times = batch.times
+        self._frame.ticks(times[-1] if len(times) else 0.0, self._start_s or 0.0)
+        if len(times):
+            self._rows.due(float(times[-1]))
+        self._lane_charts.actual(batch, chart_step)
+        self._conflicts.held(batch, chart_step)
+
+    def _route(self, route_id: str) -> Route:
+        route = self.intersection.route_by_id(route_id)
+        if route is None:
+            raise ValueError(f"unknown route {route_id!r}")
+        return route
+
+    def _route_indices(self, route_ids: Sequence[str | None]) -> np.ndarray:
+        try:
+            return np.array([self._projector.index[r] if r else -1 for r in route_ids], dtype=int)
+        except KeyError as e:
+            raise ValueError(f"unknown route {e.args[0]!r}") from None
