@@ -136,15 +136,31 @@ def test_the_link_emulator_delays_and_loses_real_zenoh_messages(tmp_path):
 
             sub = far.declare_subscriber("t/x", heard)  # a declaration: never lost
             pub = near.declare_publisher("t/x", express=True)
-            time.sleep(1.0)
+            deadline = time.monotonic() + 30
+            while not got:  # the subscription has reached the publisher's side
+                assert time.monotonic() < deadline, "nothing ever crossed the link"
+                pub.put(time.time_ns().to_bytes(8, "little"))
+                time.sleep(0.1)
 
             def burst(n: int) -> list[float]:
+                """Send n, then wait until all have come or none has for 0.5 s."""
                 with lock:
                     got.clear()
                 for _ in range(n):
                     pub.put(time.time_ns().to_bytes(8, "little"))
                     time.sleep(0.004)
-                time.sleep(0.6)
+                quiet_since, seen = time.monotonic(), -1
+                end = time.monotonic() + 30
+                while time.monotonic() < end:
+                    with lock:
+                        now = len(got)
+                    if now >= n:
+                        break
+                    if now != seen:
+                        quiet_since, seen = time.monotonic(), now
+                    elif time.monotonic() - quiet_since > 0.5:
+                        break
+                    time.sleep(0.02)
                 with lock:
                     return list(got)
 
