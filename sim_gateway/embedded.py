@@ -18,15 +18,21 @@ from pathlib import Path
 
 import numpy as np
 
-from dica.ica.core.baselines import controller_config, make_controller
-from dica.ica.core.config import IcaConfig
+from dica.ica.core.baselines import make_controller
 from dica.ica.core.dica import Dica
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.reactive import DROPPED, KEPT, ReactiveConfig, ReactiveDica, Reorder
+from dica.ica.core.reactive import DROPPED, KEPT, ReactiveDica, Reorder
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from dica.ica.core.window import WindowOrder
-from dica.sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, make_arrivals
-from dica.sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
+from dica.sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, schedule_for
+from dica.sim_gateway.runconfig import (
+    LIGHTS,
+    RunConfig,
+    RunError,
+    RunResult,
+    ica_config,
+    reactive_config,
+)
 from dica.sim_gateway.scenario import ScenarioError, light_net
 from dica.sim_gateway.signals import (
     HOLD,
@@ -42,7 +48,7 @@ from dica.sim_gateway.world import Seen, World, import_libsumo, start_sumo
 from dica.vehicle_agent.actuation import Actuation
 from dica.vehicle_agent.machine import PENDING, Phase, Vehicle
 
-__all__ = ["LIGHTS", "RunConfig", "RunError", "RunResult", "run", "schedule_for"]
+__all__ = ["LIGHTS", "RunConfig", "RunError", "RunResult", "run"]
 
 
 class LocalLink:
@@ -261,49 +267,6 @@ class LocalDrivers:
 
 def _ms(f, xs: list[float]) -> float | None:
     return float(f(xs) * 1e3) if xs else None
-
-
-def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
-    """The vehicles of this run in arrival order, cut at the horizon; and its stream spec."""
-    peak = max(cfg.volume_per_10min, cfg.volume_end_per_10min or 0.0)
-    # enough arrivals to outlast the horizon; the schedule is cut at the horizon below
-    n = cfg.until_left or max(1, math.ceil(peak / 600.0 * cfg.duration_s * 2 + 20))
-    spec = DemandSpec(
-        volume_per_10min=cfg.volume_per_10min,
-        n_vehicles=n,
-        seed=cfg.seed,
-        length_range_m=(cfg.length_m, cfg.length_m),
-        width_range_m=(cfg.width_m, cfg.width_m),
-        approach_weights=cfg.approach_weights,
-        volume_end_per_10min=cfg.volume_end_per_10min,
-        ramp_s=cfg.ramp_s,
-        ev_prob=cfg.ev_prob,
-    )
-    try:
-        schedule = make_arrivals(inter, spec, step_s)
-    except ValueError as e:
-        raise RunError(str(e)) from None
-    horizon = math.inf if cfg.until_left else cfg.duration_s
-    return [v for v in schedule if v.arrival_s <= horizon], spec, horizon
-
-
-def reactive_config(cfg: RunConfig) -> ReactiveConfig:
-    """Reactive DICA's settings for a run (the cluster's ICA builds the same)."""
-    return ReactiveConfig(
-        solver=cfg.solver, seed=cfg.seed, replan_revoked=cfg.revocation == "replan"
-    )
-
-
-def ica_config(cfg: RunConfig) -> IcaConfig:
-    return controller_config(
-        cfg.algorithm,
-        cfg.margin_m,
-        cfg.time_pad_s,
-        cfg.platoon,
-        cfg.headway_s,
-        cfg.run_up,
-        cfg.exit_spacing,
-    )
 
 
 def run(

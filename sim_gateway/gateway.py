@@ -53,8 +53,8 @@ from dica.deploy.transport import (
 from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode, encode, now_ns
 from dica.schemas.messages import Clock, Command, Revoke, State, Stats, VehicleState
-from dica.sim_gateway.embedded import ica_config, schedule_for
-from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
+from dica.sim_gateway.demand import schedule_for
+from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult, ica_config
 from dica.sim_gateway.world import Seen, World
 from dica.vehicle_agent.actuation import BIG, NO_PLAN, Actuation
 

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from dica.ica.core.baselines import BASELINES
-from dica.ica.core.config import Techniques
+from dica.ica.core.baselines import BASELINES, controller_config
+from dica.ica.core.config import IcaConfig, Techniques
 from dica.ica.core.ordering import SOLVERS
+from dica.ica.core.reactive import ReactiveConfig
 from dica.sim_gateway.metrics import TripLog
 
 LIGHTS = ("fixed", "actuated", "reactive-light")  # SUMO drives; the junction is signalised
@@ -121,3 +122,22 @@ class RunResult:
     sumo_command: list[str] = field(default_factory=list)
     signal: dict | None = None
     extra: dict = field(default_factory=dict)  # mode-specific facts (clock, agents, ...)
+
+
+def reactive_config(cfg: RunConfig) -> ReactiveConfig:
+    """Reactive DICA's settings for a run (the cluster's ICA builds the same)."""
+    return ReactiveConfig(
+        solver=cfg.solver, seed=cfg.seed, replan_revoked=cfg.revocation == "replan"
+    )
+
+
+def ica_config(cfg: RunConfig) -> IcaConfig:
+    return controller_config(
+        cfg.algorithm,
+        cfg.margin_m,
+        cfg.time_pad_s,
+        cfg.platoon,
+        cfg.headway_s,
+        cfg.run_up,
+        cfg.exit_spacing,
+    )

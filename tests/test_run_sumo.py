@@ -255,8 +255,8 @@ def test_run_records_every_confirmation_and_footprint(tmp_path):
 
 
 UNCHECKED = """
-from dica.sim_gateway.embedded import ica_config, schedule_for
-from dica.sim_gateway.runconfig import RunConfig
+from dica.sim_gateway.demand import schedule_for
+from dica.sim_gateway.runconfig import RunConfig, ica_config
 from dica.sim_gateway.scenario import default_scenario
 from dica.sim_gateway.world import World, import_libsumo, start_sumo
 from dica.ica.netfile import load_intersection
