@@ -25,6 +25,7 @@ from dica.ica.core.reactive import DROPPED, KEPT, ReactiveDica, Reorder
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from dica.ica.core.window import WindowOrder
 from dica.sim_gateway.demand import Arrival, schedule_for
+from dica.sim_gateway.junction import Seen
 from dica.sim_gateway.light_control import ReactiveLight, setup_signal
 from dica.sim_gateway.runconfig import (
     LIGHTS,
@@ -36,7 +37,8 @@ from dica.sim_gateway.runconfig import (
 )
 from dica.sim_gateway.scenario import ScenarioError, light_net
 from dica.sim_gateway.signals import Phase as SignalPhase
-from dica.sim_gateway.world import Seen, World, import_libsumo, start_sumo
+from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
+from dica.sim_gateway.world import World
 from dica.vehicle_agent.actuation import Actuation
 from dica.vehicle_agent.machine import PENDING, Phase, Vehicle
 

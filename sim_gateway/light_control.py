@@ -14,6 +14,7 @@ import math
 
 from dica.ica.core.intersection import Intersection
 from dica.sim_gateway.demand import DemandSpec, expected_lane_flows
+from dica.sim_gateway.junction import Seen
 from dica.sim_gateway.runconfig import RunConfig, RunError
 from dica.sim_gateway.signals import (
     HOLD,
@@ -25,7 +26,6 @@ from dica.sim_gateway.signals import (
     with_clearance,
 )
 from dica.sim_gateway.signals import Phase as SignalPhase
-from dica.sim_gateway.world import Seen
 
 
 def setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> dict:

@@ -258,7 +258,8 @@ UNCHECKED = """
 from dica.sim_gateway.demand import schedule_for
 from dica.sim_gateway.runconfig import RunConfig, ica_config
 from dica.sim_gateway.scenario import default_scenario
-from dica.sim_gateway.world import World, import_libsumo, start_sumo
+from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
+from dica.sim_gateway.world import World
 from dica.ica.netfile import load_intersection
 
 sc = default_scenario("ch45")
