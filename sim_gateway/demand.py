@@ -16,6 +16,7 @@ EV at a time"), which depends on how fast the previous one got through.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +24,7 @@ import numpy as np
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Turn
 from dica.ica.core.route import Route
+from dica.sim_gateway.runconfig import RunConfig, RunError
 
 ROAD_LIMIT_MPS = 70.0 / 3.6  # [m/s] the dissertation's road speed limit v_m
 
@@ -143,3 +145,27 @@ def expected_lane_flows(inter: Intersection, spec: DemandSpec) -> dict[str, floa
                 share = probs[turn] / total / len(routes)
                 flows[r.in_lane] = flows.get(r.in_lane, 0.0) + per_approach * share
     return flows
+
+
+def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
+    """The vehicles of this run in arrival order, cut at the horizon; and its stream spec."""
+    peak = max(cfg.volume_per_10min, cfg.volume_end_per_10min or 0.0)
+    # enough arrivals to outlast the horizon; the schedule is cut at the horizon below
+    n = cfg.until_left or max(1, math.ceil(peak / 600.0 * cfg.duration_s * 2 + 20))
+    spec = DemandSpec(
+        volume_per_10min=cfg.volume_per_10min,
+        n_vehicles=n,
+        seed=cfg.seed,
+        length_range_m=(cfg.length_m, cfg.length_m),
+        width_range_m=(cfg.width_m, cfg.width_m),
+        approach_weights=cfg.approach_weights,
+        volume_end_per_10min=cfg.volume_end_per_10min,
+        ramp_s=cfg.ramp_s,
+        ev_prob=cfg.ev_prob,
+    )
+    try:
+        schedule = make_arrivals(inter, spec, step_s)
+    except ValueError as e:
+        raise RunError(str(e)) from None
+    horizon = math.inf if cfg.until_left else cfg.duration_s
+    return [v for v in schedule if v.arrival_s <= horizon], spec, horizon

@@ -23,24 +23,23 @@ from dica.ica.core.intersection import Intersection
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from dica.ica.core.revocation import DROPPED, KEPT, Reorder
 from dica.ica.core.window import WindowOrder
-from dica.sim_gateway.demand import Arrival, DemandSpec, expected_lane_flows, make_arrivals
-from dica.sim_gateway.runconfig import LIGHTS, RunConfig, RunError, RunResult
-from dica.sim_gateway.scenario import ScenarioError, light_net
-from dica.sim_gateway.signals import (
-    HOLD,
-    Preemption,
-    SignalLink,
-    phases_of,
-    reactive_phases,
-    retime,
-    with_clearance,
+from dica.sim_gateway.demand import Arrival, schedule_for
+from dica.sim_gateway.junction import Seen
+from dica.sim_gateway.light_control import ReactiveLight, setup_signal
+from dica.sim_gateway.runconfig import (
+    LIGHTS,
+    RunConfig,
+    RunError,
+    RunResult,
 )
+from dica.sim_gateway.scenario import ScenarioError, light_net
 from dica.sim_gateway.signals import Phase as SignalPhase
-from dica.sim_gateway.world import Seen, World, import_libsumo, start_sumo
+from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
+from dica.sim_gateway.world import World
 from dica.vehicle_agent.actuation import Actuation
 from dica.vehicle_agent.machine import PENDING, Phase, Vehicle
 
-__all__ = ["LIGHTS", "RunConfig", "RunError", "RunResult", "run", "schedule_for"]
+__all__ = ["LIGHTS", "RunConfig", "RunError", "RunResult", "run"]
 
 
 class LocalLink:
@@ -251,30 +250,6 @@ def _ms(f, xs: list[float]) -> float | None:
     return float(f(xs) * 1e3) if xs else None
 
 
-def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
-    """The vehicles of this run in arrival order, cut at the horizon; and its stream spec."""
-    peak = max(cfg.volume_per_10min, cfg.volume_end_per_10min or 0.0)
-    # enough arrivals to outlast the horizon; the schedule is cut at the horizon below
-    n = cfg.until_left or max(1, math.ceil(peak / 600.0 * cfg.duration_s * 2 + 20))
-    spec = DemandSpec(
-        volume_per_10min=cfg.volume_per_10min,
-        n_vehicles=n,
-        seed=cfg.seed,
-        length_range_m=(cfg.length_m, cfg.length_m),
-        width_range_m=(cfg.width_m, cfg.width_m),
-        approach_weights=cfg.approach_weights,
-        volume_end_per_10min=cfg.volume_end_per_10min,
-        ramp_s=cfg.ramp_s,
-        ev_prob=cfg.ev_prob,
-    )
-    try:
-        schedule = make_arrivals(inter, spec, step_s)
-    except ValueError as e:
-        raise RunError(str(e)) from None
-    horizon = math.inf if cfg.until_left else cfg.duration_s
-    return [v for v in schedule if v.arrival_s <= horizon], spec, horizon
-
-
 def run(
     cfg: RunConfig,
     inter: Intersection,
@@ -329,13 +304,13 @@ def _run(
     else:
         cmd = start_sumo(ls, cfg, ica_cfg.step_s)
     try:
-        signal = _setup_signal(ls, cfg, inter, spec) if light else None
+        signal = setup_signal(ls, cfg, inter, spec) if light else None
         if signal is not None and built is not None:
             signal["built"] = built
         preempt = None
         if cfg.algorithm == "reactive-light":
             program = [SignalPhase(d, st, kind, d, d) for d, st, kind in signal["phases"]]
-            preempt = _ReactiveLight(ls, inter, program)
+            preempt = ReactiveLight(ls, inter, program)
         recorder = _recorder(inter, rrd_path)
         world = World(
             ls, cfg, inter, ica_cfg, schedule, horizon, signalised=light,
@@ -461,153 +436,3 @@ def _record(
         cfg.width_m,
         route_ids=[s.car.route.id for s in seen],
     )
-
-
-def _setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> dict:
-    """Clearance from the formulas on the junction's program; for the fixed light,
-    greens from the cycle model on top (:mod:`sim_gateway.signals`)."""
-    tls = inter.junction_id
-    if tls not in ls.trafficlight.getIDList():
-        raise RunError(f"junction {tls} has no traffic light of its own id in the signalised net")
-    logic = _current_logic(ls, tls)
-    links = _signal_links(ls, tls)
-    phases = phases_of(
-        [p.duration for p in logic.phases],
-        [p.state for p in logic.phases],
-        [p.minDur for p in logic.phases],
-        [p.maxDur for p in logic.phases],
-    )
-    phases = with_clearance(phases, links, cfg.length_m)
-    out: dict = {"type": cfg.algorithm}
-    if cfg.algorithm == "fixed":
-        lanes = [ln.in_lane if ln is not None else "" for ln in links]
-        phases, timing = retime(phases, lanes, expected_lane_flows(inter, spec))
-        out |= {"cycle_s": timing.cycle_s, "flow_ratio_sum": timing.flow_ratio_sum}
-    elif cfg.algorithm == "reactive-light":
-        phases = reactive_phases(phases)
-        out["cycle_s"] = sum(p.duration_s for p in phases)
-    make = ls.trafficlight.Phase
-    logic.phases = tuple(make(p.duration_s, p.state, p.min_s, p.max_s) for p in phases)
-    # a program of its own: replacing the running actuated one in place crashed SUMO 1.28
-    logic.programID = "dica"
-    logic.currentPhaseIndex = 0
-    if cfg.algorithm in ("fixed", "reactive-light"):
-        logic.type = ls.constants.TRAFFICLIGHT_TYPE_STATIC
-    ls.trafficlight.setProgramLogic(tls, logic)
-    ls.trafficlight.setProgram(tls, logic.programID)
-    out["phases"] = [(round(p.duration_s, 3), p.state, p.kind) for p in phases]
-    return out
-
-
-def _current_logic(ls, tls: str):
-    program = ls.trafficlight.getProgram(tls)
-    logics = ls.trafficlight.getAllProgramLogics(tls)
-    return next((lg for lg in logics if lg.programID == program), logics[0])
-
-
-def _signal_links(ls, tls: str) -> list[SignalLink | None]:
-    """Per signal index: the incoming lane, its speed limit, and the way through
-    the junction (the chain of internal lanes to the outgoing lane)."""
-    out: list[SignalLink | None] = []
-    for group in ls.trafficlight.getControlledLinks(tls):
-        if not group:
-            out.append(None)
-            continue
-        in_lane, out_lane, via = group[0]
-        v_in = ls.lane.getMaxSpeed(in_lane)
-        length, v_min = 0.0, v_in
-        for _ in range(16):  # SUMO chains a handful of internal lanes at most
-            if not via.startswith(":"):
-                break
-            length += ls.lane.getLength(via)
-            v_min = min(v_min, ls.lane.getMaxSpeed(via))
-            via = next((lk[4] for lk in ls.lane.getLinks(via) if lk[0] == out_lane), "")
-        out.append(SignalLink(in_lane, v_in, length, v_min))
-    return out
-
-
-# -- the reactive light ---------------------------------------------------------------------
-class _ReactiveLight:
-    """Pre-emption for one emergency vehicle at a time (:class:`sim_gateway.signals.Preemption`).
-
-    The first EV seen in the region gets its movements green as soon as the
-    program's clearances allow; the green is held until its front has passed
-    the stop line, then the program resumes where it stands.
-    """
-
-    _FOREVER_S = 1e6
-
-    def __init__(self, ls, inter: Intersection, phases: list[SignalPhase]) -> None:
-        self.ls = ls
-        self.tls = inter.junction_id
-        self.program = Preemption(phases)
-        self.program_id = ls.trafficlight.getProgram(self.tls)
-        self.links = ls.trafficlight.getControlledLinks(self.tls)
-        self.ev: str | None = None
-        self.steps: list[tuple[int | str, float | None]] = []
-        self.step_end_s = math.inf
-        self.served = 0
-        self.kinds: dict[str, int] = {"extend": 0, "return": 0, "cut": 0}
-
-    def _ev_links(self, s: Seen) -> list[int]:
-        r = s.car.route
-        return [
-            i
-            for i, group in enumerate(self.links)
-            if any(ln[0] == r.in_lane and ln[1] == r.out_lane for ln in group)
-        ]
-
-    def step(self, t: float, seen: list[Seen]) -> None:
-        tl = self.ls.trafficlight
-        if self.ev is None:
-            for s in seen:
-                waiting = s.obs.lane == s.car.route.in_lane and not math.isnan(s.obs.detected_s)
-                if s.car.ev and waiting:
-                    links = self._ev_links(s)
-                    if not links:
-                        continue
-                    phase = tl.getPhase(self.tls)
-                    remaining = tl.getNextSwitch(self.tls) - t
-                    self.steps = self.program.steps(phase, remaining, links)
-                    kind = "cut" if len(self.steps) > 1 else (
-                        "extend" if self.steps[0][0] == phase else "return"
-                    )  # fmt: skip
-                    self.kinds[kind] += 1
-                    self.ev = s.car.vin
-                    self._begin(t, first=True)
-                    break
-            return
-        ev = next((s for s in seen if s.car.vin == self.ev), None)
-        entered = ev is None or ev.obs.lane != ev.car.route.in_lane or ev.obs.exited
-        k, duration = self.steps[0]
-        if duration is HOLD:
-            if entered:
-                self._resume(t, k)
-            return
-        if t >= self.step_end_s - 1e-6:
-            self.steps.pop(0)
-            self._begin(t, first=False)
-
-    def _begin(self, t: float, first: bool) -> None:
-        tl = self.ls.trafficlight
-        k, duration = self.steps[0]
-        if isinstance(k, str):  # a transition of the cut: a state of its own
-            tl.setRedYellowGreenState(self.tls, k)
-        elif not (first and tl.getPhase(self.tls) == k):
-            if tl.getProgram(self.tls) != self.program_id:
-                tl.setProgram(self.tls, self.program_id)
-            tl.setPhase(self.tls, k)
-        # SUMO must not move on by itself: every switch is ours until the EV has entered
-        tl.setPhaseDuration(self.tls, self._FOREVER_S)
-        self.step_end_s = math.inf if duration is HOLD else t + duration
-
-    def _resume(self, t: float, k: int) -> None:
-        tl = self.ls.trafficlight
-        spent = tl.getSpentDuration(self.tls)
-        tl.setPhaseDuration(self.tls, max(self.program.durations[k] - spent, 0.05))
-        self.ev = None
-        self.steps = []
-        self.served += 1
-
-    def summary(self) -> dict:
-        return {"served": self.served, **self.kinds}

@@ -54,9 +54,10 @@ from dica.deploy.transport import (
 from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode, encode, now_ns
 from dica.schemas.messages import Clock, Command, Revoke, State, Stats, VehicleState
-from dica.sim_gateway.embedded import schedule_for
+from dica.sim_gateway.demand import schedule_for
+from dica.sim_gateway.junction import Seen
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
-from dica.sim_gateway.world import Seen, World
+from dica.sim_gateway.world import World
 from dica.vehicle_agent.actuation import BIG, NO_PLAN, Actuation
 
 CLOCKS = ("lockstep", "realtime")
@@ -636,7 +637,7 @@ def run_gateway(
     ``checkpoint_every_s`` of sim time (``why`` says it is incomplete) and,
     should the run stop early, once more with the reason.
     """
-    from dica.sim_gateway.world import import_libsumo, start_sumo
+    from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
 
     ls = import_libsumo()
     ica_cfg = cfg.controller_spec().config

@@ -179,20 +179,17 @@ def test_platoons_cross_heavy_traffic_safely_with_fewer_stops(tmp_path):
     assert figures["--platoon"]["mean_trip_time_s"] < figures["--no-platoon"]["mean_trip_time_s"]
 
 
-def _actuator_at(t_s: float):
-    """The gateway's actuator rules alone (World._drop, World._may_follow), no SUMO."""
-    from dica.sim_gateway.world import Timing, World
+def _actuator():
+    """The gateway's actuator rules alone (Actuator.drop, Actuator.may_follow), no SUMO."""
+    from dica.sim_gateway.actuator import Actuator
+    from dica.sim_gateway.metrics import TripLog
 
-    w = World.__new__(World)
-    w.t, w.h = t_s, 0.05
-    w.ica_cfg = ControllerSpec.of("enhanced", MARGIN, platoon=True, headway_s=0.3).config
-    w.timing = Timing()
-    w.cfg = dataclasses.make_dataclass("Cfg", [("length_m", float)])(LENGTH)
-    return w
+    cfg = ControllerSpec.of("enhanced", MARGIN, platoon=True, headway_s=0.3).config
+    return Actuator(None, cfg, LENGTH, TripLog())
 
 
 def _car(ch45, vin: str, s_m: float, speed: float, plan_t0: float | None = None):
-    from dica.sim_gateway.world import Car
+    from dica.sim_gateway.junction import Car
 
     c = Car(vin, ch45.route(*WEST), 1, 12.0, s_m=s_m, speed_mps=speed)
     if plan_t0 is not None:  # a plan that moves on at `speed` from where it is
@@ -204,48 +201,48 @@ def _car(ch45, vin: str, s_m: float, speed: float, plan_t0: float | None = None)
 def test_the_actuator_keeps_a_leader_s_plan_while_its_follower_flies_behind(ch45):
     """A REVOKE that reaches a platoon's leader before its follower's is answered 'kept':
     the leader could stop, but the follower flying behind it could not be told in time."""
-    w = _actuator_at(10.0)
+    w = _actuator()
     lead = _car(ch45, "a", -30.0, 5.0, plan_t0=9.0)
     back = _car(ch45, "b", -40.0, 5.0, plan_t0=9.5)
     lead.behind, back.ahead = back, lead
-    w._drop(lead, 7)
+    w.drop(lead, 7, 10.0)
     assert lead.plan_seq == 7 and lead.kept_seq == 7 and w.timing.kept == 1
     # the follower's drop first (the rearmost first, as one step's drops go): both drop
-    w._drop(back, 7)
+    w.drop(back, 7, 10.0)
     assert back.plan_seq == -1 and back.plan_s is None
     lead.kept_seq = -1
-    w._drop(lead, 7)
+    w.drop(lead, 7, 10.0)
     assert lead.plan_seq == -1 and w.timing.dropped == 2
 
 
 def test_a_vehicle_may_follow_only_a_leader_with_a_plan_far_enough_ahead(ch45):
-    w = _actuator_at(10.0)
+    w = _actuator()
     lead = _car(ch45, "a", -20.0, 5.0, plan_t0=9.0)
     back = _car(ch45, "b", -40.0, 5.0)
     back.ahead = lead
-    assert w._may_follow(back, 5.0, 10.0)
+    assert w.may_follow(back, 5.0, 10.0)
     plan = lead.plan_s
     lead.plan_s = None  # no plan: nothing to follow
-    assert not w._may_follow(back, 5.0, 10.0)
+    assert not w.may_follow(back, 5.0, 10.0)
     lead.plan_s = plan
     # its plan has not begun, but it holds it (a plan asked ahead of time): the follower
     # may ask now, judged from where the leader's plan starts
     lead.plan_t0_s = 10.5
-    assert w._may_follow(back, 5.0, 10.0)
+    assert w.may_follow(back, 5.0, 10.0)
     back.s_m = -20.0 - LENGTH - 2 * MARGIN + 0.1
-    assert not w._may_follow(back, 5.0, 10.0)
+    assert not w.may_follow(back, 5.0, 10.0)
     lead.plan_t0_s, back.s_m = 9.0, -40.0
     # 1 s into its plan the leader was at -16.5 m 0.3 s ago: its rear at -21.5 m, and
     # twice the margin behind that is -22 m
     back.s_m = -21.9
-    assert not w._may_follow(back, 5.0, 10.0)
+    assert not w.may_follow(back, 5.0, 10.0)
     back.s_m = -22.1
-    assert w._may_follow(back, 5.0, 10.0)
+    assert w.may_follow(back, 5.0, 10.0)
     back.s_m = -40.0
     # moving, behind a leader whose plan stands short of the line: not yet
     lead.plan_s = np.full(400, -30.0)
-    assert not w._may_follow(back, 5.0, 10.0)
-    assert w._may_follow(back, 0.0, 10.0)  # standing, it may (it can wait where it is)
+    assert not w.may_follow(back, 5.0, 10.0)
+    assert w.may_follow(back, 0.0, 10.0)  # standing, it may (it can wait where it is)
 
 
 @pytest.mark.sumo

@@ -255,10 +255,11 @@ def test_run_records_every_confirmation_and_footprint(tmp_path):
 
 
 UNCHECKED = """
-from dica.sim_gateway.embedded import schedule_for
+from dica.sim_gateway.demand import schedule_for
 from dica.sim_gateway.runconfig import RunConfig
 from dica.sim_gateway.scenario import default_scenario
-from dica.sim_gateway.world import World, import_libsumo, start_sumo
+from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
+from dica.sim_gateway.world import World
 from dica.ica.netfile import load_intersection
 
 sc = default_scenario("ch45")

@@ -1,0 +1,170 @@
+"""One junction's share of the world: its intersection, its routes in SUMO, its region and
+the cars scheduled to cross it.
+
+The world's jobs (:mod:`sim_gateway.traffic` inserts, detects and accounts;
+:mod:`sim_gateway.actuator` drives) keep no state of a junction themselves:
+they act on a :class:`Junction`. A world of several junctions holds several of
+these, each with its own cars, queues and safety monitor.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dica.ica.core.intersection import Intersection
+from dica.ica.core.route import Route
+from dica.sim_gateway.demand import Arrival
+from dica.sim_gateway.safety import SafetyMonitor
+from dica.sim_gateway.sumo_io import Reads, Watch
+from dica.vehicle_agent.actuation import NO_PLAN
+from dica.vehicle_agent.machine import Observation
+
+
+@dataclass(slots=True)
+class Car:
+    """The world's record of one scheduled vehicle."""
+
+    vin: str
+    route: Route
+    lane_index: int
+    entry_speed_mps: float
+    detected_s: float = math.nan
+    exited: bool = False
+    entered: bool = False
+    speed_mode: int = -1
+    head: bool = False  # nothing ahead of it on its incoming lane
+    ahead: Car | None = None  # the vehicle just ahead of it on its incoming lane
+    behind: Car | None = None  # the vehicle just behind it there
+    released: bool = False
+    # the actuator's plan: route positions [m] every step from plan_t0_s
+    plan_seq: int = NO_PLAN
+    plan_t0_s: float = math.nan
+    plan_s: np.ndarray | None = None
+    refused_seq: int = NO_PLAN
+    kept_seq: int = NO_PLAN  # the last plan it was told to drop but kept (it could not stop)
+    # where the front is along the route [m] (0 at the entry line) and how fast, this step
+    s_m: float = math.nan
+    speed_mps: float = 0.0
+    odo_ref: float = math.nan  # SUMO's odometer at the last step on the incoming lane
+    s_ref: float = math.nan  # the route position then
+    ev: bool = False  # inserted as an emergency vehicle
+
+    def locate(self, lane: str, lane_pos_m: float, lane_len_m: float, odo_m: float) -> None:
+        """Where the front is along the route: from the lane position while on the
+        incoming lane, then by SUMO's odometer (internal lanes have no route position)."""
+        if lane == self.route.in_lane:
+            self.s_m = lane_pos_m - lane_len_m
+            self.odo_ref, self.s_ref = odo_m, self.s_m
+        elif not math.isnan(self.odo_ref):
+            self.s_m = self.s_ref + (odo_m - self.odo_ref)
+
+
+@dataclass(slots=True)
+class Seen:
+    """One vehicle as observed this step, with what an observer needs to draw it."""
+
+    car: Car
+    obs: Observation
+    xy: tuple[float, float] = (math.nan, math.nan)
+    angle_deg: float = math.nan
+
+
+def route_edges(r: Route) -> tuple[str, str]:
+    """The route's incoming and outgoing SUMO edges."""
+    return r.in_lane.rsplit("_", 1)[0], r.out_lane.rsplit("_", 1)[0]
+
+
+@dataclass(slots=True)
+class Junction:
+    """One junction in SUMO and everything the world keeps about it."""
+
+    inter: Intersection
+    signalised: bool  # SUMO's light decides; the vehicles do not fly plans here
+    schedule: list[Arrival]  # its vehicles in arrival order at the region's entry line
+    cars: dict[str, Car]
+    edge_routes: dict[tuple[str, str], str]  # (in edge, out edge): SUMO's route id
+    lane_len_m: dict[str, float]  # each incoming lane's length
+    monitor: SafetyMonitor  # the collision check over its region
+    watch: Watch  # the monitor's feed
+    active: list[Car] = field(default_factory=list)  # inserted, not yet forgotten
+    present: set[str] = field(default_factory=set)  # in SUMO at the last step
+    last_in: dict[str, Car] = field(default_factory=dict)  # per lane, the last car to enter
+    # insertion: the next arrival due, the cars SUMO found no room for at the entry line
+    # last step, and per lane the position and speed of its last car
+    next: int = 0
+    blocked: list[Car] = field(default_factory=list)
+    tails: dict[str, tuple[float, float]] = field(default_factory=dict)
+    # accounting
+    crossed: int = 0
+    waiting: int = 0  # stopped in the region this step
+    unconfirmed_entries: list[str] = field(default_factory=list)
+
+    @classmethod
+    def open(
+        cls,
+        ls,
+        inter: Intersection,
+        schedule: list[Arrival],
+        *,
+        signalised: bool,
+        road_mps: float,
+        length_m: float,
+    ) -> Junction:
+        """Add the junction's routes to SUMO and watch its region."""
+        edge_routes: dict[tuple[str, str], str] = {}
+        for r in inter.routes:
+            key = route_edges(r)
+            if key not in edge_routes:
+                edge_routes[key] = f"r_{key[0]}_{key[1]}"
+                ls.route.add(edge_routes[key], list(key))
+        lane_len = {lane: ls.lane.getLength(lane) for lane in inter.in_lanes}
+        if not signalised:
+            # inside the junction vehicles fly their plans (speed mode 32), which hold the
+            # turn caps; SUMO's own lower turn speed limits would only make a vehicle that
+            # is stopping short of the line slow down early, off its predictable stop law
+            for lane in {v for r in inter.routes for v in r.via_lanes}:
+                ls.lane.setMaxSpeed(lane, road_mps)
+        cars = {
+            v.vin: Car(v.vin, v.route, int(v.route.in_lane.rsplit("_", 1)[1]), v.speed_mps)
+            for v in schedule
+        }
+        monitor = SafetyMonitor(inter.region, watch_margin_m=2.0)
+        junction_xy = np.asarray(ls.junction.getPosition(inter.junction_id))
+        reach = float(np.max(np.linalg.norm(inter.region - junction_xy, axis=1)))
+        # a rectangle can touch the watched area only if its front is within its length of it
+        watch = Watch(inter.junction_id, reach + 2.0 + length_m + 1.0)
+        watch.subscribe(ls)
+        return cls(inter, signalised, schedule, cars, edge_routes, lane_len, monitor, watch)
+
+    def forget_gone(self) -> None:
+        """Forget who left last step; a car SUMO has not inserted yet (its spot is taken)
+        stays tracked."""
+        self.active = [
+            c
+            for c in self.active
+            if not c.exited and (c.vin in self.present or math.isnan(c.detected_s))
+        ]
+
+    def order_lanes(self, vw: Reads, present: set[str]) -> None:
+        """Link each car on its incoming lane to the ones just ahead and behind it."""
+        on_lane: dict[str, list[tuple[float, Car]]] = {}
+        for c in self.active:
+            c.ahead = c.behind = None
+            if c.vin in present and vw.getLaneID(c.vin) == c.route.in_lane:
+                on_lane.setdefault(c.route.in_lane, []).append((vw.getLanePosition(c.vin), c))
+        for cars in on_lane.values():
+            cars.sort(key=lambda pc: -pc[0])
+            for (_, front), (_, back) in itertools.pairwise(cars):
+                front.behind, back.ahead = back, front
+
+    def short_of_line(self) -> dict[str, list[Car]]:
+        """Per incoming lane, its cars in SUMO whose fronts have not passed the entry line."""
+        lanes: dict[str, list[Car]] = {}
+        for c in self.active:
+            if c.vin in self.present and not c.entered and not math.isnan(c.s_m):
+                lanes.setdefault(c.route.in_lane, []).append(c)
+        return lanes

@@ -1,0 +1,156 @@
+"""What SUMO says: starting it, and reading each step's vehicles in as few calls as it allows.
+
+A run reads every vehicle's lane, position, speed, road and odometer each
+step, and the safety monitor needs the positions and angles of every vehicle
+near the junction. Read one call at a time that is most of a step's cost,
+so both come from subscriptions: SUMO hands over each step's values in one
+call (:class:`Reads` for the vehicles in the region, :class:`Watch` for the
+monitor's feed). Nothing here decides anything; the values are SUMO's own.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dica.sim_gateway.runconfig import RunConfig, RunError
+from dica.sim_gateway.safety import SafetyMonitor
+
+
+def import_libsumo():
+    """libsumo, without the pyarrow version notice it prints on import.
+
+    libsumo bundles its own arrow, so the notice is harmless (checked on this
+    stack), but it would otherwise open every run's output.
+    """
+    with contextlib.redirect_stdout(io.StringIO()):
+        import libsumo
+    return libsumo
+
+
+def sumo_command(net_path: str, step_s: float, extra: tuple[str, ...]) -> list[str]:
+    return [
+        "sumo",
+        "-n",
+        net_path,
+        "--step-length",
+        str(step_s),
+        "--no-step-log",
+        "true",
+        "--collision.check-junctions",
+        "true",
+        "--collision.action",
+        "warn",
+        # a collision is bodies touching, not a gap below a driver's preferred minimum
+        # (SUMO's default counts any gap under the vehicle type's minGap)
+        "--collision.mingap-factor",
+        "0",
+        # a vehicle that waits long at the line (a lost link, a dead ICA) waits; it is not
+        # teleported out of the run
+        "--time-to-teleport",
+        "-1",
+        "--no-warnings",
+        "true",
+        "--seed",
+        "1",
+        *extra,
+    ]
+
+
+def start_sumo(ls, cfg: RunConfig, step_s: float) -> list[str]:
+    cmd = sumo_command(cfg.net_path, step_s, cfg.sumo_args)
+    try:
+        ls.start(cmd)
+    except Exception as e:  # libsumo raises its own TraCIException or a plain error
+        raise RunError(f"SUMO would not start: {e}") from None
+    return cmd
+
+
+class Reads:
+    """This step's lane, position, speed, road and odometer of every vehicle, from one
+    SUMO call.
+
+    Each vehicle is subscribed to those values when it departs; a vehicle
+    missing from the results (not delivered yet) is read directly.
+    """
+
+    __slots__ = ("_ls", "_rows")
+
+    def __init__(self, ls) -> None:
+        self._ls = ls
+        self._rows = ls.vehicle.getAllSubscriptionResults()
+
+    @staticmethod
+    def subscribe(ls, vin: str, xy: bool = False) -> None:
+        c = ls.constants
+        wanted = [c.VAR_LANE_ID, c.VAR_LANEPOSITION, c.VAR_SPEED, c.VAR_ROAD_ID, c.VAR_DISTANCE]
+        ls.vehicle.subscribe(vin, wanted + ([c.VAR_POSITION, c.VAR_ANGLE] if xy else []))
+
+    def _get(self, vin: str, var: int, direct):
+        row = self._rows.get(vin)
+        return row[var] if row is not None and var in row else direct(vin)
+
+    def getLaneID(self, vin: str) -> str:
+        return self._get(vin, self._ls.constants.VAR_LANE_ID, self._ls.vehicle.getLaneID)
+
+    def getLanePosition(self, vin: str) -> float:
+        return self._get(vin, self._ls.constants.VAR_LANEPOSITION, self._ls.vehicle.getLanePosition)
+
+    def getSpeed(self, vin: str) -> float:
+        return self._get(vin, self._ls.constants.VAR_SPEED, self._ls.vehicle.getSpeed)
+
+    def getDistance(self, vin: str) -> float:
+        return self._get(vin, self._ls.constants.VAR_DISTANCE, self._ls.vehicle.getDistance)
+
+    def getRoadID(self, vin: str) -> str:
+        return self._get(vin, self._ls.constants.VAR_ROAD_ID, self._ls.vehicle.getRoadID)
+
+    def getPosition(self, vin: str) -> tuple[float, float]:
+        return self._get(vin, self._ls.constants.VAR_POSITION, self._ls.vehicle.getPosition)
+
+    def getAngle(self, vin: str) -> float:
+        return self._get(vin, self._ls.constants.VAR_ANGLE, self._ls.vehicle.getAngle)
+
+
+@dataclass(slots=True)
+class Watch:
+    """What the monitor is fed: every vehicle within ``radius_m`` of the junction.
+
+    SUMO hands these over in one call per step (a context subscription on the
+    junction), positions and angles as it holds them. The monitor itself only
+    checks vehicles touching the junction area plus its margin; the radius is
+    well beyond that, so the cut changes no result. Sizes are read once per
+    vehicle (they do not change).
+    """
+
+    junction_id: str
+    radius_m: float
+    sizes: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    def subscribe(self, ls) -> None:
+        c = ls.constants
+        ls.junction.subscribeContext(
+            self.junction_id,
+            c.CMD_GET_VEHICLE_VARIABLE,
+            self.radius_m,
+            [c.VAR_POSITION, c.VAR_ANGLE],
+        )
+
+    def feed(self, ls, monitor: SafetyMonitor, t: float) -> None:
+        """Hand the monitor this step's vehicles near the junction, sorted by id."""
+        c = ls.constants
+        near = ls.junction.getContextSubscriptionResults(self.junction_id) or {}
+        vins = sorted(near)
+        if not vins:
+            monitor.observe(t, [], np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
+            return
+        for v in vins:
+            if v not in self.sizes:
+                self.sizes[v] = (ls.vehicle.getLength(v), ls.vehicle.getWidth(v))
+        xy = np.array([near[v][c.VAR_POSITION] for v in vins], dtype=float)
+        ang = np.array([near[v][c.VAR_ANGLE] for v in vins], dtype=float)
+        size = np.array([self.sizes[v] for v in vins], dtype=float)
+        monitor.observe(t, vins, xy, ang, size[:, 0], size[:, 1])

@@ -1,0 +1,220 @@
+"""The traffic through a junction: vehicles put into SUMO on schedule, detected at the
+region's entry line, seen out of the junction, and every one of them accounted for.
+
+Each scheduled vehicle is inserted at the communication region's entry line
+at its arrival time and speed; if SUMO finds no room there (the vehicles
+ahead have not moved on), it joins the tail of its lane's queue upstream,
+which SUMO drives, so a spill-back is a queue on the road (the approaches
+are a few hundred metres long) and not a waiting list. The trip log gets
+each vehicle's times (inserted, detected, out) and its free-flow time, the
+yardstick of its delay.
+"""
+
+from __future__ import annotations
+
+import math
+
+from dica.ica.core.config import IcaConfig
+from dica.ica.core.planner import Planner
+from dica.ica.core.route import Route
+from dica.sim_gateway.actuator import MIN_GAP_M
+from dica.sim_gateway.junction import Car, Junction, route_edges
+from dica.sim_gateway.metrics import CRAWL_MPS, Trip, TripLog
+from dica.sim_gateway.sumo_io import Reads
+
+VTYPE = "cav"
+EV_VTYPE = "cav_emergency"  # same size and limits, SUMO vClass emergency
+EV_COLOR = (230, 30, 30, 255)  # red, as in the dissertation's screenshots
+HEADWAY_S = 1.0  # [s] SUMO's desired time headway (Krauss tau), kept behind a queue's tail
+
+
+def define_vehicle_types(ls, ica_cfg: IcaConfig, length_m: float, width_m: float, ev: bool):
+    """Our vehicle type in SUMO, with the ICA's kinematics (and its EV twin if ``ev``)."""
+    ls.vehicletype.copy("DEFAULT_VEHTYPE", VTYPE)
+    kin = ica_cfg.kinematics
+    for setter, value in (
+        ("setLength", length_m),
+        ("setWidth", width_m),
+        ("setAccel", kin.accel_mps2),
+        ("setDecel", kin.decel_mps2),
+        ("setEmergencyDecel", 9.0),
+        ("setMaxSpeed", ica_cfg.caps.road_mps),
+        ("setMinGap", MIN_GAP_M),
+        ("setImperfection", 0.0),
+        ("setSpeedFactor", 1.0),  # it keeps its own entry speed, not a random share of the limit
+        ("setSpeedDeviation", 0.0),
+    ):
+        getattr(ls.vehicletype, setter)(VTYPE, value)
+    if ev:
+        ls.vehicletype.copy(VTYPE, EV_VTYPE)
+        ls.vehicletype.setVehicleClass(EV_VTYPE, "emergency")
+        ls.vehicletype.setColor(EV_VTYPE, EV_COLOR)
+
+
+class Traffic:
+    """Insertion, detection, exit and accounting for the junctions of one run."""
+
+    def __init__(self, ls, ica_cfg: IcaConfig, length_m: float, log: TripLog) -> None:
+        self.ls = ls
+        self.ica_cfg = ica_cfg
+        self.length_m = length_m
+        self.log = log
+
+    def register(self, j: Junction) -> None:
+        """A trip record for each of the junction's scheduled vehicles."""
+        comm = j.inter.comm_length_m
+        for v in j.schedule:
+            self.log.trips[v.vin] = Trip(
+                v.vin,
+                v.route.id,
+                v.route.turn.value,
+                v.arrival_s,
+                free_flow_scheduled_s=self.free_flow_s(v.route, comm, v.speed_mps),
+            )
+
+    # -- insertion -------------------------------------------------------------
+    def insert_due(self, j: Junction, t: float) -> list[Car]:
+        """Queue up who SUMO had no room for, and put in who is due by ``t``; return those."""
+        for c in j.blocked:
+            self.join_queue(j, c)
+        fresh = []
+        while j.next < len(j.schedule) and j.schedule[j.next].arrival_s <= t + 1e-9:
+            arrival = j.schedule[j.next]
+            c = j.cars[arrival.vin]
+            # an EV candidate is an EV only if no other EV is in the region (inserted, not out)
+            c.ev = arrival.ev and not any(o.ev and not o.exited for o in j.active)
+            self.log.trips[c.vin].ev = c.ev
+            self.add(j, c, self._entry_pos(j, c), c.entry_speed_mps)
+            j.active.append(c)
+            fresh.append(c)
+            j.next += 1
+        return fresh
+
+    def note_blocked(self, j: Junction, fresh: list[Car]) -> None:
+        """After SUMO's step: which of ``fresh`` it found no room for."""
+        pending = set(self.ls.simulation.getPendingVehicles()) if fresh else set()
+        j.blocked = [c for c in fresh if c.vin in pending]
+
+    def departed(self, j: Junction, vin: str, t: float) -> None:
+        """``vin`` is on the road: until the region it keeps its lane and its speed."""
+        self.ls.vehicle.setLaneChangeMode(vin, 0)
+        # until the region, SUMO's driver keeps the scheduled speed (the speed the
+        # vehicle keeps when free), or less behind a slower vehicle
+        self.ls.vehicle.setSpeed(vin, j.cars[vin].entry_speed_mps)
+        self.log.trips[vin].inserted_s = t
+
+    def note_tails(self, j: Junction, vw: Reads, present: set[str]) -> None:
+        """Per incoming lane, where its rearmost car is and how fast (for join_queue)."""
+        j.tails = {}
+        for c in j.active:
+            if c.vin in present and vw.getLaneID(c.vin) == c.route.in_lane:
+                pos = vw.getLanePosition(c.vin)
+                tail = j.tails.get(c.route.in_lane)
+                if tail is None or pos < tail[0]:
+                    j.tails[c.route.in_lane] = (pos, vw.getSpeed(c.vin))
+
+    def add(self, j: Junction, c: Car, pos_m: float, speed_mps: float) -> None:
+        self.ls.vehicle.add(
+            c.vin,
+            j.edge_routes[route_edges(c.route)],
+            typeID=EV_VTYPE if c.ev else VTYPE,
+            depart="now",
+            departLane=str(c.lane_index),
+            departPos=str(pos_m),
+            departSpeed=str(speed_mps),
+        )
+
+    def join_queue(self, j: Junction, c: Car) -> None:
+        """Place a vehicle SUMO had no room for at the entry line behind its lane's last one.
+
+        It keeps SUMO's standstill gap and a second's headway behind the tail
+        at the tail's speed (or its own, if lower). With no room left on the
+        lane it waits at the lane's start, where SUMO inserts it when it can.
+        """
+        self.ls.vehicle.remove(c.vin)  # from SUMO's insertion queue
+        entry = self._entry_pos(j, c)
+        tail = j.tails.get(c.route.in_lane)
+        if tail is None:  # the blocker has left the lane already: the entry line again
+            self.add(j, c, entry, c.entry_speed_mps)
+            return
+        pos, v_tail = tail
+        v = min(c.entry_speed_mps, v_tail)
+        behind = min(pos - self.length_m - MIN_GAP_M - HEADWAY_S * v - 0.5, entry)
+        if behind < 0.0:
+            self.add(j, c, 0.0, 0.0)
+        else:
+            self.add(j, c, behind, v)
+            j.tails[c.route.in_lane] = (behind, v)  # the next one goes behind this one
+
+    @staticmethod
+    def _entry_pos(j: Junction, c: Car) -> float:
+        """The region's entry line on ``c``'s incoming lane [m, lane position]."""
+        return max(j.lane_len_m[c.route.in_lane] - j.inter.comm_length_m - 0.05, 0.0)
+
+    # -- detection and exit ----------------------------------------------------
+    def detect(self, j: Junction, c: Car, lane: str, vw: Reads, t: float) -> bool:
+        """Note ``c`` in the region once its front is past the entry line; False while not."""
+        comm = j.inter.comm_length_m
+        d = j.lane_len_m.get(lane, math.inf) - vw.getLanePosition(c.vin)
+        if lane != c.route.in_lane or d > comm:
+            return False
+        v = vw.getSpeed(c.vin)
+        trip = self.log.trips[c.vin]
+        trip.entered_s = t - (comm - d) / v if v > 0.1 else t
+        c.detected_s = trip.entered_s
+        trip.free_flow_s = self.free_flow_s(c.route, comm, v)
+        return True
+
+    def note_speed(self, j: Junction, c: Car, speed_mps: float) -> None:
+        """Whether ``c`` crawled or stood in the region (and count who stands now)."""
+        if speed_mps < CRAWL_MPS:
+            self.log.trips[c.vin].crawled = True
+        if speed_mps < 0.1:
+            self.log.trips[c.vin].stopped = True  # stopped in the region before leaving
+            j.waiting += 1
+
+    def left_junction(self, j: Junction, vw: Reads, c: Car, t: float) -> bool:
+        """Rear past the exit line: note the time (interpolated), mark the car exited and
+        count it crossed."""
+        if vw.getRoadID(c.vin) != route_edges(c.route)[1]:
+            return False
+        over = vw.getLanePosition(c.vin) - self.length_m
+        if over < 0:
+            return False
+        self.log.trips[c.vin].exited_s = t - over / max(vw.getSpeed(c.vin), 0.1)
+        c.exited = True
+        j.crossed += 1
+        return True
+
+    def free_flow_s(self, route: Route, comm_m: float, v_mps: float) -> float | None:
+        """From the region's entry line at ``v_mps`` until fully out, alone at the junction."""
+        length = self.length_m
+        pl = Planner(
+            comm_m,
+            v_mps,
+            self.ica_cfg.caps.road_mps,
+            route.speed_cap_mps,
+            route.cross_length_m + length,
+            self.ica_cfg.kinematics,
+        )
+        p = pl.fastest()
+        return p.time_at(route.cross_length_m + length) if p else None
+
+    # -- accounting ------------------------------------------------------------
+    def accounting(self, j: Junction, end_s: float) -> dict[str, int]:
+        """Where every vehicle due by ``end_s`` is: none may be lost."""
+        out = {"generated": 0, "crossed": 0, "in_region": 0, "not_yet_in_region": 0, "lost": 0}
+        for c in j.cars.values():
+            trip = self.log.trips[c.vin]
+            if trip.depart_s > end_s:
+                continue
+            out["generated"] += 1
+            if c.exited:
+                out["crossed"] += 1
+            elif math.isnan(c.detected_s):
+                out["not_yet_in_region"] += 1
+            elif c.vin in j.present:
+                out["in_region"] += 1
+            else:
+                out["lost"] += 1  # gone from SUMO without leaving the junction: never
+        return out
