@@ -12,7 +12,7 @@ import pytest
 from dica.ica.core.baselines import controller_config, make_controller
 from dica.ica.core.dica import Dica
 from dica.ica.core.handover import Handover, separation_reference
-from dica.ica.core.kernels import separation
+from dica.ica.core.kernels.handover import separation
 from dica.ica.core.proposal import propose
 from dica.ica.core.request import Confirmation
 from tests.test_run_sumo import dica
@@ -84,7 +84,7 @@ def test_the_compiled_separation_is_the_numpy_search_bit_for_bit():
             length = math.ceil(length * 10) / 10
         cases.append((float(v_lead), float(v_follow), float(length)))
     for h in (Handover(ROAD_MPS), Handover(50.0 / 3.6, 1.5, 3.0, 1.5, 2.0, 0.5, 0.1)):
-        found = [separation(h.constants, *c) for c in cases]
+        found = [separation(tuple(h.driver), *c) for c in cases]
         assert found == [separation_reference(h, *c) for c in cases]
         assert all(0.0 <= x < 120.0 for x in found)
 

@@ -1,4 +1,4 @@
-"""Enhanced DICA's compiled round loop (``ica.core.kernels.resolve_rounds``)
+"""Enhanced DICA's compiled round loop (``ica.core.kernels.resolve.resolve_rounds``)
 gives every answer of the Python loop of ``Dica._resolve``, bit for bit."""
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ import dica.ica.core.dica as dica_module
 from dica.ica.core.baselines import controller_config, make_controller
 from dica.ica.core.config import IcaConfig, Techniques
 from dica.ica.core.dica import Dica, _finish
+from dica.ica.core.kernels.resolve import Controls
 from dica.ica.core.planner import Planner
 from dica.ica.core.request import RequestError
 from dica.sim_gateway.stream import StreamSpec, run_stream
@@ -124,7 +125,8 @@ def test_compiled_rounds_equal_python_rounds(
     rounds = dica_module.resolve_rounds
 
     def planning(*args):
-        seen["planned"] += not math.isnan(args[-1])  # the loop plans its first entry
+        # the loop plans its first entry
+        seen["planned"] += not math.isnan(Controls(*args[-1]).target0)
         return rounds(*args)
 
     monkeypatch.setattr(dica_module, "resolve_rounds", planning)

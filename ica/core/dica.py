@@ -49,15 +49,17 @@ from dica.ica.core.conflict import (
 from dica.ica.core.dtot import Dtot, build_dtot
 from dica.ica.core.handover import Handover
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.kernels import (
+from dica.ica.core.kernels.dtot import dtot_span
+from dica.ica.core.kernels.resolve import (
     BLOCKED,
     PAUSED,
     RESOLVED,
     TOO_LATE,
-    dtot_span,
-    over_cap,
+    Controls,
+    Leader,
     resolve_rounds,
 )
+from dica.ica.core.kernels.validate import over_cap
 from dica.ica.core.planner import Planner
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
 from dica.ica.core.route import Route
@@ -706,34 +708,38 @@ class Dica:
         last_round: int | None = None,
     ) -> _Found | _Paused | None:
         """The loop of :meth:`_resolve` in one compiled call
-        (:func:`ica.core.kernels.resolve_rounds`): the same plans round for
+        (:func:`ica.core.kernels.resolve.resolve_rounds`): the same plans round for
         round, so the same answer (``earliest``: the request's earliest entry, kept
         with it). None where the loop would raise; paused after round ``last_round``
         (default: none before the round limit)."""
         cfg = self.config
-        batch = self._confirmed_batch(route, shape)
-        g = batch.gathered
+        rows = self._confirmed_batch(route, shape).rows
+        gap = 2.0 * cfg.margin_m
         if leader is not None and lag is not None:
-            lead_args = (
-                True, lag.t0_s, lag.step_s, np.ascontiguousarray(lag.s_m, dtype=float),
-                leader.dtot.shape.length_m,
-            )  # fmt: skip
+            lead = Leader(
+                present=True,
+                t0_s=lag.t0_s,
+                step_s=lag.step_s,
+                s_m=np.ascontiguousarray(lag.s_m, dtype=float),
+                length_m=leader.dtot.shape.length_m,
+                gap_m=gap,
+            )
         else:
-            lead_args = (False, 0.0, 0.0, _NO_SAMPLES, 0.0)
-        if last_round is None:
-            last_round = cfg.max_iterations
+            lead = Leader(False, 0.0, 0.0, _NO_SAMPLES, 0.0, gap)
+        ctl = Controls(
+            t0_s=float(req.t0_s),
+            step_s=cfg.step_s,
+            s_init=np.ascontiguousarray(traj.s_m, dtype=float),
+            max_iterations=cfg.max_iterations,
+            max_wait_s=max_wait_s,
+            first_round=first_round,
+            last_round=cfg.max_iterations if last_round is None else last_round,
+            b_wait0=b_wait0,
+            target0=target0,
+        )
         status, iteration, s, target = resolve_rounds(
-            cfg.kinematics.accel_mps2, cfg.kinematics.decel_mps2, planner.v0_mps, planner.d_m,
-            planner.cap_mps, s_end,
-            *planner.plan_constants(),
-            req.t0_s, cfg.step_s, np.ascontiguousarray(traj.s_m, dtype=float),
-            route.s, grid.route_x, grid.route_y, shape.length_m, grid.s0_m, grid.ds_m,
-            grid.fwd_m, grid.back_m,
-            shape.length_m / 2.0 + cfg.margin_m, shape.width_m / 2.0 + cfg.margin_m,
-            g.packed, g.vid, batch.m, batch.row, batch.row_lo, batch.row_hi, batch.codes,
-            batch.width, len(g.vins), batch.span_s,
-            *lead_args, 2.0 * cfg.margin_m,
-            cfg.max_iterations, max_wait_s, first_round, b_wait0, target0, last_round,
+            tuple(planner.plan_constants()), tuple(grid.kernel_grid(cfg.margin_m)), tuple(rows),
+            tuple(lead), tuple(ctl),
         )  # fmt: skip
         if status == BLOCKED:
             raise _blocked(req.vin, leader.vin if leader is not None else "")

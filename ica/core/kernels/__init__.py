@@ -1,0 +1,45 @@
+"""Compiled inner loops of enhanced DICA (numba), bit for bit the numpy versions.
+
+One round of Algorithm 1 on arrays of a hundred or so occupancies costs
+almost nothing in arithmetic; with numpy it is dozens of calls, each paying
+its own overhead. These loops do the same arithmetic, in the same order, in
+one call each. One module per concern; a caller imports a kernel from the
+module that owns it:
+
+* :mod:`.interp`: numpy's binary search and interpolation;
+* :mod:`.route`: points, headings and projections on a route's polyline, a TSS;
+* :mod:`.occupancy`: the one rectangle-overlap (separating-axis) test;
+* :mod:`.dtot`: a trajectory's DTOT with the grid (footprints, grid index,
+  technique 3's intervals), where it enters and leaves;
+* :mod:`.conflict`: getCV over the confirmed rows, the lane-leader check;
+* :mod:`.validate`: the numeric checks of a REQUEST's TSS;
+* :mod:`.planner`: the planner's phase arithmetic, plan building and sampling;
+* :mod:`.resolve`: Algorithm 1's round loop, whole;
+* :mod:`.handover`: the least separation at which the road's driver takes over.
+
+Floating-point results equal numpy's exactly where the arithmetic is IEEE's
+basic operations and square root: the expressions are written in numpy's
+order, numba does not fuse multiply-adds without ``fastmath``, and the binary
+search is numpy's own, so it gives numpy's answer even on unsorted input.
+Where a libm function feeds a value (``atan2`` of a heading), the kernel
+calls the platform's libm and numpy may call its own SIMD version, whose
+last bit can differ; no decision reads such a value (see
+``tests/test_kernels.py``, which states the bound).
+
+**Bundles.** What travels together goes as one ``typing.NamedTuple``
+(:class:`.planner.Plan`, :class:`.dtot.Grid`, :class:`.conflict.Rows`,
+:class:`.resolve.Leader`, ...), built by the Python side with named fields,
+so the compiled code reads ``plan.cap_mps``, never the fifth positional
+float. Between kernels a bundle is that named tuple. A kernel called from
+Python takes it as the plain tuple of its fields (``tuple(bundle)``) and
+names it again on its first line (``plan = Plan(*plan_args)``): numba types a
+plain tuple in C when dispatching a call, a named one in Python, which cost
+about 2.5 us more per call for a bundle of 15 fields, measured; the order of
+the fields is the class's, and no code writes it out. Such a kernel's
+signature comes from ``numba.typeof`` of a bundle built at import time.
+
+The functions are compiled when their module is first imported (explicit
+signatures) and cached on disk by numba next to the module, like byte code;
+deciding a request does no I/O and no compilation. A fresh cache costs some
+twenty seconds once; a warm one well under a second per process.
+"""
