@@ -15,6 +15,7 @@ from dica.ica.core.handover import Handover, separation_reference
 from dica.ica.core.kernels.handover import separation
 from dica.ica.core.proposal import propose
 from dica.ica.core.request import Confirmation
+from dica.ica.core.search import Search
 from tests.test_run_sumo import dica
 
 ROAD_MPS = 70.0 / 3.6
@@ -237,13 +238,13 @@ def test_an_exit_at_the_route_s_cap_up_to_rounding_does_not_bind_the_cap(ch45, m
     assert ica.front_cap_mps(through) == out  # a slower vehicle ahead binds
 
     caps: list[float] = []
-    search = Dica._search
+    rounds = Search.rounds
 
-    def counted(self: Dica, *args, **kw):
-        caps.append(args[5])
-        return search(self, *args, **kw)
+    def counted(self: Search, cap: float, *args, **kw):
+        caps.append(cap)
+        return rounds(self, cap, *args, **kw)
 
-    monkeypatch.setattr(Dica, "_search", counted)
+    monkeypatch.setattr(Search, "rounds", counted)
     ica.detect("d", RIGHT[0], 0.5)  # behind "a", which has begun to enter by t = 2
     req = propose(
         right, vin="d", seq=0, t0_s=2.0, dist_to_entry_m=40.0, speed_mps=25 / 3.6,

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 import dica.ica.core.dica as dica_module
+import dica.ica.core.search as search_module
 from dica.ica.core import validate
 from dica.ica.core.config import IcaConfig
 from dica.ica.core.conflict import follow_conflict, follow_conflict_reference, pack
@@ -105,7 +106,7 @@ def test_follow_conflict_is_the_numpy_one(request, monkeypatch, junction):
         calls["violations"] += fast is not None
         return fast
 
-    monkeypatch.setattr(dica_module, "follow_conflict", checked)
+    monkeypatch.setattr(search_module, "follow_conflict", checked)
     # the Python round loop calls follow_conflict (the compiled one calls the
     # kernel itself, see tests/test_resolve_compiled.py)
     monkeypatch.setattr(dica_module.Dica, "compiled_loop", False)

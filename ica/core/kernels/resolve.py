@@ -3,7 +3,7 @@
 The planner's plan building (:func:`.planner.next_plan`), sampling, the
 DTOT with the grid (:func:`.dtot.dtot_of`), getCV (:func:`.conflict.first_conflict`),
 the lane-leader check (:func:`.conflict.follow_check`) and the update rule of
-``ica.core.dica.Dica._resolve``, round after round with no Python between
+``ica.core.search.Search.rounds``, round after round with no Python between
 them. Every expression is the Python loop's in the same order, so each round
 gives the same plan bit for bit.
 """
@@ -76,7 +76,7 @@ CONTROLS_ARGS = typeof(tuple(Controls(0.0, 0.05, _F1, 100, 120.0, 1, 100, -1.0, 
 def resolve_rounds(
     plan_args: tuple, grid_args: tuple, rows_args: tuple, leader_args: tuple, controls_args: tuple
 ) -> tuple[int, int, np.ndarray, float]:
-    """The rounds of ``Dica._resolve`` (enhanced DICA) from the first plan ``s_init``.
+    """The rounds of ``Search.rounds`` (enhanced DICA) from the first plan ``s_init``.
 
     Bundles as tuples: :class:`~.planner.Plan` (``Planner.plan_constants``),
     :class:`~.dtot.Grid`, :class:`~.conflict.Rows` (``ConfirmedBatch``, its
@@ -114,7 +114,7 @@ def resolve_rounds(
         # the DTOT (ica.core.dtot.build_dtot with the grid)
         _, _, _, centre, heading, lb, ub, g = dtot_of(grid, s, s_end, t0, step)
         occ = Occupancies(lb, ub, g, centre, heading, grid.half_l_m, grid.half_w_m)
-        # the lane leader, then getCV, and the first conflict as Dica._resolve
+        # the lane leader, then getCV, and the first conflict as Search.rounds
         # sorts them (the leader after the others on a tie)
         found, f_first, f_delay = False, 0.0, 0.0
         if lead.present:
