@@ -32,7 +32,7 @@ def _resolve(rounds, search: Search, compiled: bool, args: tuple):
 
 
 def _key(search: Search, found) -> tuple:
-    d = search.ica._dtot(found, search.route, search.shape)
+    d = found.kept_dtot(search.route, search.shape, search.ica.config.margin_m)
     assert (found.out_s, found.out_mps) == (float(d.t_s[-1]), d.exit_speed_mps)
     iterations, earliest = found.iterations, found.earliest
     key = (

@@ -313,7 +313,7 @@ class Dica:
         """Confirm the plan ``found`` to ``vin`` (its TSS drawn for a vehicle ``length_m``
         long): the answer, and the reservation held with its intervals grown by twice the
         time pad, as :meth:`adopt` rebuilds it."""
-        dtot = self._dtot(found, route, shape)
+        dtot = found.kept_dtot(route, shape, self.config.margin_m)
         entry = dtot.trajectory.entry_time_s()
         conf = Confirmation(
             vin=vin,
@@ -391,13 +391,6 @@ class Dica:
             if v_out < route.speed_cap_mps - 1e-9:
                 cap = min(cap, max(v_out, self.config.kinematics.min_cross_mps))
         return cap
-
-    def _dtot(self, found: Found, route: Route, shape: Shape) -> Dtot:
-        """The DTOT of a found plan (with the grid, as the compiled loop judged it)."""
-        if found.dtot is not None:
-            return found.dtot
-        grid = self.tables.grid(route, shape)
-        return build_dtot(route, shape, found.traj, self.config.margin_m, grid, True)
 
     def _compiled_rounds(self) -> bool:
         """Enhanced DICA's rounds run as one compiled call (``Search.rounds``)."""

@@ -31,8 +31,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from dica.ica.core.conflict import Conflict, follow_conflict
-from dica.ica.core.dtot import Dtot, build_dtot
-from dica.ica.core.kernels.dtot import dtot_span
+from dica.ica.core.dtot import Dtot, build_dtot, dtot_of_arrays
 from dica.ica.core.kernels.planner import Plan
 from dica.ica.core.kernels.resolve import (
     BLOCKED,
@@ -61,8 +60,9 @@ PAUSE_ROUNDS = 12
 @dataclass(frozen=True, slots=True, eq=False)
 class Found:
     """One search's conflict-free plan. Its exit (time the rear leaves, speed) is all
-    the exit rules and the choice between two searches ask of it; its DTOT is built
-    for the plan kept only, unless the search built it anyway (the Python loop)."""
+    the exit rules and the choice between two searches ask of it; its DTOT, which the
+    search's last round built, is a :class:`Dtot` from the Python loop, the compiled
+    DTOT's arrays from the compiled one (made a Dtot for the plan kept only)."""
 
     traj: Trajectory
     out_s: float
@@ -70,6 +70,15 @@ class Found:
     iterations: int
     earliest: float
     dtot: Dtot | None = None
+    arrays: tuple | None = None
+
+    def kept_dtot(self, route: Route, shape: Shape, margin_m: float) -> Dtot:
+        """The plan's DTOT, footprints grown by ``margin_m``: the one its round built."""
+        if self.dtot is not None:
+            return self.dtot
+        if self.arrays is None:
+            raise ValueError("a found plan without its DTOT")
+        return dtot_of_arrays(route, shape, self.traj, margin_m, self.arrays)
 
 
 @dataclass(frozen=True, slots=True)
@@ -103,15 +112,15 @@ def plan_entry(
     return sample(profile, t0_s, step_s, s_end)
 
 
-def _exit_of(traj: Trajectory, s_end: float) -> tuple[float, float]:
-    """(``t_s[-1]``, ``exit_speed_mps``) of the DTOT that ``build_dtot`` makes of
-    ``traj`` with the grid, without building it (the same arithmetic)."""
+def _exit_of(traj: Trajectory, arrays: tuple) -> tuple[float, float]:
+    """(``t_s[-1]``, ``exit_speed_mps``) of the DTOT of ``traj`` given as the compiled
+    DTOT's arrays, without making it a :class:`Dtot` (the same arithmetic)."""
+    k0, t = arrays[0], arrays[1]
     s = traj.s_m
-    _, k1 = dtot_span(s, s_end)
     if len(s) < 2:
-        return traj.t0_s + traj.step_s * k1, 0.0
-    k = min(max(k1 - 1, 0), len(s) - 2)
-    return traj.t0_s + traj.step_s * k1, float(s[k + 1] - s[k]) / traj.step_s
+        return float(t[-1]), 0.0
+    k = min(max(k0 + len(t) - 2, 0), len(s) - 2)
+    return float(t[-1]), float(s[k + 1] - s[k]) / traj.step_s
 
 
 def _too_late(max_wait_s: float) -> RequestError:
@@ -166,6 +175,15 @@ class Search:
         self.shape = shape
         self.traj = traj
         self.leader = leader
+        cfg = ica.config
+        self.gap_m = 2.0 * cfg.margin_m  # kept behind the lane leader's rear
+        # the leader as late as the tracking bound lets it be, against a requester as early
+        lag = leader.dtot.trajectory if leader is not None else None
+        behind_s = 2.0 * cfg.time_pad_s + cfg.headway_s
+        if lag is not None and behind_s > 0.0:
+            lag = Trajectory(lag.t0_s + behind_s, lag.step_s, lag.s_m)
+        self.lag = lag
+        self._lead: Leader | None = None  # the lane leader as the compiled loop reads it
 
     def best(self) -> Found:
         """checkFV's capped plan; with exit spacing also the uncapped one that leaves
@@ -248,12 +266,7 @@ class Search:
         if cap < route.speed_cap_mps and over_cap(traj.s_m, cfg.step_s, cap + cfg.speed_tol_mps):
             replan = traj.entry_time_s() - req.t0_s
         grid = ica.tables.grid(route, shape)
-        gap = 2.0 * cfg.margin_m
-        # the leader as late as the tracking bound lets it be, against a requester as early
-        lag = leader.dtot.trajectory if leader is not None else None
-        behind_s = 2.0 * cfg.time_pad_s + cfg.headway_s
-        if lag is not None and behind_s > 0.0:
-            lag = Trajectory(lag.t0_s + behind_s, lag.step_s, lag.s_m)
+        gap, lag = self.gap_m, self.lag
         if ica._compiled_rounds():
             # the compiled loop knows nothing of the exit rules: a plan of it that breaks
             # one is delayed here as the loop below would, and the compiled loop goes on
@@ -271,9 +284,8 @@ class Search:
                 b_wait0=-1.0,
                 target0=replan,
             )
-            lead = self._leader_of(lag, gap)
             while True:
-                found = self._compiled(planner.plan_constants(), grid, lead, ctl, earliest)
+                found = self._compiled(planner.plan_constants(), grid, ctl, earliest)
                 if isinstance(found, Paused):
                     yield  # the caller may lower the bound meanwhile
                     target = found.target
@@ -337,21 +349,25 @@ class Search:
             Reason.INFEASIBLE, f"no conflict-free plan after {cfg.max_iterations} updates"
         )
 
-    def _leader_of(self, lag: Trajectory | None, gap_m: float) -> Leader:
-        """The lane leader as the compiled loop reads it (``lag``: its plan, delayed)."""
-        if self.leader is None or lag is None:
-            return Leader(False, 0.0, 0.0, _NO_SAMPLES, 0.0, gap_m)
-        return Leader(
-            present=True,
-            t0_s=lag.t0_s,
-            step_s=lag.step_s,
-            s_m=np.ascontiguousarray(lag.s_m, dtype=float),
-            length_m=self.leader.dtot.shape.length_m,
-            gap_m=gap_m,
-        )
+    def _lane_leader(self) -> Leader:
+        """The lane leader as the compiled loop reads it: its plan, delayed (``lag``)."""
+        if self._lead is None:
+            lag = self.lag
+            if self.leader is None or lag is None:
+                self._lead = Leader(False, 0.0, 0.0, _NO_SAMPLES, 0.0, self.gap_m)
+            else:
+                self._lead = Leader(
+                    present=True,
+                    t0_s=lag.t0_s,
+                    step_s=lag.step_s,
+                    s_m=np.ascontiguousarray(lag.s_m, dtype=float),
+                    length_m=self.leader.dtot.shape.length_m,
+                    gap_m=self.gap_m,
+                )
+        return self._lead
 
     def _compiled(
-        self, plan: Plan, grid: RouteGrid, lead: Leader, ctl: Controls, earliest: float
+        self, plan: Plan, grid: RouteGrid, ctl: Controls, earliest: float
     ) -> Found | Paused | None:
         """Rounds of :meth:`rounds` in one compiled call
         (:func:`ica.core.kernels.resolve.resolve_rounds`): the same plans round for
@@ -361,9 +377,9 @@ class Search:
         ica, req = self.ica, self.req
         cfg = ica.config
         rows = ica._confirmed_batch(self.route, self.shape).rows
-        status, iteration, s, target = resolve_rounds(
-            tuple(plan), tuple(grid.kernel_grid(cfg.margin_m)), tuple(rows), tuple(lead),
-            tuple(ctl),
+        status, iteration, s, target, arrays = resolve_rounds(
+            tuple(plan), tuple(grid.kernel_grid(cfg.margin_m)), tuple(rows),
+            tuple(self._lane_leader()), tuple(ctl),
         )  # fmt: skip
         if status == BLOCKED:
             raise _blocked(req.vin, self.leader.vin if self.leader is not None else "")
@@ -374,7 +390,7 @@ class Search:
         if status != RESOLVED:
             return None
         final = Trajectory(req.t0_s, cfg.step_s, s)
-        return Found(final, *_exit_of(final, plan.s_end_m), iteration, earliest)
+        return Found(final, *_exit_of(final, arrays), iteration, earliest, arrays=arrays)
 
     def _exit_conflict(self, out_s: float, out_mps: float) -> Conflict | None:
         """The exit rules (:meth:`Dica.exit_order`, with exit spacing

@@ -205,6 +205,13 @@ def dtot_of(grid: Grid, s_all: np.ndarray, s_end_m: float, t0_s: float, step_s: 
     return k0, t, s, centre, heading, lb, ub, g
 
 
+@njit(cache=True, nogil=True)
+def no_dtot() -> tuple:
+    """The arrays of :func:`dtot_of` for no occupancy."""
+    empty = np.empty(0)
+    return 0, empty, empty, np.empty((0, 2)), np.empty((0, 2)), empty, empty, np.empty(0, np.int64)
+
+
 @njit(DTOT_ARRAYS(GRID_ARGS, f8[::1], f8, f8, f8), cache=True, nogil=True)
 def grid_dtot_of(
     grid_args: tuple, s_all: np.ndarray, s_end_m: float, t0_s: float, step_s: float

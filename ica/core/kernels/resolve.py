@@ -26,7 +26,14 @@ from dica.ica.core.kernels.conflict import (
     first_conflict,
     follow_check,
 )
-from dica.ica.core.kernels.dtot import GRID_ARGS, Grid, dtot_of, entry_time_of
+from dica.ica.core.kernels.dtot import (
+    DTOT_ARRAYS,
+    GRID_ARGS,
+    Grid,
+    dtot_of,
+    entry_time_of,
+    no_dtot,
+)
 from dica.ica.core.kernels.planner import MAX_SEGS, PLAN_ARGS, Plan, next_plan, py_max
 
 # resolve_rounds' status; BLOCKED: a stop-family plan meets the lane leader where every
@@ -67,7 +74,7 @@ CONTROLS_ARGS = typeof(tuple(Controls(0.0, 0.05, _F1, 100, 120.0, 1, 100, -1.0, 
 
 
 @njit(
-    types.Tuple((int64, int64, f8[::1], f8))(
+    types.Tuple((int64, int64, f8[::1], f8, DTOT_ARRAYS))(
         PLAN_ARGS, GRID_ARGS, ROWS_ARGS, LEADER_ARGS, CONTROLS_ARGS
     ),
     cache=True,
@@ -75,7 +82,7 @@ CONTROLS_ARGS = typeof(tuple(Controls(0.0, 0.05, _F1, 100, 120.0, 1, 100, -1.0, 
 )
 def resolve_rounds(
     plan_args: tuple, grid_args: tuple, rows_args: tuple, leader_args: tuple, controls_args: tuple
-) -> tuple[int, int, np.ndarray, float]:
+) -> tuple[int, int, np.ndarray, float, tuple]:
     """The rounds of ``Search.rounds`` (enhanced DICA) from the first plan ``s_init``.
 
     Bundles as tuples: :class:`~.planner.Plan` (``Planner.plan_constants``),
@@ -84,7 +91,8 @@ def resolve_rounds(
     NaN bound, never from a real DTOT, and every round then searches all
     rows), :class:`Leader`, :class:`Controls`.
 
-    Returns (RESOLVED, rounds, the conflict-free plan's samples, NaN), BLOCKED
+    Returns (RESOLVED, rounds, the conflict-free plan's samples, NaN, its DTOT as
+    :func:`~.dtot.dtot_of` gives it, which the round built), BLOCKED
     (see the constant), TOO_LATE (the wait exceeded), PAUSED after round
     ``last_round`` with the next round's entry target (go on from there with
     ``first_round`` one higher and that ``target0``), or FALL_BACK where the Python
@@ -93,7 +101,8 @@ def resolve_rounds(
     raises with its message. ``first_round`` and ``b_wait0`` (-1: none) go on from
     a round the caller made (a delay for an exit rule, which this loop does not
     know); with ``target0`` (NaN: none) the first plan is ``Planner.at_or_after``
-    that entry, sampled, instead of ``s_init``.
+    that entry, sampled, instead of ``s_init``. Every status but RESOLVED comes with an
+    empty DTOT.
     """
     plan, grid, rows = Plan(*plan_args), Grid(*grid_args), Rows(*rows_args)
     lead, ctl = Leader(*leader_args), Controls(*controls_args)
@@ -108,11 +117,12 @@ def resolve_rounds(
     if not np.isnan(ctl.target0):
         ok, s, _ = next_plan(ctl.target0, plan, step, segs, s)
         if not ok:
-            return FALL_BACK, ctl.first_round, s, math.nan
+            return FALL_BACK, ctl.first_round, s, math.nan, no_dtot()
     b_wait = ctl.b_wait0  # the current plan's wait if it is of the stop family, else -1
     for it in range(ctl.first_round, ctl.max_iterations + 1):
         # the DTOT (ica.core.dtot.build_dtot with the grid)
-        _, _, _, centre, heading, lb, ub, g = dtot_of(grid, s, s_end, t0, step)
+        dtot = dtot_of(grid, s, s_end, t0, step)
+        _, _, _, centre, heading, lb, ub, g = dtot
         occ = Occupancies(lb, ub, g, centre, heading, grid.half_l_m, grid.half_w_m)
         # the lane leader, then getCV, and the first conflict as Search.rounds
         # sorts them (the leader after the others on a tie)
@@ -122,9 +132,9 @@ def resolve_rounds(
                 t0, step, s, lead.t0_s, lead.step_s, lead.s_m, lead.length_m, lead.gap_m
             )
             if found and f_first <= t0 + step + 1e-9:
-                return FALL_BACK, it, s, math.nan
+                return FALL_BACK, it, s, math.nan, no_dtot()
             if found and b_wait >= 0.0 and f_first - t0 <= plan.b_state[0] + b_wait + 1e-9:
-                return BLOCKED, it, s, math.nan
+                return BLOCKED, it, s, math.nan, no_dtot()
         best = -1
         best_first = 0.0
         best_delay = 0.0
@@ -143,13 +153,13 @@ def resolve_rounds(
             best_first = f_first
             best_delay = py_max(f_delay, 0.0)
         if best < 0:
-            return RESOLVED, it, s, math.nan
+            return RESOLVED, it, s, math.nan, dtot
         target = entry_time_of(t0, step, s) - t0 + py_max(best_delay, step)
         if target > ctl.max_wait_s:
-            return TOO_LATE, it, s, target
+            return TOO_LATE, it, s, target, no_dtot()
         if it >= ctl.last_round and it < ctl.max_iterations:
-            return PAUSED, it, s, target
+            return PAUSED, it, s, target, no_dtot()
         ok, s, b_wait = next_plan(target, plan, step, segs, s)
         if not ok:
-            return FALL_BACK, it, s, math.nan
-    return FALL_BACK, ctl.max_iterations, s, math.nan
+            return FALL_BACK, it, s, math.nan, no_dtot()
+    return FALL_BACK, ctl.max_iterations, s, math.nan, no_dtot()
