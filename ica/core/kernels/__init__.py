@@ -43,3 +43,53 @@ signatures) and cached on disk by numba next to the module, like byte code;
 deciding a request does no I/O and no compilation. A fresh cache costs some
 twenty seconds once; a warm one well under a second per process.
 """
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+_HERE = Path(__file__).resolve().parent
+STAMP_NAME = "kernels-sources.sha256"
+
+
+def sources_stamp(folder: Path) -> str:
+    """A hash of every Python source in ``folder``, names and contents."""
+    h = hashlib.sha256()
+    for p in sorted(folder.glob("*.py")):
+        h.update(p.name.encode())
+        h.update(p.read_bytes())
+    return h.hexdigest()
+
+
+def drop_stale_caches(folder: Path = _HERE) -> bool:
+    """Forget every cached kernel of the package once any of its sources changed.
+
+    numba keys a cached function to its own file's source, but a kernel here
+    holds the compiled code of the kernels of other files it calls: after a
+    change to :mod:`.interp` alone, :mod:`.dtot` would load machine code with
+    the old interpolation in it. Returns whether it dropped anything. A
+    folder that cannot be written keeps no numba cache of its own either.
+    """
+    cache = folder / "__pycache__"
+    stamp = cache / STAMP_NAME
+    now = sources_stamp(folder)
+    try:
+        if stamp.read_text() == now:
+            return False
+    except OSError:
+        pass
+    try:
+        cache.mkdir(exist_ok=True)
+        for p in [*cache.glob("*.nbi"), *cache.glob("*.nbc")]:
+            p.unlink(missing_ok=True)
+        part = cache / f"{STAMP_NAME}.{os.getpid()}"
+        part.write_text(now)
+        part.replace(stamp)  # in one step: another process reads the old stamp or this one
+    except OSError:
+        return False
+    return True
+
+
+drop_stale_caches()
