@@ -14,8 +14,10 @@ from dica.ica.core.config import IcaConfig, Techniques
 from dica.ica.core.dica import Dica
 from dica.ica.core.kernels.resolve import Controls
 from dica.ica.core.planner import Planner
-from dica.ica.core.request import RequestError
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Reason, RequestError
 from dica.ica.core.search import Search, finish
+from dica.ica.core.validate import check_request
 from dica.sim_gateway.stream import StreamSpec, run_stream
 
 
@@ -239,3 +241,21 @@ def test_pausing_the_capped_search_for_the_fast_one_changes_no_answer(
     assert len(res.confirmed) == len(res.vehicles)
     assert seen["paused"] > 0
     assert 0 < seen["fast kept"] < seen["twice"]  # both searches' plans were kept
+
+
+def test_a_plan_that_cannot_slow_to_the_cap_is_infeasible_both_ways(ch45):
+    """The compiled loop works out the planner's constants itself, so it also tells a
+    vehicle that cannot slow to the crossing cap before the line: the same rejection,
+    word for word, as the Python loop's, and for a cap it can slow to the same plan."""
+    ica = Dica(ch45, IcaConfig())
+    route = max(ch45.routes, key=lambda r: r.speed_cap_mps)
+    req = propose(route, vin="a", seq=0, t0_s=0.0, dist_to_entry_m=12.0, speed_mps=14.0)
+    route, shape, traj = check_request(req, ch45, ica.config, 0.0)
+    search = Search(ica, req, route, shape, traj, None)
+    for cap, infeasible in ((2.0, True), (route.speed_cap_mps, False)):
+        outcomes = [
+            _resolve(Search.rounds, search, compiled, (cap, [120.0]))[0]
+            for compiled in (True, False)
+        ]
+        assert outcomes[0] == outcomes[1]
+        assert (outcomes[0][:2] == ("raised", Reason.INFEASIBLE)) is infeasible

@@ -151,6 +151,34 @@ class _Builder:
         return Profile(cols[0], cols[1], cols[2], cols[3], entry_time, entry_speed)
 
 
+def approach_of(
+    kin: Kinematics,
+    d_m: float,
+    v0_mps: float,
+    road_mps: float,
+    cap_mps: float,
+    s_end_m: float,
+    hold: bool,
+) -> Approach:
+    """The approach of a :class:`Planner` with these fields, as the compiled planner
+    reads it (a caller that needs no Python planner builds it without one)."""
+    return Approach(
+        accel_mps2=kin.accel_mps2,
+        decel_mps2=kin.decel_mps2,
+        v0_mps=v0_mps,
+        d_m=d_m,
+        road_mps=road_mps,
+        cap_mps=cap_mps,
+        s_end_m=s_end_m,
+        creep_mps=kin.creep_mps,
+        stop_gap_m=kin.stop_gap_m,
+        run_up=kin.run_up,
+        hold=hold,
+        cap_sq=cap_mps**2,
+        v0_sq=v0_mps**2,
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class Planner:
     """Plans for one vehicle: distance ``d_m`` to the entry line, speed ``v0_mps``.
@@ -349,22 +377,10 @@ class Planner:
         """This vehicle's approach as the compiled planner reads it (once per planner)."""
         m = self._memo
         if "approach" not in m:
-            kin = self.kin
-            m["approach"] = Approach(
-                accel_mps2=kin.accel_mps2,
-                decel_mps2=kin.decel_mps2,
-                v0_mps=self.v0_mps,
-                d_m=self.d_m,
-                road_mps=self.road_mps,
-                cap_mps=self.cap_mps,
-                s_end_m=self.s_end_m,
-                creep_mps=kin.creep_mps,
-                stop_gap_m=kin.stop_gap_m,
-                run_up=kin.run_up,
-                hold=self.hold,
-                cap_sq=self.cap_mps**2,
-                v0_sq=self.v0_mps**2,
-            )
+            m["approach"] = approach_of(
+                self.kin, self.d_m, self.v0_mps, self.road_mps, self.cap_mps, self.s_end_m,
+                self.hold,
+            )  # fmt: skip
         return m["approach"]
 
     def plan_constants(self) -> Plan:

@@ -32,9 +32,9 @@ import numpy as np
 
 from dica.ica.core.conflict import Conflict, follow_conflict
 from dica.ica.core.dtot import Dtot, build_dtot, dtot_of_arrays
-from dica.ica.core.kernels.planner import Plan
 from dica.ica.core.kernels.resolve import (
     BLOCKED,
+    INFEASIBLE,
     PAUSED,
     RESOLVED,
     TOO_LATE,
@@ -43,7 +43,7 @@ from dica.ica.core.kernels.resolve import (
     resolve_rounds,
 )
 from dica.ica.core.kernels.validate import over_cap
-from dica.ica.core.planner import Planner
+from dica.ica.core.planner import Planner, approach_of
 from dica.ica.core.request import Reason, Request, RequestError
 from dica.ica.core.route import Route
 from dica.ica.core.trajectory import Trajectory, sample
@@ -123,6 +123,12 @@ def _exit_of(traj: Trajectory, arrays: tuple) -> tuple[float, float]:
     return float(t[-1]), float(s[k + 1] - s[k]) / traj.step_s
 
 
+def _infeasible() -> RequestError:
+    return RequestError(
+        Reason.INFEASIBLE, "cannot slow to the crossing speed cap before the entry line"
+    )
+
+
 def _too_late(max_wait_s: float) -> RequestError:
     return RequestError(Reason.INFEASIBLE, f"no conflict-free entry within {max_wait_s:.0f} s")
 
@@ -183,7 +189,9 @@ class Search:
         if lag is not None and behind_s > 0.0:
             lag = Trajectory(lag.t0_s + behind_s, lag.step_s, lag.s_m)
         self.lag = lag
-        self._lead: Leader | None = None  # the lane leader as the compiled loop reads it
+        # what every compiled call of this request reads alike: the grid, the confirmed
+        # rows and the lane leader, as tuples (built on the first call)
+        self._fixed: tuple[tuple, tuple, tuple] | None = None
 
     def best(self) -> Found:
         """checkFV's capped plan; with exit spacing also the uncapped one that leaves
@@ -245,20 +253,7 @@ class Search:
         traj = self.traj
         cfg = ica.config
         s_end = route.cross_length_m + shape.length_m
-        planner = Planner(
-            d_m=max(req.dist_to_entry_m, 0.0),
-            v0_mps=req.speed_mps,
-            road_mps=cfg.caps.road_mps,
-            cap_mps=cap,
-            s_end_m=s_end,
-            kin=cfg.kinematics,
-            hold=cfg.platoon,
-        )
-        earliest = req.t0_s + planner.earliest_entry_s()
-        if not math.isfinite(earliest):
-            raise RequestError(
-                Reason.INFEASIBLE, "cannot slow to the crossing speed cap before the entry line"
-            )
+        d_m, road = max(req.dist_to_entry_m, 0.0), cfg.caps.road_mps
         # a TSS faster than the cap inside is planned anew, to enter when it would (under
         # the route's own cap it cannot be: validation holds a TSS to that cap, the
         # planner a plan to its own, both as this test does)
@@ -272,7 +267,10 @@ class Search:
             # one is delayed here as the loop below would, and the compiled loop goes on
             # from there (its rounds are the loop's, and it plans the delayed entry);
             # where it would raise, the loop below runs from the start and raises with
-            # its message
+            # its message; the compiled loop works out the planner's constants itself
+            approach = approach_of(
+                cfg.kinematics, d_m, req.speed_mps, road, cap, s_end, cfg.platoon
+            )
             ctl = Controls(
                 t0_s=float(req.t0_s),
                 step_s=cfg.step_s,
@@ -281,11 +279,10 @@ class Search:
                 max_wait_s=bound[0],
                 first_round=1,
                 last_round=pause_rounds if pause_rounds > 0 else cfg.max_iterations,
-                b_wait0=-1.0,
                 target0=replan,
             )
             while True:
-                found = self._compiled(planner.plan_constants(), grid, ctl, earliest)
+                found = self._compiled(tuple(approach), grid, ctl)
                 if isinstance(found, Paused):
                     yield  # the caller may lower the bound meanwhile
                     target = found.target
@@ -304,15 +301,25 @@ class Search:
                     if found.iterations >= cfg.max_iterations:
                         break
                     last_round = ctl.last_round
-                wait = planner.stop_wait_s(target)
                 ctl = ctl._replace(
                     max_wait_s=bound[0],
                     first_round=found.iterations + 1,
                     last_round=last_round,
-                    b_wait0=-1.0 if wait is None else wait,
                     target0=target,
                 )
 
+        planner = Planner(
+            d_m=d_m,
+            v0_mps=req.speed_mps,
+            road_mps=road,
+            cap_mps=cap,
+            s_end_m=s_end,
+            kin=cfg.kinematics,
+            hold=cfg.platoon,
+        )
+        earliest = req.t0_s + planner.earliest_entry_s()
+        if not math.isfinite(earliest):
+            raise _infeasible()
         if not math.isnan(replan):
             traj = plan_entry(planner, req.t0_s, replan, cfg.step_s, s_end)
         b_wait: float | None = None  # the current plan's wait if of the stop family
@@ -351,36 +358,41 @@ class Search:
 
     def _lane_leader(self) -> Leader:
         """The lane leader as the compiled loop reads it: its plan, delayed (``lag``)."""
-        if self._lead is None:
-            lag = self.lag
-            if self.leader is None or lag is None:
-                self._lead = Leader(False, 0.0, 0.0, _NO_SAMPLES, 0.0, self.gap_m)
-            else:
-                self._lead = Leader(
-                    present=True,
-                    t0_s=lag.t0_s,
-                    step_s=lag.step_s,
-                    s_m=np.ascontiguousarray(lag.s_m, dtype=float),
-                    length_m=self.leader.dtot.shape.length_m,
-                    gap_m=self.gap_m,
-                )
-        return self._lead
+        lag = self.lag
+        if self.leader is None or lag is None:
+            return Leader(False, 0.0, 0.0, _NO_SAMPLES, 0.0, self.gap_m)
+        return Leader(
+            present=True,
+            t0_s=lag.t0_s,
+            step_s=lag.step_s,
+            s_m=np.ascontiguousarray(lag.s_m, dtype=float),
+            length_m=self.leader.dtot.shape.length_m,
+            gap_m=self.gap_m,
+        )
 
     def _compiled(
-        self, plan: Plan, grid: RouteGrid, ctl: Controls, earliest: float
+        self, approach_args: tuple, grid: RouteGrid, ctl: Controls
     ) -> Found | Paused | None:
         """Rounds of :meth:`rounds` in one compiled call
-        (:func:`ica.core.kernels.resolve.resolve_rounds`): the same plans round for
-        round, so the same answer (``earliest``: the request's earliest entry, kept
-        with it). None where the loop would raise; paused after round
+        (:func:`ica.core.kernels.resolve.resolve_rounds`, the approach as a tuple):
+        the same plans round for round, so the same answer, and the request's earliest
+        entry kept with it. None where the loop would raise; paused after round
         ``ctl.last_round``."""
         ica, req = self.ica, self.req
         cfg = ica.config
-        rows = ica._confirmed_batch(self.route, self.shape).rows
-        status, iteration, s, target, arrays = resolve_rounds(
-            tuple(plan), tuple(grid.kernel_grid(cfg.margin_m)), tuple(rows),
-            tuple(self._lane_leader()), tuple(ctl),
-        )  # fmt: skip
+        if self._fixed is None:
+            rows = ica._confirmed_batch(self.route, self.shape).rows
+            self._fixed = (
+                tuple(grid.kernel_grid(cfg.margin_m)),
+                tuple(rows),
+                tuple(self._lane_leader()),
+            )
+        grid_args, rows_args, leader_args = self._fixed
+        status, iteration, s, target, earliest, arrays = resolve_rounds(
+            approach_args, grid_args, rows_args, leader_args, tuple(ctl)
+        )
+        if status == INFEASIBLE:
+            raise _infeasible()
         if status == BLOCKED:
             raise _blocked(req.vin, self.leader.vin if self.leader is not None else "")
         if status == TOO_LATE:
@@ -390,7 +402,8 @@ class Search:
         if status != RESOLVED:
             return None
         final = Trajectory(req.t0_s, cfg.step_s, s)
-        return Found(final, *_exit_of(final, arrays), iteration, earliest, arrays=arrays)
+        out_s, out_mps = _exit_of(final, arrays)
+        return Found(final, out_s, out_mps, iteration, req.t0_s + earliest, arrays=arrays)
 
     def _exit_conflict(self, out_s: float, out_mps: float) -> Conflict | None:
         """The exit rules (:meth:`Dica.exit_order`, with exit spacing

@@ -27,16 +27,19 @@ last bit can differ; no decision reads such a value (see
 ``tests/test_kernels.py``, which states the bound).
 
 **Bundles.** What travels together goes as one ``typing.NamedTuple``
-(:class:`.planner.Plan`, :class:`.dtot.Grid`, :class:`.conflict.Rows`,
-:class:`.resolve.Leader`, ...), built by the Python side with named fields,
-so the compiled code reads ``plan.cap_mps``, never the fifth positional
-float. Between kernels a bundle is that named tuple. A kernel called from
-Python takes it as the plain tuple of its fields (``tuple(bundle)``) and
-names it again on its first line (``plan = Plan(*plan_args)``): numba types a
-plain tuple in C when dispatching a call, a named one in Python, which cost
-about 2.5 us more per call for a bundle of 15 fields, measured; the order of
-the fields is the class's, and no code writes it out. Such a kernel's
-signature comes from ``numba.typeof`` of a bundle built at import time.
+(:class:`.planner.Approach`, :class:`.dtot.Grid`, :class:`.conflict.Rows`,
+:class:`.resolve.Leader`, :class:`.resolve.Controls`, ...), built by the
+Python side with named fields, or in compiled code (:class:`.planner.Plan`,
+the planner's constants), so the compiled code reads ``plan.cap_mps``, never
+the fifth positional float. Between kernels a bundle is that named tuple. A
+kernel called from Python takes it as the plain tuple of its fields
+(``tuple(bundle)``) and names it again on its first line
+(``grid = Grid(*grid_args)``), and hands one back as a plain tuple too
+(``plan[:]``): numba types a plain tuple in C when dispatching a call, a
+named one in Python, which cost about 2.5 us more per call for a bundle of
+15 fields, measured; the order of the fields is the class's, and no code
+writes it out. Such a kernel's signature comes from ``numba.typeof`` of a
+bundle built at import time.
 
 The functions are compiled when their module is first imported (explicit
 signatures) and cached on disk by numba next to the module, like byte code;

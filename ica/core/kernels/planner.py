@@ -212,14 +212,11 @@ def _cruise_to(st: np.ndarray, segs: np.ndarray, n: int, s1: float) -> int:
     return n
 
 
-@njit(PLAN_ARGS(APPROACH_ARGS), cache=True, nogil=True)
-def plan_constants_of(approach_args: tuple) -> tuple:
+@njit(cache=True, nogil=True)
+def plan_of(p: Approach) -> Plan:
     """``Planner.plan_constants`` (see ``Planner.plan_constants_reference``): the
     time-optimal plan's cruise speed and entry, the slowest slow-down plan's, the stop
-    family's earliest entry and its stop-at-the-line base, expression for expression.
-    Both ways as tuples: an :class:`Approach` in, a :class:`Plan` out (numba hands a
-    named tuple back to Python at about three times the cost of a plain one)."""
-    p = Approach(*approach_args)
+    family's earliest entry and its stop-at-the-line base, expression for expression."""
     a, br, v0, d, road, cap = p.accel_mps2, p.decel_mps2, p.v0_mps, p.d_m, p.road_mps, p.cap_mps
     cap_sq, v0_sq = p.cap_sq, p.v0_sq
     # Planner._v_max
@@ -249,11 +246,10 @@ def plan_constants_of(approach_args: tuple) -> tuple:
         gap = py_min(gap, d)
     # Planner.stop_entry_s: can_stop, _b_base_build, _pull_away_time
     if not v0_sq <= 2 * br * (d - gap) + 1e-7:
-        plan = Plan(
+        return Plan(
             a, br, v0, d, cap, p.s_end_m, v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, math.inf,
             np.zeros((0, 4)), np.zeros(3),
         )  # fmt: skip
-        return plan[:]  # the plain tuple of its fields
     d_stop = d - gap
     segs = np.empty((MAX_SEGS, 4))
     st = np.empty(3)
@@ -268,11 +264,18 @@ def plan_constants_of(approach_args: tuple) -> tuple:
         pull = math.sqrt(2 * gap / a)
     else:
         pull = cap / a + (gap - cap * cap / (2 * a)) / cap
-    plan = Plan(
+    return Plan(
         a, br, v0, d, cap, p.s_end_m, v_hi, hi_ok, hi_t, v_lo, lo_ok, lo_t, st[0] + pull,
         segs[:n].copy(), st,
     )  # fmt: skip
-    return plan[:]
+
+
+@njit(PLAN_ARGS(APPROACH_ARGS), cache=True, nogil=True)
+def plan_constants_of(approach_args: tuple) -> tuple:
+    """:func:`plan_of` for a Python caller, both ways as tuples: an :class:`Approach`
+    in, a :class:`Plan` out (numba hands a named tuple back to Python at about three
+    times the cost of a plain one)."""
+    return plan_of(Approach(*approach_args))[:]
 
 
 @njit(cache=True, nogil=True)

@@ -34,13 +34,21 @@ from dica.ica.core.kernels.dtot import (
     entry_time_of,
     no_dtot,
 )
-from dica.ica.core.kernels.planner import MAX_SEGS, PLAN_ARGS, Plan, next_plan, py_max
+from dica.ica.core.kernels.planner import (
+    APPROACH_ARGS,
+    MAX_SEGS,
+    Approach,
+    next_plan,
+    plan_of,
+    py_max,
+)
 
 # resolve_rounds' status; BLOCKED: a stop-family plan meets the lane leader where every
 # later stop-family plan goes too (the vehicle must stop behind the leader first);
-# TOO_LATE: the next entry would be later than ``max_wait_s``
-# PAUSED: round ``last_round`` done, the next round's entry target returned fourth
-RESOLVED, FALL_BACK, BLOCKED, TOO_LATE, PAUSED = 0, 1, 2, 3, 4
+# TOO_LATE: the next entry would be later than ``max_wait_s``;
+# PAUSED: round ``last_round`` done, the next round's entry target returned fourth;
+# INFEASIBLE: the vehicle cannot slow to the crossing cap before the entry line
+RESOLVED, FALL_BACK, BLOCKED, TOO_LATE, PAUSED, INFEASIBLE = 0, 1, 2, 3, 4, 5
 
 
 class Leader(NamedTuple):
@@ -64,48 +72,56 @@ class Controls(NamedTuple):
     max_wait_s: float  # the latest entry it may plan, from the state
     first_round: int  # the round it starts with (after rounds the caller made)
     last_round: int  # the round after which it pauses (PAUSED)
-    b_wait0: float  # the first plan's wait if of the stop family, else -1
     target0: float  # NaN: the first plan is s_init; else the plan entering at or after it
 
 
 _F1 = np.zeros(1)
 LEADER_ARGS = typeof(tuple(Leader(False, 0.0, 0.0, _F1, 0.0, 0.5)))  # see the package
-CONTROLS_ARGS = typeof(tuple(Controls(0.0, 0.05, _F1, 100, 120.0, 1, 100, -1.0, math.nan)))
+CONTROLS_ARGS = typeof(tuple(Controls(0.0, 0.05, _F1, 100, 120.0, 1, 100, math.nan)))
 
 
 @njit(
-    types.Tuple((int64, int64, f8[::1], f8, DTOT_ARRAYS))(
-        PLAN_ARGS, GRID_ARGS, ROWS_ARGS, LEADER_ARGS, CONTROLS_ARGS
+    types.Tuple((int64, int64, f8[::1], f8, f8, DTOT_ARRAYS))(
+        APPROACH_ARGS, GRID_ARGS, ROWS_ARGS, LEADER_ARGS, CONTROLS_ARGS
     ),
     cache=True,
     nogil=True,
 )
 def resolve_rounds(
-    plan_args: tuple, grid_args: tuple, rows_args: tuple, leader_args: tuple, controls_args: tuple
-) -> tuple[int, int, np.ndarray, float, tuple]:
+    approach_args: tuple,
+    grid_args: tuple,
+    rows_args: tuple,
+    leader_args: tuple,
+    controls_args: tuple,
+) -> tuple[int, int, np.ndarray, float, float, tuple]:
     """The rounds of ``Search.rounds`` (enhanced DICA) from the first plan ``s_init``.
 
-    Bundles as tuples: :class:`~.planner.Plan` (``Planner.plan_constants``),
+    Bundles as tuples: :class:`~.planner.Approach` (the planner's constants,
+    :class:`~.planner.Plan`, are worked out here, :func:`~.planner.plan_of`),
     :class:`~.dtot.Grid`, :class:`~.conflict.Rows` (``ConfirmedBatch``, its
     rows in ascending ``lb_j`` with their longest interval ``span_s``; NaN: a
     NaN bound, never from a real DTOT, and every round then searches all
     rows), :class:`Leader`, :class:`Controls`.
 
-    Returns (RESOLVED, rounds, the conflict-free plan's samples, NaN, its DTOT as
-    :func:`~.dtot.dtot_of` gives it, which the round built), BLOCKED
-    (see the constant), TOO_LATE (the wait exceeded), PAUSED after round
-    ``last_round`` with the next round's entry target (go on from there with
-    ``first_round`` one higher and that ``target0``), or FALL_BACK where the Python
-    loop raises (no plan, the round limit exceeded, the state too close to the lane
-    leader, a plan that never leaves): the caller then runs the Python loop, which
-    raises with its message. ``first_round`` and ``b_wait0`` (-1: none) go on from
-    a round the caller made (a delay for an exit rule, which this loop does not
-    know); with ``target0`` (NaN: none) the first plan is ``Planner.at_or_after``
-    that entry, sampled, instead of ``s_init``. Every status but RESOLVED comes with an
-    empty DTOT.
+    Returns (status, rounds, samples, target, earliest, DTOT): RESOLVED with the
+    conflict-free plan's samples and its DTOT as :func:`~.dtot.dtot_of` gives it
+    (which the round built), BLOCKED (see the constant), TOO_LATE (the wait
+    exceeded), PAUSED after round ``last_round`` with the next round's entry target
+    (go on from there with ``first_round`` one higher and that ``target0``),
+    INFEASIBLE before any round, or FALL_BACK where the Python loop raises (no plan,
+    the round limit exceeded, the state too close to the lane leader, a plan that
+    never leaves): the caller then runs the Python loop, which raises with its
+    message. ``earliest`` is the request's earliest entry (``Planner.earliest_entry_s``).
+    ``first_round`` goes on from a round the caller made (a delay for an exit rule,
+    which this loop does not know); with ``target0`` (NaN: none) the first plan is
+    ``Planner.at_or_after`` that entry, sampled, instead of ``s_init``. Every status
+    but RESOLVED comes with an empty DTOT.
     """
-    plan, grid, rows = Plan(*plan_args), Grid(*grid_args), Rows(*rows_args)
+    plan, grid, rows = plan_of(Approach(*approach_args)), Grid(*grid_args), Rows(*rows_args)
     lead, ctl = Leader(*leader_args), Controls(*controls_args)
+    earliest = plan.hi_entry_s
+    if not plan.hi_ok:
+        return INFEASIBLE, 0, ctl.s_init, math.nan, math.inf, no_dtot()
     t0, step, s_end = ctl.t0_s, ctl.step_s, plan.s_end_m
     nv = rows.nv
     segs = np.empty((MAX_SEGS, 4))
@@ -114,11 +130,15 @@ def resolve_rounds(
     delay = np.empty(nv)
     ordered = not np.isnan(rows.span_s)
     s = ctl.s_init
+    b_wait = -1.0  # the current plan's wait if it is of the stop family, else -1
     if not np.isnan(ctl.target0):
-        ok, s, _ = next_plan(ctl.target0, plan, step, segs, s)
+        ok, s, wait = next_plan(ctl.target0, plan, step, segs, s)
         if not ok:
-            return FALL_BACK, ctl.first_round, s, math.nan, no_dtot()
-    b_wait = ctl.b_wait0  # the current plan's wait if it is of the stop family, else -1
+            return FALL_BACK, ctl.first_round, s, math.nan, earliest, no_dtot()
+        # a plan that goes on from a round knows its wait (Planner.stop_wait_s); the
+        # request's own TSS planned anew does not, as in the Python loop
+        if ctl.first_round > 1:
+            b_wait = wait
     for it in range(ctl.first_round, ctl.max_iterations + 1):
         # the DTOT (ica.core.dtot.build_dtot with the grid)
         dtot = dtot_of(grid, s, s_end, t0, step)
@@ -132,9 +152,9 @@ def resolve_rounds(
                 t0, step, s, lead.t0_s, lead.step_s, lead.s_m, lead.length_m, lead.gap_m
             )
             if found and f_first <= t0 + step + 1e-9:
-                return FALL_BACK, it, s, math.nan, no_dtot()
+                return FALL_BACK, it, s, math.nan, earliest, no_dtot()
             if found and b_wait >= 0.0 and f_first - t0 <= plan.b_state[0] + b_wait + 1e-9:
-                return BLOCKED, it, s, math.nan, no_dtot()
+                return BLOCKED, it, s, math.nan, earliest, no_dtot()
         best = -1
         best_first = 0.0
         best_delay = 0.0
@@ -153,13 +173,13 @@ def resolve_rounds(
             best_first = f_first
             best_delay = py_max(f_delay, 0.0)
         if best < 0:
-            return RESOLVED, it, s, math.nan, dtot
+            return RESOLVED, it, s, math.nan, earliest, dtot
         target = entry_time_of(t0, step, s) - t0 + py_max(best_delay, step)
         if target > ctl.max_wait_s:
-            return TOO_LATE, it, s, target, no_dtot()
+            return TOO_LATE, it, s, target, earliest, no_dtot()
         if it >= ctl.last_round and it < ctl.max_iterations:
-            return PAUSED, it, s, target, no_dtot()
+            return PAUSED, it, s, target, earliest, no_dtot()
         ok, s, b_wait = next_plan(target, plan, step, segs, s)
         if not ok:
-            return FALL_BACK, it, s, math.nan, no_dtot()
-    return FALL_BACK, ctl.max_iterations, s, math.nan, no_dtot()
+            return FALL_BACK, it, s, math.nan, earliest, no_dtot()
+    return FALL_BACK, ctl.max_iterations, s, math.nan, earliest, no_dtot()
