@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from dica.ica.core.config import IcaConfig, Techniques
-from dica.ica.core.conflict import get_cv
+from dica.ica.core.conflict import get_cv, occupancies
 from dica.ica.core.dica import Dica
-from dica.ica.core.kernels import first_conflict
+from dica.ica.core.kernels.conflict import Occupancies, Rows, first_conflict
 from dica.sim_gateway.stream import StreamSpec, run_stream
 
 
@@ -55,30 +55,18 @@ def test_first_conflict_is_the_sorted_get_cv_head(request, monkeypatch, junction
     def checked(self: Dica, dtot):
         found = batched(self, dtot)
         batch = self._confirmed_batch(dtot.route, dtot.shape)
-        g = batch.gathered
-        order = np.argsort(g.packed[batch.m, 0])
+        g, rows = batch.gathered, batch.rows
+        order = np.argsort(g.packed[rows.m_idx, 0])
+        rows = rows._replace(
+            m_idx=rows.m_idx[order],
+            row=rows.row[order],
+            row_lo=rows.row_lo[order],
+            row_hi=rows.row_hi[order],
+            lb_s=np.ascontiguousarray(g.packed[rows.m_idx[order], 0]),
+        )
         heads = [c.first_time_s for c in found[:1]]
         for bound in (math.inf, *heads, *(h - 0.05 for h in heads)):
-            v, first, delay = first_conflict(
-                np.ascontiguousarray(dtot.lb_s),
-                np.ascontiguousarray(dtot.ub_s),
-                np.ascontiguousarray(dtot.grid_idx),
-                np.ascontiguousarray(dtot.rects.centre),
-                np.ascontiguousarray(dtot.rects.heading),
-                dtot.rects.half_length,
-                dtot.rects.half_width,
-                g.packed,
-                g.vid,
-                batch.m[order],
-                batch.row[order],
-                batch.row_lo[order],
-                batch.row_hi[order],
-                batch.codes,
-                batch.width,
-                np.ascontiguousarray(g.packed[batch.m[order], 0]),
-                batch.span_s,
-                bound,
-            )
+            v, first, delay = first_conflict(occupancies(dtot), rows, bound)
             head = [c for c in found if c.first_time_s <= bound][:1]
             if head:
                 assert (g.vins[v], first, delay) == (
@@ -112,12 +100,31 @@ def _first(rows: list[tuple[float, float, int]], span: float) -> tuple[int, floa
     for q, (lb, ub, _) in enumerate(rows):
         packed[q, :2] = lb, ub
     one = np.zeros(1, np.int64)
-    return first_conflict(
-        np.array([10.0]), np.array([11.0]), one, np.zeros((1, 2)), np.array([[1.0, 0.0]]),
-        1.0, 1.0, packed, np.array([v for *_, v in rows], np.int64), np.arange(n),
-        np.zeros(n, np.int64), np.zeros(n, np.int64), np.zeros(n, np.int64),
-        np.full(1, 2, np.int8), 1, np.array([lb for lb, *_ in rows]), span, math.inf,
-    )  # fmt: skip
+    occ = Occupancies(
+        lb_s=np.array([10.0]),
+        ub_s=np.array([11.0]),
+        grid_idx=one,
+        centre=np.zeros((1, 2)),
+        heading=np.array([[1.0, 0.0]]),
+        half_l_m=1.0,
+        half_w_m=1.0,
+    )
+    vid = np.array([v for *_, v in rows], np.int64)
+    zeros = np.zeros(n, np.int64)
+    confirmed = Rows(
+        packed=packed,
+        vid=vid,
+        m_idx=np.arange(n),
+        row=zeros,
+        row_lo=zeros,
+        row_hi=zeros,
+        codes=np.full(1, 2, np.int8),  # TOUCH
+        width=1,
+        nv=int(vid.max()) + 1,
+        span_s=span,
+        lb_s=np.array([lb for lb, *_ in rows]),
+    )
+    return first_conflict(occ, confirmed, math.inf)
 
 
 def test_first_conflict_skips_only_rows_that_end_before_the_requester():

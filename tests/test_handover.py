@@ -12,9 +12,10 @@ import pytest
 from dica.ica.core.controller import ControllerSpec, build_controller
 from dica.ica.core.dica import Dica
 from dica.ica.core.handover import Handover, separation_reference
-from dica.ica.core.kernels import separation
+from dica.ica.core.kernels.handover import separation
 from dica.ica.core.proposal import propose
 from dica.ica.core.request import Confirmation
+from dica.ica.core.search import Search
 from tests.test_run_sumo import dica
 
 ROAD_MPS = 70.0 / 3.6
@@ -84,7 +85,7 @@ def test_the_compiled_separation_is_the_numpy_search_bit_for_bit():
             length = math.ceil(length * 10) / 10
         cases.append((float(v_lead), float(v_follow), float(length)))
     for h in (Handover(ROAD_MPS), Handover(50.0 / 3.6, 1.5, 3.0, 1.5, 2.0, 0.5, 0.1)):
-        found = [separation(h.constants, *c) for c in cases]
+        found = [separation(tuple(h.driver), *c) for c in cases]
         assert found == [separation_reference(h, *c) for c in cases]
         assert all(0.0 <= x < 120.0 for x in found)
 
@@ -238,13 +239,13 @@ def test_an_exit_at_the_route_s_cap_up_to_rounding_does_not_bind_the_cap(ch45, m
     assert ica.front_cap_mps(through) == out  # a slower vehicle ahead binds
 
     caps: list[float] = []
-    search = Dica._search
+    rounds = Search.rounds
 
-    def counted(self: Dica, *args, **kw):
-        caps.append(args[5])
-        return search(self, *args, **kw)
+    def counted(self: Search, cap: float, *args, **kw):
+        caps.append(cap)
+        return rounds(self, cap, *args, **kw)
 
-    monkeypatch.setattr(Dica, "_search", counted)
+    monkeypatch.setattr(Search, "rounds", counted)
     ica.detect("d", RIGHT[0], 0.5)  # behind "a", which has begun to enter by t = 2
     req = propose(
         right, vin="d", seq=0, t0_s=2.0, dist_to_entry_m=40.0, speed_mps=25 / 3.6,

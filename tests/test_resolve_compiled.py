@@ -1,5 +1,5 @@
-"""Enhanced DICA's compiled round loop (``ica.core.kernels.resolve_rounds``)
-gives every answer of the Python loop of ``Dica._resolve``, bit for bit."""
+"""Enhanced DICA's compiled round loop (``ica.core.kernels.resolve.resolve_rounds``)
+gives every answer of the Python loop of ``Search.rounds``, bit for bit."""
 
 from __future__ import annotations
 
@@ -8,30 +8,33 @@ import math
 import numpy as np
 import pytest
 
-import dica.ica.core.dica as dica_module
+import dica.ica.core.search as search_module
 from dica.ica.core.config import IcaConfig, Techniques
 from dica.ica.core.controller import ControllerSpec, build_controller
-from dica.ica.core.dica import Dica, _finish
+from dica.ica.core.dica import Dica
+from dica.ica.core.kernels.resolve import Controls
 from dica.ica.core.planner import Planner
-from dica.ica.core.request import RequestError
+from dica.ica.core.proposal import propose
+from dica.ica.core.request import Reason, RequestError
+from dica.ica.core.search import Search, finish
+from dica.ica.core.validate import check_request
 from dica.sim_gateway.stream import StreamSpec, run_stream
 
 
-def _resolve(search, ica: Dica, compiled: bool, args: tuple):
+def _resolve(rounds, search: Search, compiled: bool, args: tuple):
     """(what to compare, the result or the exception) of one search run to its end."""
-    ica.compiled_loop = compiled
+    search.ica.compiled_loop = compiled
     try:
-        found = _finish(search(ica, *args))
+        found = finish(rounds(search, *args))
     except RequestError as e:
         return ("raised", e.reason, e.detail), e
     finally:
-        del ica.compiled_loop
-    return _key(ica, found, args), found
+        del search.ica.compiled_loop
+    return _key(search, found), found
 
 
-def _key(ica: Dica, found, args: tuple) -> tuple:
-    route, shape = args[1], args[2]
-    d = ica._dtot(found, route, shape)
+def _key(search: Search, found) -> tuple:
+    d = found.kept_dtot(search.route, search.shape, search.ica.config.margin_m)
     assert (found.out_s, found.out_mps) == (float(d.t_s[-1]), d.exit_speed_mps)
     iterations, earliest = found.iterations, found.earliest
     key = (
@@ -71,31 +74,30 @@ def test_compiled_rounds_equal_python_rounds(
     exit spacing the compiled loop goes on after each exit delay, and each
     request may be resolved twice (capped and fast), both ways each time."""
     inter = request.getfixturevalue(junction)
-    search = Dica._search
+    rounds = Search.rounds
     rng = np.random.default_rng(seed)
     seen = {"requests": 0, "rounds": 0, "raised": 0, "stops": 0, "exit_delays": 0, "planned": 0,
             "paused": 0}  # fmt: skip
 
-    def both(self: Dica, *args):
+    def both(self: Search, cap: float, bound: list[float], pause_rounds: int = 0):
         """The compiled search as the request runs it (paused, its bound lowered
         meanwhile, and half the time lowered again at random), then the Python loop
         with the bound it ended with, from the start."""
-        assert self._compiled_rounds()
-        run = search(self, *args)
+        assert self.ica._compiled_rounds()
+        run = rounds(self, cap, bound, pause_rounds)
         try:
             while True:
                 next(run)
                 seen["paused"] += 1
                 yield
                 if rng.uniform() < 0.5:  # lower it further: the search must give up there
-                    args[6][0] = rng.uniform(0.0, args[6][0])
+                    bound[0] = rng.uniform(0.0, bound[0])
         except StopIteration as done:
             out = done.value
-            fast = _key(self, out, args)
+            fast = _key(self, out)
         except RequestError as e:
             out, fast = e, ("raised", e.reason, e.detail)
-        bound = args[6]
-        slow, _ = _resolve(search, self, False, (*args[:6], [bound[0]]))
+        slow, _ = _resolve(rounds, self, False, (cap, [bound[0]]))
         assert fast == slow
         seen["requests"] += 1
         if isinstance(out, RequestError):
@@ -104,8 +106,8 @@ def test_compiled_rounds_equal_python_rounds(
         seen["rounds"] += out.iterations
         return out
 
-    monkeypatch.setattr(Dica, "_search", both)
-    monkeypatch.setattr(dica_module, "PAUSE_ROUNDS", 3)  # pauses often: every way on is met
+    monkeypatch.setattr(Search, "rounds", both)
+    monkeypatch.setattr(search_module, "PAUSE_ROUNDS", 3)  # pauses often: every way on is met
     build_b = Planner._build_b
 
     def counted(self: Planner, wait_s: float):
@@ -113,21 +115,22 @@ def test_compiled_rounds_equal_python_rounds(
         return build_b(self, wait_s)
 
     monkeypatch.setattr(Planner, "_build_b", counted)
-    exit_conflict = Dica._exit_conflict
+    exit_conflict = Search._exit_conflict
 
-    def delayed(self: Dica, *args):
+    def delayed(self: Search, *args):
         late = exit_conflict(self, *args)
         seen["exit_delays"] += late is not None
         return late
 
-    monkeypatch.setattr(Dica, "_exit_conflict", delayed)
-    rounds = dica_module.resolve_rounds
+    monkeypatch.setattr(Search, "_exit_conflict", delayed)
+    resolve_rounds = search_module.resolve_rounds
 
     def planning(*args):
-        seen["planned"] += not math.isnan(args[-1])  # the loop plans its first entry
-        return rounds(*args)
+        # the loop plans its first entry
+        seen["planned"] += not math.isnan(Controls(*args[-1]).target0)
+        return resolve_rounds(*args)
 
-    monkeypatch.setattr(dica_module, "resolve_rounds", planning)
+    monkeypatch.setattr(search_module, "resolve_rounds", planning)
     spec = StreamSpec(
         volume_per_10min=volume,
         n_vehicles=60,
@@ -162,19 +165,20 @@ def test_controllers_get_tables_of_their_interval_kind(ch45):
         assert ica.config.techniques.exact_oti is exact
 
 
-def _in_turn(ica: Dica, req, route, shape, traj, leader):
+def _in_turn(search: Search):
     """The two searches of a request planned twice, one after the other: capped first,
     then the fast one given up once its entry is past the capped plan's exit."""
+    ica, route = search.ica, search.route
     cap = ica.front_cap_mps(route)
     if not ica.config.exit_spacing or cap >= route.speed_cap_mps:
-        return ica._resolve(req, route, shape, traj, leader, cap)
+        return search.resolve(cap)
     try:
-        capped = ica._resolve(req, route, shape, traj, leader, cap)
+        capped = search.resolve(cap)
     except RequestError:
-        return ica._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
-    give_up = min(ica.config.max_wait_s, capped.out_s - req.t0_s)
+        return search.resolve(route.speed_cap_mps)
+    give_up = min(ica.config.max_wait_s, capped.out_s - search.req.t0_s)
     try:
-        fast = ica._resolve(req, route, shape, traj, leader, route.speed_cap_mps, give_up)
+        fast = search.resolve(route.speed_cap_mps, give_up)
     except RequestError:
         return capped
     return fast if fast.out_s < capped.out_s else capped
@@ -195,18 +199,18 @@ def _outcome(resolve) -> tuple:
 def test_pausing_the_capped_search_for_the_fast_one_changes_no_answer(
     request, monkeypatch, junction, volume, seed, pause
 ):
-    """Every request of a heavy stream with exit spacing: ``Dica._resolve_best`` (the
+    """Every request of a heavy stream with exit spacing: ``Search.best`` (the
     capped search paused after ``pause`` rounds while the fast one runs) gives the plan,
     or the error, of the two searches in turn. Fails if the paused search goes on
     under a bound it should not have (a plan entering after the fast plan's exit, or
     one given up too soon) or keeps the wrong plan of the two."""
     inter = request.getfixturevalue(junction)
-    monkeypatch.setattr(dica_module, "PAUSE_ROUNDS", pause)
-    best, search = Dica._resolve_best, Dica._search
+    monkeypatch.setattr(search_module, "PAUSE_ROUNDS", pause)
+    best, rounds = Search.best, Search.rounds
     seen = {"twice": 0, "fast kept": 0, "paused": 0, "raised": 0}
 
-    def counted(self: Dica, *args):
-        run = search(self, *args)
+    def counted(self: Search, *args):
+        run = rounds(self, *args)
         while True:
             try:
                 next(run)
@@ -215,25 +219,43 @@ def test_pausing_the_capped_search_for_the_fast_one_changes_no_answer(
             seen["paused"] += 1
             yield
 
-    def compare(self: Dica, req, route, shape, traj, leader):
-        want, _ = _outcome(lambda: _in_turn(self, req, route, shape, traj, leader))
-        got, out = _outcome(lambda: best(self, req, route, shape, traj, leader))
+    def compare(self: Search):
+        want, _ = _outcome(lambda: _in_turn(self))
+        got, out = _outcome(lambda: best(self))
         assert got == want
-        cap = self.front_cap_mps(route)
-        if cap < route.speed_cap_mps:
+        cap = self.ica.front_cap_mps(self.route)
+        if cap < self.route.speed_cap_mps:
             seen["twice"] += 1
             if isinstance(out, RequestError):
                 seen["raised"] += 1
-            elif out.out_mps > cap + self.config.speed_tol_mps:
+            elif out.out_mps > cap + self.ica.config.speed_tol_mps:
                 seen["fast kept"] += 1
         if isinstance(out, RequestError):
             raise out
         return out
 
-    monkeypatch.setattr(Dica, "_search", counted)
-    monkeypatch.setattr(Dica, "_resolve_best", compare)
+    monkeypatch.setattr(Search, "rounds", counted)
+    monkeypatch.setattr(Search, "best", compare)
     spec = StreamSpec(volume_per_10min=volume, n_vehicles=60, seed=seed)
     res = run_stream(inter, IcaConfig(exit_spacing=True), spec)
     assert len(res.confirmed) == len(res.vehicles)
     assert seen["paused"] > 0
     assert 0 < seen["fast kept"] < seen["twice"]  # both searches' plans were kept
+
+
+def test_a_plan_that_cannot_slow_to_the_cap_is_infeasible_both_ways(ch45):
+    """The compiled loop works out the planner's constants itself, so it also tells a
+    vehicle that cannot slow to the crossing cap before the line: the same rejection,
+    word for word, as the Python loop's, and for a cap it can slow to the same plan."""
+    ica = Dica(ch45, IcaConfig())
+    route = max(ch45.routes, key=lambda r: r.speed_cap_mps)
+    req = propose(route, vin="a", seq=0, t0_s=0.0, dist_to_entry_m=12.0, speed_mps=14.0)
+    route, shape, traj = check_request(req, ch45, ica.config, 0.0)
+    search = Search(ica, req, route, shape, traj, None)
+    for cap, infeasible in ((2.0, True), (route.speed_cap_mps, False)):
+        outcomes = [
+            _resolve(Search.rounds, search, compiled, (cap, [120.0]))[0]
+            for compiled in (True, False)
+        ]
+        assert outcomes[0] == outcomes[1]
+        assert (outcomes[0][:2] == ("raised", Reason.INFEASIBLE)) is infeasible

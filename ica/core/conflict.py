@@ -28,7 +28,14 @@ import numpy as np
 
 from dica.ica.core.config import Techniques
 from dica.ica.core.dtot import Dtot
-from dica.ica.core.kernels import batch_conflicts, follow_check, pack_rows, select_rows
+from dica.ica.core.kernels.conflict import (
+    Occupancies,
+    Rows,
+    batch_conflicts,
+    follow_check,
+    pack_rows,
+    select_rows,
+)
 from dica.ica.core.occupancy import overlap_matrix, overlap_pairs
 from dica.ica.core.route import Route
 from dica.ica.core.trajectory import Trajectory
@@ -246,33 +253,28 @@ class ConfirmedRows:
 class ConfirmedBatch:
     """The confirmed occupancies that can touch one route (techniques 1 and 2).
 
-    Rows ``m`` of :class:`Gathered` not on a route compatible with it
-    (technique 1) and inside the conflict zone (technique 2): some grid point
-    of the route is other than APART from them. ``row`` is each one's row in
-    the route's :class:`~ica.core.zones.PairStack`, ``row_lo`` and ``row_hi``
-    the first and last grid point of the route not APART from it; ``codes``
-    is the flat stack, ``width`` its row length. The rows come in ascending
-    ``lb_j``; ``span_s`` is the longest interval among them (NaN if a bound
-    is NaN), for :func:`ica.core.kernels.first_conflict`.
+    Rows of :class:`Gathered` not on a route compatible with it (technique 1)
+    and inside the conflict zone (technique 2): some grid point of the route
+    is other than APART from them. ``rows`` holds them as the compiled getCV
+    reads them (:class:`ica.core.kernels.conflict.Rows`): each one's row in
+    the route's :class:`~ica.core.zones.PairStack`, the first and last grid
+    point of the route not APART from it, the flat stack, in ascending
+    ``lb_j`` with the longest interval among them (NaN if a bound is NaN), for
+    :func:`ica.core.kernels.conflict.first_conflict`. Built once per confirmed
+    set and route.
     """
 
     gathered: Gathered
-    m: np.ndarray
-    row: np.ndarray
-    row_lo: np.ndarray
-    row_hi: np.ndarray
-    codes: np.ndarray
-    width: int
-    span_s: float
+    rows: Rows
 
     def __len__(self) -> int:
-        return len(self.m)
+        return len(self.rows.m_idx)
 
     @staticmethod
     def of(
         route: Route, shape: Shape, gathered: Gathered, tables: ConflictTables
     ) -> ConfirmedBatch:
-        rows = tables.rows_of(route, shape)
+        offsets = tables.rows_of(route, shape)
         first: list[int] = []
         for seen in gathered.routes:
             if seen is None:  # a vehicle that has left
@@ -280,20 +282,50 @@ class ConfirmedBatch:
                 continue
             other, sh = seen
             key = (other.id, sh.length_m, sh.width_m)
-            off = rows.get(key)
+            off = offsets.get(key)
             if off is None:
                 if tables.compatible(other, sh, route, shape):
                     off = -1
                 else:
                     off = tables.stack_offset(route, shape, other, sh)
-                rows[key] = off
+                offsets[key] = off
             first.append(off)
         first_row = np.array(first, dtype=np.int64)
         stack = tables.stack(route, shape)  # after the offsets: they may have grown it
-        m, row, lo, hi, span = select_rows(
+        m, row, lo, hi, span, lb_s = select_rows(
             gathered.packed, gathered.vid, first_row, stack.row_lo, stack.row_hi
         )
-        return ConfirmedBatch(gathered, m, row, lo, hi, stack.codes, stack.width, span)
+        rows = Rows(
+            packed=gathered.packed,
+            vid=gathered.vid,
+            m_idx=m,
+            row=row,
+            row_lo=lo,
+            row_hi=hi,
+            codes=stack.codes,
+            width=stack.width,
+            nv=len(gathered.vins),
+            span_s=span,
+            lb_s=lb_s,
+        )
+        return ConfirmedBatch(gathered, rows)
+
+
+def occupancies(d: Dtot) -> Occupancies:
+    """A requester's DTOT as the compiled getCV reads it."""
+    if d.grid_idx is None:
+        raise ValueError("conflict zones need DTOTs built with their offline grid")
+    c = np.ascontiguousarray
+    r = d.rects
+    return Occupancies(
+        lb_s=c(d.lb_s),
+        ub_s=c(d.ub_s),
+        grid_idx=c(d.grid_idx),
+        centre=c(r.centre),
+        heading=c(r.heading),
+        half_l_m=float(r.half_length),
+        half_w_m=float(r.half_width),
+    )
 
 
 def get_cv_batch(i: Dtot, batch: ConfirmedBatch) -> list[Conflict]:
@@ -309,38 +341,17 @@ def get_cv_batch(i: Dtot, batch: ConfirmedBatch) -> list[Conflict]:
     either range cannot conflict, so the conflicting pairs, and with them
     firstTimeAtCollision and the delay, are exactly those of
     :func:`pair_conflict`; vehicles come out in the same order as from
-    :func:`get_cv`. The loop is compiled (:func:`ica.core.kernels.batch_conflicts`).
+    :func:`get_cv`. The loop is compiled
+    (:func:`ica.core.kernels.conflict.batch_conflicts`).
     """
     if len(batch) == 0:
         return []
-    if i.grid_idx is None:
-        raise ValueError("conflict zones need DTOTs built with their offline grid")
+    occ = occupancies(i)
     g = batch.gathered
     nv = len(g.vins)
     hit = np.zeros(nv, dtype=bool)
     first, delay = np.empty(nv), np.empty(nv)
-    c = np.ascontiguousarray
-    found = batch_conflicts(
-        c(i.lb_s),
-        c(i.ub_s),
-        c(i.grid_idx),
-        c(i.rects.centre),
-        c(i.rects.heading),
-        i.rects.half_length,
-        i.rects.half_width,
-        g.packed,
-        g.vid,
-        batch.m,
-        batch.row,
-        batch.row_lo,
-        batch.row_hi,
-        batch.codes,
-        batch.width,
-        hit,
-        first,
-        delay,
-    )
-    if not found:
+    if not batch_conflicts(tuple(occ), tuple(batch.rows), hit, first, delay):
         return []
     fs, ds = first.tolist(), delay.tolist()
     out = [Conflict(g.vins[v], fs[v], ds[v]) for v in np.nonzero(hit)[0].tolist()]
@@ -375,7 +386,7 @@ def _candidate_pairs(
 def follow_conflict(
     follower: Trajectory, leader: Trajectory, leader_length_m: float, gap_m: float
 ) -> tuple[float, float] | None:
-    """checkFV in the approach, compiled (:func:`ica.core.kernels.follow_check`):
+    """checkFV in the approach, compiled (:func:`ica.core.kernels.conflict.follow_check`):
     exactly the answer of :func:`follow_conflict_reference`."""
     found, first, delay = follow_check(
         follower.t0_s,

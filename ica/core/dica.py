@@ -8,7 +8,7 @@ time. Entry times only grow, every step by at least one sample step, and past
 the last confirmed vehicle's exit nothing is left to conflict with, so the loop
 ends: the deadlock- and starvation-freedom arguments of chapter 3 carry over,
 with the wait of a vehicle bounded by the exit time of the vehicles confirmed
-before it.
+before it. The rounds themselves are :class:`ica.core.search.Search`.
 
 The class keeps the ICA's state: per-lane order of detected vehicles (to tell
 head vehicles), the confirmed set and the answers already given (a repeated
@@ -31,7 +31,7 @@ from __future__ import annotations
 import bisect
 import dataclasses
 import math
-from collections.abc import Generator, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -41,7 +41,6 @@ from dica.ica.core.conflict import (
     ConfirmedBatch,
     ConfirmedRows,
     Conflict,
-    follow_conflict,
     get_cv,
     get_cv_batch,
     pack,
@@ -49,27 +48,16 @@ from dica.ica.core.conflict import (
 from dica.ica.core.dtot import Dtot, build_dtot
 from dica.ica.core.handover import Handover
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.kernels import (
-    BLOCKED,
-    PAUSED,
-    RESOLVED,
-    TOO_LATE,
-    dtot_span,
-    over_cap,
-    resolve_rounds,
-)
 from dica.ica.core.planner import Planner
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError, Tss
 from dica.ica.core.revocation import Answer, Reorder
 from dica.ica.core.route import Route
-from dica.ica.core.trajectory import Trajectory, sample
+from dica.ica.core.search import Found, Search, plan_entry
+from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.validate import check_request
-from dica.ica.core.zones import ConflictTables, RouteGrid, Shape
+from dica.ica.core.zones import ConflictTables, Shape
 
 LEFT_MEMORY_S = 20.0  # [s] how long exit spacing remembers a vehicle that has left
-# rounds of the capped search of a request planned twice before the fast one runs
-# (Dica._resolve_best): most searches end sooner, a few run on for dozens
-PAUSE_ROUNDS = 12
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -87,79 +75,6 @@ class Confirmed:
         return cls(vin, dtot, confirmation, pack(dtot), float(dtot.t_s[-1]), dtot.exit_speed_mps)
 
 
-@dataclass(frozen=True, slots=True, eq=False)
-class _Found:
-    """One search's conflict-free plan. Its exit (time the rear leaves, speed) is all
-    the exit rules and the choice between two searches ask of it; its DTOT is built
-    for the plan kept only, unless the search built it anyway (the Python loop)."""
-
-    traj: Trajectory
-    out_s: float
-    out_mps: float
-    iterations: int
-    earliest: float
-    dtot: Dtot | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class _Paused:
-    """A compiled search out of rounds: it goes on from ``iterations`` + 1, entering at
-    or after ``target`` (relative to the state)."""
-
-    iterations: int
-    target: float
-
-
-def _finish(search: Generator[None, None, _Found]) -> _Found:
-    """Run a search (:meth:`Dica._search`) to its end: its plan, or its error."""
-    while True:
-        try:
-            next(search)
-        except StopIteration as done:
-            return done.value
-
-
-def _exit_of(traj: Trajectory, s_end: float) -> tuple[float, float]:
-    """(``t_s[-1]``, ``exit_speed_mps``) of the DTOT that ``build_dtot`` makes of
-    ``traj`` with the grid, without building it (the same arithmetic)."""
-    s = traj.s_m
-    _, k1 = dtot_span(s, s_end)
-    if len(s) < 2:
-        return traj.t0_s + traj.step_s * k1, 0.0
-    k = min(max(k1 - 1, 0), len(s) - 2)
-    return traj.t0_s + traj.step_s * k1, float(s[k + 1] - s[k]) / traj.step_s
-
-
-def _too_late(max_wait_s: float) -> RequestError:
-    return RequestError(Reason.INFEASIBLE, f"no conflict-free entry within {max_wait_s:.0f} s")
-
-
-def _blocked(vin: str, leader: str) -> RequestError:
-    """A plan that stops at the line runs into the lane leader whatever it waits there:
-    the vehicle asks again once its own law has stopped it behind the leader."""
-    return RequestError(
-        Reason.FOLLOW,
-        f"{vin} cannot draw up to the line behind {leader}: ask again once standing",
-    )
-
-
-def _too_close(
-    req: Request, traj: Trajectory, leader: Confirmed, lag: Trajectory, gap_m: float, step_s: float
-) -> RequestError:
-    """The state itself is too close to the lane leader: a bad state if within the gap
-    of the leader's plan, else only within the headway behind it (ask again soon)."""
-    ahead = follow_conflict(traj, leader.dtot.trajectory, leader.dtot.shape.length_m, gap_m)
-    if lag is leader.dtot.trajectory or (
-        ahead is not None and ahead[0] <= req.t0_s + step_s + 1e-9
-    ):
-        return RequestError(
-            Reason.BAD_STATE, f"the state is within {gap_m:.2f} m of {leader.vin} ahead in the lane"
-        )
-    return RequestError(
-        Reason.FOLLOW, f"{req.vin} is within the headway behind {leader.vin}: ask again"
-    )
-
-
 def padded(dtot: Dtot, pad_s: float) -> Dtot:
     """The DTOT with every occupancy time interval grown by ``pad_s`` on each side.
 
@@ -172,14 +87,11 @@ def padded(dtot: Dtot, pad_s: float) -> Dtot:
     return dataclasses.replace(dtot, lb_s=dtot.lb_s - pad_s, ub_s=dtot.ub_s + pad_s)
 
 
-_NO_SAMPLES = np.zeros(0)
-
-
 class Dica:
     """The intersection control agent's decision core for one junction."""
 
     # enhanced DICA runs Algorithm 1's rounds compiled; False: the Python loop
-    # of _resolve, kept as the reference the compiled one is tested against
+    # of Search.rounds, kept as the reference the compiled one is tested against
     compiled_loop = True
 
     def __init__(
@@ -451,16 +363,16 @@ class Dica:
             self._withdraw(req.vin)
 
         leader = self._leader(req.vin, lane)
-        found = self._resolve_best(req, route, shape, traj, leader)
+        found = Search(self, req, route, shape, traj, leader).best()
         return self._store(req.vin, req.seq, found, route, shape, req.length_m)
 
     def _store(
-        self, vin: str, seq: int, found: _Found, route: Route, shape: Shape, length_m: float
+        self, vin: str, seq: int, found: Found, route: Route, shape: Shape, length_m: float
     ) -> Confirmation:
         """Confirm the plan ``found`` to ``vin`` (its TSS drawn for a vehicle ``length_m``
         long): the answer, and the reservation held with its intervals grown by twice the
         time pad, as :meth:`adopt` rebuilds it."""
-        dtot = self._dtot(found, route, shape)
+        dtot = found.kept_dtot(route, shape, self.config.margin_m)
         entry = dtot.trajectory.entry_time_s()
         conf = Confirmation(
             vin=vin,
@@ -526,16 +438,6 @@ class Dica:
                 worst = Conflict(vin, out_s, need - out_s)
         return worst
 
-    def _exit_conflict(
-        self, route: Route, out_s: float, out_mps: float, length: float
-    ) -> Conflict | None:
-        late = self.exit_order(route, out_s, out_mps)
-        if self.config.exit_spacing:
-            gap = self.exit_spacing(route, out_s, out_mps, length)
-            if gap is not None and (late is None or gap.delay_s > late.delay_s):
-                late = gap
-        return late
-
     def front_cap_mps(self, route: Route) -> float:
         """checkFV: a vehicle may not cross faster than the slowest confirmed
         vehicle leaving by the same exit lane (which covers the same route ahead).
@@ -549,193 +451,8 @@ class Dica:
                 cap = min(cap, max(v_out, self.config.kinematics.min_cross_mps))
         return cap
 
-    def _resolve_best(
-        self,
-        req: Request,
-        route: Route,
-        shape: Shape,
-        traj: Trajectory,
-        leader: Confirmed | None,
-    ) -> _Found:
-        """checkFV's capped plan; with exit spacing also the uncapped one that leaves
-        late enough behind slower vehicles, and the one that leaves first.
-
-        What it returns is what the two searches in turn would give, capped first
-        and the fast one given up once its entry is past the capped plan's exit.
-        The capped search is paused after ``PAUSE_ROUNDS`` rounds: then the fast one
-        runs first, and the capped one goes on given up past the fast plan's exit,
-        where it could not win (it may wander far behind slower vehicles while the
-        fast plan is found in a few rounds). Either way, each search's plans and
-        errors up to its bound are its own, so the answer is the same."""
-        cap = self.front_cap_mps(route)
-        if not self.config.exit_spacing or cap >= route.speed_cap_mps:
-            return self._resolve(req, route, shape, traj, leader, cap)
-        max_wait = self.config.max_wait_s
-        bound = [max_wait]
-        capped_search = self._search(req, route, shape, traj, leader, cap, bound, PAUSE_ROUNDS)
-        try:
-            next(capped_search)
-        except StopIteration as done:  # found within the budget: as in turn
-            capped: _Found = done.value
-            give_up = min(max_wait, capped.out_s - req.t0_s)
-            try:
-                fast = self._resolve(req, route, shape, traj, leader, route.speed_cap_mps, give_up)
-            except RequestError:
-                return capped
-            return fast if fast.out_s < capped.out_s else capped
-        except RequestError:
-            return self._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
-        try:
-            fast = self._resolve(req, route, shape, traj, leader, route.speed_cap_mps)
-        except RequestError as fast_error:
-            try:
-                return _finish(capped_search)
-            except RequestError:
-                raise fast_error from None  # in turn: the capped search failed, then this
-        bound[0] = min(max_wait, fast.out_s - req.t0_s)
-        try:
-            capped = _finish(capped_search)
-        except RequestError:
-            return fast
-        return fast if fast.out_s < capped.out_s else capped
-
-    def _dtot(self, found: _Found, route: Route, shape: Shape) -> Dtot:
-        """The DTOT of a found plan (with the grid, as the compiled loop judged it)."""
-        if found.dtot is not None:
-            return found.dtot
-        grid = self.tables.grid(route, shape)
-        return build_dtot(route, shape, found.traj, self.config.margin_m, grid, True)
-
-    def _resolve(
-        self,
-        req: Request,
-        route: Route,
-        shape: Shape,
-        traj: Trajectory,
-        leader: Confirmed | None,
-        cap: float,
-        max_wait_s: float | None = None,
-    ) -> _Found:
-        """Algorithm 1's rounds under crossing speed cap ``cap``, giving up on an entry
-        more than ``max_wait_s`` after the state (default: the configured limit)."""
-        bound = [self.config.max_wait_s if max_wait_s is None else max_wait_s]
-        return _finish(self._search(req, route, shape, traj, leader, cap, bound))
-
-    def _search(
-        self,
-        req: Request,
-        route: Route,
-        shape: Shape,
-        traj: Trajectory,
-        leader: Confirmed | None,
-        cap: float,
-        bound: list[float],
-        pause_rounds: int = 0,
-    ) -> Generator[None, None, _Found]:
-        """:meth:`_resolve` as a search that can pause: with ``pause_rounds`` it yields
-        once, after that many compiled rounds, and ``bound[0]`` (the wait it gives up
-        past) may be lowered before it goes on, as if it had been that from the start."""
-        cfg = self.config
-        s_end = route.cross_length_m + shape.length_m
-        planner = Planner(
-            d_m=max(req.dist_to_entry_m, 0.0),
-            v0_mps=req.speed_mps,
-            road_mps=cfg.caps.road_mps,
-            cap_mps=cap,
-            s_end_m=s_end,
-            kin=cfg.kinematics,
-            hold=cfg.platoon,
-        )
-        earliest = req.t0_s + planner.earliest_entry_s()
-        if not math.isfinite(earliest):
-            raise RequestError(
-                Reason.INFEASIBLE, "cannot slow to the crossing speed cap before the entry line"
-            )
-        # a TSS faster than the cap inside is planned anew, to enter when it would (under
-        # the route's own cap it cannot be: validation holds a TSS to that cap, the
-        # planner a plan to its own, both as this test does)
-        replan = math.nan
-        if cap < route.speed_cap_mps and over_cap(traj.s_m, cfg.step_s, cap + cfg.speed_tol_mps):
-            replan = traj.entry_time_s() - req.t0_s
-        grid = self.tables.grid(route, shape)
-        gap = 2.0 * cfg.margin_m
-        # the leader as late as the tracking bound lets it be, against a requester as early
-        lag = leader.dtot.trajectory if leader is not None else None
-        behind_s = 2.0 * cfg.time_pad_s + cfg.headway_s
-        if lag is not None and behind_s > 0.0:
-            lag = Trajectory(lag.t0_s + behind_s, lag.step_s, lag.s_m)
-        if self._compiled_rounds():
-            # the compiled loop knows nothing of the exit rules: a plan of it that breaks
-            # one is delayed here as the loop below would, and the compiled loop goes on
-            # from there (its rounds are the loop's, and it plans the delayed entry);
-            # where it would raise, the loop below runs from the start and raises with
-            # its message
-            first_round, b_wait0, target0 = 1, -1.0, replan
-            last_round = pause_rounds if pause_rounds > 0 else cfg.max_iterations
-            while True:
-                found = self._resolve_compiled(
-                    req, route, shape, traj, leader, lag, planner, grid, s_end, bound[0],
-                    earliest, first_round, b_wait0, target0, last_round,
-                )  # fmt: skip
-                if isinstance(found, _Paused):
-                    yield  # the caller may lower the bound meanwhile
-                    target = found.target
-                    if target > bound[0]:
-                        raise _too_late(bound[0])
-                    last_round = cfg.max_iterations
-                elif found is None:
-                    break
-                else:
-                    late = self._exit_conflict(route, found.out_s, found.out_mps, shape.length_m)
-                    if late is None:
-                        return found
-                    target = found.traj.entry_time_s() - req.t0_s + max(late.delay_s, cfg.step_s)
-                    if target > bound[0]:
-                        raise _too_late(bound[0])
-                    if found.iterations >= cfg.max_iterations:
-                        break
-                wait = planner.stop_wait_s(target)
-                first_round, b_wait0 = found.iterations + 1, -1.0 if wait is None else wait
-                target0 = target
-
-        if not math.isnan(replan):
-            traj = self._plan(planner, req.t0_s, replan, s_end)
-        b_wait: float | None = None  # the current plan's wait if of the stop family
-        for iteration in range(1, cfg.max_iterations + 1):
-            dtot = build_dtot(route, shape, traj, cfg.margin_m, grid, cfg.techniques.estimated_oti)
-            conflicts = self.conflicts(dtot)
-            if leader is not None:
-                lead = leader.dtot
-                found = follow_conflict(traj, lag, lead.shape.length_m, gap)
-                if found is not None:
-                    if found[0] <= req.t0_s + cfg.step_s + 1e-9:
-                        raise _too_close(req, traj, leader, lag, gap, cfg.step_s)
-                    if (
-                        b_wait is not None
-                        and found[0] - req.t0_s <= planner.stop_time_s() + b_wait + 1e-9
-                    ):
-                        raise _blocked(req.vin, leader.vin)
-                    conflicts.append(Conflict(leader.vin, *found))
-                    conflicts.sort(key=lambda c: c.first_time_s)
-            out_s, out_mps = float(dtot.t_s[-1]), dtot.exit_speed_mps
-            late = self._exit_conflict(route, out_s, out_mps, shape.length_m)
-            if late is not None:
-                conflicts.append(late)
-                conflicts.sort(key=lambda c: c.first_time_s)
-            if not conflicts:
-                return _Found(traj, out_s, out_mps, iteration, earliest, dtot)
-            first = conflicts[0]
-            target = traj.entry_time_s() - req.t0_s + max(first.delay_s, cfg.step_s)
-            if target > bound[0]:
-                raise _too_late(bound[0])
-            b_wait = planner.stop_wait_s(target)
-            traj = self._plan(planner, req.t0_s, target, s_end)
-        raise RequestError(
-            Reason.INFEASIBLE, f"no conflict-free plan after {cfg.max_iterations} updates"
-        )
-
     def _compiled_rounds(self) -> bool:
-        """Enhanced DICA's rounds run as one compiled call (:meth:`_resolve_compiled`)."""
+        """Enhanced DICA's rounds run as one compiled call (``Search.rounds``)."""
         tech = self.config.techniques
         return (
             self.compiled_loop
@@ -745,65 +462,6 @@ class Dica:
             and tech.estimated_oti
             and type(self).conflicts is _BATCHED_GET_CV  # not a baseline's, nor replaced
         )
-
-    def _resolve_compiled(
-        self,
-        req: Request,
-        route: Route,
-        shape: Shape,
-        traj: Trajectory,
-        leader: Confirmed | None,
-        lag: Trajectory | None,
-        planner: Planner,
-        grid: RouteGrid,
-        s_end: float,
-        max_wait_s: float,
-        earliest: float,
-        first_round: int = 1,
-        b_wait0: float = -1.0,
-        target0: float = math.nan,
-        last_round: int | None = None,
-    ) -> _Found | _Paused | None:
-        """The loop of :meth:`_resolve` in one compiled call
-        (:func:`ica.core.kernels.resolve_rounds`): the same plans round for
-        round, so the same answer (``earliest``: the request's earliest entry, kept
-        with it). None where the loop would raise; paused after round ``last_round``
-        (default: none before the round limit)."""
-        cfg = self.config
-        batch = self._confirmed_batch(route, shape)
-        g = batch.gathered
-        if leader is not None and lag is not None:
-            lead_args = (
-                True, lag.t0_s, lag.step_s, np.ascontiguousarray(lag.s_m, dtype=float),
-                leader.dtot.shape.length_m,
-            )  # fmt: skip
-        else:
-            lead_args = (False, 0.0, 0.0, _NO_SAMPLES, 0.0)
-        if last_round is None:
-            last_round = cfg.max_iterations
-        status, iteration, s, target = resolve_rounds(
-            cfg.kinematics.accel_mps2, cfg.kinematics.decel_mps2, planner.v0_mps, planner.d_m,
-            planner.cap_mps, s_end,
-            *planner.plan_constants(),
-            req.t0_s, cfg.step_s, np.ascontiguousarray(traj.s_m, dtype=float),
-            route.s, grid.route_x, grid.route_y, shape.length_m, grid.s0_m, grid.ds_m,
-            grid.fwd_m, grid.back_m,
-            shape.length_m / 2.0 + cfg.margin_m, shape.width_m / 2.0 + cfg.margin_m,
-            g.packed, g.vid, batch.m, batch.row, batch.row_lo, batch.row_hi, batch.codes,
-            batch.width, len(g.vins), batch.span_s,
-            *lead_args, 2.0 * cfg.margin_m,
-            cfg.max_iterations, max_wait_s, first_round, b_wait0, target0, last_round,
-        )  # fmt: skip
-        if status == BLOCKED:
-            raise _blocked(req.vin, leader.vin if leader is not None else "")
-        if status == TOO_LATE:
-            raise _too_late(max_wait_s)
-        if status == PAUSED:
-            return _Paused(iteration, target)
-        if status != RESOLVED:
-            return None
-        final = Trajectory(req.t0_s, cfg.step_s, s)
-        return _Found(final, *_exit_of(final, s_end), iteration, earliest)
 
     def conflicts(self, dtot: Dtot) -> list[Conflict]:
         """getCV: confirmed vehicles in space-time conflict with ``dtot``.
@@ -825,15 +483,6 @@ class Dica:
         batch = ConfirmedBatch.of(route, shape, self._rows.gathered(), self.tables)
         self._batch = (key, batch)
         return batch
-
-    def _plan(self, planner: Planner, t0_s: float, entry_rel_s: float, s_end: float) -> Trajectory:
-        profile = planner.at_or_after(entry_rel_s)
-        if profile is None:
-            raise RequestError(
-                Reason.INFEASIBLE,
-                f"cannot delay the entry to t={t0_s + entry_rel_s:.2f} s from the state",
-            )
-        return sample(profile, t0_s, self.config.step_s, s_end)
 
     # -- hooks for controllers that revise confirmations (ica/core/reactive.py) ---------
     def _set_aside(self, vin: str, key: str) -> None:
@@ -888,14 +537,14 @@ class Dica:
             kin=cfg.kinematics,
             hold=cfg.platoon,
         )
-        traj = self._plan(planner, t0_s, max(not_before_s - t0_s, 0.0), s_end)
+        traj = plan_entry(planner, t0_s, max(not_before_s - t0_s, 0.0), cfg.step_s, s_end)
         none = np.zeros(0)
         req = Request(
             vin, seq, route.in_lane, route.out_lane, shape.length_m, shape.width_m, t0_s,
             dist_to_entry_m, speed_mps, Tss(none, none, none, none),
         )  # fmt: skip
         leader = self._confirmed.get(leader_vin) if leader_vin is not None else None
-        found = self._resolve_best(req, route, shape, traj, leader)
+        found = Search(self, req, route, shape, traj, leader).best()
         return self._store(vin, seq, found, route, shape, shape.length_m)
 
 

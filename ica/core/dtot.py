@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dica.ica.core.kernels import grid_dtot_of
+from dica.ica.core.kernels.dtot import grid_dtot_of
 from dica.ica.core.occupancy import Rects, footprints, overlap_matrix, separated
 from dica.ica.core.route import Route
 from dica.ica.core.trajectory import Trajectory
@@ -77,23 +77,20 @@ def build_dtot(
     ``estimated``.
 
     The exhaustive intervals follow the dissertation's getOTI in numpy. With
-    the grid (one compiled call, :func:`ica.core.kernels.grid_dtot_of`, with
+    the grid (one compiled call, :func:`ica.core.kernels.dtot.grid_dtot_of`, with
     exactly the results of :func:`footprints`, :func:`grid_intervals` and
     ``grid.index``) they are the same intervals when the grid's tables are
     exact, and the dissertation's estimate, never narrower, when not.
     """
     s_end = route.cross_length_m + shape.length_m
-    half_l, half_w = shape.length_m / 2.0 + margin_m, shape.width_m / 2.0 + margin_m
     if estimated:
         if grid is None:
             raise ValueError("technique 3 needs the route's offline grid")
-        k0, t, s, centre, heading, lb, ub, g = grid_dtot_of(
-            np.ascontiguousarray(traj.s_m, dtype=float), s_end, traj.t0_s, traj.step_s,
-            route.s, grid.route_x, grid.route_y, shape.length_m, grid.s0_m, grid.ds_m,
-            grid.fwd_m, grid.back_m, half_l, half_w,
+        arrays = grid_dtot_of(
+            tuple(grid.kernel_grid(margin_m)), np.ascontiguousarray(traj.s_m, dtype=float),
+            s_end, traj.t0_s, traj.step_s,
         )  # fmt: skip
-        rects = Rects(centre, heading, half_l, half_w)
-        return Dtot(route, shape, traj, k0, t, s, rects, lb, ub, g)
+        return dtot_of_arrays(route, shape, traj, margin_m, arrays)
     k0 = traj.entry_index()
     k1 = traj.exit_index(s_end)
     s = traj.s_m[k0 : k1 + 1]
@@ -102,6 +99,17 @@ def build_dtot(
     lb, ub = exhaustive_intervals(t, rects)
     g = grid.index(s) if grid is not None else None
     return Dtot(route, shape, traj, k0, t, s, rects, lb, ub, g)
+
+
+def dtot_of_arrays(
+    route: Route, shape: Shape, traj: Trajectory, margin_m: float, arrays: tuple
+) -> Dtot:
+    """The DTOT of ``traj`` with the grid from what the compiled DTOT gives
+    (:func:`ica.core.kernels.dtot.dtot_of`: k0, times, arc lengths, centres, headings,
+    lb, ub, grid index), footprints grown by ``margin_m``."""
+    k0, t, s, centre, heading, lb, ub, g = arrays
+    half_l, half_w = shape.length_m / 2.0 + margin_m, shape.width_m / 2.0 + margin_m
+    return Dtot(route, shape, traj, k0, t, s, Rects(centre, heading, half_l, half_w), lb, ub, g)
 
 
 def exhaustive_intervals(t: np.ndarray, rects: Rects) -> tuple[np.ndarray, np.ndarray]:

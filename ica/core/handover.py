@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dica.ica.core.kernels import separation
+from dica.ica.core.kernels.handover import Driver, separation
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,12 +54,17 @@ class Handover:
         )
 
     @property
-    def constants(self) -> tuple[float, float, float, float, float, float, float]:
-        """What the compiled search reads (:func:`ica.core.kernels.separation`)."""
-        return (
-            self.road_mps, self.accel_mps2, self.decel_mps2, self.tau_s, self.min_gap_m,
-            self.buffer_m, self.step_s,
-        )  # fmt: skip
+    def driver(self) -> Driver:
+        """What the compiled search reads (:func:`ica.core.kernels.handover.separation`)."""
+        return Driver(
+            road_mps=self.road_mps,
+            accel_mps2=self.accel_mps2,
+            decel_mps2=self.decel_mps2,
+            tau_s=self.tau_s,
+            min_gap_m=self.min_gap_m,
+            buffer_m=self.buffer_m,
+            step_s=self.step_s,
+        )
 
     def _free(self, v0: float, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Distance and speed at times ``t`` >= 0 of a free run from ``v0``."""
@@ -85,7 +90,7 @@ class Handover:
 def _separation(h: Handover, v_lead: float, v_follow: float, follow_len_m: float) -> float:
     # compiled: a miss came to about 0.4 ms in numpy (some 20 gap checks), a request
     # can meet several new speed pairs, and the cache warms only slowly in a real run
-    return separation(h.constants, v_lead, v_follow, follow_len_m)
+    return separation(tuple(h.driver), v_lead, v_follow, follow_len_m)
 
 
 def clear_separations() -> None:
@@ -94,8 +99,9 @@ def clear_separations() -> None:
 
 
 def separation_reference(h: Handover, v_lead: float, v_follow: float, follow_len_m: float) -> float:
-    """The search :func:`ica.core.kernels.separation` compiles, over :meth:`Handover.gap_ok`
-    (doubling, then bisection to 0.01 s): the tests hold the two equal."""
+    """The search :func:`ica.core.kernels.handover.separation` compiles, over
+    :meth:`Handover.gap_ok` (doubling, then bisection to 0.01 s): the tests hold the
+    two equal."""
     lo, hi = 0.0, 1.0
     while not h.gap_ok(v_lead, v_follow, follow_len_m, hi):
         lo, hi = hi, 2.0 * hi

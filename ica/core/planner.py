@@ -34,7 +34,13 @@ from typing import Any
 
 import numpy as np
 
-from dica.ica.core.kernels import a_phases, bisect_cruise, plan_constants_of
+from dica.ica.core.kernels.planner import (
+    Approach,
+    Plan,
+    a_phases,
+    bisect_cruise,
+    plan_constants_of,
+)
 from dica.ica.core.limits import Kinematics
 
 _EPS = 1e-9
@@ -118,6 +124,34 @@ class _Builder:
         return Profile(cols[0], cols[1], cols[2], cols[3], entry_time, entry_speed)
 
 
+def approach_of(
+    kin: Kinematics,
+    d_m: float,
+    v0_mps: float,
+    road_mps: float,
+    cap_mps: float,
+    s_end_m: float,
+    hold: bool,
+) -> Approach:
+    """The approach of a :class:`Planner` with these fields, as the compiled planner
+    reads it (a caller that needs no Python planner builds it without one)."""
+    return Approach(
+        accel_mps2=kin.accel_mps2,
+        decel_mps2=kin.decel_mps2,
+        v0_mps=v0_mps,
+        d_m=d_m,
+        road_mps=road_mps,
+        cap_mps=cap_mps,
+        s_end_m=s_end_m,
+        creep_mps=kin.creep_mps,
+        stop_gap_m=kin.stop_gap_m,
+        run_up=kin.run_up,
+        hold=hold,
+        cap_sq=cap_mps**2,
+        v0_sq=v0_mps**2,
+    )
+
+
 @dataclass(frozen=True, slots=True)
 class Planner:
     """Plans for one vehicle: distance ``d_m`` to the entry line, speed ``v0_mps``.
@@ -152,12 +186,10 @@ class Planner:
     def _a_phases(self, v_m: float) -> tuple[float, float, float, float] | None:
         """(D1, D3, v_e, T) of A(v_m), or None if it does not fit in d.
 
-        Compiled (:func:`ica.core.kernels.a_phases`, the arithmetic of
+        Compiled (:func:`ica.core.kernels.planner.a_phases`, the arithmetic of
         :meth:`_a_phases_reference` in the same order).
         """
-        fits, d1, d3, v_e, t = a_phases(
-            self.kin.accel_mps2, self.kin.decel_mps2, self.v0_mps, self.d_m, self.cap_mps, v_m
-        )
+        fits, d1, d3, v_e, t = a_phases(tuple(self.approach()), v_m)
         return (d1, d3, v_e, t) if fits else None
 
     def _a_phases_reference(self, v_m: float) -> tuple[float, float, float, float] | None:
@@ -301,8 +333,8 @@ class Planner:
         return t_stop + self._pull_away_time(self._stop_gap())
 
     def earliest_entry_s(self) -> float:
-        _, fits, entry = self.plan_constants()[:3]
-        return entry if fits else math.inf
+        plan = self.plan_constants()
+        return plan.hi_entry_s if plan.hi_ok else math.inf
 
     def _entry_memo(self) -> dict[str, Any]:
         """The time-optimal plan and the slowest slow-down plan, once per planner."""
@@ -314,24 +346,30 @@ class Planner:
             m["lo"] = self._a_phases(v_lo) if v_lo < v_hi else None
         return m
 
-    def plan_constants(self) -> tuple:
+    def approach(self) -> Approach:
+        """This vehicle's approach as the compiled planner reads it (once per planner)."""
+        m = self._memo
+        if "approach" not in m:
+            m["approach"] = approach_of(
+                self.kin, self.d_m, self.v0_mps, self.road_mps, self.cap_mps, self.s_end_m,
+                self.hold,
+            )  # fmt: skip
+        return m["approach"]
+
+    def plan_constants(self) -> Plan:
         """What :meth:`at_or_after` computes once, for the compiled round loop
-        (:func:`ica.core.kernels.resolve_rounds`): (v_hi, hi fits, its entry
-        time, v_lo, lo fits, its entry time, the stop plan's earliest entry,
-        the stop-at-the-line base as segments and as the builder's (t, s, v)).
-        One compiled call (:func:`ica.core.kernels.plan_constants_of`), bit for bit
+        (:func:`ica.core.kernels.resolve.resolve_rounds`): the time-optimal plan's
+        cruise speed, whether it fits and its entry time, the same of the slowest
+        slow-down plan, the stop plan's earliest entry, the stop-at-the-line base as
+        segments and as the builder's (t, s, v). One compiled call
+        (:func:`ica.core.kernels.planner.plan_constants_of`), bit for bit
         :meth:`plan_constants_reference`."""
         m = self._memo
         if "constants" not in m:
-            kin = self.kin
-            m["constants"] = plan_constants_of(
-                kin.accel_mps2, kin.decel_mps2, self.v0_mps, self.d_m, self.road_mps,
-                self.cap_mps, kin.creep_mps, kin.stop_gap_m, kin.run_up, self.hold,
-                self.cap_mps**2, self.v0_mps**2,
-            )  # fmt: skip
+            m["constants"] = Plan._make(plan_constants_of(tuple(self.approach())))
         return m["constants"]
 
-    def plan_constants_reference(self) -> tuple:
+    def plan_constants_reference(self) -> Plan:
         """:meth:`plan_constants` from the Python planner."""
         m = self._entry_memo()
         hi, lo = m["hi"], m["lo"]
@@ -344,19 +382,34 @@ class Planner:
             state = np.array([t, s, v], dtype=float)
         else:
             base, state = np.zeros((0, 4)), np.zeros(3)
-        return (
-            m["v_hi"], hi is not None, hi[3] if hi is not None else 0.0,
-            m["v_lo"], lo is not None, lo[3] if lo is not None else 0.0,
-            t_b0, base, state,
-        )  # fmt: skip
+        kin = self.kin
+        return Plan(
+            accel_mps2=kin.accel_mps2,
+            decel_mps2=kin.decel_mps2,
+            v0_mps=self.v0_mps,
+            d_m=self.d_m,
+            cap_mps=self.cap_mps,
+            s_end_m=self.s_end_m,
+            v_hi_mps=m["v_hi"],
+            hi_ok=hi is not None,
+            hi_entry_s=hi[3] if hi is not None else 0.0,
+            v_lo_mps=m["v_lo"],
+            lo_ok=lo is not None,
+            lo_entry_s=lo[3] if lo is not None else 0.0,
+            stop_entry_s=t_b0,
+            b_segs=base,
+            b_state=state,
+        )
 
     def stop_wait_s(self, t_entry_s: float) -> float | None:
         """The wait of the plan :meth:`at_or_after` gives if it is of the stop family,
         else None. Such plans all move alike until ``stop_time_s() + wait``."""
-        _, hi_ok, hi_t, _, lo_ok, lo_t, t_b0 = self.plan_constants()[:7]
-        if not hi_ok or t_entry_s <= hi_t + 1e-9 or (lo_ok and t_entry_s <= lo_t):
+        p = self.plan_constants()
+        if not p.hi_ok or t_entry_s <= p.hi_entry_s + 1e-9:
             return None
-        return max(0.0, t_entry_s - t_b0) if math.isfinite(t_b0) else None
+        if p.lo_ok and t_entry_s <= p.lo_entry_s:
+            return None
+        return max(0.0, t_entry_s - p.stop_entry_s) if math.isfinite(p.stop_entry_s) else None
 
     def stop_time_s(self) -> float:
         """When the stop family stands still (relative to the state)."""
@@ -378,11 +431,7 @@ class Planner:
         if lo is not None and t_entry_s <= lo[3]:
             # T(v_m) decreases with v_m: bisect for the cruise speed that arrives on time
             # (compiled: 60 halvings of [v_lo, v_hi] at most, see bisect_cruise)
-            kin = self.kin
-            v = bisect_cruise(
-                kin.accel_mps2, kin.decel_mps2, self.v0_mps, self.d_m, self.cap_mps,
-                v_lo, v_hi, t_entry_s,
-            )  # fmt: skip
+            v = bisect_cruise(tuple(self.approach()), v_lo, v_hi, t_entry_s)
             return self._build_a(v)
         if "t_b0" not in m:
             m["t_b0"] = self.stop_entry_s()

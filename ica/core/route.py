@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dica.ica.core.kernels import project, route_points
+from dica.ica.core.kernels.route import project, route_points
 from dica.ica.core.limits import SpeedCaps, Turn
 
 
@@ -52,7 +52,7 @@ class Route:
     def points(self, s: np.ndarray | float) -> np.ndarray:
         """Points (..., 2) at arc lengths ``s``; clamps outside the polyline.
 
-        Compiled for 1-D ``s`` (:func:`ica.core.kernels.route_points`), with
+        Compiled for 1-D ``s`` (:func:`ica.core.kernels.route.route_points`), with
         exactly the results of :meth:`points_reference`.
         """
         s = np.asarray(s, dtype=float)
@@ -73,7 +73,7 @@ class Route:
         """Arc length of the nearest polyline point and the distance to it, per point.
 
         Used to check that a requested TSS really lies on this route. Compiled
-        (:func:`ica.core.kernels.project`), with exactly the results of
+        (:func:`ica.core.kernels.route.project`), with exactly the results of
         :meth:`project_reference`.
         """
         p = np.ascontiguousarray(np.asarray(xy, dtype=float).reshape(-1, 2))

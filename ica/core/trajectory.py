@@ -7,7 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from dica.ica.core.kernels import entry_time, front_heading, profile_position, tss_of
+from dica.ica.core.kernels.dtot import entry_time
+from dica.ica.core.kernels.planner import profile_position
+from dica.ica.core.kernels.route import front_heading, tss_of
 from dica.ica.core.planner import Profile
 from dica.ica.core.route import Route
 
@@ -56,7 +58,7 @@ class Trajectory:
 
     def entry_time_s(self) -> float:
         """Time the front reaches s = 0, linear between samples as the vehicle moves
-        (compiled, :func:`ica.core.kernels.entry_time`; :meth:`entry_time_reference`)."""
+        (compiled, :func:`ica.core.kernels.dtot.entry_time`; :meth:`entry_time_reference`)."""
         if len(self.s_m) == 0:
             raise ValueError("a trajectory without samples has no entry time")
         return entry_time(self.t0_s, self.step_s, np.asarray(self.s_m, dtype=float))

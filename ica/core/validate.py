@@ -12,7 +12,7 @@ import numpy as np
 
 from dica.ica.core.config import IcaConfig
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.kernels import request_checks
+from dica.ica.core.kernels.validate import Limits, TssRules, TssSamples, request_checks
 from dica.ica.core.request import Reason, Request, RequestError
 from dica.ica.core.route import Route
 from dica.ica.core.trajectory import Trajectory
@@ -87,17 +87,32 @@ def check_request(
 
 
 def _check_tss(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
-    t, x, y, h = _tss_arrays(req, cfg)
+    tss = _tss_arrays(req, cfg)
     tol = min(cfg.on_route_tol_m, cfg.margin_m) + 1e-3
     kin = cfg.kinematics
+    rules = TssRules(
+        step_s=cfg.step_s,
+        t0_s=float(req.t0_s),
+        off_tol_m=tol,
+        dist_to_entry_m=float(req.dist_to_entry_m),
+        start_tol_m=cfg.on_route_tol_m,
+        s_end_m=route.cross_length_m + req.length_m,
+        length_m=float(req.length_m),
+        heading_tol_rad=cfg.heading_tol_rad,
+    )
+    limits = Limits(
+        v0_mps=float(req.speed_mps),
+        road_mps=cfg.caps.road_mps + cfg.speed_tol_mps,
+        cap_mps=route.speed_cap_mps + cfg.speed_tol_mps,
+        accel_mps2=kin.accel_mps2,
+        decel_mps2=kin.decel_mps2,
+        accel_tol_mps2=cfg.accel_tol_mps2,
+        first_slack_mps2=max(kin.accel_mps2, kin.decel_mps2),
+    )
+    route_xy = np.ascontiguousarray(route.xy, dtype=float)
     stage, failed, value, s = request_checks(
-        t, x, y, h, cfg.step_s, float(req.t0_s), np.ascontiguousarray(route.xy, dtype=float),
-        route.s, tol, float(req.dist_to_entry_m), cfg.on_route_tol_m,
-        route.cross_length_m + req.length_m, float(req.length_m), cfg.heading_tol_rad,
-        float(req.speed_mps),
-        cfg.caps.road_mps + cfg.speed_tol_mps, route.speed_cap_mps + cfg.speed_tol_mps,
-        kin.accel_mps2, kin.decel_mps2, cfg.accel_tol_mps2, max(kin.accel_mps2, kin.decel_mps2),
-    )  # fmt: skip
+        tuple(tss), route_xy, route.s, tuple(rules), tuple(limits)
+    )
     if stage == 1:
         raise _tss_error(failed, value, req, route, cfg, tol)
     if stage == 2:
@@ -106,12 +121,13 @@ def _check_tss(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
         )
     if stage == 3:
         raise _limit_error(failed, value, route)
-    return Trajectory(float(t[0]), cfg.step_s, s)
+    return Trajectory(float(tss.t_s[0]), cfg.step_s, s)
 
 
-def _tss_arrays(req: Request, cfg: IcaConfig) -> tuple[np.ndarray, ...]:
+def _tss_arrays(req: Request, cfg: IcaConfig) -> TssSamples:
     """The TSS as four float arrays of one length, 2 to ``max_tss_samples``."""
     tss = req.tss
+    # in TssSamples' order: t_s, x_m, y_m, heading_rad
     arrays = [np.asarray(a) for a in (tss.t_s, tss.x_m, tss.y_m, tss.heading_rad)]
     n = len(arrays[0])
     if any(a.ndim != 1 or len(a) != n for a in arrays):
@@ -123,7 +139,7 @@ def _tss_arrays(req: Request, cfg: IcaConfig) -> tuple[np.ndarray, ...]:
             Reason.BAD_STATE, f"TSS must have 2..{cfg.max_tss_samples} samples, has {n}"
         )
     try:  # contiguous float copies (the request's arrays stay the sender's)
-        return tuple(np.array(a, dtype=float, order="C") for a in arrays)
+        return TssSamples._make(np.array(a, dtype=float, order="C") for a in arrays)
     except (TypeError, ValueError):
         raise RequestError(Reason.NOT_FINITE, "TSS holds values that are not numbers") from None
 
@@ -131,7 +147,7 @@ def _tss_arrays(req: Request, cfg: IcaConfig) -> tuple[np.ndarray, ...]:
 def _tss_error(
     failed: int, value: float, req: Request, route: Route, cfg: IcaConfig, tol: float
 ) -> RequestError:
-    """The rejection for a failed :func:`ica.core.kernels.tss_checks` check."""
+    """The rejection for a failed :func:`ica.core.kernels.validate.tss_checks` check."""
     if failed == 1:
         return RequestError(Reason.NOT_FINITE, "TSS holds NaN or infinite values")
     if failed == 2:
@@ -158,7 +174,7 @@ def _tss_error(
 
 
 def _limit_error(failed: int, value: float, route: Route) -> RequestError:
-    """The rejection for a failed :func:`ica.core.kernels.limit_checks` check."""
+    """The rejection for a failed :func:`ica.core.kernels.validate.limit_checks` check."""
     if failed == 1:
         return RequestError(Reason.LIMITS, f"TSS exceeds the road limit ({value:.2f} m/s)")
     if failed == 2:

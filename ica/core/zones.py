@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dica.ica.core.intersection import Intersection
+from dica.ica.core.kernels.dtot import Grid
 from dica.ica.core.occupancy import Rects, footprints, overlap_matrix
 from dica.ica.core.route import Route
 
@@ -68,6 +69,29 @@ class RouteGrid:
     route_x: np.ndarray  # the route's vertices, x and y as contiguous arrays
     route_y: np.ndarray
     exact: bool = True  # skip distances of surely overlapping footprints (else surely clear)
+    _kernel: dict[float, Grid] = field(
+        default_factory=dict, init=False, repr=False, compare=False, hash=False
+    )
+
+    def kernel_grid(self, margin_m: float) -> Grid:
+        """This grid as the compiled DTOT reads it, for footprints grown by ``margin_m``
+        (built once per margin)."""
+        g = self._kernel.get(margin_m)
+        if g is None:
+            shape = self.shape
+            g = self._kernel[margin_m] = Grid(
+                route_s=self.route.s,
+                route_x=self.route_x,
+                route_y=self.route_y,
+                length_m=shape.length_m,
+                s0_m=self.s0_m,
+                ds_m=self.ds_m,
+                fwd_m=self.fwd_m,
+                back_m=self.back_m,
+                half_l_m=shape.length_m / 2.0 + margin_m,
+                half_w_m=shape.width_m / 2.0 + margin_m,
+            )
+        return g
 
     def index(self, s: np.ndarray) -> np.ndarray:
         """Nearest grid index per position (clipped to the grid)."""
