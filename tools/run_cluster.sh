@@ -182,8 +182,9 @@ bash tools/setup.sh
 dica=.venv/bin/dica
 py=.venv/bin/python
 
-# one scenario for every role: build (or find) it once, before anyone races to;
-# importing the core also compiles its kernels into numba's cache once (cold: ~20 s)
+# the compiled core into numba's cache once, on both cores, before the roles race to
+"$py" -m dica.tools.warm
+# one scenario for every role: build (or find) it once, before anyone races to
 if [ -z "$net" ]; then
   read -r net junction < <("$py" -c "
 import sys

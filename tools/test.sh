@@ -6,6 +6,8 @@ cd "$root"
 bash tools/setup.sh
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
+# the compiled core into numba's cache once, on both cores, before the workers race to
+.venv/bin/python -m dica.tools.warm
 # two workers, a test file each at a time: the real-time cluster tests mostly wait on
 # the clock while the SUMO tests keep a core busy. Extra arguments go to pytest
 # (-n 0 runs everything in this process).
