@@ -143,6 +143,7 @@ def _route(
             caps=caps,
             approach_m=approach_m,
             tail_m=tail_m,
+            lane_limits_mps=(in_lane.getSpeed(), out_lane.getSpeed()),
         )
     except ValueError as exc:
         raise NetworkError(f"bad geometry for route {route_id}: {exc}") from exc

@@ -123,7 +123,9 @@ def _approach_conflicts(flown: list[Flown], margin_m: float) -> list[tuple[str, 
 
 
 def kinematic_violations(f: Flown, road_mps: float, accel: float, decel: float, tol: float = 1e-6):
-    """Speed and acceleration limits on the flown samples (what SUMO will execute)."""
+    """Speed and acceleration limits on the flown samples (what SUMO will execute);
+    the road's limit is ``road_mps`` or the route's own approach limit if lower."""
+    road_mps = min(road_mps, f.route.road_mps)
     s, off = f.route.project(np.stack([f.x_m, f.y_m], -1))
     problems = []
     if off.max() > 1e-6:

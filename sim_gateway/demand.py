@@ -17,6 +17,7 @@ EV at a time"), which depends on how fast the previous one got through.
 from __future__ import annotations
 
 import math
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,6 +64,12 @@ class Arrival:
     ev: bool = False  # an emergency-vehicle candidate (see the module's note)
 
 
+def entry_limit(route: Route) -> float:
+    """The speed a share of which a vehicle keeps on its way in: the dissertation's
+    road limit, or the net's on the approach where that is lower."""
+    return min(ROAD_LIMIT_MPS, route.road_mps)
+
+
 def approach_of(lane: str) -> str:
     return lane.rsplit("_", 1)[0]
 
@@ -78,9 +85,36 @@ def _weights(approaches: list[str], spec: DemandSpec) -> np.ndarray:
     return w / w.sum()
 
 
-def _by_approach(inter: Intersection) -> dict[str, dict[Turn, list[Route]]]:
+def unserved(inter: Intersection, length_m: float) -> dict[str, str]:
+    """The routes no vehicle of the demand takes, and why (one line each).
+
+    A vehicle is put in at the communication region's entry line, so its incoming lane
+    must hold the whole region; and it is seen out once its rear has left the junction,
+    so its outgoing lane must hold the vehicle: on a net with short links (junctions a
+    few metres apart) the routes over them carry no demand of their own.
+    """
+    comm = inter.comm_length_m
+    out = {}
+    for r in inter.routes:
+        if r.in_lane_m < comm:
+            out[r.id] = (
+                f"incoming lane {r.in_lane} is {r.in_lane_m:.0f} m long, "
+                f"shorter than the {comm:g} m communication region"
+            )
+        elif r.out_lane_m < length_m + 1.0:
+            out[r.id] = (
+                f"outgoing lane {r.out_lane} is {r.out_lane_m:.0f} m long, "
+                f"too short to see a {length_m:g} m vehicle out"
+            )
+    return out
+
+
+def _by_approach(inter: Intersection, length_m: float = 0.0) -> dict[str, dict[Turn, list[Route]]]:
+    skip = unserved(inter, length_m)
     out: dict[str, dict[Turn, list[Route]]] = {}
     for r in inter.routes:
+        if r.id in skip:
+            continue
         out.setdefault(approach_of(r.in_lane), {}).setdefault(r.turn, []).append(r)
     return out
 
@@ -92,7 +126,9 @@ def make_arrivals(inter: Intersection, spec: DemandSpec, step_s: float) -> list[
     volume, drawn by thinning so the expected count matches exactly.
     """
     rng = np.random.default_rng(spec.seed)
-    by_approach = _by_approach(inter)
+    by_approach = _by_approach(inter, spec.length_range_m[1])
+    if not by_approach:
+        raise ValueError(f"no route through junction {inter.junction_id} can carry demand")
     approaches = sorted(by_approach)
     weights = _weights(approaches, spec)
     probs = dict(zip((Turn.LEFT, Turn.THROUGH, Turn.RIGHT), spec.turn_probs, strict=True))
@@ -122,7 +158,7 @@ def make_arrivals(inter: Intersection, spec: DemandSpec, step_s: float) -> list[
                 vin=f"v{k:05d}",
                 route=route,
                 arrival_s=round(t / step_s) * step_s,
-                speed_mps=float(rng.uniform(*spec.speed_range)) * ROAD_LIMIT_MPS,
+                speed_mps=float(rng.uniform(*spec.speed_range)) * entry_limit(route),
                 length_m=float(rng.uniform(*spec.length_range_m)),
                 width_m=float(rng.uniform(*spec.width_range_m)),
                 ev=bool(ev_draws[k] < spec.ev_prob),
@@ -133,7 +169,7 @@ def make_arrivals(inter: Intersection, spec: DemandSpec, step_s: float) -> list[
 
 def expected_lane_flows(inter: Intersection, spec: DemandSpec) -> dict[str, float]:
     """Expected demand per incoming lane [veh/h], by the same draw as make_arrivals."""
-    by_approach = _by_approach(inter)
+    by_approach = _by_approach(inter, spec.length_range_m[1])
     probs = dict(zip((Turn.LEFT, Turn.THROUGH, Turn.RIGHT), spec.turn_probs, strict=True))
     weights = dict(zip(sorted(by_approach), _weights(sorted(by_approach), spec), strict=True))
     flows: dict[str, float] = {}
@@ -145,6 +181,14 @@ def expected_lane_flows(inter: Intersection, spec: DemandSpec) -> dict[str, floa
                 share = probs[turn] / total / len(routes)
                 flows[r.in_lane] = flows.get(r.in_lane, 0.0) + per_approach * share
     return flows
+
+
+def _unserved_lines(skip: dict[str, str]) -> list[str]:
+    """One line per reason, naming how many routes it keeps out of the demand."""
+    by_why: dict[str, int] = {}
+    for why in skip.values():
+        by_why[why] = by_why.get(why, 0) + 1
+    return [f"{why}: no demand on its {n} route{'s' * (n > 1)}" for why, n in by_why.items()]
 
 
 def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
@@ -163,6 +207,8 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
         ramp_s=cfg.ramp_s,
         ev_prob=cfg.ev_prob,
     )
+    for line in _unserved_lines(unserved(inter, cfg.length_m)):
+        print(f"note: {line}", file=sys.stderr)
     try:
         schedule = make_arrivals(inter, spec, step_s)
     except ValueError as e:

@@ -111,7 +111,6 @@ class Junction:
         schedule: list[Arrival],
         *,
         signalised: bool,
-        road_mps: float,
         length_m: float,
     ) -> Junction:
         """Add the junction's routes to SUMO and watch its region."""
@@ -126,8 +125,12 @@ class Junction:
             # inside the junction vehicles fly their plans (speed mode 32), which hold the
             # turn caps; SUMO's own lower turn speed limits would only make a vehicle that
             # is stopping short of the line slow down early, off its predictable stop law
-            for lane in {v for r in inter.routes for v in r.via_lanes}:
-                ls.lane.setMaxSpeed(lane, road_mps)
+            via_mps: dict[str, float] = {}
+            for r in inter.routes:
+                for v in r.via_lanes:
+                    via_mps[v] = max(via_mps.get(v, 0.0), r.road_mps)
+            for lane, mps in via_mps.items():
+                ls.lane.setMaxSpeed(lane, mps)
         cars = {
             v.vin: Car(v.vin, v.route, int(v.route.in_lane.rsplit("_", 1)[1]), v.speed_mps)
             for v in schedule

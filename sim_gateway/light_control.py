@@ -31,9 +31,7 @@ from dica.sim_gateway.signals import Phase as SignalPhase
 def setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> dict:
     """Clearance from the formulas on the junction's program; for the fixed light,
     greens from the cycle model on top (:mod:`sim_gateway.signals`)."""
-    tls = inter.junction_id
-    if tls not in ls.trafficlight.getIDList():
-        raise RunError(f"junction {tls} has no traffic light of its own id in the signalised net")
+    tls = light_of(ls, inter)
     logic = current_logic(ls, tls)
     links = signal_links(ls, tls)
     phases = phases_of(
@@ -62,6 +60,19 @@ def setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> d
     ls.trafficlight.setProgram(tls, logic.programID)
     out["phases"] = [(round(p.duration_s, 3), p.state, p.kind) for p in phases]
     return out
+
+
+def light_of(ls, inter: Intersection) -> str:
+    """The id of the light over the junction: its own id, or (a joined cluster's, or one
+    light over several junctions) the light that controls its incoming lanes."""
+    lights = ls.trafficlight.getIDList()
+    if inter.junction_id in lights:
+        return inter.junction_id
+    ours = set(inter.in_lanes)
+    for tls in lights:
+        if ours & set(ls.trafficlight.getControlledLanes(tls)):
+            return tls
+    raise RunError(f"junction {inter.junction_id} has no traffic light in the signalised net")
 
 
 def current_logic(ls, tls: str):
@@ -103,7 +114,7 @@ class ReactiveLight:
 
     def __init__(self, ls, inter: Intersection, phases: list[SignalPhase]) -> None:
         self.ls = ls
-        self.tls = inter.junction_id
+        self.tls = light_of(ls, inter)
         self.program = Preemption(phases)
         self.program_id = ls.trafficlight.getProgram(self.tls)
         self.links = ls.trafficlight.getControlledLinks(self.tls)

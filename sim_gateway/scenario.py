@@ -191,6 +191,25 @@ def tls_program_type(net_path: Path, tls_id: str) -> str | None:
     return None
 
 
+def light_id(net_path: Path, junction_id: str) -> str:
+    """The id of the light over a signalised junction, from its incoming connections' ``tl``
+    (a joined cluster's light has an id of its own; with none, the junction's id)."""
+    import xml.etree.ElementTree as ET
+
+    incoming: set[str] = set()
+    try:
+        for _, el in ET.iterparse(net_path, events=("end",)):
+            if el.tag == "edge" and el.get("to") == junction_id:
+                incoming.add(el.get("id", ""))  # internal edges have no "to"
+            elif el.tag == "connection" and el.get("from") in incoming and el.get("tl"):
+                return el.get("tl", junction_id)
+            if el.tag in ("edge", "junction", "connection"):
+                el.clear()
+    except (OSError, ET.ParseError) as exc:
+        raise ScenarioError(f"cannot read {net_path}: {exc}") from exc
+    return junction_id
+
+
 def light_net(net_path: Path, junction_id: str, tls: str, out_dir: Path) -> tuple[Path, str | None]:
     """A net whose ``junction_id`` carries a ``tls`` light (static or actuated), and a
     line saying what was built, or None when the net already has one.
@@ -210,7 +229,7 @@ def light_net(net_path: Path, junction_id: str, tls: str, out_dir: Path) -> tupl
             out,
             f"junction {junction_id} had no traffic light: signalised by netconvert in {out}",
         )
-    program = tls_program_type(Path(net_path), junction_id)
+    program = tls_program_type(Path(net_path), light_id(Path(net_path), junction_id))
     if tls == "actuated" and program != "actuated":
         out_dir = Path(out_dir)
         out_dir.mkdir(parents=True, exist_ok=True)

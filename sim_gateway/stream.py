@@ -221,7 +221,7 @@ def _request(
         request_times.append(time.perf_counter() - t)
         if isinstance(out, Confirmation):
             planner = Planner(
-                d, speed, config.caps.road_mps, v.route.speed_cap_mps, 0.0, config.kinematics
+                d, speed, v.route.road_mps, v.route.speed_cap_mps, 0.0, config.kinematics
             )
             v.earliest_entry_s = now + planner.earliest_entry_s()
             v.stop_entry_s = now + planner.stop_entry_s()

@@ -192,7 +192,7 @@ class Traffic:
         pl = Planner(
             comm_m,
             v_mps,
-            self.ica_cfg.caps.road_mps,
+            route.road_mps,
             route.speed_cap_mps,
             route.cross_length_m + length,
             self.ica_cfg.kinematics,

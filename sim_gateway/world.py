@@ -73,7 +73,6 @@ class World:
             inter,
             schedule,
             signalised=signalised,
-            road_mps=ica_cfg.caps.road_mps,
             length_m=cfg.length_m,
         )
         self.traffic = Traffic(ls, ica_cfg, cfg.length_m, self.log)

@@ -33,6 +33,7 @@ FILE_TIER = {
     "test_light_control.py": "sumo",
     "test_sumo_io.py": "sumo",
     "test_traffic.py": "sumo",
+    "test_user_nets.py": "sumo",
     "test_signals.py": "sumo",
     "test_attack.py": "cluster",
     "test_cluster.py": "cluster",

@@ -40,9 +40,7 @@ class Rig:
         self.h = self.ica_cfg.step_s
         self.ls, self.route = ls, ch45.route(*WEST)
         define_vehicle_types(ls, self.ica_cfg, LENGTH, WIDTH, ev=False)
-        self.j = Junction.open(
-            ls, ch45, [], signalised=False, road_mps=self.ica_cfg.caps.road_mps, length_m=LENGTH
-        )
+        self.j = Junction.open(ls, ch45, [], signalised=False, length_m=LENGTH)
         self.log = TripLog()
         self.act = Actuator(ls, self.ica_cfg, LENGTH, self.log, predict_s)
         self.t = 0.0

@@ -116,7 +116,7 @@ def test_a_through_vehicle_leaves_fast_behind_a_right_turner_at_the_separation(c
     assert capped["b"].dtot.exit_speed_mps <= a.exit_speed_mps + tol
     # with exit spacing it leaves faster, and no sooner than the separation allows
     assert b.exit_speed_mps > a.exit_speed_mps + 5.0
-    sep = ica.handover.separation_s(a.exit_speed_mps, b.exit_speed_mps, 5.0)
+    sep = ica.handover(a.route.exit_mps).separation_s(a.exit_speed_mps, b.exit_speed_mps, 5.0)
     assert b.t_s[-1] >= a.t_s[-1] + sep - 1e-9
     # it takes the fast plan because it leaves earlier, and it holds the junction less long
     assert b.t_s[-1] < capped["b"].dtot.t_s[-1]
@@ -165,7 +165,7 @@ def test_a_vehicle_that_has_left_still_spaces_the_next(ch45, pad):
     assert ask_through(ica, ch45, t).delay_s > 0.2  # held back for the spacing
     c = ica.confirmed["c"].dtot
     assert c.exit_speed_mps > a.exit_speed_mps + 5.0
-    sep = ica.handover.separation_s(a.exit_speed_mps, c.exit_speed_mps, 5.0)
+    sep = ica.handover(a.route.exit_mps).separation_s(a.exit_speed_mps, c.exit_speed_mps, 5.0)
     assert c.t_s[-1] >= a.t_s[-1] + sep + 2.0 * pad - 1e-9
 
 
@@ -220,7 +220,7 @@ def test_exits_are_remembered_across_a_restart_and_for_the_memory_s_length(ch45,
     if case == "restarted":
         ask_through(ica, ch45, t)
         c = ica.confirmed["c"].dtot
-        sep = ica.handover.separation_s(a.exit_speed_mps, c.exit_speed_mps, 5.0)
+        sep = ica.handover(a.route.exit_mps).separation_s(a.exit_speed_mps, c.exit_speed_mps, 5.0)
         assert c.exit_speed_mps > a.exit_speed_mps + 5.0
         assert c.t_s[-1] >= out_s + sep - 1e-9
 

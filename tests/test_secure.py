@@ -484,7 +484,9 @@ def test_the_gateway_hears_an_agent_s_token_go(cast):
         s["gateway"]
         .liveliness()
         .declare_subscriber(
-            f"sim/{J}/alive/*", lambda x: seen.append("+" if x.kind == put else "-")
+            f"sim/{J}/alive/*",
+            lambda x: seen.append("+" if x.kind == put else "-"),
+            history=True,  # as the gateway's: a token declared before it arrives still counts
         )
     )
     token = attackers[A].liveliness().declare_token(f"sim/{J}/alive/{A}")

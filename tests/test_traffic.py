@@ -33,7 +33,7 @@ class Rig:
         self.schedule, _, _ = schedule_for(cfg, inter, ica_cfg.step_s)
         define_vehicle_types(ls, ica_cfg, LENGTH, WIDTH, any(v.ev for v in self.schedule))
         self.j = Junction.open(
-            ls, inter, self.schedule, signalised=False, road_mps=ica_cfg.caps.road_mps,
+            ls, inter, self.schedule, signalised=False,
             length_m=LENGTH,
         )  # fmt: skip
         self.log = TripLog()

@@ -126,8 +126,8 @@ class Dica:
         # (rear out of the junction): (time out, speed out, vin)
         self._left: dict[str, list[tuple[float, float, str]]] = {}
         self._exit_cache: tuple[int, dict[str, list[tuple[float, float, str]]]] = (-1, {})
-        k, caps = self.config.kinematics, self.config.caps
-        self.handover = Handover(caps.road_mps, k.accel_mps2, k.decel_mps2)
+        # the driver beyond the junction, per exit lane's road speed
+        self._handovers: dict[float, Handover] = {}
 
     def prepare(self) -> None:
         """Work a controller can do once before it serves, so that no request waits
@@ -429,14 +429,23 @@ class Dica:
         v = out_mps
         tol = self.config.speed_tol_mps
         pad = 2.0 * self.config.time_pad_s
+        handover = self.handover(route.exit_mps)
         worst: Conflict | None = None
         for t_out, v_out, vin in self._exits(route.out_lane) + self._left.get(route.out_lane, []):
             if t_out > out_s or v_out >= v - tol:
                 continue
-            need = t_out + self.handover.separation_s(v_out, v, length) + pad
+            need = t_out + handover.separation_s(v_out, v, length) + pad
             if need > out_s and (worst is None or need - out_s > worst.delay_s):
                 worst = Conflict(vin, out_s, need - out_s)
         return worst
+
+    def handover(self, road_mps: float) -> Handover:
+        """The road's driver beyond an exit lane of speed limit ``road_mps``."""
+        h = self._handovers.get(road_mps)
+        if h is None:
+            k = self.config.kinematics
+            h = self._handovers[road_mps] = Handover(road_mps, k.accel_mps2, k.decel_mps2)
+        return h
 
     def front_cap_mps(self, route: Route) -> float:
         """checkFV: a vehicle may not cross faster than the slowest confirmed
@@ -531,7 +540,7 @@ class Dica:
         planner = Planner(
             d_m=max(dist_to_entry_m, 0.0),
             v0_mps=speed_mps,
-            road_mps=cfg.caps.road_mps,
+            road_mps=route.road_mps,
             cap_mps=self.front_cap_mps(route),
             s_end_m=s_end,
             kin=cfg.kinematics,

@@ -159,12 +159,12 @@ def lane_candidates(
     nothing_ahead = waiting[:1] == [ev.ev] and not any(confirmed)
     for vin in waiting:
         _, t_det, v_det = detected.get(vin, (0, t_eff, None))
-        v0 = config.caps.road_mps if v_det is None else max(v_det, 0.0)
         earliest = -math.inf
         entry_mps = math.inf
         for r in routes:
+            v0 = r.road_mps if v_det is None else max(v_det, 0.0)
             pl = Planner(
-                comm, v0, config.caps.road_mps, r.speed_cap_mps,
+                comm, v0, r.road_mps, r.speed_cap_mps,
                 r.cross_length_m + shape.length_m, config.kinematics,
             )  # fmt: skip
             e = pl.earliest_entry_s()

@@ -31,7 +31,7 @@ def propose(
     planner = Planner(
         d_m=dist_to_entry_m,
         v0_mps=speed_mps,
-        road_mps=cfg.caps.road_mps,
+        road_mps=route.road_mps,
         cap_mps=route.speed_cap_mps,
         s_end_m=s_end,
         kin=cfg.kinematics,

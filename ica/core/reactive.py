@@ -628,7 +628,7 @@ class ReactiveDica(Dica):
         return Planner(
             d_m=st.dist_m,
             v0_mps=st.speed_mps,
-            road_mps=cfg.caps.road_mps,
+            road_mps=st.route.road_mps,
             cap_mps=self.front_cap_mps(st.route),
             s_end_m=st.route.cross_length_m + st.shape.length_m,
             kin=cfg.kinematics,

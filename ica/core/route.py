@@ -40,6 +40,13 @@ class Route:
     cross_length_m: float
     xy: np.ndarray
     s: np.ndarray
+    # [m/s] the road's limit on the approach and on the exit lane: the dissertation's road
+    # speed, or the net's own limit where that is lower (:func:`net_limit`)
+    road_mps: float = SpeedCaps().road_mps
+    exit_mps: float = SpeedCaps().road_mps
+    # [m] the incoming and outgoing lanes' own lengths (the polyline may reach further)
+    in_lane_m: float = math.inf
+    out_lane_m: float = math.inf
 
     @property
     def s_min(self) -> float:
@@ -110,6 +117,20 @@ def classify_turn(xy: np.ndarray, straight_deg: float = 30.0) -> Turn:
     return Turn.THROUGH
 
 
+NET_ROUNDING_MPS = 0.01  # SUMO writes a lane's speed with two decimals (70 km/h: 19.44)
+
+
+def net_limit(cap_mps: float, lane_mps: float | None) -> float:
+    """``cap_mps``, or a lane's own limit where the net sets it lower.
+
+    A limit within :data:`NET_ROUNDING_MPS` below the cap is the cap as SUMO
+    rounds it, not a lower one: the dissertation's 70 km/h roads keep planning
+    with 70 km/h exactly."""
+    if lane_mps is None or lane_mps >= cap_mps - NET_ROUNDING_MPS:
+        return cap_mps
+    return float(lane_mps)
+
+
 def _dedup(xy: np.ndarray, eps: float = 1e-6) -> np.ndarray:
     keep = np.ones(len(xy), dtype=bool)
     keep[1:] = np.linalg.norm(np.diff(xy, axis=0), axis=1) > eps
@@ -129,14 +150,21 @@ def build_route(
     caps: SpeedCaps,
     approach_m: float,
     tail_m: float,
+    lane_limits_mps: tuple[float, float] | None = None,
 ) -> Route:
     """Join lane shapes into a route; extend straight where a lane is too short.
+
+    ``lane_limits_mps`` are the net's speed limits of the incoming and the
+    outgoing lane (None: the dissertation's road): the approach keeps the first, the crossing the
+    lower of both and the turn's cap (the internal lanes' own speeds are
+    netconvert's curvature estimates; the turn caps stand for them).
 
     ``approach_m`` is how far upstream of the entry line the polyline must
     reach (communication region plus the longest vehicle), ``tail_m`` how far
     past the exit line. Shapes shorter than that are extended along their end
     segment, which is how a vehicle on a short lane would be drawn anyway.
     """
+    in_limit_mps, out_limit_mps = lane_limits_mps or (None, None)
     in_shape = _dedup(np.asarray(in_shape, dtype=float))
     out_shape = _dedup(np.asarray(out_shape, dtype=float))
     inner = [_dedup(np.asarray(v, dtype=float)) for v in via_shapes]
@@ -146,12 +174,12 @@ def build_route(
     def seglen(p: np.ndarray) -> np.ndarray:
         return np.linalg.norm(np.diff(p, axis=0), axis=1)
 
-    in_len = float(seglen(in_shape).sum())
+    in_len = in_lane_m = float(seglen(in_shape).sum())
     if in_len < approach_m:
         d = in_shape[0] - in_shape[1]
         d /= np.linalg.norm(d)
         in_shape = np.vstack([in_shape[0] + d * (approach_m - in_len + 1.0), in_shape])
-    out_len = float(seglen(out_shape).sum())
+    out_len = out_lane_m = float(seglen(out_shape).sum())
     if out_len < tail_m:
         d = out_shape[-1] - out_shape[-2]
         d /= np.linalg.norm(d)
@@ -177,8 +205,12 @@ def build_route(
         out_lane=out_lane,
         via_lanes=via_lanes,
         turn=turn,
-        speed_cap_mps=caps.for_turn(turn),
+        speed_cap_mps=net_limit(net_limit(caps.for_turn(turn), in_limit_mps), out_limit_mps),
         cross_length_m=cross_length,
         xy=xy,
         s=s,
+        road_mps=net_limit(caps.road_mps, in_limit_mps),
+        exit_mps=net_limit(caps.road_mps, out_limit_mps),
+        in_lane_m=in_lane_m,
+        out_lane_m=out_lane_m,
     )

@@ -253,7 +253,7 @@ class Search:
         traj = self.traj
         cfg = ica.config
         s_end = route.cross_length_m + shape.length_m
-        d_m, road = max(req.dist_to_entry_m, 0.0), cfg.caps.road_mps
+        d_m, road = max(req.dist_to_entry_m, 0.0), route.road_mps
         # a TSS faster than the cap inside is planned anew, to enter when it would (under
         # the route's own cap it cannot be: validation holds a TSS to that cap, the
         # planner a plan to its own, both as this test does)

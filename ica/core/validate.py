@@ -63,7 +63,7 @@ def check_request(
             Reason.BAD_STATE,
             f"distance to the entry line {req.dist_to_entry_m:.2f} m lies outside the region",
         )
-    if req.speed_mps < 0 or req.speed_mps > cfg.caps.road_mps + cfg.speed_tol_mps:
+    if req.speed_mps < 0 or req.speed_mps > route.road_mps + cfg.speed_tol_mps:
         raise RequestError(
             Reason.BAD_STATE, f"speed {req.speed_mps:.2f} m/s outside [0, road limit]"
         )
@@ -102,7 +102,7 @@ def _check_tss(req: Request, route: Route, cfg: IcaConfig) -> Trajectory:
     )
     limits = Limits(
         v0_mps=float(req.speed_mps),
-        road_mps=cfg.caps.road_mps + cfg.speed_tol_mps,
+        road_mps=route.road_mps + cfg.speed_tol_mps,
         cap_mps=route.speed_cap_mps + cfg.speed_tol_mps,
         accel_mps2=kin.accel_mps2,
         decel_mps2=kin.decel_mps2,
@@ -243,7 +243,7 @@ def check_limits(
     """Speed and acceleration limits on the sampled motion (what the vehicle will fly)."""
     v = traj.speeds()
     kin = cfg.kinematics
-    if np.any(v > cfg.caps.road_mps + cfg.speed_tol_mps):
+    if np.any(v > route.road_mps + cfg.speed_tol_mps):
         raise RequestError(Reason.LIMITS, f"TSS exceeds the road limit ({float(v.max()):.2f} m/s)")
     inside = traj.s_m[:-1] >= 0.0
     if np.any(v[inside] > route.speed_cap_mps + cfg.speed_tol_mps):

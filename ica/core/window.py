@@ -120,7 +120,7 @@ class WindowOrder:
         pl = Planner(
             d_m=max(float(r.dist_to_entry_m), 0.0),
             v0_mps=max(float(r.speed_mps), 0.0),
-            road_mps=cfg.caps.road_mps,
+            road_mps=route.road_mps,
             cap_mps=self.dica.front_cap_mps(route),
             s_end_m=route.cross_length_m + float(r.length_m),
             kin=cfg.kinematics,
