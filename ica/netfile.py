@@ -20,6 +20,7 @@ _DIR_TO_TURN = {"l": Turn.LEFT, "L": Turn.LEFT, "r": Turn.RIGHT, "R": Turn.RIGHT
 _VEHICLE_CLASS = "passenger"
 _MAX_VIA_CHAIN = 16  # internal lanes per connection; SUMO uses at most a handful
 _MARGIN_M = 5.0  # slack beyond the longest vehicle at both ends of a route
+MAX_VEHICLE_LENGTH_M = 12.0  # routes reach this far beyond the region and the exit line
 DEFAULT_CAPS = SpeedCaps()  # frozen, so one shared default is safe
 
 
@@ -33,7 +34,7 @@ def load_intersection(
     *,
     comm_length_m: float = 50.0,
     caps: SpeedCaps = DEFAULT_CAPS,
-    max_vehicle_length_m: float = 12.0,
+    max_vehicle_length_m: float = MAX_VEHICLE_LENGTH_M,
 ) -> Intersection:
     """Routes of ``junction_id``: one per (incoming lane, outgoing lane) connection.
 

@@ -95,13 +95,10 @@ class Actuator:
     ``predict_s`` is how far ahead :meth:`intents` looks.
     """
 
-    def __init__(
-        self, ls, ica_cfg: IcaConfig, length_m: float, log: TripLog, predict_s: float = 0.0
-    ) -> None:
+    def __init__(self, ls, ica_cfg: IcaConfig, log: TripLog, predict_s: float = 0.0) -> None:
         self.ls = ls
         self.ica_cfg = ica_cfg
         self.h = ica_cfg.step_s
-        self.length_m = length_m
         self.log = log
         self.predict_steps = max(round(predict_s / self.h), 0)
         self.timing = Timing()
@@ -121,13 +118,13 @@ class Actuator:
             self.drop(c, seq, t)
         ahead = self.obstacles(j)
         for c in j.active:
-            if c.vin not in j.present or c.released or math.isnan(c.detected_s):
+            if c.sumo not in j.present or c.released or math.isnan(c.detected_s):
                 continue
             if c.plan_s is not None and t >= c.plan_t0_s - 1e-6:
                 self._fly(c, t, ahead.get(c.vin, math.inf))
             elif not c.entered:
                 self._set_mode(c, MODE_HEAD if self.asks(c) else MODE_QUEUED)
-                self.ls.vehicle.setSpeed(c.vin, self.stop_speed(c, ahead.get(c.vin, math.inf)))
+                self.ls.vehicle.setSpeed(c.sumo, self.stop_speed(c, ahead.get(c.vin, math.inf)))
 
     def _take(self, j: Junction, commands: Iterable[Actuation], t: float) -> list[tuple[Car, int]]:
         """Take the new plans that came in time; return the drops asked for."""
@@ -165,11 +162,15 @@ class Actuator:
             c.refused_seq, c.plan_seq, c.plan_s = c.plan_seq, NO_PLAN, None
             self.timing.off_start += 1
             self.timing.refused += 1
-            self.ls.vehicle.setSpeed(c.vin, self.stop_speed(c, rear_ahead_m))
+            self.ls.vehicle.setSpeed(c.sumo, self.stop_speed(c, rear_ahead_m))
             return
         if c.exited:
             self._set_mode(c, MODE_DEFAULT)
-            self.ls.vehicle.setSpeed(c.vin, RELEASE)
+            self.ls.vehicle.setSpeed(c.sumo, RELEASE)
+            if c.adopted_lcm is not None:  # on along its own route, as SUMO drives it
+                self.ls.vehicle.setLaneChangeMode(c.sumo, c.adopted_lcm)
+            if c.reroute_to is not None:
+                self.ls.vehicle.changeTarget(c.sumo, c.reroute_to)
             c.released = True
             return
         if c.speed_mode != MODE_CONFIRMED:
@@ -183,16 +184,16 @@ class Actuator:
             v = track_speed(float(plan[k + 1]), c.s_m, c.speed_mps, self.h)
         else:  # past the plan's end (the vehicle is out): hold its last speed
             v = float(plan[-1] - plan[-2]) / self.h if len(plan) > 1 else c.speed_mps
-        self.ls.vehicle.setSpeed(c.vin, v)
+        self.ls.vehicle.setSpeed(c.sumo, v)
 
     def _set_mode(self, c: Car, mode: int) -> None:
         if c.speed_mode != mode:
-            self.ls.vehicle.setSpeedMode(c.vin, mode)
+            self.ls.vehicle.setSpeedMode(c.sumo, mode)
             c.speed_mode = mode
 
     def release(self, c: Car) -> None:
         """Hand ``c`` to SUMO's driver for good (a signalised junction: the light decides)."""
-        self.ls.vehicle.setSpeed(c.vin, RELEASE)
+        self.ls.vehicle.setSpeed(c.sumo, RELEASE)
 
     def may_follow(self, c: Car, speed_mps: float, t: float) -> bool:
         """A platoon's follower may ask: its leader holds a plan (flown, or to be flown
@@ -207,7 +208,7 @@ class Actuator:
         k = max(round((t - lead.plan_t0_s) / h), 0)
         behind = round((cfg.headway_s + 2.0 * cfg.time_pad_s) / h)
         lagged = float(lead.plan_s[min(max(k - behind, 0), len(lead.plan_s) - 1)])
-        if c.s_m > lagged - self.length_m - 2.0 * cfg.margin_m:
+        if c.s_m > lagged - c.length_m - 2.0 * cfg.margin_m:
             return False
         if speed_mps <= 0.0:
             return True
@@ -266,10 +267,10 @@ class Actuator:
         for lane, cars in j.short_of_line().items():
             cars.sort(key=lambda c: c.s_m)
             prev = j.last_in.get(lane)
-            rear = prev.s_m - self.length_m if prev is not None and not prev.exited else math.inf
+            rear = prev.s_m - prev.length_m if prev is not None and not prev.exited else math.inf
             for c in reversed(cars):
                 out[c.vin] = rear
-                rear = c.s_m - self.length_m
+                rear = c.s_m - c.length_m
         return out
 
     def intents(self, j: Junction, t: float) -> dict[str, np.ndarray]:
@@ -290,13 +291,14 @@ class Actuator:
             cars.sort(key=lambda c: -c.s_m)
             prev = j.last_in.get(lane)
             ahead = free if prev is None or prev.exited else self.future(prev, t, free)
+            length = 0.0 if prev is None else prev.length_m
             for c in cars:
                 if ahead is None:
                     break
-                fut = self.future(c, t, ahead - self.length_m)
+                fut = self.future(c, t, ahead - length)
                 if fut is not None:
                     out[c.vin] = fut
-                ahead = fut
+                ahead, length = fut, c.length_m
         return out
 
     def future(self, c: Car, t: float, rear_m: np.ndarray) -> np.ndarray | None:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import sys
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -193,6 +194,11 @@ def _unserved_lines(skip: dict[str, str]) -> list[str]:
 
 def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
     """The vehicles of this run in arrival order, cut at the horizon; and its stream spec."""
+    if cfg.routes_path:  # SUMO drives the file's vehicles to the region (Traffic.adopt)
+        from dica.sim_gateway.route_file import read_route_file
+
+        read_route_file(Path(cfg.routes_path))  # refused here, before SUMO and the peers
+        return [], None, cfg.begin_s + cfg.duration_s
     peak = max(cfg.volume_per_10min, cfg.volume_end_per_10min or 0.0)
     # enough arrivals to outlast the horizon; the schedule is cut at the horizon below
     n = cfg.until_left or max(1, math.ceil(peak / 600.0 * cfg.duration_s * 2 + 20))

@@ -52,6 +52,26 @@ class Car:
     odo_ref: float = math.nan  # SUMO's odometer at the last step on the incoming lane
     s_ref: float = math.nan  # the route position then
     ev: bool = False  # inserted as an emergency vehicle
+    length_m: float = 5.0
+    width_m: float = 1.8
+    # a vehicle of the user's route file, driven by SUMO until it reached the region
+    # (None: one of ours, inserted at the region's entry line); its lane-change mode
+    # is given back once it is out of the junction
+    adopted_lcm: int | None = None
+    reroute_to: str | None = None  # beyond the junction, SUMO routes it on to this edge
+    # its id in SUMO; ``vin`` names this crossing to the ICA, the agents and the trip log
+    # and differs only for a route-file vehicle's second and later pass (``<id>#2``, ...)
+    sumo: str = ""
+
+    def __post_init__(self) -> None:
+        if not self.sumo:
+            self.sumo = self.vin
+
+    @classmethod
+    def of(cls, v: Arrival) -> Car:
+        """One of the demand's vehicles, to be inserted at the region's entry line."""
+        lane = lane_index(v.route.in_lane)
+        return cls(v.vin, v.route, lane, v.speed_mps, length_m=v.length_m, width_m=v.width_m)
 
     def locate(self, lane: str, lane_pos_m: float, lane_len_m: float, odo_m: float) -> None:
         """Where the front is along the route: from the lane position while on the
@@ -71,6 +91,10 @@ class Seen:
     obs: Observation
     xy: tuple[float, float] = (math.nan, math.nan)
     angle_deg: float = math.nan
+
+
+def lane_index(lane: str) -> int:
+    return int(lane.rsplit("_", 1)[1])
 
 
 def route_edges(r: Route) -> tuple[str, str]:
@@ -102,6 +126,13 @@ class Junction:
     crossed: int = 0
     waiting: int = 0  # stopped in the region this step
     unconfirmed_entries: list[str] = field(default_factory=list)
+    # route-file vehicles seen in the region that do not cross the junction (their route
+    # ends here): SUMO drives them
+    passing: set[str] = field(default_factory=set)
+    # route-file vehicles by SUMO id: the crossing it is on now (or made last), and how
+    # many times it has come (a route may loop back through the junction)
+    by_sumo: dict[str, Car] = field(default_factory=dict)
+    passes: dict[str, int] = field(default_factory=dict)
 
     @classmethod
     def open(
@@ -112,6 +143,8 @@ class Junction:
         *,
         signalised: bool,
         length_m: float,
+        width_m: float = 1.8,
+        max_length_m: float | None = None,
     ) -> Junction:
         """Add the junction's routes to SUMO and watch its region."""
         edge_routes: dict[tuple[str, str], str] = {}
@@ -131,15 +164,13 @@ class Junction:
                     via_mps[v] = max(via_mps.get(v, 0.0), r.road_mps)
             for lane, mps in via_mps.items():
                 ls.lane.setMaxSpeed(lane, mps)
-        cars = {
-            v.vin: Car(v.vin, v.route, int(v.route.in_lane.rsplit("_", 1)[1]), v.speed_mps)
-            for v in schedule
-        }
+        cars = {v.vin: Car.of(v) for v in schedule}
         monitor = SafetyMonitor(inter.region, watch_margin_m=2.0)
         junction_xy = np.asarray(ls.junction.getPosition(inter.junction_id))
         reach = float(np.max(np.linalg.norm(inter.region - junction_xy, axis=1)))
         # a rectangle can touch the watched area only if its front is within its length of it
-        watch = Watch(inter.junction_id, reach + 2.0 + length_m + 1.0)
+        longest = max(length_m, max_length_m or 0.0)
+        watch = Watch(inter.junction_id, reach + 2.0 + longest + 1.0)
         watch.subscribe(ls)
         return cls(inter, signalised, schedule, cars, edge_routes, lane_len, monitor, watch)
 
@@ -149,7 +180,7 @@ class Junction:
         self.active = [
             c
             for c in self.active
-            if not c.exited and (c.vin in self.present or math.isnan(c.detected_s))
+            if not c.exited and (c.sumo in self.present or math.isnan(c.detected_s))
         ]
 
     def order_lanes(self, vw: Reads, present: set[str]) -> None:
@@ -157,8 +188,8 @@ class Junction:
         on_lane: dict[str, list[tuple[float, Car]]] = {}
         for c in self.active:
             c.ahead = c.behind = None
-            if c.vin in present and vw.getLaneID(c.vin) == c.route.in_lane:
-                on_lane.setdefault(c.route.in_lane, []).append((vw.getLanePosition(c.vin), c))
+            if c.sumo in present and vw.getLaneID(c.sumo) == c.route.in_lane:
+                on_lane.setdefault(c.route.in_lane, []).append((vw.getLanePosition(c.sumo), c))
         for cars in on_lane.values():
             cars.sort(key=lambda pc: -pc[0])
             for (_, front), (_, back) in itertools.pairwise(cars):
@@ -168,6 +199,6 @@ class Junction:
         """Per incoming lane, its cars in SUMO whose fronts have not passed the entry line."""
         lanes: dict[str, list[Car]] = {}
         for c in self.active:
-            if c.vin in self.present and not c.entered and not math.isnan(c.s_m):
+            if c.sumo in self.present and not c.entered and not math.isnan(c.s_m):
                 lanes.setdefault(c.route.in_lane, []).append(c)
         return lanes

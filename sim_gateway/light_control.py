@@ -28,9 +28,10 @@ from dica.sim_gateway.signals import (
 from dica.sim_gateway.signals import Phase as SignalPhase
 
 
-def setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> dict:
+def setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec | None) -> dict:
     """Clearance from the formulas on the junction's program; for the fixed light,
-    greens from the cycle model on top (:mod:`sim_gateway.signals`)."""
+    greens from the cycle model on top (:mod:`sim_gateway.signals`), for the random
+    demand's expected flows (``spec``; with a route file, None: the program's own)."""
     tls = light_of(ls, inter)
     logic = current_logic(ls, tls)
     links = signal_links(ls, tls)
@@ -42,7 +43,9 @@ def setup_signal(ls, cfg: RunConfig, inter: Intersection, spec: DemandSpec) -> d
     )
     phases = with_clearance(phases, links, cfg.length_m)
     out: dict = {"type": cfg.algorithm}
-    if cfg.algorithm == "fixed":
+    if cfg.algorithm == "fixed" and spec is None:  # a route file: no expected flows
+        out["greens"] = "the net's own"
+    elif cfg.algorithm == "fixed":
         lanes = [ln.in_lane if ln is not None else "" for ln in links]
         phases, timing = retime(phases, lanes, expected_lane_flows(inter, spec))
         out |= {"cycle_s": timing.cycle_s, "flow_ratio_sum": timing.flow_ratio_sum}

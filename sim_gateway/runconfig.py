@@ -65,6 +65,7 @@ LIMITS = {
     "time_pad_s": Limit("--time-pad", 0.0, 5.0, "s"),
     "retry_s": Limit("--retry", 0.05, 60.0, "s"),
     "ev_prob": Limit("--ev-prob", 0.0, 1.0),
+    "begin_s": Limit("--begin", 0.0, 1e7, "s"),
 }
 
 
@@ -108,6 +109,10 @@ class RunConfig:
     # [s] the ICA decides the REQUESTs of each window together, in the order that delays
     # them least (ica/core/window.py); 0: one by one as they come. Embedded runs only
     window_s: float = 0.0
+    # a SUMO demand file instead of the random demand: SUMO drives its vehicles through
+    # the net, and the junction takes each over in its region (sim_gateway/route_file.py)
+    routes_path: str | None = None
+    begin_s: float = 0.0  # [s] the simulation starts here (SUMO's --begin)
 
     def controller_spec(self) -> ControllerSpec:
         """The controller this run drives (a light runs FIFO underneath, never asked)."""
@@ -143,6 +148,14 @@ class RunConfig:
             raise RunError(
                 f"unknown revocation {self.revocation!r}: use {' or '.join(REVOCATIONS)}"
             )
+        if self.routes_path and self.until_left:
+            raise RunError("--until-left counts the random demand's vehicles; with --routes "
+                           "give --duration")  # fmt: skip
+        if self.routes_path and self.ev_prob:
+            raise RunError("--ev-prob draws the random demand's emergency vehicles; a route "
+                           "file's vehicles are as the file has them")  # fmt: skip
+        if self.begin_s and not self.routes_path:
+            raise RunError("--begin starts a route file's demand (--routes)")
         if self.solver not in SOLVERS:
             raise RunError(f"unknown solver {self.solver!r}: use {', '.join(SOLVERS)}")
 

@@ -61,7 +61,8 @@ def sumo_command(net_path: str, step_s: float, extra: tuple[str, ...]) -> list[s
 
 
 def start_sumo(ls, cfg: RunConfig, step_s: float) -> list[str]:
-    cmd = sumo_command(cfg.net_path, step_s, cfg.sumo_args)
+    demand = ("-r", cfg.routes_path, "--begin", str(cfg.begin_s)) if cfg.routes_path else ()
+    cmd = sumo_command(cfg.net_path, step_s, (*demand, *cfg.sumo_args))
     try:
         ls.start(cmd)
     except Exception as e:  # libsumo raises its own TraCIException or a plain error

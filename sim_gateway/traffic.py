@@ -18,7 +18,7 @@ from dica.ica.core.config import IcaConfig
 from dica.ica.core.planner import Planner
 from dica.ica.core.route import Route
 from dica.sim_gateway.actuator import MIN_GAP_M
-from dica.sim_gateway.junction import Car, Junction, route_edges
+from dica.sim_gateway.junction import Car, Junction, lane_index, route_edges
 from dica.sim_gateway.metrics import CRAWL_MPS, Trip, TripLog
 from dica.sim_gateway.sumo_io import Reads
 
@@ -59,6 +59,7 @@ class Traffic:
         self.ica_cfg = ica_cfg
         self.length_m = length_m
         self.log = log
+        self.rerouted = 0  # route-file vehicles sent another way (see adopt)
 
     def register(self, j: Junction) -> None:
         """A trip record for each of the junction's scheduled vehicles."""
@@ -69,7 +70,7 @@ class Traffic:
                 v.route.id,
                 v.route.turn.value,
                 v.arrival_s,
-                free_flow_scheduled_s=self.free_flow_s(v.route, comm, v.speed_mps),
+                free_flow_scheduled_s=self.free_flow_s(v.route, comm, v.speed_mps, v.length_m),
             )
 
     # -- insertion -------------------------------------------------------------
@@ -93,25 +94,98 @@ class Traffic:
     def note_blocked(self, j: Junction, fresh: list[Car]) -> None:
         """After SUMO's step: which of ``fresh`` it found no room for."""
         pending = set(self.ls.simulation.getPendingVehicles()) if fresh else set()
-        j.blocked = [c for c in fresh if c.vin in pending]
+        j.blocked = [c for c in fresh if c.sumo in pending]
 
-    def departed(self, j: Junction, vin: str, t: float) -> None:
-        """``vin`` is on the road: until the region it keeps its lane and its speed."""
+    def departed(self, j: Junction, vin: str, t: float) -> bool:
+        """``vin`` is on the road: if it is one of ours, until the region it keeps its lane
+        and its speed (a route file's vehicle is SUMO's until it reaches the region)."""
+        if vin not in j.cars:
+            # a route file's: a connected automated vehicle keeps the limits (SUMO's own
+            # drivers take a random share above them), so that it reaches the region
+            # at a speed the ICA plans from
+            if self.ls.vehicle.getSpeedFactor(vin) > 1.0:
+                self.ls.vehicle.setSpeedFactor(vin, 1.0)
+            return False
         self.ls.vehicle.setLaneChangeMode(vin, 0)
         # until the region, SUMO's driver keeps the scheduled speed (the speed the
         # vehicle keeps when free), or less behind a slower vehicle
         self.ls.vehicle.setSpeed(vin, j.cars[vin].entry_speed_mps)
         self.log.trips[vin].inserted_s = t
+        return True
+
+    def adopt(self, j: Junction, t: float) -> list[Car]:
+        """A route file's vehicles that reached the region on their way through the
+        junction this step: from now on they are the junction's, as if inserted there.
+
+        Its way through is the connection SUMO's driver has chosen from its lane (its
+        next link, onto the lane its route continues on). A vehicle whose route ends
+        before the junction passes by; one in a lane that does not lead where its route
+        goes takes the lane's first way through and is sent on to its destination
+        from beyond it (SUMO reroutes it), rather than wait for a gap it cannot have.
+        """
+        ls, comm = self.ls, j.inter.comm_length_m
+        out = []
+        for lane in j.inter.in_lanes:
+            for vin in ls.lane.getLastStepVehicleIDs(lane):
+                now = j.by_sumo.get(vin)
+                if (now is not None and not now.exited) or vin in j.passing:
+                    continue
+                if j.lane_len_m[lane] - ls.vehicle.getLanePosition(vin) > comm:
+                    continue
+                dest = ls.vehicle.getRoute(vin)[-1]
+                route = self._way_through(j, vin, lane)
+                if route is None:
+                    j.passing.add(vin)
+                    continue
+                n = j.passes[vin] = j.passes.get(vin, 0) + 1
+                c = Car(
+                    vin if n == 1 else f"{vin}#{n}", route, lane_index(lane),
+                    min(route.road_mps, ls.vehicle.getMaxSpeed(vin)),
+                    length_m=ls.vehicle.getLength(vin), width_m=ls.vehicle.getWidth(vin),
+                    adopted_lcm=ls.vehicle.getLaneChangeMode(vin), sumo=vin,
+                )  # fmt: skip
+                if route_edges(route)[1] != dest and ls.vehicle.getRoute(vin)[-1] != dest:
+                    c.reroute_to = dest
+                ls.vehicle.setLaneChangeMode(vin, 0)
+                j.cars[c.vin] = j.by_sumo[vin] = c
+                j.active.append(c)
+                free = self.free_flow_s(route, comm, c.entry_speed_mps, c.length_m)
+                self.log.trips[c.vin] = Trip(
+                    c.vin, route.id, route.turn.value, t, free_flow_scheduled_s=free, inserted_s=t
+                )
+                out.append(c)
+        return out
+
+    def _way_through(self, j: Junction, vin: str, lane: str) -> Route | None:
+        ls = self.ls
+        links = ls.vehicle.getNextLinks(vin)
+        if not links:
+            return None  # its route ends on this lane
+        route = j.inter.route(lane, links[0][0])
+        if route is not None:
+            return route
+        edges = ls.vehicle.getRoute(vin)
+        k = ls.vehicle.getRouteIndex(vin)
+        if k + 1 >= len(edges):
+            return None
+        ways = sorted(j.inter.routes_from(lane), key=lambda r: r.id)
+        if not ways:
+            return None
+        route = ways[0]
+        here, beyond = route_edges(route)
+        ls.vehicle.setRoute(vin, [here, beyond])
+        self.rerouted += 1
+        return route
 
     def note_tails(self, j: Junction, vw: Reads, present: set[str]) -> None:
         """Per incoming lane, where its rearmost car is and how fast (for join_queue)."""
         j.tails = {}
         for c in j.active:
-            if c.vin in present and vw.getLaneID(c.vin) == c.route.in_lane:
-                pos = vw.getLanePosition(c.vin)
+            if c.sumo in present and vw.getLaneID(c.sumo) == c.route.in_lane:
+                pos = vw.getLanePosition(c.sumo)
                 tail = j.tails.get(c.route.in_lane)
                 if tail is None or pos < tail[0]:
-                    j.tails[c.route.in_lane] = (pos, vw.getSpeed(c.vin))
+                    j.tails[c.route.in_lane] = (pos, vw.getSpeed(c.sumo))
 
     def add(self, j: Junction, c: Car, pos_m: float, speed_mps: float) -> None:
         self.ls.vehicle.add(
@@ -131,7 +205,7 @@ class Traffic:
         at the tail's speed (or its own, if lower). With no room left on the
         lane it waits at the lane's start, where SUMO inserts it when it can.
         """
-        self.ls.vehicle.remove(c.vin)  # from SUMO's insertion queue
+        self.ls.vehicle.remove(c.sumo)  # from SUMO's insertion queue
         entry = self._entry_pos(j, c)
         tail = j.tails.get(c.route.in_lane)
         if tail is None:  # the blocker has left the lane already: the entry line again
@@ -155,14 +229,14 @@ class Traffic:
     def detect(self, j: Junction, c: Car, lane: str, vw: Reads, t: float) -> bool:
         """Note ``c`` in the region once its front is past the entry line; False while not."""
         comm = j.inter.comm_length_m
-        d = j.lane_len_m.get(lane, math.inf) - vw.getLanePosition(c.vin)
+        d = j.lane_len_m.get(lane, math.inf) - vw.getLanePosition(c.sumo)
         if lane != c.route.in_lane or d > comm:
             return False
-        v = vw.getSpeed(c.vin)
+        v = vw.getSpeed(c.sumo)
         trip = self.log.trips[c.vin]
         trip.entered_s = t - (comm - d) / v if v > 0.1 else t
         c.detected_s = trip.entered_s
-        trip.free_flow_s = self.free_flow_s(c.route, comm, v)
+        trip.free_flow_s = self.free_flow_s(c.route, comm, v, c.length_m)
         return True
 
     def note_speed(self, j: Junction, c: Car, speed_mps: float) -> None:
@@ -176,19 +250,18 @@ class Traffic:
     def left_junction(self, j: Junction, vw: Reads, c: Car, t: float) -> bool:
         """Rear past the exit line: note the time (interpolated), mark the car exited and
         count it crossed."""
-        if vw.getRoadID(c.vin) != route_edges(c.route)[1]:
+        if vw.getRoadID(c.sumo) != route_edges(c.route)[1]:
             return False
-        over = vw.getLanePosition(c.vin) - self.length_m
+        over = vw.getLanePosition(c.sumo) - c.length_m
         if over < 0:
             return False
-        self.log.trips[c.vin].exited_s = t - over / max(vw.getSpeed(c.vin), 0.1)
+        self.log.trips[c.vin].exited_s = t - over / max(vw.getSpeed(c.sumo), 0.1)
         c.exited = True
         j.crossed += 1
         return True
 
-    def free_flow_s(self, route: Route, comm_m: float, v_mps: float) -> float | None:
+    def free_flow_s(self, route: Route, comm_m: float, v_mps: float, length: float) -> float | None:
         """From the region's entry line at ``v_mps`` until fully out, alone at the junction."""
-        length = self.length_m
         pl = Planner(
             comm_m,
             v_mps,
@@ -213,7 +286,7 @@ class Traffic:
                 out["crossed"] += 1
             elif math.isnan(c.detected_s):
                 out["not_yet_in_region"] += 1
-            elif c.vin in j.present:
+            elif c.sumo in j.present:
                 out["in_region"] += 1
             else:
                 out["lost"] += 1  # gone from SUMO without leaving the junction: never

@@ -26,6 +26,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import replace
+from pathlib import Path
 
 from dica.ica.core.config import IcaConfig
 from dica.ica.core.intersection import Intersection
@@ -33,6 +34,7 @@ from dica.sim_gateway.actuator import Actuator
 from dica.sim_gateway.demand import Arrival
 from dica.sim_gateway.junction import Car, Junction, Seen
 from dica.sim_gateway.metrics import TripLog, summarize
+from dica.sim_gateway.route_file import MAX_LENGTH_M, check_types, read_route_file
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.sumo_io import Reads
 from dica.sim_gateway.traffic import Traffic, define_vehicle_types
@@ -67,6 +69,8 @@ class World:
         self.sumo_collisions = 0
         self._last_sample = -1.0
         self._t_wall = time.perf_counter()
+        if cfg.routes_path:
+            check_types(ls, read_route_file(Path(cfg.routes_path)), ica_cfg.kinematics)
         define_vehicle_types(ls, ica_cfg, cfg.length_m, cfg.width_m, any(v.ev for v in schedule))
         self.junction = Junction.open(
             ls,
@@ -74,13 +78,14 @@ class World:
             schedule,
             signalised=signalised,
             length_m=cfg.length_m,
+            max_length_m=MAX_LENGTH_M if cfg.routes_path else None,
         )
         self.traffic = Traffic(ls, ica_cfg, cfg.length_m, self.log)
         self.traffic.register(self.junction)
         self._arrivals = [v.arrival_s for v in schedule]
         # how far ahead [s] each vehicle that may ask is told where its own control law will
         # take it (Observation.intent_m): as far as its agents plan ahead (their lead)
-        self.actuator = Actuator(ls, ica_cfg, cfg.length_m, self.log, predict_s)
+        self.actuator = Actuator(ls, ica_cfg, self.log, predict_s)
 
     # the world's totals: its one junction's
     @property
@@ -107,21 +112,24 @@ class World:
         self.sumo_collisions += len(ls.simulation.getCollisions())
         present = set(ls.vehicle.getIDList())
         for vin in ls.simulation.getDepartedIDList():
-            self.traffic.departed(j, vin, t)
-            Reads.subscribe(ls, vin, self.want_xy)
+            if self.traffic.departed(j, vin, t):
+                Reads.subscribe(ls, vin, self.want_xy)
+        if self.cfg.routes_path:
+            for c in self.traffic.adopt(j, t):
+                Reads.subscribe(ls, c.sumo, self.want_xy)
         vw = Reads(ls)
         self.traffic.note_tails(j, vw, present)
         j.order_lanes(vw, present)
         j.waiting = 0
         seen = []
         for c in j.active:
-            s = self._see(c, vw, t) if c.vin in present else None
+            s = self._see(c, vw, t) if c.sumo in present else None
             if s is not None:
                 seen.append(s)
         if self.want_xy:
             for s in seen:
-                s.xy = vw.getPosition(s.car.vin)
-                s.angle_deg = vw.getAngle(s.car.vin)
+                s.xy = vw.getPosition(s.car.sumo)
+                s.angle_deg = vw.getAngle(s.car.sumo)
         j.present = present
         if self.actuator.predict_steps:
             self._tell_intents(seen, t)
@@ -139,23 +147,23 @@ class World:
     def _see(self, c: Car, vw: Reads, t: float) -> Seen | None:
         """``c`` as its driver observes it this step; None while it is short of the region."""
         j = self.junction
-        lane = vw.getLaneID(c.vin)
+        lane = vw.getLaneID(c.sumo)
         on_approach = lane == c.route.in_lane
         if math.isnan(c.detected_s):
             if not self.traffic.detect(j, c, lane, vw, t):
                 return None
             if j.signalised:  # in the region SUMO's driver drives as it likes
                 self.actuator.release(c)
-        speed = vw.getSpeed(c.vin)
-        odo = vw.getDistance(c.vin)
-        lane_pos = vw.getLanePosition(c.vin) if on_approach else math.nan
+        speed = vw.getSpeed(c.sumo)
+        odo = vw.getDistance(c.sumo)
+        lane_pos = vw.getLanePosition(c.sumo) if on_approach else math.nan
         c.locate(lane, lane_pos, j.lane_len_m[c.route.in_lane], odo)
         c.speed_mps = speed
         if not c.entered and not on_approach:
             self._entered(c, t)
         self.traffic.note_speed(j, c, speed)
         self.traffic.left_junction(j, vw, c, t)
-        d = j.lane_len_m[c.route.in_lane] - vw.getLanePosition(c.vin)
+        d = j.lane_len_m[c.route.in_lane] - vw.getLanePosition(c.sumo)
         c.head = on_approach and c.ahead is None
         follows = (
             self.ica_cfg.platoon
@@ -199,7 +207,11 @@ class World:
         j = self.junction
         j.watch.feed(self.ls, j.monitor, self.t)
         if self.t - self._last_sample >= 1.0 - 1e-9:
-            generated = bisect.bisect_right(self._arrivals, self.t + 1e-9)
+            generated = (
+                len(self.junction.cars)
+                if self.cfg.routes_path
+                else bisect.bisect_right(self._arrivals, self.t + 1e-9)
+            )
             self.log.sample(self.t, self.waiting, self.crossed, generated)
             self._last_sample = self.t
         if progress is not None:
@@ -232,5 +244,6 @@ class World:
                 "unconfirmed_entries": len(self.unconfirmed_entries),
                 "timing": self.actuator.timing.as_dict(),
                 "accounted": self.traffic.accounting(self.junction, end),
+                **({"rerouted": self.traffic.rerouted} if self.cfg.routes_path else {}),
             },
         )

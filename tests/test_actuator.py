@@ -42,7 +42,7 @@ class Rig:
         define_vehicle_types(ls, self.ica_cfg, LENGTH, WIDTH, ev=False)
         self.j = Junction.open(ls, ch45, [], signalised=False, length_m=LENGTH)
         self.log = TripLog()
-        self.act = Actuator(ls, self.ica_cfg, LENGTH, self.log, predict_s)
+        self.act = Actuator(ls, self.ica_cfg, self.log, predict_s)
         self.t = 0.0
 
     def insert(self, vin: str, to_line_m: float, speed_mps: float) -> Car:

@@ -185,7 +185,7 @@ def _actuator():
     from dica.sim_gateway.metrics import TripLog
 
     cfg = ControllerSpec.of("enhanced", MARGIN, platoon=True, headway_s=0.3).config
-    return Actuator(None, cfg, LENGTH, TripLog())
+    return Actuator(None, cfg, TripLog())
 
 
 def _car(ch45, vin: str, s_m: float, speed: float, plan_t0: float | None = None):

@@ -19,64 +19,15 @@ from dica.ica.netfile import load_intersection
 from dica.sim_gateway import embedded
 from dica.sim_gateway.demand import unserved
 from dica.sim_gateway.runconfig import RunConfig
-from dica.sim_gateway.scenario import light_id, netconvert_binary
+from dica.sim_gateway.scenario import light_id
+from tests.user_nets import CITY_MPS, ROUTES, SLOW_MPS, build_nets
 
 ROOT = Path(__file__).resolve().parents[1]
-CITY_MPS = 13.89  # 50 km/h as SUMO writes it
-SLOW_MPS = 11.11  # 40 km/h
-
-NODES = """<nodes>
- <node id="A" x="0" y="0" type="traffic_light"/> <node id="B" x="12" y="0" type="traffic_light"/>
- <node id="W" x="-250" y="0"/> <node id="E" x="262" y="0"/>
- <node id="NA" x="0" y="250"/> <node id="SA" x="0" y="-250"/>
- <node id="NB" x="12" y="250"/> <node id="SB" x="12" y="-250"/>
-</nodes>"""
-EDGES = """<edges>
- <edge id="WA" from="W" to="A" numLanes="2" speed="13.89"/>
- <edge id="AW" from="A" to="W" numLanes="2" speed="13.89"/>
- <edge id="AB" from="A" to="B" numLanes="2" speed="13.89"/>
- <edge id="BA" from="B" to="A" numLanes="2" speed="13.89"/>
- <edge id="BE" from="B" to="E" numLanes="2" speed="13.89"/>
- <edge id="EB" from="E" to="B" numLanes="2" speed="13.89"/>
- <edge id="NAA" from="NA" to="A" numLanes="1" speed="8.33"/>
- <edge id="ASA" from="A" to="SA" numLanes="1" speed="8.33"/>
- <edge id="SBB" from="SB" to="B" numLanes="1" speed="8.33"/>
- <edge id="BNB" from="B" to="NB" numLanes="1" speed="8.33"/>
-</edges>"""
-
-
-def tool(name: str) -> str:
-    return str(Path(netconvert_binary()).with_name(name))
-
-
-def make(cmd: list[str]) -> None:
-    p = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
-    assert p.returncode == 0, p.stderr
 
 
 @pytest.fixture(scope="module")
 def nets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
-    d = tmp_path_factory.mktemp("usernets")
-    out = {k: d / f"{k}.net.xml" for k in ("grid", "walk", "twins", "joined")}
-    # a city grid: 3 lanes each way at 50 km/h, 200 m blocks, no lights
-    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
-          "--default.lanenumber", "3", "--default.speed", str(CITY_MPS),
-          "--no-turnarounds", "true", "-o", str(out["grid"])])  # fmt: skip
-    # 40 km/h, 2 lanes, sidewalks and bike lanes, lights guessed, 80 m blocks
-    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "80",
-          "--default.lanenumber", "2", "--default.speed", str(SLOW_MPS), "--tls.guess", "true",
-          "--sidewalks.guess", "true", "--bikelanes.guess", "true",
-          "--no-turnarounds", "true", "-o", str(out["walk"])])  # fmt: skip
-    # two junctions 12 m apart under one joined light (its id is neither's), and the
-    # same two joined into one cluster junction
-    (d / "j.nod.xml").write_text(NODES)
-    (d / "j.edg.xml").write_text(EDGES)
-    plain = ["-n", str(d / "j.nod.xml"), "-e", str(d / "j.edg.xml"), "--no-turnarounds", "true"]
-    make([netconvert_binary(), *plain, "--tls.join", "true", "--tls.join-dist", "20",
-          "-o", str(out["twins"])])  # fmt: skip
-    make([netconvert_binary(), *plain, "--junctions.join", "true", "--junctions.join-dist", "15",
-          "-o", str(out["joined"])])  # fmt: skip
-    return out
+    return build_nets(tmp_path_factory.mktemp("usernets"))
 
 
 def test_routes_keep_the_nets_own_limits_and_only_car_lanes(nets):
@@ -172,3 +123,78 @@ def test_the_command_line_runs_a_city_grid_without_a_traceback(nets, tmp_path):
     assert "Traceback" not in p.stderr
     assert "no demand on its" in p.stderr  # the short links are named
     assert (tmp_path / "run" / "metrics.json").is_file()
+
+
+def _routes_run(nets, tmp_path, text: str = ROUTES, **cfg_kw):
+    routes = tmp_path / "demand.rou.xml"
+    routes.write_text(text)
+    cfg = RunConfig(net_path=str(nets["grid"]), junction_id="B1", routes_path=str(routes), **cfg_kw)
+    return embedded.run(cfg, load_intersection(cfg.net_path, "B1"), run_dir=tmp_path)
+
+
+def test_a_route_files_vehicles_are_taken_over_in_the_region_and_kept_safe(nets, tmp_path):
+    res = _routes_run(nets, tmp_path, duration_s=450.0)
+    assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
+    assert res.extra["unconfirmed_entries"] == 0
+    acc = res.extra["accounted"]
+    assert acc["lost"] == 0 and acc["generated"] >= 100
+    assert acc["crossed"] + acc["in_region"] == acc["generated"]
+    trips = res.trips.trips
+    # the loop comes back through B1: a crossing of its own, planned like the first
+    again = [v for v in trips if "#2" in v]
+    assert again and all(trips[v].confirmed_s is not None for v in again if trips[v].exited_s)
+    # the ones that will not change lanes cross from where they are and are rerouted
+    assert res.extra["rerouted"] > 0
+    # a flow that ends before the junction is SUMO's: never the junction's
+    assert not [v for v in trips if v.startswith("ends")]
+
+
+def test_a_route_file_can_start_later(nets, tmp_path):
+    res = _routes_run(nets, tmp_path, duration_s=120.0, begin_s=200.0)
+    assert res.sim_time_s == pytest.approx(320.0)
+    assert min(t.depart_s for t in res.trips.trips.values()) >= 200.0
+    assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ('<routes><vType id="truck" vClass="truck"/><flow id="f" type="truck" begin="0" '
+         'end="9" number="2" from="A1B1" to="B1C1"/></routes>', "brakes at"),
+        ('<routes><vType id="bike" vClass="bicycle"/><flow id="f" type="bike" begin="0" '
+         'end="9" number="2" from="A1B1" to="B1C1"/></routes>', "is a bicycle"),
+        ('<routes><vType id="bus" vClass="passenger" length="15"/><trip id="t" type="bus" '
+         'depart="0" from="A1B1" to="B1C1"/></routes>', "15 m long"),
+        ('<routes><person id="p" depart="0"><walk edges="A1B1"/></person>'
+         '<trip id="t" depart="0" from="A1B1" to="B1C1"/></routes>', "persons"),
+        ("<routes></routes>", "no vehicle, trip or flow"),
+        ("<routes><trip id=", "cannot read route file"),
+    ],
+)  # fmt: skip
+def test_a_route_file_the_ica_cannot_serve_is_refused_in_one_line(nets, tmp_path, text, says):
+    from dica.sim_gateway.runconfig import RunError
+
+    with pytest.raises(RunError, match=says) as e:
+        _routes_run(nets, tmp_path, text=text, duration_s=10.0)
+    assert "\n" not in str(e.value)
+
+
+def test_the_command_line_refuses_a_route_file_with_status_2(nets, tmp_path):
+    bad = tmp_path / "trucks.rou.xml"
+    bad.write_text(
+        '<routes><vType id="truck" vClass="truck"/><flow id="f" type="truck" begin="0" '
+        'end="9" number="2" from="A1B1" to="B1C1"/></routes>'
+    )
+    for args, says in (
+        (["--net", str(nets["grid"]), "--junction", "B1", "--routes", str(bad)], "truck"),
+        (["--routes", str(bad)], "--routes needs --net"),
+        (["--net", str(nets["grid"]), "--junction", "B1", "--routes", str(tmp_path / "no.xml")],
+         "route file not found"),
+    ):  # fmt: skip
+        p = subprocess.run(
+            [sys.executable, "-m", "dica.tools.cli", "run", *args, "--duration", "10",
+             "--out", str(tmp_path / "run")],
+            capture_output=True, text=True, cwd=ROOT, timeout=300,
+        )  # fmt: skip
+        assert p.returncode == 2, p.stderr
+        assert says in p.stderr and "Traceback" not in p.stderr

@@ -73,6 +73,8 @@ def run_config(args: argparse.Namespace):
             headway_s=headway_s(args),
             run_up=getattr(args, "run_up", True),
             exit_spacing=getattr(args, "exit_spacing", True),
+            routes_path=str(args.routes) if getattr(args, "routes", None) else None,
+            begin_s=getattr(args, "begin", 0.0),
         )
     except RunError as e:
         raise UsageError(str(e)) from None

@@ -171,7 +171,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     )
     total = None if cfg.until_left else cfg.duration_s
     with tqdm(total=total, desc="sim time", unit="s", disable=args.quiet) as bar:
-        last = [0.0]
+        last = [cfg.begin_s]
 
         def tick(t: float, waiting: int, crossed: int) -> None:
             if t - last[0] >= 1.0:

@@ -270,6 +270,23 @@ OPTIONS: dict[str, Option] = {
         ),
         Option("--sumo-args", "extra SUMO options, verbatim, e.g. '--fcd-output f.xml'"),
         Option(
+            "--routes",
+            "a SUMO demand file (routes, trips or flows with their vehicle types) instead of "
+            "the random demand: SUMO drives its vehicles through --net and the junction "
+            "takes each over in its region (needs --net; --volume and --seed then do not "
+            "apply; the fixed light keeps the net's own greens)",
+            Path,
+            metavar="FILE.rou.xml",
+        ),
+        Option(
+            "--begin",
+            "with --routes: the simulated time the run starts at [s] (SUMO's --begin; "
+            "default 0); --duration counts from it",
+            float,
+            _run("begin_s"),
+            LIMITS["begin_s"],
+        ),
+        Option(
             "--lead",
             "vehicles plan each REQUEST this far ahead of what they observed [s], from where "
             "their stop law will have taken them: what a link with delay needs (default 0)",
@@ -452,7 +469,7 @@ VOLUME_500 = {"default": 500.0, "help": "vehicles per 10 min (default 500)"}  # 
 NET = ("--layout", "--net", "--junction")
 PLAN = ("--margin", "--time-pad", "--platoon", "--headway", "--run-up", "--exit-spacing")
 TRAFFIC = ("--volume", "--volume-end", "--ramp", "--seed", "--duration", "--until-left",
-           "--ev-prob", "--approach-weights", "--sumo-args")  # fmt: skip
+           "--ev-prob", "--approach-weights", "--sumo-args", "--routes", "--begin")  # fmt: skip
 
 
 def check(args: argparse.Namespace) -> None:
@@ -480,6 +497,8 @@ def check(args: argparse.Namespace) -> None:
         raise UsageError(
             "--junction names a junction of --net; a built-in --layout has one junction"
         )
+    if values.get("routes") is not None and values.get("net") is None:
+        raise UsageError("--routes needs --net (the network its routes run on)")
     if values.get("net") is not None and not values.get("junction"):
         raise UsageError("--net needs --junction (the junction id in that network)")
 

@@ -8,7 +8,9 @@
 # Ctrl-C stops everything.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+here="$PWD"  # the caller's: relative paths given on the command line are read from here
 cd "$root"
+from_caller() { case "$1" in /*|'') echo "$1" ;; *) echo "$here/$1" ;; esac; }
 
 usage() {
   cat <<'EOF'
@@ -40,6 +42,10 @@ scenario and roles:
   --volume N            vehicles per 10 min (default 500)
   --duration S          simulated seconds (default 600)
   --seed N              random seed (default 12)
+  --routes FILE         a SUMO demand file instead of the random demand (needs --net):
+                        SUMO drives its vehicles and the junction takes each over in its
+                        region
+  --begin S             with --routes: the simulated time the run starts at (default 0)
   --agents N            vehicle-agent processes (default 2)
   --per-agent K         most vehicles one agent hosts at a time (default 0: no limit)
   --clock lockstep|realtime
@@ -94,11 +100,12 @@ agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 liv
 delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
 max_age="" restart=1 router_rules=1 ev_prob="" solver="" platoon=(--platoon) headway="" run_up=(--run-up)
 exit_spacing=(--exit-spacing)
+demand=()
 extra=()
 while [ $# -gt 0 ]; do
   case "$1" in
     --layout) layout="$2"; shift 2 ;;
-    --net) net="$2"; shift 2 ;;
+    --net) net="$(from_caller "$2")"; shift 2 ;;
     --junction) junction="$2"; shift 2 ;;
     --algorithm) algorithm="$2"; shift 2 ;;
     --ev-prob) ev_prob="$2"; shift 2 ;;
@@ -110,6 +117,8 @@ while [ $# -gt 0 ]; do
     --volume) volume="$2"; shift 2 ;;
     --duration) duration="$2"; shift 2 ;;
     --seed) seed="$2"; shift 2 ;;
+    --routes) demand+=(--routes "$(from_caller "$2")"); shift 2 ;;
+    --begin) demand+=(--begin "$2"); shift 2 ;;
     --agents) agents="$2"; shift 2 ;;
     --per-agent) per_agent="$2"; shift 2 ;;
     --clock) clock="$2"; shift 2 ;;
@@ -129,7 +138,7 @@ while [ $# -gt 0 ]; do
     --no-restart) restart=0; shift ;;
     --no-router-rules) router_rules=0; shift ;;
     --port) port="$2"; shift 2 ;;
-    --out) out="$2"; shift 2 ;;
+    --out) out="$(from_caller "$2")"; shift 2 ;;
     -h|--help) usage; exit 0 ;;
     --) shift; extra=("$@"); break ;;
     *) echo "run_cluster: unknown option $1 (see --help)" >&2; exit 2 ;;
@@ -198,7 +207,6 @@ print(sc.net_path, sc.junction_id)" "$layout") || exit 2
 fi
 [ -n "$junction" ] || die "--net needs --junction"
 [ -f "$net" ] || die "no net file $net"
-"$py" -c "import ica.core.dica"
 scen=(--net "$net" --junction "$junction")
 
 out="${out:-runs/cluster-$(date +%Y%m%d-%H%M%S)}"
@@ -348,7 +356,7 @@ link_for gateway gateway
 start gateway "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$volume" \
   --duration "$duration" --seed "$seed" --agents "$agents" --per-agent "$per_agent" \
   --clock "$clock" --speed "$speed" --observers "$record" --time-pad "$time_pad" \
-  --out "$out" "${ev_args[@]}" "${platoon[@]}" "${role_link[@]}" "${extra[@]}"
+  --out "$out" "${ev_args[@]}" "${platoon[@]}" "${demand[@]}" "${role_link[@]}" "${extra[@]}"
 gateway_pid="${pid_of[gateway]}"
 echo "run_cluster: router on tcp/127.0.0.1:$port; ${#order[@]} processes; logs in $out/logs/"
 if [ "$faults" = 1 ]; then

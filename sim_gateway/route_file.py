@@ -1,0 +1,115 @@
+"""A user's SUMO demand file (``--routes``): what it asks of the junction, checked before
+a run trusts it.
+
+SUMO drives the file's vehicles (routes, trips, flows, each of its vehicle
+type) through the whole net; the world takes one over when it reaches the
+junction's communication region (:meth:`sim_gateway.traffic.Traffic.adopt`).
+From there the ICA plans it with one set of kinematics, and the vehicle
+flies the plan as SUMO is told, so every vehicle type the file uses must be
+able to: accelerate and brake at least as hard as the ICA plans, be no
+longer than the routes are drawn for, and be a vehicle the ICA serves.
+Walkers and cyclists cross outside the ICA's routes, so a file with them is
+refused rather than run unprotected.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+from dica.ica.core.limits import Kinematics
+from dica.ica.netfile import MAX_VEHICLE_LENGTH_M
+from dica.sim_gateway.runconfig import RunError
+
+MAX_LENGTH_M = MAX_VEHICLE_LENGTH_M
+DEFAULT_TYPE = "DEFAULT_VEHTYPE"
+# classes that drive on the road's lanes through the junction as a car does
+SERVED_CLASSES = frozenset((
+    "passenger", "private", "taxi", "bus", "coach", "delivery", "truck", "trailer",
+    "emergency", "authority", "army", "vip", "evehicle", "hov", "motorcycle", "moped",
+    "custom1", "custom2",
+))  # fmt: skip
+_TRAFFIC = ("vehicle", "trip", "flow")
+_PEOPLE = ("person", "personFlow", "container", "containerFlow")
+
+
+@dataclass(frozen=True, slots=True)
+class RouteFile:
+    """What a route file holds: the vehicle types its traffic uses and how much of it."""
+
+    path: Path
+    types: frozenset[str]  # used by its vehicles, trips and flows (distributions opened)
+    traffic: int  # vehicles, trips and flows (a flow counts once)
+
+
+def read_route_file(path: Path) -> RouteFile:
+    """The file's traffic and the types it uses; a file that cannot be read, holds no
+    traffic or holds people is refused in one line."""
+    path = Path(path)
+    if not path.is_file():
+        raise RunError(f"route file not found: {path}")
+    distributions: dict[str, set[str]] = {}
+    used: set[str] = set()
+    traffic = people = 0
+    open_dist: list[str] = []
+    try:
+        for event, el in ET.iterparse(path, events=("start", "end")):
+            tag = el.tag
+            if event == "start":
+                if tag == "vTypeDistribution":
+                    open_dist.append(el.get("id", ""))
+                    members = el.get("vTypes", "").split()
+                    distributions.setdefault(open_dist[-1], set()).update(members)
+                elif tag == "vType" and open_dist:
+                    distributions[open_dist[-1]].add(el.get("id", ""))
+                continue
+            if tag == "vTypeDistribution":
+                open_dist.pop()
+            elif tag in _TRAFFIC:
+                traffic += 1
+                used.add(el.get("type", DEFAULT_TYPE))
+            elif tag in _PEOPLE:
+                people += 1
+            if tag in (*_TRAFFIC, *_PEOPLE, "route"):
+                el.clear()
+    except (OSError, ET.ParseError) as exc:
+        detail = " ".join(str(exc).split())
+        raise RunError(f"cannot read route file {path}: {detail}") from None
+    if people:
+        raise RunError(
+            f"route file {path} has {people} persons or containers: people on foot are not "
+            "served at a signal-free junction yet; leave them out of the file"
+        )
+    if not traffic:
+        raise RunError(f"route file {path} has no vehicle, trip or flow")
+    types: set[str] = set()
+    for t in used:
+        types |= distributions.get(t, {t})
+    return RouteFile(path, frozenset(types), traffic)
+
+
+def check_types(ls, rf: RouteFile, kin: Kinematics) -> None:
+    """Refuse, once SUMO has loaded the file (so its defaults per vehicle class are SUMO's
+    own), a vehicle type that could not fly the ICA's plans."""
+    known = set(ls.vehicletype.getIDList())
+    for t in sorted(rf.types):
+        if t not in known:
+            raise RunError(f"route file {rf.path}: vehicle type {t!r} is not defined")
+        vclass = ls.vehicletype.getVehicleClass(t)
+        accel, decel = ls.vehicletype.getAccel(t), ls.vehicletype.getDecel(t)
+        length = ls.vehicletype.getLength(t)
+        why = None
+        if vclass not in SERVED_CLASSES:
+            why = f"is a {vclass}, which crosses outside the ICA's routes"
+        elif accel < kin.accel_mps2 - 1e-9 or decel < kin.decel_mps2 - 1e-9:
+            why = (
+                f"accelerates at {accel:g} and brakes at {decel:g} m/s^2, less than the "
+                f"{kin.accel_mps2:g} and {kin.decel_mps2:g} the ICA plans with"
+            )
+        elif length > MAX_LENGTH_M:
+            why = f"is {length:g} m long, longer than the {MAX_LENGTH_M:g} m the routes allow"
+        if why is not None:
+            raise RunError(
+                f"route file {rf.path}: vehicle type {t!r} {why}: it could not fly its plans"
+            )

@@ -1,0 +1,85 @@
+"""Nets and demand files as users bring them, built the ways netgenerate and netconvert
+build them (shared by the user-net and cluster tests)."""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+
+from dica.sim_gateway.scenario import netconvert_binary
+
+CITY_MPS = 13.89  # 50 km/h as SUMO writes it
+SLOW_MPS = 11.11  # 40 km/h
+
+NODES = """<nodes>
+ <node id="A" x="0" y="0" type="traffic_light"/> <node id="B" x="12" y="0" type="traffic_light"/>
+ <node id="W" x="-250" y="0"/> <node id="E" x="262" y="0"/>
+ <node id="NA" x="0" y="250"/> <node id="SA" x="0" y="-250"/>
+ <node id="NB" x="12" y="250"/> <node id="SB" x="12" y="-250"/>
+</nodes>"""
+EDGES = """<edges>
+ <edge id="WA" from="W" to="A" numLanes="2" speed="13.89"/>
+ <edge id="AW" from="A" to="W" numLanes="2" speed="13.89"/>
+ <edge id="AB" from="A" to="B" numLanes="2" speed="13.89"/>
+ <edge id="BA" from="B" to="A" numLanes="2" speed="13.89"/>
+ <edge id="BE" from="B" to="E" numLanes="2" speed="13.89"/>
+ <edge id="EB" from="E" to="B" numLanes="2" speed="13.89"/>
+ <edge id="NAA" from="NA" to="A" numLanes="1" speed="8.33"/>
+ <edge id="ASA" from="A" to="SA" numLanes="1" speed="8.33"/>
+ <edge id="SBB" from="SB" to="B" numLanes="1" speed="8.33"/>
+ <edge id="BNB" from="B" to="NB" numLanes="1" speed="8.33"/>
+</edges>"""
+
+
+def tool(name: str) -> str:
+    return str(Path(netconvert_binary()).with_name(name))
+
+
+def make(cmd: list[str]) -> None:
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0, p.stderr
+
+
+def build_nets(d: Path) -> dict[str, Path]:
+    """grid: 3 lanes at 50 km/h, 200 m blocks, no lights; walk: 40 km/h, sidewalks, bike
+    lanes, lights, 80 m blocks; twins: two junctions 12 m apart under one joined light;
+    joined: the same two joined into one cluster junction."""
+    out = {k: d / f"{k}.net.xml" for k in ("grid", "walk", "twins", "joined")}
+    # a city grid: 3 lanes each way at 50 km/h, 200 m blocks, no lights
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
+          "--default.lanenumber", "3", "--default.speed", str(CITY_MPS),
+          "--no-turnarounds", "true", "-o", str(out["grid"])])  # fmt: skip
+    # 40 km/h, 2 lanes, sidewalks and bike lanes, lights guessed, 80 m blocks
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "80",
+          "--default.lanenumber", "2", "--default.speed", str(SLOW_MPS), "--tls.guess", "true",
+          "--sidewalks.guess", "true", "--bikelanes.guess", "true",
+          "--no-turnarounds", "true", "-o", str(out["walk"])])  # fmt: skip
+    # two junctions 12 m apart under one joined light (its id is neither's), and the
+    # same two joined into one cluster junction
+    (d / "j.nod.xml").write_text(NODES)
+    (d / "j.edg.xml").write_text(EDGES)
+    plain = ["-n", str(d / "j.nod.xml"), "-e", str(d / "j.edg.xml"), "--no-turnarounds", "true"]
+    make([netconvert_binary(), *plain, "--tls.join", "true", "--tls.join-dist", "20",
+          "-o", str(out["twins"])])  # fmt: skip
+    make([netconvert_binary(), *plain, "--junctions.join", "true", "--junctions.join-dist", "15",
+          "-o", str(out["joined"])])  # fmt: skip
+    return out
+
+
+# a demand file on the grid through its centre B1: cars and longer vans of their own
+# sizes; a flow that loops back through B1 (no U-turns); cars that will not change lanes
+# for their route (rerouted from the wrong lane); and a flow that ends before B1
+ROUTES = """<routes>
+  <vType id="car" accel="2.6" decel="4.5" length="4.5" width="1.8" sigma="0.5"/>
+  <vType id="van" accel="2.0" decel="4.5" length="7.0" width="2.2"/>
+  <vType id="stubborn" accel="2.6" decel="4.5" lcStrategic="-1"/>
+  <flow id="through" type="car" begin="0" end="400" vehsPerHour="360" from="A1B1" to="B1C1"
+        departLane="best" departSpeed="max"/>
+  <flow id="loop" type="car" begin="0" end="400" vehsPerHour="120" from="A1B1" to="B1A1"/>
+  <flow id="left" type="van" begin="0" end="400" vehsPerHour="180" from="C1B1" to="B1B2"/>
+  <flow id="north" type="car" begin="0" end="400" vehsPerHour="240" from="B0B1" to="B1B2"
+        departLane="random"/>
+  <flow id="wrong" type="stubborn" begin="0" end="400" vehsPerHour="60" from="B0B1"
+        to="B1A1" departLane="0"/>
+  <flow id="ends" type="car" begin="0" end="400" vehsPerHour="120" from="A0A1" to="A1B1"/>
+</routes>"""
