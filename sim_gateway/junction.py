@@ -60,7 +60,8 @@ class Car:
     adopted_lcm: int | None = None
     reroute_to: str | None = None  # beyond the junction, SUMO routes it on to this edge
     # its id in SUMO; ``vin`` names this crossing to the ICA, the agents and the trip log
-    # and differs only for a route-file vehicle's second and later pass (``<id>#2``, ...)
+    # and differs only for a route-file vehicle's second and later pass (``<id>+2``, ...)
+    # or an id that cannot be a key chunk (:func:`sim_gateway.traffic.crossing_name`)
     sumo: str = ""
 
     def __post_init__(self) -> None:

@@ -13,6 +13,9 @@ yardstick of its delay.
 from __future__ import annotations
 
 import math
+import re
+import zlib
+from collections.abc import Mapping
 
 from dica.ica.core.config import IcaConfig
 from dica.ica.core.planner import Planner
@@ -49,6 +52,25 @@ def define_vehicle_types(ls, ica_cfg: IcaConfig, length_m: float, width_m: float
         ls.vehicletype.copy(VTYPE, EV_VTYPE)
         ls.vehicletype.setVehicleClass(EV_VTYPE, "emergency")
         ls.vehicletype.setColor(EV_VTYPE, EV_COLOR)
+
+
+def crossing_name(sumo_id: str, n: int, taken: Mapping[str, object]) -> str:
+    """The name of a route-file vehicle's ``n``-th crossing: its SUMO id, then ``<id>+2``
+    and so on. Names travel as Zenoh key chunks, so an id with other characters than
+    letters, digits and ``_.:-+`` becomes one that has only those, kept apart from every
+    other by a hash of the id."""
+    name = sumo_id
+    if not _KEY_SAFE.match(name):
+        tag = f"{zlib.crc32(sumo_id.encode()):08x}"
+        name = re.sub(r"[^A-Za-z0-9_.:\-+]", "_", sumo_id)[:100] + "-" + tag
+    if n > 1:
+        name = f"{name}+{n}"
+    while name in taken:  # a file's own id that looks like another's later crossing
+        name += "+"
+    return name
+
+
+_KEY_SAFE = re.compile(r"^[A-Za-z0-9_.:\-+]{1,100}$")
 
 
 class Traffic:
@@ -139,7 +161,7 @@ class Traffic:
                     continue
                 n = j.passes[vin] = j.passes.get(vin, 0) + 1
                 c = Car(
-                    vin if n == 1 else f"{vin}#{n}", route, lane_index(lane),
+                    crossing_name(vin, n, j.cars), route, lane_index(lane),
                     min(route.road_mps, ls.vehicle.getMaxSpeed(vin)),
                     length_m=ls.vehicle.getLength(vin), width_m=ls.vehicle.getWidth(vin),
                     adopted_lcm=ls.vehicle.getLaneChangeMode(vin), sumo=vin,

@@ -26,6 +26,7 @@ import pytest
 
 from dica.tools.loopback import free_port, router_and_ica
 from tests.cluster_proc import logs_tail, stop_cluster
+from tests.user_nets import ROUTES, build_nets
 
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "dica.tools.cli"]
@@ -426,3 +427,22 @@ def test_two_agents_revoke_safely_and_the_recording_withdraws_only_dropped_plans
     assert len(rec["kept"]) == reactive["restored"] + reactive["expired"]
     revoked = _revoked_at(rec["reorders"])
     assert all(vin in revoked and t >= revoked[vin] for t, vin in rec["withdrawn"])
+
+
+def test_lockstep_cluster_with_a_route_file_makes_the_embedded_decisions(tmp_path):
+    """A user's net and demand file: SUMO drives the vehicles to the region, the agents
+    and the ICA take over there, byte for byte as in one process."""
+    (tmp_path / "nets").mkdir()
+    nets = build_nets(tmp_path / "nets")
+    routes = tmp_path / "demand.rou.xml"
+    routes.write_text(ROUTES)
+    common = ["--net", str(nets["grid"]), "--junction", "B1", "--routes", str(routes),
+              "--duration", "150"]  # fmt: skip
+    p = _cluster(tmp_path / "cl", "--agents", "2", "--no-record", *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _embedded(tmp_path / "emb", common)
+    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    assert m["crossed"] > 20
+    cl, emb = (tmp_path / d / "vehicles.csv" for d in ("cl", "emb"))
+    assert cl.read_bytes() == emb.read_bytes()

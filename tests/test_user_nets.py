@@ -141,7 +141,7 @@ def test_a_route_files_vehicles_are_taken_over_in_the_region_and_kept_safe(nets,
     assert acc["crossed"] + acc["in_region"] == acc["generated"]
     trips = res.trips.trips
     # the loop comes back through B1: a crossing of its own, planned like the first
-    again = [v for v in trips if "#2" in v]
+    again = [v for v in trips if v.endswith("+2")]
     assert again and all(trips[v].confirmed_s is not None for v in again if trips[v].exited_s)
     # the ones that will not change lanes cross from where they are and are rerouted
     assert res.extra["rerouted"] > 0
@@ -198,3 +198,14 @@ def test_the_command_line_refuses_a_route_file_with_status_2(nets, tmp_path):
         )  # fmt: skip
         assert p.returncode == 2, p.stderr
         assert says in p.stderr and "Traceback" not in p.stderr
+
+
+def test_a_crossing_name_is_a_key_chunk_and_never_anothers():
+    from dica.schemas.keys import chunk
+    from dica.sim_gateway.traffic import crossing_name
+
+    assert crossing_name("veh.7", 1, {}) == "veh.7"
+    assert crossing_name("veh.7", 2, {}) == "veh.7+2"
+    odd = [crossing_name(s, 1, {}) for s in ("a b", "a/b", "a#b", "ä" * 300)]
+    assert all(chunk(n) == n for n in odd) and len(set(odd)) == len(odd)
+    assert crossing_name("x", 2, {"x+2": None}) == "x+2+"
