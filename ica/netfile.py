@@ -7,6 +7,7 @@ dissertation's layouts: the routes are whatever connections the network has.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -17,7 +18,14 @@ from dica.ica.core.limits import SpeedCaps, Turn
 from dica.ica.core.route import Route, build_route, classify_turn
 
 _DIR_TO_TURN = {"l": Turn.LEFT, "L": Turn.LEFT, "r": Turn.RIGHT, "R": Turn.RIGHT, "s": Turn.THROUGH}
-_VEHICLE_CLASS = "passenger"
+_VEHICLE_CLASS = "passenger"  # the random demand's
+# classes that drive on the road's lanes through the junction as a car does: the routes
+# cover every lane one of them may take (a bus lane too), so that none crosses unplanned
+SERVED_CLASSES = frozenset((
+    "passenger", "private", "taxi", "bus", "coach", "delivery", "truck", "trailer",
+    "emergency", "authority", "army", "vip", "evehicle", "hov", "motorcycle", "moped",
+    "custom1", "custom2",
+))  # fmt: skip
 _MAX_VIA_CHAIN = 16  # internal lanes per connection; SUMO uses at most a handful
 _MARGIN_M = 5.0  # slack beyond the longest vehicle at both ends of a route
 MAX_VEHICLE_LENGTH_M = 12.0  # routes reach this far beyond the region and the exit line
@@ -59,17 +67,17 @@ def load_intersection(
         if edge.isSpecial():  # internal edges list the junction as both ends
             continue
         for lane in edge.getLanes():
-            if not lane.allows(_VEHICLE_CLASS):
+            if not _serves(lane):
                 continue
             for conn in lane.getOutgoing():
-                if conn.getDirection() == "t" or not conn.allows(_VEHICLE_CLASS):
+                if conn.getDirection() == "t" or not _serves(conn):
                     continue
-                routes.append(_route(net, conn, caps, approach_m, tail_m))
+                cars = all(x.allows(_VEHICLE_CLASS) for x in (lane, conn, conn.getToLane()))
+                routes.append(_route(net, conn, caps, approach_m, tail_m, cars))
 
     if not routes:
         raise NetworkError(
-            f"junction {junction_id!r} in {net_path} has no crossing routes "
-            f"for {_VEHICLE_CLASS} vehicles"
+            f"junction {junction_id!r} in {net_path} has no crossing routes for road vehicles"
         )
     routes.sort(key=lambda r: r.id)
     return Intersection(
@@ -120,6 +128,7 @@ def _route(
     caps: SpeedCaps,
     approach_m: float,
     tail_m: float,
+    cars: bool,
 ) -> Route:
     in_lane, out_lane = conn.getFromLane(), conn.getToLane()
     vias = _via_chain(net, conn)
@@ -132,7 +141,7 @@ def _route(
         turn = classify_turn(_distinct(np.vstack([in_shape[-2:], *via_shapes, out_shape[:2]])))
     route_id = f"{in_lane.getID()}>{out_lane.getID()}"
     try:
-        return build_route(
+        route = build_route(
             route_id=route_id,
             in_lane=in_lane.getID(),
             out_lane=out_lane.getID(),
@@ -148,6 +157,11 @@ def _route(
         )
     except ValueError as exc:
         raise NetworkError(f"bad geometry for route {route_id}: {exc}") from exc
+    return route if cars else replace(route, cars=False)
+
+
+def _serves(lane_or_connection) -> bool:
+    return any(lane_or_connection.allows(c) for c in SERVED_CLASSES)
 
 
 def _region(node: sumolib.net.node.Node, routes: list[Route]) -> np.ndarray:

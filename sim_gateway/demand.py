@@ -97,7 +97,9 @@ def unserved(inter: Intersection, length_m: float) -> dict[str, str]:
     comm = inter.comm_length_m
     out = {}
     for r in inter.routes:
-        if r.in_lane_m < comm:
+        if not r.cars:
+            out[r.id] = f"lane {r.in_lane} or {r.out_lane} is not for cars"
+        elif r.in_lane_m < comm:
             out[r.id] = (
                 f"incoming lane {r.in_lane} is {r.in_lane_m:.0f} m long, "
                 f"shorter than the {comm:g} m communication region"

@@ -19,17 +19,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from dica.ica.core.limits import Kinematics
-from dica.ica.netfile import MAX_VEHICLE_LENGTH_M
+from dica.ica.netfile import MAX_VEHICLE_LENGTH_M, SERVED_CLASSES
 from dica.sim_gateway.runconfig import RunError
 
 MAX_LENGTH_M = MAX_VEHICLE_LENGTH_M
 DEFAULT_TYPE = "DEFAULT_VEHTYPE"
-# classes that drive on the road's lanes through the junction as a car does
-SERVED_CLASSES = frozenset((
-    "passenger", "private", "taxi", "bus", "coach", "delivery", "truck", "trailer",
-    "emergency", "authority", "army", "vip", "evehicle", "hov", "motorcycle", "moped",
-    "custom1", "custom2",
-))  # fmt: skip
 _TRAFFIC = ("vehicle", "trip", "flow")
 _PEOPLE = ("person", "personFlow", "container", "containerFlow")
 

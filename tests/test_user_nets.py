@@ -20,7 +20,7 @@ from dica.sim_gateway import embedded
 from dica.sim_gateway.demand import unserved
 from dica.sim_gateway.runconfig import RunConfig
 from dica.sim_gateway.scenario import light_id
-from tests.user_nets import CITY_MPS, ROUTES, SLOW_MPS, build_nets
+from tests.user_nets import BUS_ROUTES, CITY_MPS, ROUTES, SLOW_MPS, build_nets
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -209,3 +209,21 @@ def test_a_crossing_name_is_a_key_chunk_and_never_anothers():
     odd = [crossing_name(s, 1, {}) for s in ("a b", "a/b", "a#b", "ä" * 300)]
     assert all(chunk(n) == n for n in odd) and len(set(odd)) == len(odd)
     assert crossing_name("x", 2, {"x+2": None}) == "x+2+"
+
+
+def test_buses_on_their_own_lanes_are_planned_like_cars(nets, tmp_path):
+    inter = load_intersection(nets["bus"], "X")
+    bus_lane = [r for r in inter.routes if r.in_lane == "WX_0"]
+    assert bus_lane and not any(r.cars for r in bus_lane)  # covered, but no car's
+    assert all("not for cars" in unserved(inter, 5.0)[r.id] for r in bus_lane)
+    routes = tmp_path / "buses.rou.xml"
+    routes.write_text(BUS_ROUTES)
+    cfg = RunConfig(
+        net_path=str(nets["bus"]), junction_id="X", routes_path=str(routes), duration_s=330.0
+    )
+    res = embedded.run(cfg, inter, run_dir=tmp_path)
+    assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
+    assert res.extra["unconfirmed_entries"] == 0 and res.extra["accounted"]["lost"] == 0
+    buses = [t for v, t in res.trips.trips.items() if v.startswith("bus.")]
+    assert len(buses) >= 10 and all(t.route_id.startswith("WX_0>") for t in buses)
+    assert all(t.confirmed_s is not None for t in buses if t.exited_s is not None)

@@ -43,8 +43,9 @@ def make(cmd: list[str]) -> None:
 def build_nets(d: Path) -> dict[str, Path]:
     """grid: 3 lanes at 50 km/h, 200 m blocks, no lights; walk: 40 km/h, sidewalks, bike
     lanes, lights, 80 m blocks; twins: two junctions 12 m apart under one joined light;
-    joined: the same two joined into one cluster junction."""
-    out = {k: d / f"{k}.net.xml" for k in ("grid", "walk", "twins", "joined")}
+    joined: the same two joined into one cluster junction; bus: one junction X whose
+    east-west road has a bus lane each way."""
+    out = {k: d / f"{k}.net.xml" for k in ("grid", "walk", "twins", "joined", "bus")}
     # a city grid: 3 lanes each way at 50 km/h, 200 m blocks, no lights
     make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
           "--default.lanenumber", "3", "--default.speed", str(CITY_MPS),
@@ -63,7 +64,38 @@ def build_nets(d: Path) -> dict[str, Path]:
           "-o", str(out["twins"])])  # fmt: skip
     make([netconvert_binary(), *plain, "--junctions.join", "true", "--junctions.join-dist", "15",
           "-o", str(out["joined"])])  # fmt: skip
+    (d / "b.nod.xml").write_text(BUS_NODES)
+    (d / "b.edg.xml").write_text(BUS_EDGES)
+    make([netconvert_binary(), "-n", str(d / "b.nod.xml"), "-e", str(d / "b.edg.xml"),
+          "--no-turnarounds", "true", "-o", str(out["bus"])])  # fmt: skip
     return out
+
+
+BUS_NODES = """<nodes>
+ <node id="X" x="0" y="0" type="priority"/>
+ <node id="W" x="-250" y="0"/> <node id="E" x="250" y="0"/>
+ <node id="N" x="0" y="250"/> <node id="S" x="0" y="-250"/>
+</nodes>"""
+_BUS_LANE = '<lane index="0" allow="bus"/>'
+BUS_EDGES = f"""<edges>
+ <edge id="WX" from="W" to="X" numLanes="3" speed="13.89">{_BUS_LANE}</edge>
+ <edge id="XE" from="X" to="E" numLanes="3" speed="13.89">{_BUS_LANE}</edge>
+ <edge id="EX" from="E" to="X" numLanes="3" speed="13.89">{_BUS_LANE}</edge>
+ <edge id="XW" from="X" to="W" numLanes="3" speed="13.89">{_BUS_LANE}</edge>
+ <edge id="NX" from="N" to="X" numLanes="1" speed="13.89"/>
+ <edge id="XS" from="X" to="S" numLanes="1" speed="13.89"/>
+ <edge id="SX" from="S" to="X" numLanes="1" speed="13.89"/>
+ <edge id="XN" from="X" to="N" numLanes="1" speed="13.89"/>
+</edges>"""
+# buses on their own lanes beside cars, and cars across them
+BUS_ROUTES = """<routes>
+  <vType id="bus" vClass="bus" accel="2.0" decel="4.5" length="12" width="2.5"/>
+  <flow id="bus" type="bus" begin="0" end="300" vehsPerHour="240" from="WX" to="XE"
+        departLane="0"/>
+  <flow id="car" begin="0" end="300" vehsPerHour="600" from="WX" to="XE"/>
+  <flow id="cross" begin="0" end="300" vehsPerHour="360" from="NX" to="XS"/>
+  <flow id="back" begin="0" end="300" vehsPerHour="300" from="EX" to="XW"/>
+</routes>"""
 
 
 # a demand file on the grid through its centre B1: cars and longer vans of their own

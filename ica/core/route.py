@@ -47,6 +47,7 @@ class Route:
     # [m] the incoming and outgoing lanes' own lengths (the polyline may reach further)
     in_lane_m: float = math.inf
     out_lane_m: float = math.inf
+    cars: bool = True  # passenger cars may take it (not a bus or a delivery lane only)
 
     @property
     def s_min(self) -> float:
