@@ -23,6 +23,7 @@ def request_to_core(msg: m.Request) -> core.Request:
         speed_mps=msg.speed_mps,
         tss=tss,
         t_obs_s=msg.t_obs_s,
+        exit_room_m=math.inf if msg.exit_room_m >= m.BIG else msg.exit_room_m,
     )
 
 
@@ -43,6 +44,7 @@ def request_from_core(req: core.Request) -> m.Request:
         heading_rad=req.tss.heading_rad,
         t_obs_s=float(req.t0_s if math.isnan(req.t_obs_s) else req.t_obs_s),
         sent_ns=now_ns(),
+        exit_room_m=min(float(req.exit_room_m), m.BIG),
     )
 
 

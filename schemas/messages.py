@@ -20,7 +20,7 @@ import numpy as np
 # 5: a vehicle state carries ``intent_m``; 4: ``follows`` and REORDER; 3: DETECT carries
 # the EV flag and the detection speed, a vehicle state ``ev`` and ``kept_seq``, a setpoint
 # ``drop``, and REVOKE exists (2 had no revocations; 1 had open-loop speed commands)
-VERSION = 5
+VERSION = 6
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
@@ -29,9 +29,10 @@ MAX_STATS = 64 * 1024  # [bytes] a role's statistics as JSON text
 BIG = 1e9 + 1  # [s] or [m]: the outer bound of every time and distance on the wire
 
 
-def lim(lo: float | None = None, hi: float | None = None, *, n: int | None = None):
-    """A field with wire limits: ``lo..hi`` for numbers, ``n`` items for text and arrays."""
-    return field(metadata={"lim": (lo, hi, n)})
+def lim(lo: float | None = None, hi: float | None = None, *, n: int | None = None, **default):
+    """A field with wire limits: ``lo..hi`` for numbers, ``n`` items for text and arrays
+    (and a ``default=`` for the Python constructor; the wire always carries the field)."""
+    return field(metadata={"lim": (lo, hi, n)}, **default)
 
 
 TIME = (-BIG, BIG)
@@ -57,6 +58,8 @@ class Request:
     heading_rad: np.ndarray = lim(n=MAX_SAMPLES)
     t_obs_s: float = lim(*TIME)  # when the vehicle observed what it planned from (<= t0_s)
     sent_ns: int = lim(0, 2**63 - 1)
+    # room on its exit lane beyond the junction when it observed [m] (BIG: not known)
+    exit_room_m: float = lim(0.0, BIG, default=BIG)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -228,6 +231,9 @@ class VehicleState:
     # its actuator's prediction of its route position [m] after each of the next steps,
     # should no plan reach it (empty: not predicted; see Observation.intent_m)
     intent_m: np.ndarray = lim(n=MAX_SAMPLES)
+    # room on its exit lane beyond the junction [m] (BIG: not measured; see
+    # Observation.exit_room_m)
+    exit_room_m: float = lim(0.0, BIG, default=BIG)
 
 
 @dataclass(frozen=True, slots=True)

@@ -53,6 +53,7 @@ from dica.deploy.transport import (
 )
 from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode, encode, now_ns
+from dica.schemas.messages import BIG as WIRE_BIG
 from dica.schemas.messages import Clock, Command, Revoke, State, Stats, VehicleState
 from dica.sim_gateway.demand import schedule_for
 from dica.sim_gateway.junction import Seen
@@ -577,6 +578,7 @@ class ZenohDrivers:
             follows=o.follows,
             owner=self.owner.get(c.vin, ""),
             intent_m=np.asarray(o.intent_m, dtype=float),
+            exit_room_m=min(o.exit_room_m, WIRE_BIG),
         )
 
     def facts(self) -> dict:

@@ -94,6 +94,10 @@ class Seen:
     angle_deg: float = math.nan
 
 
+HALTED_MPS = 1.0  # [m/s] slower than this, a vehicle on an exit lane may stay where it is
+STANDSTILL_GAP_M = 2.5  # [m] SUMO's default minGap
+
+
 def lane_index(lane: str) -> int:
     return int(lane.rsplit("_", 1)[1])
 
@@ -134,6 +138,25 @@ class Junction:
     # many times it has come (a route may loop back through the junction)
     by_sumo: dict[str, Car] = field(default_factory=dict)
     passes: dict[str, int] = field(default_factory=dict)
+    # per exit lane, the room beyond the junction [m] (measured only where vehicles go on
+    # past the exit lane: a route file's; see measure_room)
+    room: dict[str, float] = field(default_factory=dict)
+
+    def measure_room(self, ls) -> None:
+        """Each exit lane's room: how far from the exit line the next vehicle's front could
+        have to stop were the lane's vehicles to queue. A vehicle standing (or nearly) may
+        stay where it is; a moving one may have to stop at the lane's end (at the next
+        junction) or behind the one ahead of it, each at SUMO's standstill gap."""
+        for lane in self.inter.out_lanes:
+            ahead = ls.lane.getLength(lane)  # the lane's end: where a queue may start
+            cars = [
+                (ls.vehicle.getLanePosition(v), ls.vehicle.getSpeed(v), ls.vehicle.getLength(v))
+                for v in ls.lane.getLastStepVehicleIDs(lane)
+            ]
+            for pos, speed, length in sorted(cars, reverse=True):  # front to rear
+                front = pos if speed < HALTED_MPS else max(pos, ahead)
+                ahead = min(ahead, front) - length - STANDSTILL_GAP_M
+            self.room[lane] = max(ahead, 0.0)
 
     @classmethod
     def open(

@@ -117,6 +117,8 @@ class World:
         if self.cfg.routes_path:
             for c in self.traffic.adopt(j, t):
                 Reads.subscribe(ls, c.sumo, self.want_xy)
+        if self.cfg.routes_path:  # beyond the junction its vehicles go on, and may queue
+            j.measure_room(ls)
         vw = Reads(ls)
         self.traffic.note_tails(j, vw, present)
         j.order_lanes(vw, present)
@@ -183,6 +185,7 @@ class World:
             refused_seq=c.refused_seq,
             kept_seq=c.kept_seq,
             follows=follows,
+            exit_room_m=j.room.get(c.route.out_lane, math.inf),
         )
         return Seen(c, obs)
 

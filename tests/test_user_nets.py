@@ -20,7 +20,7 @@ from dica.sim_gateway import embedded
 from dica.sim_gateway.demand import unserved
 from dica.sim_gateway.runconfig import RunConfig
 from dica.sim_gateway.scenario import light_id
-from tests.user_nets import BUS_ROUTES, CITY_MPS, ROUTES, SLOW_MPS, build_nets
+from tests.user_nets import BUS_ROUTES, CITY_MPS, JAM_ROUTES, ROUTES, SLOW_MPS, build_nets
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -227,3 +227,12 @@ def test_buses_on_their_own_lanes_are_planned_like_cars(nets, tmp_path):
     buses = [t for v, t in res.trips.trips.items() if v.startswith("bus.")]
     assert len(buses) >= 10 and all(t.route_id.startswith("WX_0>") for t in buses)
     assert all(t.confirmed_s is not None for t in buses if t.exited_s is not None)
+
+
+def test_a_queue_beyond_the_junction_holds_vehicles_short_of_it(nets, tmp_path):
+    """Downstream space: with the exit lane full up to the junction, vehicles wait before
+    their line, and nothing runs into the queue (SUMO sees every collision, on any lane)."""
+    res = _routes_run(nets, tmp_path, text=JAM_ROUTES, duration_s=300.0)
+    assert res.requests["rejections"].get("no_room", 0) > 0  # the queue did reach B1
+    assert res.sumo_collisions == 0 and res.safety["overlaps"] == 0
+    assert res.extra["unconfirmed_entries"] == 0 and res.extra["accounted"]["lost"] == 0

@@ -115,3 +115,15 @@ ROUTES = """<routes>
         to="B1A1" departLane="0"/>
   <flow id="ends" type="car" begin="0" end="400" vehsPerHour="120" from="A0A1" to="A1B1"/>
 </routes>"""
+# heavy traffic out of B1 eastwards into C1, where it yields to a heavier stream: the
+# queue on B1C1 backs up to B1 (without downstream space, B1's confirmed vehicles fly
+# into its tail)
+JAM_ROUTES = """<routes>
+  <vType id="car" accel="2.6" decel="4.5" length="4.5" sigma="0.5"/>
+  <flow id="east" type="car" begin="0" end="400" vehsPerHour="1500" from="A1B1" to="C1C2"
+        departLane="best"/>
+  <flow id="northx" type="car" begin="0" end="400" vehsPerHour="1500" from="C0C1" to="C1C2"
+        departLane="best"/>
+  <flow id="cross" type="car" begin="0" end="400" vehsPerHour="400" from="B0B1" to="B1B2"/>
+  <flow id="west" type="car" begin="0" end="400" vehsPerHour="300" from="C1B1" to="B1A1"/>
+</routes>"""

@@ -54,6 +54,7 @@ from dica.ica.core.request import Reason, Rejection, Request
 from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode, encode, now_ns
 from dica.schemas.messages import (
+    BIG,
     KEPT,
     Ack,
     Cancel,
@@ -422,6 +423,7 @@ class Agent:
                 kept_seq=vs.kept_seq,
                 follows=vs.follows,
                 intent_m=tuple(vs.intent_m.tolist()),
+                exit_room_m=math.inf if vs.exit_room_m >= BIG else vs.exit_room_m,
             )
             if v is None:
                 if vs.exited:

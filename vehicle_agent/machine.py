@@ -96,6 +96,9 @@ class Observation:
     # where its own control law takes it over the next steps if no plan comes [route
     # position, m, after each step]: a plan asked for ahead of time starts there
     intent_m: tuple[float, ...] = ()
+    # the room on its exit lane beyond the junction [m] (its own sensing or the roadside's:
+    # the space the vehicles there take were they to queue; inf: not measured)
+    exit_room_m: float = math.inf
 
     @property
     def may_ask(self) -> bool:
@@ -355,7 +358,9 @@ class Vehicle:
                 width_m=self.width_m,
                 config=cfg,
             )
-            answer = link.request(replace(req, t_obs_s=obs.t_s), obs.t_s)
+            answer = link.request(
+                replace(req, t_obs_s=obs.t_s, exit_room_m=obs.exit_room_m), obs.t_s
+            )
         except RequestError as e:  # cannot even make a plan: stop and ask later
             answer = Rejection(self.vin, seq, e.reason, e.detail)
         if answer is PENDING:

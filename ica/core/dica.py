@@ -58,6 +58,8 @@ from dica.ica.core.validate import check_request
 from dica.ica.core.zones import ConflictTables, Shape
 
 LEFT_MEMORY_S = 20.0  # [s] how long exit spacing remembers a vehicle that has left
+ROOM_GAP_M = 2.5  # [m] standstill gap behind each vehicle queued on an exit lane (SUMO's)
+ROOM_SLACK_M = 7.5  # [m] one car more: a vehicle may change into the lane beyond
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -68,11 +70,13 @@ class Confirmed:
     packed: np.ndarray  # the DTOT's occupancies as rows for the batched getCV (pack)
     out_s: float  # when its rear leaves the junction, and at what speed (the exit rules)
     out_mps: float
+    length_m: float  # the vehicle's (the room it takes on its exit lane)
 
     @classmethod
-    def of(cls, vin: str, dtot: Dtot, confirmation: Confirmation) -> Confirmed:
+    def of(cls, vin: str, dtot: Dtot, confirmation: Confirmation, length_m: float) -> Confirmed:
         """Keep what each later request asks of this reservation, worked out once."""
-        return cls(vin, dtot, confirmation, pack(dtot), float(dtot.t_s[-1]), dtot.exit_speed_mps)
+        out_s, out_mps = float(dtot.t_s[-1]), dtot.exit_speed_mps
+        return cls(vin, dtot, confirmation, pack(dtot), out_s, out_mps, length_m)
 
 
 def padded(dtot: Dtot, pad_s: float) -> Dtot:
@@ -128,6 +132,8 @@ class Dica:
         self._exit_cache: tuple[int, dict[str, list[tuple[float, float, str]]]] = (-1, {})
         # the driver beyond the junction, per exit lane's road speed
         self._handovers: dict[float, Handover] = {}
+        # reservations ended lately: (rear out [s], exit lane, length, vin), for the room
+        self._gone: list[tuple[float, str, float, str]] = []
 
     def prepare(self) -> None:
         """Work a controller can do once before it serves, so that no request waits
@@ -174,6 +180,11 @@ class Dica:
     def advance(self, now_s: float) -> list[str]:
         """Move the ICA's clock: forget who has left (their reservation has ended)."""
         gone = [vin for vin, c in self._confirmed.items() if c.dtot.end_s < now_s]
+        for vin in gone:  # the room they take counts for requests observed before they left
+            c = self._confirmed[vin]
+            self._gone.append((c.out_s, c.dtot.route.out_lane, c.length_m, vin))
+        oldest = now_s - self.config.max_request_age_s - 1.0  # the oldest t_obs still taken
+        self._gone = [g for g in self._gone if g[0] > oldest]
         if self.config.exit_spacing:
             for vin in gone:
                 c = self._confirmed[vin]
@@ -230,7 +241,7 @@ class Dica:
             route, shape, traj, self.config.margin_m, grid, self.config.techniques.estimated_oti
         )
         dtot = padded(dtot, 2.0 * self.config.time_pad_s)
-        done = Confirmed.of(confirmation.vin, dtot, confirmation)
+        done = Confirmed.of(confirmation.vin, dtot, confirmation, length_m)
         if confirmation.vin in self._confirmed:  # replaced in place: keep the set's order
             self._confirmed[confirmation.vin] = done
             self._rows = ConfirmedRows()
@@ -359,6 +370,7 @@ class Dica:
             )
         if not self.is_head(req.vin, now_s):
             raise RequestError(Reason.NOT_HEAD, f"{req.vin} is not the head vehicle of {lane}")
+        self._check_room(req, route)
         if done is not None:
             self._withdraw(req.vin)
 
@@ -385,11 +397,43 @@ class Dica:
             iterations=found.iterations,
         )
         stored = padded(dtot, 2.0 * self.config.time_pad_s)
-        done = Confirmed.of(vin, stored, conf)
+        done = Confirmed.of(vin, stored, conf, length_m)
         self._confirmed[vin] = done
         self._rows.add(vin, stored, done.packed)
         self._version += 1
         return conf
+
+    def _check_room(self, req: Request, route: Route) -> None:
+        """Downstream space: confirm a crossing only if its exit lane will have room for the
+        vehicle beyond the junction, so that no vehicle ever stands inside it.
+
+        ``req.exit_room_m`` is the room the vehicle observed at ``t_obs_s`` (the space the
+        vehicles on the lane would leave were they to queue). Every vehicle confirmed onto
+        that lane whose rear was not out yet then takes its length and a standstill gap
+        of it; this one needs as much again, one car more (a vehicle may change into the
+        lane beyond the junction) and its braking distance at the crossing cap (it flies
+        its plan until its rear is out, and SUMO's driver must be able to stop behind the
+        queue from there)."""
+        room = float(req.exit_room_m)
+        if math.isinf(room):
+            return  # not measured (the random demand's exit lanes end where vehicles leave)
+        t_obs = req.t0_s if math.isnan(req.t_obs_s) else req.t_obs_s
+        lane = route.out_lane
+        held = [
+            (c.out_s, c.length_m)
+            for c in self._confirmed.values()
+            if c.vin != req.vin and c.dtot.route.out_lane == lane
+        ]
+        held += [(t, n) for t, out, n, vin in self._gone if out == lane and vin != req.vin]
+        taken = sum(n + ROOM_GAP_M for t_out, n in held if t_out > t_obs)
+        brake = route.speed_cap_mps**2 / (2.0 * self.config.kinematics.decel_mps2)
+        need = taken + req.length_m + ROOM_GAP_M + ROOM_SLACK_M + brake
+        if need > room:
+            raise RequestError(
+                Reason.NO_ROOM,
+                f"{route.out_lane} has {room:.1f} m of room, {need:.1f} m needed "
+                f"({taken:.1f} m taken by vehicles confirmed onto it)",
+            )
 
     def exit_order(self, route: Route, out_s: float, out_mps: float) -> Conflict | None:
         """checkFV beyond the junction: a plan may not leave by an exit lane ahead of a

@@ -45,6 +45,9 @@ class Request:
     speed_mps: float
     tss: Tss
     t_obs_s: float = math.nan  # when the vehicle observed what it planned from; NaN: t0_s
+    # [m] room on its exit lane beyond the junction at t_obs_s (inf: not known): the space
+    # the vehicles there would take were they to queue (docs/architecture.md, "Room")
+    exit_room_m: float = math.inf
 
 
 class Reason(StrEnum):
@@ -70,6 +73,8 @@ class Reason(StrEnum):
     # platoons: from this state the vehicle cannot follow its leader's plan yet (too close
     # for the headway, or every stop at the line would run into the leader): ask again
     FOLLOW = "follow"
+    # its exit lane beyond the junction has no room for it yet: ask again later
+    NO_ROOM = "no_room"
 
 
 class RequestError(Exception):
