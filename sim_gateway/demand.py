@@ -197,9 +197,11 @@ def _unserved_lines(skip: dict[str, str]) -> list[str]:
 def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
     """The vehicles of this run in arrival order, cut at the horizon; and its stream spec."""
     if cfg.routes_path:  # SUMO drives the file's vehicles to the region (Traffic.adopt)
-        from dica.sim_gateway.route_file import read_route_file
+        from dica.sim_gateway.route_file import check_approaches, read_route_file
 
-        read_route_file(Path(cfg.routes_path))  # refused here, before SUMO and the peers
+        # refused here, before SUMO and the peers
+        read_route_file(Path(cfg.routes_path))
+        check_approaches(inter, cfg.controller_spec().config.kinematics)
         return [], None, cfg.begin_s + cfg.duration_s
     peak = max(cfg.volume_per_10min, cfg.volume_end_per_10min or 0.0)
     # enough arrivals to outlast the horizon; the schedule is cut at the horizon below

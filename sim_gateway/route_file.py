@@ -18,11 +18,13 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass
 from pathlib import Path
 
+from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics
 from dica.ica.netfile import MAX_VEHICLE_LENGTH_M, SERVED_CLASSES
 from dica.sim_gateway.runconfig import RunError
 
 MAX_LENGTH_M = MAX_VEHICLE_LENGTH_M
+STOP_SLACK_M = 1.0  # [m] on top of the braking distance: a step's travel, and some
 DEFAULT_TYPE = "DEFAULT_VEHTYPE"
 _TRAFFIC = ("vehicle", "trip", "flow")
 _PEOPLE = ("person", "personFlow", "container", "containerFlow")
@@ -81,6 +83,22 @@ def read_route_file(path: Path) -> RouteFile:
     for t in used:
         types |= distributions.get(t, {t})
     return RouteFile(path, frozenset(types), traffic)
+
+
+def check_approaches(inter: Intersection, kin: Kinematics) -> None:
+    """Refuse a junction a route file's vehicles could reach too fast to stop before its
+    line: the world takes a vehicle over once it is in the region, or, on an approach
+    shorter than the region (the region shrinks to fit), as it enters the lane; from
+    there it must be able to stop short of the line at the lane's limit."""
+    for r in sorted(inter.routes, key=lambda r: r.id):
+        need = r.road_mps**2 / (2.0 * kin.decel_mps2) + kin.stop_gap_m + STOP_SLACK_M
+        if r.in_lane_m < need:
+            raise RunError(
+                f"junction {inter.junction_id}: its approach {r.in_lane} is {r.in_lane_m:.0f} m "
+                f"long, and a vehicle at its {r.road_mps * 3.6:.0f} km/h needs {need:.0f} m "
+                "to stop before the line; join the junctions that close into one "
+                "(netconvert --junctions.join) or choose another"
+            )
 
 
 def check_types(ls, rf: RouteFile, kin: Kinematics) -> None:

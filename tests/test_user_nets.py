@@ -236,3 +236,16 @@ def test_a_queue_beyond_the_junction_holds_vehicles_short_of_it(nets, tmp_path):
     assert res.requests["rejections"].get("no_room", 0) > 0  # the queue did reach B1
     assert res.sumo_collisions == 0 and res.safety["overlaps"] == 0
     assert res.extra["unconfirmed_entries"] == 0 and res.extra["accounted"]["lost"] == 0
+
+
+def test_a_junction_too_close_to_the_next_is_refused_with_a_route_file(nets, tmp_path):
+    """From the 4 m link between the twins a vehicle could not stop before A's line."""
+    from dica.sim_gateway.runconfig import RunError
+
+    routes = tmp_path / "twins.rou.xml"
+    routes.write_text(
+        '<routes><flow id="f" begin="0" end="60" number="5" from="EB" to="AW"/></routes>'
+    )
+    cfg = RunConfig(net_path=str(nets["twins"]), junction_id="A", routes_path=str(routes))
+    with pytest.raises(RunError, match=r"BA_.* m long.*junctions\.join"):
+        embedded.run(cfg, load_intersection(cfg.net_path, "A"), run_dir=tmp_path)

@@ -360,9 +360,9 @@ def parser() -> argparse.ArgumentParser:
         help="benchmarks: ica (seconds per REQUEST per DICA variant), run (real-time factor), "
         "cluster (Zenoh round trip, lockstep real-time factor), timing (the real-time "
         "cluster under delay, jitter, loss, duplication and reordering), ordering (the EV "
-        "ordering solvers)",
+        "ordering solvers), routes (a user's net and demand file against SUMO alone)",
     )
-    b.add_argument("what", choices=["ica", "run", "cluster", "timing", "ordering"])
+    b.add_argument("what", choices=list(BENCHES))
     b.add_argument(
         "rest",
         nargs=argparse.REMAINDER,
@@ -389,7 +389,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
 
-BENCHES = ("ica", "run", "cluster", "timing", "ordering")
+BENCHES = ("ica", "run", "cluster", "timing", "ordering", "routes")
 
 
 def _dispatch(argv: list[str]) -> int:
@@ -399,7 +399,14 @@ def _dispatch(argv: list[str]) -> int:
 
         return {"experiment": experiment, "report": report, "link": link}[argv[0]].main(argv[1:])
     if len(argv) >= 2 and argv[0] == "bench" and argv[1] in BENCHES:
-        from dica.tools import bench_cluster, bench_ica, bench_ordering, bench_run, bench_timing
+        from dica.tools import (
+            bench_cluster,
+            bench_ica,
+            bench_ordering,
+            bench_routes,
+            bench_run,
+            bench_timing,
+        )
 
         bench = {
             "ica": bench_ica,
@@ -407,6 +414,7 @@ def _dispatch(argv: list[str]) -> int:
             "cluster": bench_cluster,
             "timing": bench_timing,
             "ordering": bench_ordering,
+            "routes": bench_routes,
         }[argv[1]]
         return bench.main(argv[2:])
     args = options.parse(parser(), argv)
