@@ -66,7 +66,7 @@ def start_sumo(ls, cfg: RunConfig, step_s: float) -> list[str]:
     try:
         ls.start(cmd)
     except Exception as e:  # libsumo raises its own TraCIException or a plain error
-        raise RunError(f"SUMO would not start: {e}") from None
+        raise RunError(f"SUMO would not start: {' '.join(str(e).split())}") from None
     return cmd
 
 

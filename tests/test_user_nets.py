@@ -185,11 +185,15 @@ def test_the_command_line_refuses_a_route_file_with_status_2(nets, tmp_path):
         '<routes><vType id="truck" vClass="truck"/><flow id="f" type="truck" begin="0" '
         'end="9" number="2" from="A1B1" to="B1C1"/></routes>'
     )
+    unknown = tmp_path / "unknown.rou.xml"
+    unknown.write_text('<routes><trip id="t" depart="0" from="NOPE" to="B1C1"/></routes>')
     for args, says in (
         (["--net", str(nets["grid"]), "--junction", "B1", "--routes", str(bad)], "truck"),
         (["--routes", str(bad)], "--routes needs --net"),
         (["--net", str(nets["grid"]), "--junction", "B1", "--routes", str(tmp_path / "no.xml")],
          "route file not found"),
+        (["--net", str(nets["grid"]), "--junction", "B1", "--routes", str(unknown)],
+         "'NOPE' within the route for trip 't' is not known. The route"),  # SUMO's, one line
     ):  # fmt: skip
         p = subprocess.run(
             [sys.executable, "-m", "dica.tools.cli", "run", *args, "--duration", "10",
@@ -198,6 +202,7 @@ def test_the_command_line_refuses_a_route_file_with_status_2(nets, tmp_path):
         )  # fmt: skip
         assert p.returncode == 2, p.stderr
         assert says in p.stderr and "Traceback" not in p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1, p.stderr
 
 
 def test_a_crossing_name_is_a_key_chunk_and_never_anothers():
