@@ -141,6 +141,17 @@ class Junction:
     # per exit lane, the room beyond the junction [m] (measured only where vehicles go on
     # past the exit lane: a route file's; see measure_room)
     room: dict[str, float] = field(default_factory=dict)
+    own_lanes: frozenset[str] = frozenset()  # its incoming, internal and exit lanes (covers)
+
+    def covers(self, lane: str) -> bool:
+        """Whether ``lane`` is one of the junction's: an incoming, internal or exit lane."""
+        if not self.own_lanes:
+            routes = self.inter.routes
+            self.own_lanes = frozenset(
+                {r.in_lane for r in routes} | {r.out_lane for r in routes}
+                | {v for r in routes for v in r.via_lanes}
+            )  # fmt: skip
+        return lane.startswith(f":{self.inter.junction_id}_") or lane in self.own_lanes
 
     def measure_room(self, ls) -> None:
         """Each exit lane's room: how far from the exit line the next vehicle's front could

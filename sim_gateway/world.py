@@ -66,7 +66,8 @@ class World:
         self.want_xy = want_xy
         self.log = TripLog()
         self.t = 0.0
-        self.sumo_collisions = 0
+        self.sumo_collisions = 0  # SUMO's reports on the junction's own lanes
+        self.sumo_collisions_elsewhere = 0
         self._last_sample = -1.0
         self._t_wall = time.perf_counter()
         if cfg.routes_path:
@@ -109,7 +110,11 @@ class World:
         ls.simulation.step()
         self.traffic.note_blocked(j, fresh)
         t = self.t = ls.simulation.getTime()
-        self.sumo_collisions += len(ls.simulation.getCollisions())
+        for hit in ls.simulation.getCollisions():
+            if j.covers(hit.lane):
+                self.sumo_collisions += 1
+            else:  # a route file's net beyond the junction, driven by SUMO alone
+                self.sumo_collisions_elsewhere += 1
         present = set(ls.vehicle.getIDList())
         for vin in ls.simulation.getDepartedIDList():
             if self.traffic.departed(j, vin, t):
@@ -247,6 +252,13 @@ class World:
                 "unconfirmed_entries": len(self.unconfirmed_entries),
                 "timing": self.actuator.timing.as_dict(),
                 "accounted": self.traffic.accounting(self.junction, end),
-                **({"rerouted": self.traffic.rerouted} if self.cfg.routes_path else {}),
+                **(
+                    {
+                        "rerouted": self.traffic.rerouted,
+                        "sumo_collisions_elsewhere": self.sumo_collisions_elsewhere,
+                    }
+                    if self.cfg.routes_path
+                    else {}
+                ),
             },
         )

@@ -254,3 +254,16 @@ def test_a_junction_too_close_to_the_next_is_refused_with_a_route_file(nets, tmp
     cfg = RunConfig(net_path=str(nets["twins"]), junction_id="A", routes_path=str(routes))
     with pytest.raises(RunError, match=r"BA_.* m long.*junctions\.join"):
         embedded.run(cfg, load_intersection(cfg.net_path, "A"), run_dir=tmp_path)
+
+
+def test_a_collision_counts_against_the_junction_on_its_own_lanes_only(nets):
+    """SUMO's drivers alone run the rest of a user's net, and may collide there (SUMO's own
+    model on odd junctions does): those are reported apart, never hidden."""
+    from dica.sim_gateway.junction import Junction
+
+    inter = load_intersection(nets["grid"], "B1")
+    j = Junction(inter, False, [], {}, {}, {}, None, None)
+    r = inter.routes[0]
+    assert j.covers(r.in_lane) and j.covers(r.out_lane) and j.covers(":B1_0_0")
+    assert all(j.covers(v) for v in r.via_lanes)
+    assert not j.covers("A1A2_0") and not j.covers(":A1_0_0") and not j.covers(":B11_0_0")

@@ -91,10 +91,12 @@ def report_run(out: Path, result) -> int:
         f"stopped {_num(m['stopped_rate'])}"
     )
     unconfirmed = result.extra.get("unconfirmed_entries", 0)
+    elsewhere = result.extra.get("sumo_collisions_elsewhere", 0)
+    beyond = f" ({elsewhere} more elsewhere in the net, among SUMO's drivers)" if elsewhere else ""
     print(
         f"safety: {result.safety['overlaps']} overlaps (independent check), "
-        f"{result.sumo_collisions} SUMO collisions, min gap {_num(result.safety['min_gap_m'])} m, "
-        f"{unconfirmed} unconfirmed entries"
+        f"{result.sumo_collisions} SUMO collisions{beyond}, "
+        f"min gap {_num(result.safety['min_gap_m'])} m, {unconfirmed} unconfirmed entries"
     )
     print(f"{result.sim_time_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json")
     return 1 if result.safety["overlaps"] or result.sumo_collisions or unconfirmed else 0
