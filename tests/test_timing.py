@@ -400,6 +400,8 @@ def test_realtime_rdica_with_lossy_agent_links_revokes_safely(tmp_path):
     # answered, or its old plan over; only one decided in the run's last moments may be open
     assert r["acknowledged"] + r["restored"] + r["expired"] + r["pending"] == r["revoked"]
     assert r["pending"] == 0 or r["pending_since_s"] > 80 - 1.5
-    # lost REVOKEs went out again; how many still ran out with their plan depends on the
-    # losses and on how busy the host is (a CI run with 3 of 6 run out, 22 sent, passes)
-    assert ica["revokes_sent"] > r["revoked"]
+    # every REVOKE went out at least once (and a lost one again: whether the link lost any of
+    # a run's few REVOKEs or their answers is chance, so that it did is not asserted; a run
+    # with 6 revocations, 6 sent and all answered was seen, and one with 3 of 6 run out and
+    # 22 sent; the answers above are what must hold)
+    assert ica["revokes_sent"] >= r["revoked"]
