@@ -307,8 +307,9 @@ def parser() -> argparse.ArgumentParser:
         "run",
         help="one SUMO simulation (libsumo, embedded ICA) with metrics and a safety check",
         description="Vehicles arrive at random (the volume is the expected count per 10 min over "
-        "all approaches; routes left/through/right 0.2/0.6/0.2; entry speed 0.4-1 x 70 km/h), "
-        "request when head of their lane and fly their confirmed trajectory in SUMO. Writes "
+        "all approaches; routes left/through/right 0.2/0.6/0.2; entry speed 0.4-1 x 70 km/h, or "
+        "x the net's lower limit), or come from a SUMO route file (--routes), request when head "
+        "of their lane and fly their confirmed trajectory in SUMO. Writes "
         "metrics.json, vehicles.csv, timeseries.csv and config.json. Exit status 1 if any "
         "collision was seen.",
     )
