@@ -43,7 +43,7 @@ def default_demand(d: Path, duration_s: float) -> tuple[Path, Path, str]:
     subprocess.run(
         [sys.executable, str(random_trips), "-n", str(net), "-o", str(trips), "-p", "1.5",
          "-e", f"{duration_s:g}", "--seed", "5", "--validate"],
-        check=True, capture_output=True,
+        check=True, capture_output=True, cwd=d,  # its routes.rou.xml lands beside the net
     )  # fmt: skip
     return net, trips, "B1"
 
