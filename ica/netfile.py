@@ -88,6 +88,22 @@ def load_intersection(
     )
 
 
+def crossing_junctions(net_path: str | Path) -> tuple[str, ...]:
+    """Every junction of the net where two roads or more come in and road vehicles
+    cross (a junction with one road in has nothing to keep apart), by id."""
+    net = _read(Path(net_path))
+    out = []
+    for node in net.getNodes():
+        if node.getType() in ("dead_end", "internal", "rail_crossing", "rail_signal"):
+            continue
+        roads = [
+            e for e in node.getIncoming() if not e.isSpecial() and any(map(_serves, e.getLanes()))
+        ]
+        if len(roads) >= 2:
+            out.append(node.getID())
+    return tuple(sorted(out))
+
+
 def _read(path: Path) -> sumolib.net.Net:
     if not path.is_file():
         raise NetworkError(f"network file not found: {path}")

@@ -40,6 +40,11 @@ from dica.vehicle_agent.control import can_stop_short, entry_time, stop_speed, t
 # it the position loop catches up in a few steps and the ICA's margin covers the gap
 START_TOL_M = 0.1
 MIN_GAP_M = 2.5  # [m] SUMO's standstill gap of our vehicle type, also kept short of the line
+# [m/s^2] what SUMO is told a vehicle flying its plan could brake at, where SUMO's own
+# drivers share its exit lanes (a route file's): it will not brake off its plan, so SUMO
+# inserts no vehicle and changes none into a lane just ahead of it, which it would then
+# run into; the braking SUMO's checks assume of it is kept this low (see _set_mode)
+FLYING_DECEL_MPS2 = 1.0
 
 
 @dataclass(slots=True)
@@ -95,8 +100,11 @@ class Actuator:
     ``predict_s`` is how far ahead :meth:`intents` looks.
     """
 
-    def __init__(self, ls, ica_cfg: IcaConfig, log: TripLog, predict_s: float = 0.0) -> None:
+    def __init__(
+        self, ls, ica_cfg: IcaConfig, log: TripLog, predict_s: float = 0.0, shared: bool = False
+    ) -> None:
         self.ls = ls
+        self.shared = shared  # SUMO's drivers share the exit lanes (see FLYING_DECEL_MPS2)
         self.ica_cfg = ica_cfg
         self.h = ica_cfg.step_s
         self.log = log
@@ -189,6 +197,13 @@ class Actuator:
     def _set_mode(self, c: Car, mode: int) -> None:
         if c.speed_mode != mode:
             self.ls.vehicle.setSpeedMode(c.sumo, mode)
+            if self.shared and MODE_CONFIRMED in (mode, c.speed_mode):
+                v = self.ls.vehicle
+                if mode == MODE_CONFIRMED:
+                    c.decel_mps2 = v.getDecel(c.sumo)  # its own, given back once it is out
+                    v.setDecel(c.sumo, FLYING_DECEL_MPS2)
+                else:
+                    v.setDecel(c.sumo, c.decel_mps2)
             c.speed_mode = mode
 
     def release(self, c: Car) -> None:

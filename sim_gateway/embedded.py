@@ -311,7 +311,7 @@ def _run(
         if cfg.algorithm == "reactive-light":
             program = [SignalPhase(d, st, kind, d, d) for d, st, kind in signal["phases"]]
             preempt = ReactiveLight(ls, inter, program)
-        recorder = _recorder(inter, rrd_path)
+        recorder = open_recording(inter, rrd_path)
         world = World(
             ls, cfg, inter, ica_cfg, schedule, horizon, signalised=light,
             want_xy=bool(recorder), predict_s=cfg.plan_lead_s,
@@ -325,7 +325,7 @@ def _run(
                 elif preempt is not None:
                     preempt.step(world.t, seen)
                 if recorder is not None:
-                    _record(recorder, drivers, seen, cfg, world.t)
+                    record_step(recorder, drivers, seen, cfg, world.t)
                 world.end_step(progress)
                 if world.done():
                     break
@@ -344,7 +344,7 @@ def _run(
         ls.close()
 
 
-def _recorder(inter: Intersection, rrd_path: Path | None):
+def open_recording(inter: Intersection, rrd_path: Path | None):
     if rrd_path is None:
         return None
     from dica.sim_gateway.recording import SpaceTimeRecorder
@@ -370,7 +370,7 @@ class _Recording:
         self.rec.close()
 
 
-def _record(
+def record_step(
     r: _Recording, drivers: LocalDrivers, seen: list[Seen], cfg: RunConfig, t: float
 ) -> None:
     """This step's new confirmations and rejections, and every observed vehicle's footprint."""

@@ -63,6 +63,8 @@ class Car:
     # and differs only for a route-file vehicle's second and later pass (``<id>+2``, ...)
     # or an id that cannot be a key chunk (:func:`sim_gateway.traffic.crossing_name`)
     sumo: str = ""
+    # its braking as SUMO knows it, kept while it flies a plan (Actuator._set_mode)
+    decel_mps2: float = math.nan
 
     def __post_init__(self) -> None:
         if not self.sumo:
@@ -134,10 +136,8 @@ class Junction:
     # route-file vehicles seen in the region that do not cross the junction (their route
     # ends here): SUMO drives them
     passing: set[str] = field(default_factory=set)
-    # route-file vehicles by SUMO id: the crossing it is on now (or made last), and how
-    # many times it has come (a route may loop back through the junction)
+    # route-file vehicles by SUMO id: the crossing it is on now (or made last)
     by_sumo: dict[str, Car] = field(default_factory=dict)
-    passes: dict[str, int] = field(default_factory=dict)
     # per exit lane, the room beyond the junction [m] (measured only where vehicles go on
     # past the exit lane: a route file's; see measure_room)
     room: dict[str, float] = field(default_factory=dict)
@@ -155,17 +155,21 @@ class Junction:
 
     def measure_room(self, ls) -> None:
         """Each exit lane's room: how far from the exit line the next vehicle's front could
-        have to stop were the lane's vehicles to queue. A vehicle standing (or nearly) may
-        stay where it is; a moving one may have to stop at the lane's end (at the next
-        junction) or behind the one ahead of it, each at SUMO's standstill gap."""
+        have to stop were the lane's vehicles to brake. A vehicle standing (or nearly)
+        may stay where it is; a moving one may brake to a stop from where it is (at its
+        own deceleration: SUMO's drivers brake harder only to avoid a collision, so that
+        point never moves back), or stop sooner behind the one ahead of it or at the
+        lane's end (the next junction), each at SUMO's standstill gap. A vehicle let
+        out of the junction with this room ahead never has to brake harder than it can."""
         for lane in self.inter.out_lanes:
             ahead = ls.lane.getLength(lane)  # the lane's end: where a queue may start
+            v = ls.vehicle
             cars = [
-                (ls.vehicle.getLanePosition(v), ls.vehicle.getSpeed(v), ls.vehicle.getLength(v))
-                for v in ls.lane.getLastStepVehicleIDs(lane)
+                (v.getLanePosition(x), v.getSpeed(x), v.getLength(x), v.getDecel(x))
+                for x in ls.lane.getLastStepVehicleIDs(lane)
             ]
-            for pos, speed, length in sorted(cars, reverse=True):  # front to rear
-                front = pos if speed < HALTED_MPS else max(pos, ahead)
+            for pos, speed, length, decel in sorted(cars, reverse=True):  # front to rear
+                front = pos if speed < HALTED_MPS else pos + speed * speed / (2.0 * decel)
                 ahead = min(ahead, front) - length - STANDSTILL_GAP_M
             self.room[lane] = max(ahead, 0.0)
 

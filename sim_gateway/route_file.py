@@ -15,6 +15,7 @@ refused rather than run unprotected.
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -99,6 +100,37 @@ def check_approaches(inter: Intersection, kin: Kinematics) -> None:
                 "to stop before the line; join the junctions that close into one "
                 "(netconvert --junctions.join) or choose another"
             )
+
+
+def check_handovers(inters: Sequence[Intersection], kin: Kinematics) -> list[str]:
+    """Refuse a link from one chosen junction to the next too short for a vehicle let go
+    by the first (its rear out, so up to a vehicle's length into the link) to stop
+    before the second's line; say where the second's region is shorter than its
+    region length (it takes each vehicle as the first lets go). Returns those lines."""
+    exits = {r.out_lane: x.junction_id for x in inters for r in x.routes}
+    notes: dict[str, str] = {}
+    for x in inters:
+        for r in sorted(x.routes, key=lambda r: r.id):
+            before = exits.get(r.in_lane)
+            if before is None or r.in_lane in notes:
+                continue
+            room = r.in_lane_m - MAX_LENGTH_M
+            need = r.road_mps**2 / (2.0 * kin.decel_mps2) + kin.stop_gap_m + STOP_SLACK_M
+            if room < need:
+                raise RunError(
+                    f"junctions {before} and {x.junction_id}: the link {r.in_lane} between "
+                    f"them is {r.in_lane_m:.0f} m long, and a vehicle out of {before} at "
+                    f"{r.road_mps * 3.6:.0f} km/h needs {need + MAX_LENGTH_M:.0f} m to stop "
+                    f"before {x.junction_id}'s line; join the two (netconvert "
+                    "--junctions.join) or leave one out"
+                )
+            if room < x.comm_length_m:
+                notes[r.in_lane] = (
+                    f"the link {r.in_lane} from {before} to {x.junction_id} is "
+                    f"{r.in_lane_m:.0f} m long: {x.junction_id}'s region there shrinks to "
+                    f"{room:.0f} m (it takes each vehicle as {before} lets go)"
+                )
+    return list(notes.values())
 
 
 def check_types(ls, rf: RouteFile, kin: Kinematics) -> None:

@@ -113,6 +113,9 @@ class RunConfig:
     # the net, and the junction takes each over in its region (sim_gateway/route_file.py)
     routes_path: str | None = None
     begin_s: float = 0.0  # [s] the simulation starts here (SUMO's --begin)
+    # several junctions, each under its own ICA (sim_gateway/network.py); junction_id is
+    # the first of them. Empty: one junction
+    junction_ids: tuple[str, ...] = ()
 
     def controller_spec(self) -> ControllerSpec:
         """The controller this run drives (a light runs FIFO underneath, never asked)."""
@@ -156,6 +159,15 @@ class RunConfig:
                            "file's vehicles are as the file has them")  # fmt: skip
         if self.begin_s and not self.routes_path:
             raise RunError("--begin starts a route file's demand (--routes)")
+        if len(self.junction_ids) > 1:
+            if not self.routes_path:
+                raise RunError("several junctions take their vehicles from a route file: "
+                               "give --routes")  # fmt: skip
+            if self.algorithm in LIGHTS:
+                raise RunError(f"--junctions runs the signal-free algorithms; {self.algorithm} "
+                               "is a light's baseline for one --junction")  # fmt: skip
+            if len(set(self.junction_ids)) < len(self.junction_ids):
+                raise RunError(f"--junctions names a junction twice: {','.join(self.junction_ids)}")
         if self.solver not in SOLVERS:
             raise RunError(f"unknown solver {self.solver!r}: use {', '.join(SOLVERS)}")
 

@@ -404,3 +404,21 @@ class SafetyMonitor:
             gap_hist_edges_m=[float(e) for e in self._edges_m],
             gap_hist_counts=list(self._hist),
         )
+
+
+def merge_reports(reports: Sequence[SafetyReport]) -> SafetyReport:
+    """Several junctions' monitors as one: overlaps added, the smallest gap, the
+    histograms summed (one junction's report is returned as it is)."""
+    if len(reports) == 1:
+        return reports[0]
+    closest = min(reports, key=lambda r: r.min_gap_m)
+    counts = np.sum([r.gap_hist_counts for r in reports], axis=0)
+    return SafetyReport(
+        steps=max(r.steps for r in reports),
+        overlaps=sum(r.overlaps for r in reports),
+        overlap_pairs=sorted(p for r in reports for p in r.overlap_pairs),
+        min_gap_m=closest.min_gap_m,
+        min_gap_pair=closest.min_gap_pair,
+        gap_hist_edges_m=reports[0].gap_hist_edges_m,
+        gap_hist_counts=[int(c) for c in counts],
+    )

@@ -82,6 +82,9 @@ class Traffic:
         self.length_m = length_m
         self.log = log
         self.rerouted = 0  # route-file vehicles sent another way (see adopt)
+        # route-file vehicles by SUMO id: how many crossings each has begun, at any of the
+        # run's junctions (a route may loop back, or go on to the next junction)
+        self.passes: dict[str, int] = {}
 
     def register(self, j: Junction) -> None:
         """A trip record for each of the junction's scheduled vehicles."""
@@ -135,7 +138,7 @@ class Traffic:
         self.log.trips[vin].inserted_s = t
         return True
 
-    def adopt(self, j: Junction, t: float) -> list[Car]:
+    def adopt(self, j: Junction, t: float, held: set[str] = frozenset()) -> list[Car]:
         """A route file's vehicles that reached the region on their way through the
         junction this step: from now on they are the junction's, as if inserted there.
 
@@ -144,13 +147,14 @@ class Traffic:
         before the junction passes by; one in a lane that does not lead where its route
         goes takes the lane's first way through and is sent on to its destination
         from beyond it (SUMO reroutes it), rather than wait for a gap it cannot have.
+        One that another junction ``held`` still drives is taken once it lets go.
         """
         ls, comm = self.ls, j.inter.comm_length_m
         out = []
         for lane in j.inter.in_lanes:
             for vin in ls.lane.getLastStepVehicleIDs(lane):
                 now = j.by_sumo.get(vin)
-                if (now is not None and not now.exited) or vin in j.passing:
+                if (now is not None and not now.exited) or vin in j.passing or vin in held:
                     continue
                 if j.lane_len_m[lane] - ls.vehicle.getLanePosition(vin) > comm:
                     continue
@@ -159,9 +163,9 @@ class Traffic:
                 if route is None:
                     j.passing.add(vin)
                     continue
-                n = j.passes[vin] = j.passes.get(vin, 0) + 1
+                n = self.passes[vin] = self.passes.get(vin, 0) + 1
                 c = Car(
-                    crossing_name(vin, n, j.cars), route, lane_index(lane),
+                    crossing_name(vin, n, self.log.trips), route, lane_index(lane),
                     min(route.road_mps, ls.vehicle.getMaxSpeed(vin)),
                     length_m=ls.vehicle.getLength(vin), width_m=ls.vehicle.getWidth(vin),
                     adopted_lcm=ls.vehicle.getLaneChangeMode(vin), sumo=vin,

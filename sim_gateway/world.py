@@ -11,8 +11,10 @@ monitor and the trip log. Who decides the commands (vehicle machines in this
 process, or vehicle-agent processes over Zenoh) is not its business, so both
 modes measure and check with exactly this code.
 
-What it keeps of the junction lives in a :class:`~sim_gateway.junction.Junction`;
-the world holds one.
+What it keeps of a junction lives in a :class:`~sim_gateway.junction.Junction`;
+the world holds one, or several along a route file's net (each under its own
+ICA, :mod:`sim_gateway.network`): a vehicle is one junction's from its region
+until its rear is out, then SUMO's driver's until the next junction's region.
 
 Nothing here trusts the ICA for safety: every step the monitor rebuilds
 rectangles from SUMO's own positions, and SUMO's junction collision detection
@@ -36,6 +38,7 @@ from dica.sim_gateway.junction import Car, Junction, Seen
 from dica.sim_gateway.metrics import TripLog, summarize
 from dica.sim_gateway.route_file import MAX_LENGTH_M, check_types, read_route_file
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
+from dica.sim_gateway.safety import merge_reports
 from dica.sim_gateway.sumo_io import Reads
 from dica.sim_gateway.traffic import Traffic, define_vehicle_types
 from dica.vehicle_agent.actuation import MODE_CONFIRMED, Actuation
@@ -43,7 +46,8 @@ from dica.vehicle_agent.machine import Observation
 
 
 class World:
-    """SUMO through libsumo, for one junction and one vehicle schedule."""
+    """SUMO through libsumo, for one junction and one vehicle schedule, or for several
+    junctions of a route file's net (``more``: the others' intersections)."""
 
     def __init__(
         self,
@@ -57,6 +61,7 @@ class World:
         signalised: bool = False,
         want_xy: bool = False,
         predict_s: float = 0.0,
+        more: tuple[Intersection, ...] = (),
     ) -> None:
         self.ls = ls
         self.cfg = cfg
@@ -73,64 +78,85 @@ class World:
         if cfg.routes_path:
             check_types(ls, read_route_file(Path(cfg.routes_path)), ica_cfg.kinematics)
         define_vehicle_types(ls, ica_cfg, cfg.length_m, cfg.width_m, any(v.ev for v in schedule))
-        self.junction = Junction.open(
-            ls,
-            inter,
-            schedule,
-            signalised=signalised,
-            length_m=cfg.length_m,
-            max_length_m=MAX_LENGTH_M if cfg.routes_path else None,
-        )
+        self.junctions = [
+            Junction.open(
+                ls,
+                x,
+                schedule if x is inter else [],
+                signalised=signalised,
+                length_m=cfg.length_m,
+                max_length_m=MAX_LENGTH_M if cfg.routes_path else None,
+            )
+            for x in (inter, *more)
+        ]
+        self.junction = self.junctions[0]
         self.traffic = Traffic(ls, ica_cfg, cfg.length_m, self.log)
         self.traffic.register(self.junction)
         self._arrivals = [v.arrival_s for v in schedule]
         # how far ahead [s] each vehicle that may ask is told where its own control law will
         # take it (Observation.intent_m): as far as its agents plan ahead (their lead)
-        self.actuator = Actuator(ls, ica_cfg, self.log, predict_s)
+        self.actuator = Actuator(ls, ica_cfg, self.log, predict_s, shared=bool(cfg.routes_path))
 
-    # the world's totals: its one junction's
+    # the world's totals: over its junctions
     @property
     def crossed(self) -> int:
-        return self.junction.crossed
+        return sum(j.crossed for j in self.junctions)
 
     @property
     def waiting(self) -> int:
-        return self.junction.waiting
+        return sum(j.waiting for j in self.junctions)
 
     @property
     def unconfirmed_entries(self) -> list[str]:
-        return self.junction.unconfirmed_entries
+        return [vin for j in self.junctions for vin in j.unconfirmed_entries]
 
     # -- one step ------------------------------------------------------------
     def step(self) -> list[Seen]:
         """Insert who is due, step SUMO, and observe every vehicle in the region."""
-        ls, j = self.ls, self.junction
-        j.forget_gone()
-        fresh = self.traffic.insert_due(j, self.t)
+        return self.step_each()[0]
+
+    def step_each(self) -> list[list[Seen]]:
+        """:meth:`step` for every junction: what each junction's region holds."""
+        ls, first = self.ls, self.junction
+        for j in self.junctions:
+            j.forget_gone()
+        fresh = self.traffic.insert_due(first, self.t)
         ls.simulation.step()
-        self.traffic.note_blocked(j, fresh)
+        self.traffic.note_blocked(first, fresh)
         t = self.t = ls.simulation.getTime()
         for hit in ls.simulation.getCollisions():
-            if j.covers(hit.lane):
+            if any(j.covers(hit.lane) for j in self.junctions):
                 self.sumo_collisions += 1
-            else:  # a route file's net beyond the junction, driven by SUMO alone
+            else:  # a route file's net beyond the junctions, driven by SUMO alone
                 self.sumo_collisions_elsewhere += 1
         present = set(ls.vehicle.getIDList())
         for vin in ls.simulation.getDepartedIDList():
-            if self.traffic.departed(j, vin, t):
+            if self.traffic.departed(first, vin, t):
                 Reads.subscribe(ls, vin, self.want_xy)
         if self.cfg.routes_path:
-            for c in self.traffic.adopt(j, t):
-                Reads.subscribe(ls, c.sumo, self.want_xy)
-        if self.cfg.routes_path:  # beyond the junction its vehicles go on, and may queue
-            j.measure_room(ls)
+            # a vehicle is one junction's at a time: the next takes it once the last let go
+            held = {c.sumo for j in self.junctions for c in j.active if not c.exited}
+            for j in self.junctions:
+                for c in self.traffic.adopt(j, t, held):
+                    Reads.subscribe(ls, c.sumo, self.want_xy)
+                    held.add(c.sumo)
+            for j in self.junctions:  # beyond a junction its vehicles go on, and may queue
+                j.measure_room(ls)
         vw = Reads(ls)
+        each = [self._look(j, vw, present, t) for j in self.junctions]
+        if self.actuator.predict_steps:
+            for j, seen in zip(self.junctions, each, strict=True):
+                self._tell_intents(j, seen, t)
+        return each
+
+    def _look(self, j: Junction, vw: Reads, present: set[str], t: float) -> list[Seen]:
+        """Every vehicle in ``j``'s region, as its driver observes it this step."""
         self.traffic.note_tails(j, vw, present)
         j.order_lanes(vw, present)
         j.waiting = 0
         seen = []
         for c in j.active:
-            s = self._see(c, vw, t) if c.sumo in present else None
+            s = self._see(j, c, vw, t) if c.sumo in present else None
             if s is not None:
                 seen.append(s)
         if self.want_xy:
@@ -138,22 +164,19 @@ class World:
                 s.xy = vw.getPosition(s.car.sumo)
                 s.angle_deg = vw.getAngle(s.car.sumo)
         j.present = present
-        if self.actuator.predict_steps:
-            self._tell_intents(seen, t)
         return seen
 
-    def _tell_intents(self, seen: list[Seen], t: float) -> None:
+    def _tell_intents(self, j: Junction, seen: list[Seen], t: float) -> None:
         """Tell each vehicle that may ask and holds no plan where its actuator will take
         it over the next steps (:meth:`Actuator.intents`)."""
-        intents = self.actuator.intents(self.junction, t)
+        intents = self.actuator.intents(j, t)
         for s in seen:
             fut = intents.get(s.car.vin)
             if fut is not None and s.obs.may_ask and s.car.plan_s is None:
                 s.obs = replace(s.obs, intent_m=tuple(fut[1:].tolist()))
 
-    def _see(self, c: Car, vw: Reads, t: float) -> Seen | None:
+    def _see(self, j: Junction, c: Car, vw: Reads, t: float) -> Seen | None:
         """``c`` as its driver observes it this step; None while it is short of the region."""
-        j = self.junction
         lane = vw.getLaneID(c.sumo)
         on_approach = lane == c.route.in_lane
         if math.isnan(c.detected_s):
@@ -167,7 +190,7 @@ class World:
         c.locate(lane, lane_pos, j.lane_len_m[c.route.in_lane], odo)
         c.speed_mps = speed
         if not c.entered and not on_approach:
-            self._entered(c, t)
+            self._entered(j, c, t)
         self.traffic.note_speed(j, c, speed)
         self.traffic.left_junction(j, vw, c, t)
         d = j.lane_len_m[c.route.in_lane] - vw.getLanePosition(c.sumo)
@@ -194,9 +217,8 @@ class World:
         )
         return Seen(c, obs)
 
-    def _entered(self, c: Car, t: float) -> None:
+    def _entered(self, j: Junction, c: Car, t: float) -> None:
         """``c``'s front has just passed the entry line: it must be flying its plan."""
-        j = self.junction
         c.entered = True
         j.last_in[c.route.in_lane] = c
         if not j.signalised and c.speed_mode != MODE_CONFIRMED:
@@ -204,19 +226,19 @@ class World:
         elif c.plan_s is not None:
             self.actuator.timing.entered(c, t, self.h)
 
-    def apply(self, commands: Iterable[Actuation]) -> None:
-        """Carry out the drivers' commands and drive every vehicle in the region for one
-        step (:meth:`Actuator.apply`)."""
-        self.actuator.apply(self.junction, commands, self.t)
+    def apply(self, commands: Iterable[Actuation], j: Junction | None = None) -> None:
+        """Carry out the drivers' commands and drive every vehicle in the region (of
+        ``j``, by default the first junction) for one step (:meth:`Actuator.apply`)."""
+        self.actuator.apply(j or self.junction, commands, self.t)
 
     def end_step(self, progress: Callable[[float, int, int], None] | None = None) -> None:
         """Check and log this step. Needs nothing from the drivers, so the cluster
         gateway runs it while the agents are deciding."""
-        j = self.junction
-        j.watch.feed(self.ls, j.monitor, self.t)
+        for j in self.junctions:
+            j.watch.feed(self.ls, j.monitor, self.t)
         if self.t - self._last_sample >= 1.0 - 1e-9:
             generated = (
-                len(self.junction.cars)
+                sum(len(j.cars) for j in self.junctions)
                 if self.cfg.routes_path
                 else bisect.bisect_right(self._arrivals, self.t + 1e-9)
             )
@@ -239,26 +261,35 @@ class World:
 
     def result(self, requests: dict, cmd: list[str]) -> RunResult:
         end = self.t if self.cfg.until_left else self.horizon
+        reports = [j.monitor.report() for j in self.junctions]
+        accounted = [self.traffic.accounting(j, end) for j in self.junctions]
+        extra = {
+            "unconfirmed_entries": len(self.unconfirmed_entries),
+            "timing": self.actuator.timing.as_dict(),
+            "accounted": {k: sum(a[k] for a in accounted) for k in accounted[0]},
+        }
+        if self.cfg.routes_path:
+            extra["rerouted"] = self.traffic.rerouted
+            extra["sumo_collisions_elsewhere"] = self.sumo_collisions_elsewhere
+        if len(self.junctions) > 1:
+            extra["junctions"] = {
+                j.inter.junction_id: {
+                    "crossed": j.crossed,
+                    "overlaps": r.overlaps,
+                    "min_gap_m": r.as_dict()["min_gap_m"],
+                    "unconfirmed_entries": len(j.unconfirmed_entries),
+                    "accounted": a,
+                }
+                for j, r, a in zip(self.junctions, reports, accounted, strict=True)
+            }
         return RunResult(
             metrics=summarize(self.log, end),
             trips=self.log,
-            safety=self.junction.monitor.report().as_dict(),
+            safety=merge_reports(reports).as_dict(),
             requests=requests,
             sumo_collisions=self.sumo_collisions,
             sim_time_s=self.t,
             wall_s=time.perf_counter() - self._t_wall,
             sumo_command=cmd,
-            extra={
-                "unconfirmed_entries": len(self.unconfirmed_entries),
-                "timing": self.actuator.timing.as_dict(),
-                "accounted": self.traffic.accounting(self.junction, end),
-                **(
-                    {
-                        "rerouted": self.traffic.rerouted,
-                        "sumo_collisions_elsewhere": self.sumo_collisions_elsewhere,
-                    }
-                    if self.cfg.routes_path
-                    else {}
-                ),
-            },
+            extra=extra,
         )

@@ -34,6 +34,7 @@ FILE_TIER = {
     "test_sumo_io.py": "sumo",
     "test_traffic.py": "sumo",
     "test_user_nets.py": "sumo",
+    "test_network.py": "sumo",
     "test_signals.py": "sumo",
     "test_attack.py": "cluster",
     "test_cluster.py": "cluster",

@@ -34,6 +34,10 @@ def run_config(args: argparse.Namespace):
 
     from dica.sim_gateway.runconfig import LIGHTS, RunConfig, RunError
 
+    junctions: tuple[str, ...] = ()
+    if getattr(args, "junctions", None):
+        junctions = chosen_junctions(args.net, args.junctions)
+        args.junction = junctions[0]
     if args.net:
         net, junction = str(args.net), args.junction
     else:
@@ -75,10 +79,40 @@ def run_config(args: argparse.Namespace):
             exit_spacing=getattr(args, "exit_spacing", True),
             routes_path=str(args.routes) if getattr(args, "routes", None) else None,
             begin_s=getattr(args, "begin", 0.0),
+            junction_ids=junctions if len(junctions) > 1 else (),
         )
     except RunError as e:
         raise UsageError(str(e)) from None
     return cfg, inter
+
+
+def chosen_junctions(net: Path, text: str) -> tuple[str, ...]:
+    """--junctions: the ids it names, or every junction of ``net`` where two roads or
+    more come in (``all``)."""
+    from dica.ica.netfile import NetworkError, crossing_junctions
+
+    if text.strip() == "all":
+        try:
+            found = crossing_junctions(net)
+        except NetworkError as e:
+            raise UsageError(str(e)) from None
+        if not found:
+            raise UsageError(f"{net} has no junction where two roads or more come in")
+        return found
+    ids = tuple(x.strip() for x in text.split(","))
+    if not all(ids):
+        raise UsageError(f"--junctions wants all or J1,J2,..., got {text!r}")
+    return ids
+
+
+def intersections(cfg) -> list:
+    """The intersections of a run of several junctions (its first is run_config's)."""
+    from dica.ica.netfile import NetworkError, load_intersection
+
+    try:
+        return [load_intersection(cfg.net_path, j) for j in cfg.junction_ids]
+    except NetworkError as e:
+        raise UsageError(str(e)) from None
 
 
 def report_run(out: Path, result) -> int:

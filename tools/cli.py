@@ -15,7 +15,7 @@ import time
 from pathlib import Path
 
 from dica.tools import options
-from dica.tools.args import add_run_args, intersection, report_run, run_config
+from dica.tools.args import add_run_args, intersection, intersections, report_run, run_config
 from dica.tools.options import UsageError
 
 EXAMPLES = """examples:
@@ -181,7 +181,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         try:
             rrd = out / "spacetime.rrd" if args.record else None
-            result = run(cfg, inter, progress=tick, rrd_path=rrd, run_dir=out)
+            if cfg.junction_ids:
+                from dica.sim_gateway.network import run_network
+
+                result = run_network(cfg, intersections(cfg), progress=tick, rrd_path=rrd)
+            else:
+                result = run(cfg, inter, progress=tick, rrd_path=rrd, run_dir=out)
         except RunError as e:
             raise UsageError(str(e)) from None
     write_outputs(out, cfg, result)
@@ -315,8 +320,8 @@ def parser() -> argparse.ArgumentParser:
     )
     add_run_args(r)
     options.add(
-        r, "--run-up", "--exit-spacing", "--lead", "--window", "--revocation", "--out",
-        "--quiet", out={"help": "output directory (default runs/run-ALG-TIMESTAMP)"},
+        r, "--junctions", "--run-up", "--exit-spacing", "--lead", "--window", "--revocation",
+        "--out", "--quiet", out={"help": "output directory (default runs/run-ALG-TIMESTAMP)"},
     )  # fmt: skip
     r.add_argument(
         "--record",

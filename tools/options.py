@@ -123,6 +123,13 @@ OPTIONS: dict[str, Option] = {
         ),
         Option("--net", "any SUMO .net.xml instead of a built-in layout", Path),
         Option("--junction", "the junction's id in --net (needs --net)"),
+        Option(
+            "--junctions",
+            "several junctions of --net, each signal-free under its own ICA: J1,J2,... or "
+            "all (every junction where two roads or more come in); the others stay as the "
+            "net has them. Needs --routes; instead of --junction",
+            metavar="all|J1,J2,...",
+        ),
         # -- the controller
         Option(
             "--algorithm",
@@ -499,7 +506,14 @@ def check(args: argparse.Namespace) -> None:
         )
     if values.get("routes") is not None and values.get("net") is None:
         raise UsageError("--routes needs --net (the network its routes run on)")
-    if values.get("net") is not None and not values.get("junction"):
+    if values.get("junctions"):
+        if values.get("junction"):
+            raise UsageError("--junction names one junction, --junctions several: give one")
+        if values.get("net") is None:
+            raise UsageError("--junctions names junctions of --net: give --net")
+        if values.get("routes") is None:
+            raise UsageError("--junctions takes its vehicles from a route file: give --routes")
+    elif values.get("net") is not None and not values.get("junction"):
         raise UsageError("--net needs --junction (the junction id in that network)")
 
 
