@@ -283,8 +283,9 @@ class Actuator:
             cars.sort(key=lambda c: c.s_m)
             prev = j.last_in.get(lane)
             rear = prev.s_m - prev.length_m if prev is not None and not prev.exited else math.inf
+            others = j.strangers.get(lane, ())
             for c in reversed(cars):
-                out[c.vin] = rear
+                out[c.vin] = min([rear, *(r for f, r in others if f > c.s_m)])
                 rear = c.s_m - c.length_m
         return out
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.route import Route
+from dica.ica.netfile import SERVED_CLASSES
 from dica.sim_gateway.demand import Arrival
 from dica.sim_gateway.safety import SafetyMonitor
 from dica.sim_gateway.sumo_io import Reads, Watch
@@ -100,6 +101,32 @@ HALTED_MPS = 1.0  # [m/s] slower than this, a vehicle on an exit lane may stay w
 STANDSTILL_GAP_M = 2.5  # [m] SUMO's default minGap
 
 
+def lane_room(ls, lane: str) -> float:
+    """How far from its start the next vehicle's front could have to stop were the
+    lane's vehicles to brake. A vehicle standing (or nearly) may stay where it is; a
+    moving one may brake to a stop from where it is (at its own deceleration: SUMO's
+    drivers brake harder only to avoid a collision, so that point never moves back),
+    or stop sooner behind the one ahead of it or at the lane's end (the next
+    junction), each at SUMO's standstill gap. A vehicle let out of the junction with
+    this room ahead never has to brake harder than it can."""
+    ahead = ls.lane.getLength(lane)  # the lane's end: where a queue may start
+    v = ls.vehicle
+    cars = [
+        (v.getLanePosition(x), v.getSpeed(x), v.getLength(x), v.getDecel(x))
+        for x in ls.lane.getLastStepVehicleIDs(lane)
+    ]
+    for pos, speed, length, decel in sorted(cars, reverse=True):  # front to rear
+        front = pos if speed < HALTED_MPS else pos + speed * speed / (2.0 * decel)
+        ahead = min(ahead, front) - length - STANDSTILL_GAP_M
+    return max(ahead, 0.0)
+
+
+def _for_vehicles(ls, lane: str) -> bool:
+    """Whether a road vehicle may drive on ``lane`` (not a sidewalk or a bike lane)."""
+    allowed = ls.lane.getAllowed(lane)
+    return not allowed or any(c in SERVED_CLASSES for c in allowed)
+
+
 def lane_index(lane: str) -> int:
     return int(lane.rsplit("_", 1)[1])
 
@@ -142,6 +169,10 @@ class Junction:
     # past the exit lane: a route file's; see measure_room)
     room: dict[str, float] = field(default_factory=dict)
     own_lanes: frozenset[str] = frozenset()  # its incoming, internal and exit lanes (covers)
+    # per incoming lane, the vehicles on it that are not the junction's (a route file's
+    # whose route ends there, or one the junction before has not let go yet): their
+    # fronts and rears [m, route position]; the junction's own stop short of them
+    strangers: dict[str, list[tuple[float, float]]] = field(default_factory=dict)
 
     def covers(self, lane: str) -> bool:
         """Whether ``lane`` is one of the junction's: an incoming, internal or exit lane."""
@@ -155,23 +186,19 @@ class Junction:
 
     def measure_room(self, ls) -> None:
         """Each exit lane's room: how far from the exit line the next vehicle's front could
-        have to stop were the lane's vehicles to brake. A vehicle standing (or nearly)
-        may stay where it is; a moving one may brake to a stop from where it is (at its
-        own deceleration: SUMO's drivers brake harder only to avoid a collision, so that
-        point never moves back), or stop sooner behind the one ahead of it or at the
-        lane's end (the next junction), each at SUMO's standstill gap. A vehicle let
-        out of the junction with this room ahead never has to brake harder than it can."""
+        have to stop were the vehicles beyond to brake (:func:`lane_room`), over every
+        lane of the exit road a vehicle may change from: a vehicle changing lanes
+        beyond the junction takes its stopping point with it, so the least room over
+        the road's lanes is one no lane change can shrink (only a vehicle entering the
+        road can, as the ICA's one car more allows)."""
+        by_edge: dict[str, list[str]] = {}
         for lane in self.inter.out_lanes:
-            ahead = ls.lane.getLength(lane)  # the lane's end: where a queue may start
-            v = ls.vehicle
-            cars = [
-                (v.getLanePosition(x), v.getSpeed(x), v.getLength(x), v.getDecel(x))
-                for x in ls.lane.getLastStepVehicleIDs(lane)
-            ]
-            for pos, speed, length, decel in sorted(cars, reverse=True):  # front to rear
-                front = pos if speed < HALTED_MPS else pos + speed * speed / (2.0 * decel)
-                ahead = min(ahead, front) - length - STANDSTILL_GAP_M
-            self.room[lane] = max(ahead, 0.0)
+            by_edge.setdefault(lane.rsplit("_", 1)[0], []).append(lane)
+        for edge, lanes in by_edge.items():
+            road = [f"{edge}_{i}" for i in range(ls.edge.getLaneNumber(edge))]
+            room = min(lane_room(ls, x) for x in road if _for_vehicles(ls, x))
+            for lane in lanes:
+                self.room[lane] = room
 
     @classmethod
     def open(
@@ -212,6 +239,23 @@ class Junction:
         watch = Watch(inter.junction_id, reach + 2.0 + longest + 1.0)
         watch.subscribe(ls)
         return cls(inter, signalised, schedule, cars, edge_routes, lane_len, monitor, watch)
+
+    def note_strangers(self, ls) -> None:
+        """Which vehicles on the incoming lanes are not the junction's (see strangers)."""
+        self.strangers = {}
+        v = ls.vehicle
+        for lane in self.inter.in_lanes:
+            end = self.lane_len_m[lane]
+            for x in ls.lane.getLastStepVehicleIDs(lane):
+                c = self.by_sumo.get(x)
+                if c is not None and not c.exited and c.route.in_lane == lane:
+                    continue
+                front = v.getLanePosition(x) - end
+                self.strangers.setdefault(lane, []).append((front, front - v.getLength(x)))
+
+    def stranger_ahead(self, c: Car) -> bool:
+        """Whether a vehicle not the junction's is ahead of ``c`` on its incoming lane."""
+        return any(f > c.s_m for f, _ in self.strangers.get(c.route.in_lane, ()))
 
     def forget_gone(self) -> None:
         """Forget who left last step; a car SUMO has not inserted yet (its spot is taken)

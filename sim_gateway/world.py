@@ -142,6 +142,7 @@ class World:
                     held.add(c.sumo)
             for j in self.junctions:  # beyond a junction its vehicles go on, and may queue
                 j.measure_room(ls)
+                j.note_strangers(ls)
         vw = Reads(ls)
         each = [self._look(j, vw, present, t) for j in self.junctions]
         if self.actuator.predict_steps:
@@ -194,11 +195,14 @@ class World:
         self.traffic.note_speed(j, c, speed)
         self.traffic.left_junction(j, vw, c, t)
         d = j.lane_len_m[c.route.in_lane] - vw.getLanePosition(c.sumo)
-        c.head = on_approach and c.ahead is None
+        # behind a vehicle that is not the junction's, a vehicle neither asks nor follows
+        clear = not (j.strangers and j.stranger_ahead(c))
+        c.head = on_approach and c.ahead is None and clear
         follows = (
             self.ica_cfg.platoon
             and c.plan_s is None  # one that holds a plan does not ask
             and on_approach
+            and clear
             and self.actuator.may_follow(c, speed, t)
         )
         obs = Observation(
