@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import zenoh
 
 from dica.tools.loopback import free_port
 from tests.cluster_proc import logs_tail, stop_cluster
@@ -136,7 +137,11 @@ def test_the_link_emulator_delays_and_loses_real_zenoh_messages(tmp_path):
                     got.append(time.time_ns() - sent)
 
             sub = far.declare_subscriber("t/x", heard)  # a declaration: never lost
-            pub = near.declare_publisher("t/x", express=True)
+            # blocking, as the project's own publishers are: with zenoh's default a busy
+            # machine's full queue drops a message before it reaches the link (99 of 100)
+            pub = near.declare_publisher(
+                "t/x", express=True, congestion_control=zenoh.CongestionControl.BLOCK
+            )
             deadline = time.monotonic() + 30
             while not got:  # the subscription has reached the publisher's side
                 assert time.monotonic() < deadline, "nothing ever crossed the link"
