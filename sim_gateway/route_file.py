@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import xml.etree.ElementTree as ET
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from dica.ica.core.intersection import Intersection
@@ -29,6 +29,8 @@ STOP_SLACK_M = 1.0  # [m] on top of the braking distance: a step's travel, and s
 DEFAULT_TYPE = "DEFAULT_VEHTYPE"
 _TRAFFIC = ("vehicle", "trip", "flow")
 _PEOPLE = ("person", "personFlow", "container", "containerFlow")
+HELD_KEYS = ("departLane", "departPos", "departSpeed", "arrivalLane", "arrivalPos", "color",
+               "arrivalSpeed")  # fmt: skip
 
 
 @dataclass(frozen=True, slots=True)
@@ -38,6 +40,10 @@ class RouteFile:
     path: Path
     types: frozenset[str]  # used by its vehicles, trips and flows (distributions opened)
     traffic: int  # vehicles, trips and flows (a flow counts once)
+    # per vehicle, trip or flow id: how the file has it depart and arrive (the attributes
+    # a vehicle keeps if its insertion is held back; see sim_gateway/insertion.py), or
+    # None if it carries more than a route (stops, parameters), which a hold would lose
+    departs: dict[str, dict[str, str] | None] = field(default_factory=dict)
 
 
 def read_route_file(path: Path) -> RouteFile:
@@ -50,6 +56,7 @@ def read_route_file(path: Path) -> RouteFile:
     used: set[str] = set()
     traffic = people = 0
     open_dist: list[str] = []
+    departs: dict[str, dict[str, str] | None] = {}
     try:
         for event, el in ET.iterparse(path, events=("start", "end")):
             tag = el.tag
@@ -66,6 +73,10 @@ def read_route_file(path: Path) -> RouteFile:
             elif tag in _TRAFFIC:
                 traffic += 1
                 used.add(el.get("type", DEFAULT_TYPE))
+                plain = all(child.tag == "route" for child in el)
+                departs[el.get("id", "")] = (
+                    {k: el.get(k) for k in HELD_KEYS if el.get(k) is not None} if plain else None
+                )
             elif tag in _PEOPLE:
                 people += 1
             if tag in (*_TRAFFIC, *_PEOPLE, "route"):
@@ -83,7 +94,7 @@ def read_route_file(path: Path) -> RouteFile:
     types: set[str] = set()
     for t in used:
         types |= distributions.get(t, {t})
-    return RouteFile(path, frozenset(types), traffic)
+    return RouteFile(path, frozenset(types), traffic, departs)
 
 
 def check_approaches(inter: Intersection, kin: Kinematics) -> None:

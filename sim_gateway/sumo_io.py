@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+from collections.abc import Collection
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -140,11 +141,12 @@ class Watch:
             [c.VAR_POSITION, c.VAR_ANGLE],
         )
 
-    def feed(self, ls, monitor: SafetyMonitor, t: float) -> None:
-        """Hand the monitor this step's vehicles near the junction, sorted by id."""
+    def feed(self, ls, monitor: SafetyMonitor, t: float, gone: Collection[str] = ()) -> None:
+        """Hand the monitor this step's vehicles near the junction, sorted by id (but
+        those ``gone``: taken out of SUMO since the step)."""
         c = ls.constants
         near = ls.junction.getContextSubscriptionResults(self.junction_id) or {}
-        vins = sorted(near)
+        vins = sorted(v for v in near if v not in gone)
         if not vins:
             monitor.observe(t, [], np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
             return

@@ -34,6 +34,7 @@ from dica.ica.core.config import IcaConfig
 from dica.ica.core.intersection import Intersection
 from dica.sim_gateway.actuator import Actuator
 from dica.sim_gateway.demand import Arrival
+from dica.sim_gateway.insertion import InsertionHold
 from dica.sim_gateway.junction import Car, Junction, Seen
 from dica.sim_gateway.metrics import TripLog, summarize
 from dica.sim_gateway.route_file import MAX_LENGTH_M, check_types, read_route_file
@@ -74,9 +75,15 @@ class World:
         self.sumo_collisions = 0  # SUMO's reports on the junction's own lanes
         self.sumo_collisions_elsewhere = 0
         self._last_sample = -1.0
+        self._taken: set[str] = set()  # inserted this step and taken back out (insertion)
         self._t_wall = time.perf_counter()
+        # a route file's insertions wait while a vehicle is about to leave a junction onto
+        # their road (sim_gateway/insertion.py)
+        self.hold: InsertionHold | None = None
         if cfg.routes_path:
-            check_types(ls, read_route_file(Path(cfg.routes_path)), ica_cfg.kinematics)
+            rf = read_route_file(Path(cfg.routes_path))
+            check_types(ls, rf, ica_cfg.kinematics)
+            self.hold = InsertionHold(ls, rf)
         define_vehicle_types(ls, ica_cfg, cfg.length_m, cfg.width_m, any(v.ev for v in schedule))
         self.junctions = [
             Junction.open(
@@ -121,7 +128,11 @@ class World:
         for j in self.junctions:
             j.forget_gone()
         fresh = self.traffic.insert_due(first, self.t)
+        if self.hold is not None:
+            self.hold.before_step(self.junctions)
         ls.simulation.step()
+        taken = self.hold.after_step(ls.simulation.getDepartedIDList()) if self.hold else set()
+        self._taken = taken
         self.traffic.note_blocked(first, fresh)
         t = self.t = ls.simulation.getTime()
         for hit in ls.simulation.getCollisions():
@@ -131,7 +142,7 @@ class World:
                 self.sumo_collisions_elsewhere += 1
         present = set(ls.vehicle.getIDList())
         for vin in ls.simulation.getDepartedIDList():
-            if self.traffic.departed(first, vin, t):
+            if vin not in taken and self.traffic.departed(first, vin, t):
                 Reads.subscribe(ls, vin, self.want_xy)
         if self.cfg.routes_path:
             # a vehicle is one junction's at a time: the next takes it once the last let go
@@ -239,7 +250,7 @@ class World:
         """Check and log this step. Needs nothing from the drivers, so the cluster
         gateway runs it while the agents are deciding."""
         for j in self.junctions:
-            j.watch.feed(self.ls, j.monitor, self.t)
+            j.watch.feed(self.ls, j.monitor, self.t, self._taken)
         if self.t - self._last_sample >= 1.0 - 1e-9:
             generated = (
                 sum(len(j.cars) for j in self.junctions)
@@ -272,8 +283,10 @@ class World:
             "timing": self.actuator.timing.as_dict(),
             "accounted": {k: sum(a[k] for a in accounted) for k in accounted[0]},
         }
-        if self.cfg.routes_path:
+        if self.hold is not None:
             extra["rerouted"] = self.traffic.rerouted
+            extra["insertions_held"] = self.hold.holds
+            extra["insertions_not_held"] = self.hold.unheld
             extra["sumo_collisions_elsewhere"] = self.sumo_collisions_elsewhere
         if len(self.junctions) > 1:
             extra["junctions"] = {

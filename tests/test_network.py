@@ -7,11 +7,14 @@ from __future__ import annotations
 
 import subprocess
 import sys
+import xml.etree.ElementTree as ET
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
 
 from dica.ica.netfile import crossing_junctions, load_intersection
+from dica.sim_gateway import embedded
 from dica.sim_gateway.actuator import FLYING_DECEL_MPS2
 from dica.sim_gateway.embedded import LocalDrivers
 from dica.sim_gateway.network import run_network
@@ -165,6 +168,44 @@ def test_a_short_link_shrinks_the_next_region_and_the_run_says_so(tmp_path, capf
     assert res.extra["unconfirmed_entries"] == 0 and res.extra["accounted"]["lost"] == 0
     per = res.extra["junctions"]
     assert per["A"]["crossed"] > 20 and per["B"]["crossed"] > 20
+
+
+BORN_ROUTES = """<routes>
+  <vType id="car" accel="2.6" decel="4.5" length="4.5" sigma="0.5"/>
+  <flow id="east" type="car" begin="0" end="240" vehsPerHour="1200" from="WA" to="BE"
+        departLane="best"/>
+  <flow id="turn" type="car" begin="0" end="240" vehsPerHour="400" from="NAA" to="BE"/>
+  <flow id="born" type="car" begin="0" end="240" number="40" from="AB" to="BE"
+        departLane="1" departSpeed="0" color="0,0,1"/>
+</routes>"""
+
+
+def test_insertions_wait_while_a_vehicle_is_about_to_leave_the_junction_onto_their_road(
+    tmp_path,
+):
+    """A file's vehicles starting on A's exit road are held while a confirmed vehicle
+    is about to come out onto it, and are put back as the file has them: every one
+    departs, on the file's lane, in the file's colour."""
+    cfg = _pair(tmp_path, 80)
+    routes = tmp_path / "born.rou.xml"
+    routes.write_text(BORN_ROUTES)
+    info = tmp_path / "tripinfo.xml"
+    kept = tmp_path / "vehroutes.xml"
+    cfg = replace(
+        cfg, routes_path=str(routes), junction_ids=(), duration_s=420.0,
+        sumo_args=("--tripinfo-output", str(info), "--vehroute-output", str(kept)),
+    )  # fmt: skip
+    res = embedded.run(cfg, load_intersection(cfg.net_path, "A"), run_dir=tmp_path)
+    assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
+    assert res.extra["insertions_held"] > 0 and res.extra["insertions_not_held"] == 0
+    trips = [t for t in ET.parse(info).getroot() if t.get("id", "").startswith("born.")]
+    # one taken back at once after SUMO's first try leaves a record SUMO marks vaporized
+    born = [t for t in trips if not t.get("vaporized")]
+    assert len(born) == 40 and len({t.get("id") for t in born}) == 40  # none lost
+    assert all(float(t.get("routeLength")) > 300.0 for t in born)  # each went its way
+    assert {t.get("departLane") for t in born} == {"AB_1"}
+    out = [v for v in ET.parse(kept).getroot() if v.get("id", "").startswith("born.")]
+    assert {v.get("color") for v in out} == {"blue"}  # 0,0,1 as SUMO writes it
 
 
 @pytest.mark.parametrize(
