@@ -48,6 +48,7 @@ class InsertionHold:
         self.rf = rf
         self.held: list[Held] = []
         self.roads: set[str] = set()  # threatened this step
+        self.first_road: dict[str, str] = {}  # a pending vehicle's first road, read once
         self.holds = 0  # vehicles taken out of SUMO's insertion, once each time
         self.unheld = 0  # insertions that could not be held (more than a route)
         self._routes = 0
@@ -77,10 +78,17 @@ class InsertionHold:
         self.held = keep
         if not roads:
             return
-        v = self.ls.vehicle
-        for p in self.ls.simulation.getPendingVehicles():
-            if v.getRoute(p)[0] in roads:
+        v, first = self.ls.vehicle, self.first_road
+        pending = self.ls.simulation.getPendingVehicles()
+        for p in pending:
+            road = first.get(p)
+            if road is None:
+                road = first[p] = v.getRoute(p)[0]
+            if road in roads:
                 self._take(p)
+        if len(first) > 2 * len(pending) + 1024:  # forget the ones inserted since
+            live = set(pending)
+            self.first_road = {p: r for p, r in first.items() if p in live}
 
     def after_step(self, departed: Iterable[str]) -> set[str]:
         """Take back who SUMO has just inserted at the start of a threatened road (it does

@@ -131,7 +131,8 @@ class World:
         if self.hold is not None:
             self.hold.before_step(self.junctions)
         ls.simulation.step()
-        taken = self.hold.after_step(ls.simulation.getDepartedIDList()) if self.hold else set()
+        departed = ls.simulation.getDepartedIDList()
+        taken = self.hold.after_step(departed) if self.hold else set()
         self._taken = taken
         self.traffic.note_blocked(first, fresh)
         t = self.t = ls.simulation.getTime()
@@ -141,7 +142,7 @@ class World:
             else:  # a route file's net beyond the junctions, driven by SUMO alone
                 self.sumo_collisions_elsewhere += 1
         present = set(ls.vehicle.getIDList())
-        for vin in ls.simulation.getDepartedIDList():
+        for vin in departed:
             if vin not in taken and self.traffic.departed(first, vin, t):
                 Reads.subscribe(ls, vin, self.want_xy)
         if self.cfg.routes_path:
