@@ -227,13 +227,7 @@ class LocalDrivers:
         return out
 
     def requests(self) -> dict:
-        rt = np.array(self.link.compute_s) if self.link.compute_s else np.zeros(1)
-        return {
-            "count": len(self.link.compute_s),
-            "rejections": dict(self.rejections),
-            "median_ms": float(np.median(rt) * 1e3),
-            "p99_ms": float(np.percentile(rt, 99) * 1e3),
-        } | (
+        return request_figures(self.link.compute_s, self.rejections) | (
             {}
             if self.order is None
             else {
@@ -244,6 +238,17 @@ class LocalDrivers:
                 "window_order_ms_max": _ms(np.max, self.order.order_s),
             }
         )
+
+
+def request_figures(compute_s: list[float], rejections: dict[str, int]) -> dict:
+    """A run's requests: how many, the rejections by reason, the ICA's time per request."""
+    rt = np.array(compute_s) if compute_s else np.zeros(1)
+    return {
+        "count": len(compute_s),
+        "rejections": dict(rejections),
+        "median_ms": float(np.median(rt) * 1e3),
+        "p99_ms": float(np.percentile(rt, 99) * 1e3),
+    }
 
 
 def _ms(f, xs: list[float]) -> float | None:

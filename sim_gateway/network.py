@@ -17,12 +17,10 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-import numpy as np
-
 from dica.ica.core.controller import build_controller
 from dica.ica.core.intersection import Intersection
 from dica.sim_gateway.demand import schedule_for
-from dica.sim_gateway.embedded import LocalDrivers, open_recording, record_step
+from dica.sim_gateway.embedded import LocalDrivers, open_recording, record_step, request_figures
 from dica.sim_gateway.route_file import check_handovers
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
@@ -92,15 +90,8 @@ def merged_requests(drivers: Sequence[LocalDrivers]) -> dict:
     request times' median and p99 over all of them."""
     if len(drivers) == 1:
         return drivers[0].requests()
-    times = [x for d in drivers for x in d.link.compute_s]
-    rt = np.array(times) if times else np.zeros(1)
     rejections: dict[str, int] = {}
     for d in drivers:
         for why, n in d.rejections.items():
             rejections[why] = rejections.get(why, 0) + n
-    return {
-        "count": len(times),
-        "rejections": rejections,
-        "median_ms": float(np.median(rt) * 1e3),
-        "p99_ms": float(np.percentile(rt, 99) * 1e3),
-    }
+    return request_figures([x for d in drivers for x in d.link.compute_s], rejections)
