@@ -24,6 +24,7 @@ def request_to_core(msg: m.Request) -> core.Request:
         tss=tss,
         t_obs_s=msg.t_obs_s,
         exit_room_m=math.inf if msg.exit_room_m >= m.BIG else msg.exit_room_m,
+        network_room_m=math.inf if msg.network_room_m >= m.BIG else msg.network_room_m,
     )
 
 
@@ -45,6 +46,7 @@ def request_from_core(req: core.Request) -> m.Request:
         t_obs_s=float(req.t0_s if math.isnan(req.t_obs_s) else req.t_obs_s),
         sent_ns=now_ns(),
         exit_room_m=min(float(req.exit_room_m), m.BIG),
+        network_room_m=min(max(float(req.network_room_m), 0.0), m.BIG),
     )
 
 

@@ -17,10 +17,12 @@ from typing import ClassVar
 
 import numpy as np
 
-# 5: a vehicle state carries ``intent_m``; 4: ``follows`` and REORDER; 3: DETECT carries
-# the EV flag and the detection speed, a vehicle state ``ev`` and ``kept_seq``, a setpoint
-# ``drop``, and REVOKE exists (2 had no revocations; 1 had open-loop speed commands)
-VERSION = 6
+# 7: a REQUEST and a vehicle state carry ``network_room_m`` (the network gate); 6: they
+# carry ``exit_room_m``; 5: a vehicle state carries ``intent_m``; 4: ``follows`` and
+# REORDER; 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev``
+# and ``kept_seq``, a setpoint ``drop``, and REVOKE exists (2 had no revocations; 1 had
+# open-loop speed commands)
+VERSION = 7
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
@@ -60,6 +62,9 @@ class Request:
     sent_ns: int = lim(0, 2**63 - 1)
     # room on its exit lane beyond the junction when it observed [m] (BIG: not known)
     exit_room_m: float = lim(0.0, BIG, default=BIG)
+    # room left in the network of junctions for it when it observed [m] (BIG: it is not
+    # entering one)
+    network_room_m: float = lim(0.0, BIG, default=BIG)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -234,6 +239,9 @@ class VehicleState:
     # room on its exit lane beyond the junction [m] (BIG: not measured; see
     # Observation.exit_room_m)
     exit_room_m: float = lim(0.0, BIG, default=BIG)
+    # room left in the network of junctions for it [m] (BIG: not entering one; see
+    # Observation.network_room_m)
+    network_room_m: float = lim(0.0, BIG, default=BIG)
 
 
 @dataclass(frozen=True, slots=True)

@@ -579,6 +579,7 @@ class ZenohDrivers:
             owner=self.owner.get(c.vin, ""),
             intent_m=np.asarray(o.intent_m, dtype=float),
             exit_room_m=min(o.exit_room_m, WIRE_BIG),
+            network_room_m=min(max(o.network_room_m, 0.0), WIRE_BIG),
         )
 
     def facts(self) -> dict:

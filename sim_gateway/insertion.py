@@ -13,6 +13,11 @@ seen coming) is taken back out at once, before anything moves; each is put back
 as the file has it (type, route, how it departs and arrives, colour) once no
 vehicle is about to come out onto its road. One the file gives more than a
 route (stops, parameters) is not held, and is counted.
+
+In a network of junctions whose links form a cycle, a vehicle that would start
+on a link also waits while the network gate has no room for it
+(:mod:`sim_gateway.network_gate`): it would enter the network as surely as one
+let in by a junction.
 """
 
 from __future__ import annotations
@@ -21,7 +26,9 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from dica.ica.core.gridlock import QUEUE_GAP_M
 from dica.sim_gateway.junction import Junction, route_edges
+from dica.sim_gateway.network_gate import NetworkGate
 from dica.sim_gateway.route_file import RouteFile
 
 SOON_S = 2.0  # [s] a confirmed vehicle this close to its entry line is about to enter
@@ -38,14 +45,16 @@ class Held:
     edges: list[str]
     vtype: str
     attrs: dict[str, str]
+    cost_m: float  # its length and standstill gap: what it takes of the network's room
 
 
 class InsertionHold:
     """The vehicles held out of SUMO while their first road is threatened, and a tally."""
 
-    def __init__(self, ls, rf: RouteFile) -> None:
+    def __init__(self, ls, rf: RouteFile, gate: NetworkGate | None = None) -> None:
         self.ls = ls
         self.rf = rf
+        self.gate = gate if gate is not None and gate.closes else None
         self.held: list[Held] = []
         self.roads: set[str] = set()  # threatened this step
         self.first_road: dict[str, str] = {}  # a pending vehicle's first road, read once
@@ -67,16 +76,25 @@ class InsertionHold:
         return out
 
     def before_step(self, junctions: Iterable[Junction]) -> None:
-        """Put back who may be inserted now; take out who waits for a threatened road."""
+        """Put back who may be inserted now; take out who waits for a threatened road or
+        for room in the network."""
         self.roads = roads = self.threatened(junctions)
+        gate = self.gate
+        room = gate.room_m if gate is not None else 0.0
         keep = []
         for h in self.held:
             if h.edges[0] in roads:
                 keep.append(h)
+            elif gate is not None and h.edges[0] in gate.links:
+                if h.cost_m > room:
+                    keep.append(h)
+                else:
+                    room -= h.cost_m
+                    self._put_back(h)
             else:
                 self._put_back(h)
         self.held = keep
-        if not roads:
+        if not roads and gate is None:
             return
         v, first = self.ls.vehicle, self.first_road
         pending = self.ls.simulation.getPendingVehicles()
@@ -86,20 +104,35 @@ class InsertionHold:
                 road = first[p] = v.getRoute(p)[0]
             if road in roads:
                 self._take(p)
+            elif gate is not None and road in gate.links:
+                cost = v.getLength(p) + QUEUE_GAP_M
+                if cost > room:
+                    self._take(p)
+                else:
+                    room -= cost
         if len(first) > 2 * len(pending) + 1024:  # forget the ones inserted since
             live = set(pending)
             self.first_road = {p: r for p, r in first.items() if p in live}
 
     def after_step(self, departed: Iterable[str]) -> set[str]:
         """Take back who SUMO has just inserted at the start of a threatened road (it does
-        not look for vehicles inside the junction); return them."""
+        not look for vehicles inside the junction), or onto a link of a network with no
+        room left for it (one due this very step was never pending); return them."""
         taken: set[str] = set()
-        if not self.roads:
+        gate = self.gate
+        if not self.roads and gate is None:
             return taken
+        room = gate.room_m if gate is not None else 0.0
         v = self.ls.vehicle
         for vid in departed:
-            near = v.getRoadID(vid) in self.roads and v.getLanePosition(vid) < GUARD_M
-            if near and self._take(vid):
+            road = v.getRoadID(vid)
+            take = road in self.roads and v.getLanePosition(vid) < GUARD_M
+            if not take and gate is not None and road in gate.links:
+                cost = v.getLength(vid) + QUEUE_GAP_M
+                take = cost > room
+                if not take:
+                    room -= cost
+            if take and self._take(vid):
                 taken.add(vid)
         return taken
 
@@ -109,7 +142,8 @@ class InsertionHold:
             self.unheld += 1
             return False
         v = self.ls.vehicle
-        self.held.append(Held(vid, list(v.getRoute(vid)), v.getTypeID(vid), attrs))
+        cost = v.getLength(vid) + QUEUE_GAP_M
+        self.held.append(Held(vid, list(v.getRoute(vid)), v.getTypeID(vid), attrs, cost))
         v.remove(vid)
         self.holds += 1
         return True

@@ -160,6 +160,9 @@ class Junction:
     crossed: int = 0
     waiting: int = 0  # stopped in the region this step
     unconfirmed_entries: list[str] = field(default_factory=list)
+    # vehicles seen standing with the front past the entry line and the rear not out: the
+    # downstream-space rule says never (a standing vehicle there blocks the junction)
+    stood_inside: set[str] = field(default_factory=set)
     # route-file vehicles seen in the region that do not cross the junction (their route
     # ends here): SUMO drives them
     passing: set[str] = field(default_factory=set)

@@ -67,7 +67,9 @@ def run_network(
             while True:
                 each = world.step_each()
                 for j, d, seen in zip(world.junctions, drivers, each, strict=True):
+                    world.refresh_network_room(j, seen)
                     world.apply(d.step(world.t, seen), j)
+                    world.counted_confirmed(j)
                 if recorder is not None:
                     record_step(recorder, drivers[0], each[0], cfg, world.t)
                 world.end_step(progress)

@@ -272,6 +272,8 @@ class Traffic:
         if speed_mps < 0.1:
             self.log.trips[c.vin].stopped = True  # stopped in the region before leaving
             j.waiting += 1
+            if c.entered and not c.exited:  # never: no vehicle stands inside a junction
+                j.stood_inside.add(c.vin)
 
     def left_junction(self, j: Junction, vw: Reads, c: Car, t: float) -> bool:
         """Rear past the exit line: note the time (interpolated), mark the car exited and

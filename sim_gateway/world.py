@@ -37,6 +37,7 @@ from dica.sim_gateway.demand import Arrival
 from dica.sim_gateway.insertion import InsertionHold
 from dica.sim_gateway.junction import Car, Junction, Seen
 from dica.sim_gateway.metrics import TripLog, summarize
+from dica.sim_gateway.network_gate import NetworkGate
 from dica.sim_gateway.route_file import MAX_LENGTH_M, check_types, read_route_file
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.safety import merge_reports
@@ -80,10 +81,14 @@ class World:
         # a route file's insertions wait while a vehicle is about to leave a junction onto
         # their road (sim_gateway/insertion.py)
         self.hold: InsertionHold | None = None
+        # a route file's net of several junctions: how much queue its links may hold
+        self.gate: NetworkGate | None = None
         if cfg.routes_path:
             rf = read_route_file(Path(cfg.routes_path))
             check_types(ls, rf, ica_cfg.kinematics)
-            self.hold = InsertionHold(ls, rf)
+            longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
+            self.gate = NetworkGate((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
+            self.hold = InsertionHold(ls, rf, self.gate)
         define_vehicle_types(ls, ica_cfg, cfg.length_m, cfg.width_m, any(v.ev for v in schedule))
         self.junctions = [
             Junction.open(
@@ -155,6 +160,9 @@ class World:
             for j in self.junctions:  # beyond a junction its vehicles go on, and may queue
                 j.measure_room(ls)
                 j.note_strangers(ls)
+            if self.gate is not None:
+                self.gate.forget(ls.simulation.getArrivedIDList())
+                self.gate.measure(ls, self.junctions)
         vw = Reads(ls)
         each = [self._look(j, vw, present, t) for j in self.junctions]
         if self.actuator.predict_steps:
@@ -230,8 +238,32 @@ class World:
             kept_seq=c.kept_seq,
             follows=follows,
             exit_room_m=j.room.get(c.route.out_lane, math.inf),
+            network_room_m=self.network_room(c),
         )
         return Seen(c, obs)
+
+    def network_room(self, c: Car) -> float:
+        """The room the network gate has left for ``c`` (inf: its crossing does not take
+        it into a network of junctions whose links form a cycle)."""
+        g = self.gate
+        if g is None or not g.closes or not g.entering(c):
+            return math.inf
+        return g.room_m
+
+    def refresh_network_room(self, j: Junction, seen: list[Seen]) -> None:
+        """Before ``j``'s vehicles ask: tell the ones entering the network what room the
+        junctions that answered before it this step have left."""
+        g = self.gate
+        if g is None or not g.closes:
+            return
+        for s in seen:
+            if g.entering(s.car):
+                s.obs = replace(s.obs, network_room_m=g.room_m)
+
+    def counted_confirmed(self, j: Junction) -> None:
+        """After ``j``'s ICA answered: the vehicles it let into the network take room."""
+        if self.gate is not None:
+            self.gate.count_confirmed(self.ls, j)
 
     def _entered(self, j: Junction, c: Car, t: float) -> None:
         """``c``'s front has just passed the entry line: it must be flying its plan."""
@@ -281,6 +313,7 @@ class World:
         accounted = [self.traffic.accounting(j, end) for j in self.junctions]
         extra = {
             "unconfirmed_entries": len(self.unconfirmed_entries),
+            "stood_inside": sum(len(j.stood_inside) for j in self.junctions),
             "timing": self.actuator.timing.as_dict(),
             "accounted": {k: sum(a[k] for a in accounted) for k in accounted[0]},
         }
@@ -289,6 +322,12 @@ class World:
             extra["insertions_held"] = self.hold.holds
             extra["insertions_not_held"] = self.hold.unheld
             extra["sumo_collisions_elsewhere"] = self.sumo_collisions_elsewhere
+        if self.gate is not None and self.gate.closes:
+            extra["network_gate"] = {
+                "capacity_m": round(self.gate.capacity_m, 1),
+                "peak_m": round(self.gate.peak_m, 1),
+                "links": len(self.gate.links),
+            }
         if len(self.junctions) > 1:
             extra["junctions"] = {
                 j.inter.junction_id: {
@@ -296,6 +335,7 @@ class World:
                     "overlaps": r.overlaps,
                     "min_gap_m": r.as_dict()["min_gap_m"],
                     "unconfirmed_entries": len(j.unconfirmed_entries),
+                    "stood_inside": len(j.stood_inside),
                     "accounted": a,
                 }
                 for j, r, a in zip(self.junctions, reports, accounted, strict=True)

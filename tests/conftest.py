@@ -35,6 +35,7 @@ FILE_TIER = {
     "test_traffic.py": "sumo",
     "test_user_nets.py": "sumo",
     "test_network.py": "sumo",
+    "test_gridlock.py": "sumo",
     "test_signals.py": "sumo",
     "test_attack.py": "cluster",
     "test_cluster.py": "cluster",

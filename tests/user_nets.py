@@ -127,3 +127,41 @@ JAM_ROUTES = """<routes>
   <flow id="cross" type="car" begin="0" end="400" vehsPerHour="400" from="B0B1" to="B1B2"/>
   <flow id="west" type="car" begin="0" end="400" vehsPerHour="300" from="C1B1" to="B1A1"/>
 </routes>"""
+
+
+# a one-way ring of four single-lane 150 m links, each junction with a road in from
+# outside (straight on into the ring) and a road out (straight on from the ring)
+_RING = [(0, 0), (150, 0), (150, 150), (0, 150)]
+_OUTSIDE = [((-200, 0), (0, -200)), ((150, -200), (350, 0)),
+            ((350, 150), (150, 350)), ((0, 350), (-200, 150))]  # fmt: skip
+
+
+def build_ring(d: Path) -> Path:
+    """R0..R3 in a one-way ring (links R0R1, R1R2, R2R3, R3R0); roads I<i>R<i> in and
+    R<i>O<i> out; no lights, no U-turns."""
+    nodes = ["<nodes>"]
+    edges = ["<edges>"]
+    for i, ((x, y), (inn, out)) in enumerate(zip(_RING, _OUTSIDE, strict=True)):
+        nodes.append(f' <node id="R{i}" x="{x}" y="{y}" type="priority"/>')
+        nodes.append(f' <node id="I{i}" x="{inn[0]}" y="{inn[1]}"/>')
+        nodes.append(f' <node id="O{i}" x="{out[0]}" y="{out[1]}"/>')
+        for a, b in ((f"R{i}", f"R{(i + 1) % 4}"), (f"I{i}", f"R{i}"), (f"R{i}", f"O{i}")):
+            edges.append(f' <edge id="{a}{b}" from="{a}" to="{b}" numLanes="1" speed="13.89"/>')
+    (d / "ring.nod.xml").write_text("\n".join([*nodes, "</nodes>"]))
+    (d / "ring.edg.xml").write_text("\n".join([*edges, "</edges>"]))
+    net = d / "ring.net.xml"
+    make([netconvert_binary(), "-n", str(d / "ring.nod.xml"), "-e", str(d / "ring.edg.xml"),
+          "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    return net
+
+
+def ring_routes(links: int, vehs_per_hour: int, end_s: int) -> str:
+    """From each road in, round the ring for ``links`` links, then out."""
+    out = ["<routes>", ' <vType id="car" accel="2.6" decel="4.5" length="5" sigma="0.5"/>']
+    for i in range(4):
+        ring = [f"R{(i + k) % 4}R{(i + k + 1) % 4}" for k in range(links)]
+        last = (i + links) % 4
+        out.append(f' <route id="round{i}" edges="I{i}R{i} {" ".join(ring)} R{last}O{last}"/>')
+        out.append(f' <flow id="f{i}" type="car" begin="0" end="{end_s}" '
+                   f'vehsPerHour="{vehs_per_hour}" route="round{i}"/>')  # fmt: skip
+    return "\n".join([*out, "</routes>"])

@@ -424,6 +424,7 @@ class Agent:
                 follows=vs.follows,
                 intent_m=tuple(vs.intent_m.tolist()),
                 exit_room_m=math.inf if vs.exit_room_m >= BIG else vs.exit_room_m,
+                network_room_m=math.inf if vs.network_room_m >= BIG else vs.network_room_m,
             )
             if v is None:
                 if vs.exited:

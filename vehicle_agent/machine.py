@@ -99,6 +99,9 @@ class Observation:
     # the room on its exit lane beyond the junction [m] (its own sensing or the roadside's:
     # the space the vehicles there take were they to queue; inf: not measured)
     exit_room_m: float = math.inf
+    # the room left in the network of junctions for it, were it let in from outside [m]
+    # (the roadside's count; inf: it is not entering a network: ica.core.gridlock)
+    network_room_m: float = math.inf
 
     @property
     def may_ask(self) -> bool:
@@ -359,7 +362,13 @@ class Vehicle:
                 config=cfg,
             )
             answer = link.request(
-                replace(req, t_obs_s=obs.t_s, exit_room_m=obs.exit_room_m), obs.t_s
+                replace(
+                    req,
+                    t_obs_s=obs.t_s,
+                    exit_room_m=obs.exit_room_m,
+                    network_room_m=obs.network_room_m,
+                ),
+                obs.t_s,
             )
         except RequestError as e:  # cannot even make a plan: stop and ask later
             answer = Rejection(self.vin, seq, e.reason, e.detail)

@@ -46,6 +46,7 @@ from dica.ica.core.conflict import (
     pack,
 )
 from dica.ica.core.dtot import Dtot, build_dtot
+from dica.ica.core.gridlock import QUEUE_GAP_M
 from dica.ica.core.handover import Handover
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.planner import Planner
@@ -134,6 +135,8 @@ class Dica:
         self._handovers: dict[float, Handover] = {}
         # reservations ended lately: (rear out [s], exit lane, length, vin), for the room
         self._gone: list[tuple[float, str, float, str]] = []
+        # vehicles let into a network of junctions lately: (confirmed [s], length)
+        self._entries: list[tuple[float, float]] = []
 
     def prepare(self) -> None:
         """Work a controller can do once before it serves, so that no request waits
@@ -185,6 +188,7 @@ class Dica:
             self._gone.append((c.out_s, c.dtot.route.out_lane, c.length_m, vin))
         oldest = now_s - self.config.max_request_age_s - 1.0  # the oldest t_obs still taken
         self._gone = [g for g in self._gone if g[0] > oldest]
+        self._entries = [e for e in self._entries if e[0] > oldest]
         if self.config.exit_spacing:
             for vin in gone:
                 c = self._confirmed[vin]
@@ -371,12 +375,18 @@ class Dica:
         if not self.is_head(req.vin, now_s):
             raise RequestError(Reason.NOT_HEAD, f"{req.vin} is not the head vehicle of {lane}")
         self._check_room(req, route)
+        entering = not math.isinf(float(req.network_room_m))
+        if entering and done is None:
+            self._check_network(req)
         if done is not None:
             self._withdraw(req.vin)
 
         leader = self._leader(req.vin, lane)
         found = Search(self, req, route, shape, traj, leader).best()
-        return self._store(req.vin, req.seq, found, route, shape, req.length_m)
+        conf = self._store(req.vin, req.seq, found, route, shape, req.length_m)
+        if entering and done is None:
+            self._entries.append((now_s, float(req.length_m)))
+        return conf
 
     def _store(
         self, vin: str, seq: int, found: Found, route: Route, shape: Shape, length_m: float
@@ -433,6 +443,24 @@ class Dica:
                 Reason.NO_ROOM,
                 f"{route.out_lane} has {room:.1f} m of room, {need:.1f} m needed "
                 f"({taken:.1f} m taken by vehicles confirmed onto it)",
+            )
+
+    def _check_network(self, req: Request) -> None:
+        """The network gate: a vehicle entering a network of junctions from outside is
+        confirmed only while the network has room for its queue length
+        (:mod:`ica.core.gridlock`), so no cycle of links can ever fill and stand still.
+
+        ``req.network_room_m`` is the room the vehicle observed at ``t_obs_s``; the
+        vehicles this ICA has let in since take theirs of it."""
+        t_obs = req.t0_s if math.isnan(req.t_obs_s) else req.t_obs_s
+        taken = sum(n + QUEUE_GAP_M for t, n in self._entries if t >= t_obs)
+        need = taken + float(req.length_m) + QUEUE_GAP_M
+        room = float(req.network_room_m)
+        if need > room:
+            raise RequestError(
+                Reason.NO_ROOM,
+                f"the network of junctions has {max(room, 0.0):.1f} m of room, {need:.1f} m "
+                f"needed ({taken:.1f} m taken by vehicles let in since)",
             )
 
     def exit_order(self, route: Route, out_s: float, out_mps: float) -> Conflict | None:

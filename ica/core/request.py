@@ -48,6 +48,9 @@ class Request:
     # [m] room on its exit lane beyond the junction at t_obs_s (inf: not known): the space
     # the vehicles there would take were they to queue (docs/architecture.md, "Room")
     exit_room_m: float = math.inf
+    # [m] room left in the network of junctions at t_obs_s for a vehicle entering it from
+    # outside (inf: not entering one): the network gate (ica.core.gridlock)
+    network_room_m: float = math.inf
 
 
 class Reason(StrEnum):

@@ -1,0 +1,107 @@
+"""Gridlock: how many vehicles a network of signal-free junctions may hold before a
+cycle of full links could stand still.
+
+Each ICA confirms a crossing only if the exit road has room for the vehicle
+beyond the junction (:meth:`DicaIca._check_room`), so no vehicle ever stands
+inside a junction. What that leaves is the network's own deadlock: a cycle of
+links, each so full that the vehicle at its head waits for room on the next.
+Such a cycle holds at least its capacity (:func:`cycle_capacity_m`, in metres
+of queue), so a network that never holds more than its smallest cycle's
+capacity can never stand still: the network gate admits a vehicle into it
+only while there is that much room (``docs/architecture.md``, "Gridlock").
+
+Pure: the junctions' routes in, numbers out.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections.abc import Iterable, Sequence
+
+from dica.ica.core.intersection import Intersection
+
+# [m] what one vehicle takes of a standing queue beyond its length: SUMO's standstill gap
+# (2.5 m) and a metre of slack for where a driver stops behind the one ahead
+QUEUE_GAP_M = 3.5
+# [m] how far short of its line the first vehicle of a queue may stand (the actuator
+# keeps SUMO's standstill gap to the line, with the same slack)
+LINE_GAP_M = 3.5
+
+
+def edge_of(lane: str) -> str:
+    return lane.rsplit("_", 1)[0]
+
+
+def internal_roads(inters: Iterable[Intersection]) -> frozenset[str]:
+    """Roads that leave one of the junctions and come straight into another: the
+    network's links (a vehicle on one is inside the network)."""
+    inters = list(inters)
+    outs = {edge_of(r.out_lane) for x in inters for r in x.routes}
+    ins = {edge_of(r.in_lane) for x in inters for r in x.routes}
+    return frozenset(outs & ins)
+
+
+def full_need_m(
+    inters: Iterable[Intersection],
+    max_length_m: float,
+    decel_mps2: float,
+    gap_m: float,
+    slack_m: float,
+) -> dict[str, float]:
+    """Per link, the most room a vehicle may be refused with (the downstream-space
+    rule's need: its length, the gaps, one car more and its braking distance at the
+    crossing's cap): a link with less room than this may hold a waiting vehicle back."""
+    need: dict[str, float] = {}
+    for x in inters:
+        for r in x.routes:
+            brake = r.speed_cap_mps**2 / (2.0 * decel_mps2)
+            e = edge_of(r.out_lane)
+            need[e] = max(need.get(e, 0.0), max_length_m + gap_m + slack_m + brake)
+    return need
+
+
+def link_capacity_m(inters: Sequence[Intersection], need_m: dict[str, float]) -> dict[str, float]:
+    """Per link, the least queue (vehicle lengths plus :data:`QUEUE_GAP_M` each) that can
+    leave it with less room than ``need_m``: its shortest lane, less the need and
+    where the first vehicle stands short of the line (never below zero)."""
+    links = internal_roads(inters)
+    length: dict[str, float] = {}
+    for x in inters:
+        for r in x.routes:
+            for lane, m in ((r.in_lane, r.in_lane_m), (r.out_lane, r.out_lane_m)):
+                e = edge_of(lane)
+                if e in links and math.isfinite(m):
+                    length[e] = min(length.get(e, math.inf), m)
+    return {e: max(0.0, length[e] - need_m.get(e, 0.0) - LINE_GAP_M) for e in links if e in length}
+
+
+def cycle_capacity_m(inters: Sequence[Intersection], capacity_m: dict[str, float]) -> float:
+    """The least total capacity over the cycles of links a vehicle can drive round
+    (link to link by one of the junctions' routes); inf if the links form no cycle.
+
+    A set of vehicles that wait for each other for ever waits round such a cycle,
+    every link of it full, so it holds at least this much queue."""
+    arcs: dict[str, set[str]] = {}
+    for x in inters:
+        for r in x.routes:
+            a, b = edge_of(r.in_lane), edge_of(r.out_lane)
+            if a in capacity_m and b in capacity_m:
+                arcs.setdefault(a, set()).add(b)
+    best = math.inf
+    for start in sorted(arcs):  # Dijkstra from each link back to itself
+        dist = {start: capacity_m[start]}
+        heap = [(capacity_m[start], start)]
+        while heap:
+            d, e = heapq.heappop(heap)
+            if d > dist.get(e, math.inf) or d >= best:
+                continue
+            for f in arcs.get(e, ()):
+                if f == start:
+                    best = min(best, d)
+                    continue
+                nd = d + capacity_m[f]
+                if nd < dist.get(f, math.inf):
+                    dist[f] = nd
+                    heapq.heappush(heap, (nd, f))
+    return best
