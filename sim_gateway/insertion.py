@@ -59,6 +59,9 @@ class InsertionHold:
         self.roads: set[str] = set()  # threatened this step
         self.first_road: dict[str, str] = {}  # a pending vehicle's first road, read once
         self.holds = 0  # vehicles taken out of SUMO's insertion, once each time
+        # each held vehicle's departure as the file scheduled it (put back, SUMO counts
+        # from then): its trip counts from here (sim_gateway/network_trips.py)
+        self.scheduled: dict[str, float] = {}
         self.unheld = 0  # insertions that could not be held (more than a route)
         self._routes = 0
 
@@ -142,6 +145,8 @@ class InsertionHold:
             self.unheld += 1
             return False
         v = self.ls.vehicle
+        if vid not in self.scheduled:
+            self.scheduled[vid] = self.ls.simulation.getTime() - v.getDepartDelay(vid)
         cost = v.getLength(vid) + QUEUE_GAP_M
         self.held.append(Held(vid, list(v.getRoute(vid)), v.getTypeID(vid), attrs, cost))
         v.remove(vid)

@@ -15,12 +15,19 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 
 from dica.ica.core.controller import build_controller
 from dica.ica.core.intersection import Intersection
 from dica.sim_gateway.demand import schedule_for
-from dica.sim_gateway.embedded import LocalDrivers, open_recording, record_step, request_figures
+from dica.sim_gateway.embedded import (
+    LocalDrivers,
+    open_recording,
+    record_step,
+    request_figures,
+)
+from dica.sim_gateway.network_trips import read_trips, summarize_trips
 from dica.sim_gateway.route_file import check_handovers
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
@@ -32,19 +39,29 @@ def run_network(
     inters: Sequence[Intersection],
     progress: Callable[[float, int, int], None] | None = None,
     rrd_path: Path | None = None,
+    run_dir: Path | None = None,
+    until_empty_after_s: float | None = None,
+    signalised: bool = False,
 ) -> RunResult:
-    """Run the route file through ``inters``, each junction under its own ICA core.
+    """Run the route file through ``inters``, each junction under its own ICA core (or,
+    ``signalised``, as the net's lights run them, watched and measured alike).
 
-    The recording, if asked for, shows the first junction's views.
+    With ``run_dir`` SUMO's trip records go there (unless the SUMO options name a file
+    of their own) and the result has the network's trips (``extra["network"]``,
+    ``result.net_trips``). With ``until_empty_after_s`` the run ends early once that
+    time is past and every vehicle has left. The recording, if asked for, shows the
+    first junction's views.
     """
     if not cfg.routes_path:
         raise RunError("several junctions take their vehicles from a route file (--routes)")
+    light = signalised
     spec = cfg.controller_spec()
     for inter in inters:
         schedule_for(cfg, inter, spec.config.step_s)  # each approach checked before SUMO
-    for line in check_handovers(inters, spec.config.kinematics):
-        print(f"note: {line}", file=sys.stderr)
-    icas = [build_controller(spec, inter) for inter in inters]
+    if not light:
+        for line in check_handovers(inters, spec.config.kinematics):
+            print(f"note: {line}", file=sys.stderr)
+    icas = [] if light else [build_controller(spec, inter) for inter in inters]
     for ica in icas:
         ica.prepare()
     _, _, horizon = schedule_for(cfg, inters[0], spec.config.step_s)
@@ -54,26 +71,31 @@ def run_network(
             f"{len(inters)}",
             file=sys.stderr,
         )
+    info = trip_file(cfg, run_dir)
+    if info is not None and str(info) not in cfg.sumo_args:
+        more = ("--tripinfo-output", str(info), "--tripinfo-output.write-unfinished", "true")
+        cfg = replace(cfg, sumo_args=(*cfg.sumo_args, *more))
     ls = import_libsumo()
     cmd = start_sumo(ls, cfg, spec.config.step_s)
+    closed = False
     try:
-        recorder = open_recording(inters[0], rrd_path)
+        recorder = open_recording(inters[0], rrd_path) if not light else None
         world = World(
             ls, cfg, inters[0], spec.config, [], horizon, want_xy=bool(recorder),
-            predict_s=cfg.plan_lead_s, more=tuple(inters[1:]),
+            predict_s=cfg.plan_lead_s, more=tuple(inters[1:]), signalised=light,
         )  # fmt: skip
         drivers = [LocalDrivers(ica, cfg) for ica in icas]
         try:
             while True:
                 each = world.step_each()
-                for j, d, seen in zip(world.junctions, drivers, each, strict=True):
+                for j, d, seen in zip(world.junctions, drivers, each, strict=False):
                     world.refresh_network_room(j, seen)
                     world.apply(d.step(world.t, seen), j)
                     world.counted_confirmed(j)
                 if recorder is not None:
                     record_step(recorder, drivers[0], each[0], cfg, world.t)
                 world.end_step(progress)
-                if world.done():
+                if world.done() or world.emptied(until_empty_after_s):
                     break
         finally:
             if recorder is not None:
@@ -82,9 +104,29 @@ def run_network(
         if len(drivers) > 1:
             for j, d in zip(world.junctions, drivers, strict=True):
                 result.extra["junctions"][j.inter.junction_id]["requests"] = d.requests()
+        waiting = world.waiting_to_enter()
+        scheduled = dict(world.hold.scheduled) if world.hold is not None else {}
+        end = world.t
+        ls.close()
+        closed = True
+        if info is not None:  # SUMO writes the unfinished trips as it closes
+            trips = read_trips(info, scheduled, end)
+            result.net_trips = trips
+            result.extra["network"] = summarize_trips(trips, waiting)
         return result
     finally:
-        ls.close()
+        if not closed:
+            ls.close()
+
+
+def trip_file(cfg: RunConfig, run_dir: Path | None) -> Path | None:
+    """Where SUMO writes its trip records: the file the SUMO options name, else
+    ``tripinfo.xml`` in ``run_dir`` (None: neither)."""
+    args = list(cfg.sumo_args)
+    for flag in ("--tripinfo-output", "--tripinfo"):
+        if flag in args[:-1]:
+            return Path(args[args.index(flag) + 1])
+    return None if run_dir is None else Path(run_dir) / "tripinfo.xml"
 
 
 def merged_requests(drivers: Sequence[LocalDrivers]) -> dict:

@@ -184,3 +184,5 @@ class RunResult:
     sumo_command: list[str] = field(default_factory=list)
     signal: dict | None = None
     extra: dict = field(default_factory=dict)  # mode-specific facts (clock, agents, ...)
+    # a network's trips from SUMO's records (sim_gateway/network_trips.py), if kept
+    net_trips: list | None = None

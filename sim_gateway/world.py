@@ -86,8 +86,9 @@ class World:
         if cfg.routes_path:
             rf = read_route_file(Path(cfg.routes_path))
             check_types(ls, rf, ica_cfg.kinematics)
-            longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
-            self.gate = NetworkGate((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
+            if not signalised:  # lights do not hold vehicles for room: no gate
+                longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
+                self.gate = NetworkGate((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
             self.hold = InsertionHold(ls, rf, self.gate)
         define_vehicle_types(ls, ica_cfg, cfg.length_m, cfg.width_m, any(v.ev for v in schedule))
         self.junctions = [
@@ -294,6 +295,19 @@ class World:
             self._last_sample = self.t
         if progress is not None:
             progress(self.t, self.waiting, self.crossed)
+
+    def emptied(self, after_s: float | None) -> bool:
+        """Whether ``after_s`` is past and every vehicle has left (none in SUMO, none
+        due, none held out of it)."""
+        if after_s is None or self.t < after_s:
+            return False
+        held = self.hold.held if self.hold is not None else ()
+        return not held and self.ls.simulation.getMinExpectedNumber() == 0
+
+    def waiting_to_enter(self) -> int:
+        """Vehicles due that SUMO has not inserted yet (or the hold keeps out)."""
+        held = len(self.hold.held) if self.hold is not None else 0
+        return len(self.ls.simulation.getPendingVehicles()) + held
 
     def done(self) -> bool:
         scheduled = len(self.junction.schedule)

@@ -36,6 +36,7 @@ FILE_TIER = {
     "test_user_nets.py": "sumo",
     "test_network.py": "sumo",
     "test_gridlock.py": "sumo",
+    "test_network_runs.py": "sumo",
     "test_signals.py": "sumo",
     "test_attack.py": "cluster",
     "test_cluster.py": "cluster",

@@ -360,6 +360,11 @@ def parser() -> argparse.ArgumentParser:
         help="the link emulator: delay, jitter, loss, duplication, reordering (see its --help)",
     )
     sub.add_parser("report", help="markdown tables and PNG plots from runs (see its --help)")
+    sub.add_parser(
+        "network",
+        help="a network of junctions (built-in corridor or 3x3 grid, or your net), every "
+        "one signal-free or by lights, measured per vehicle (see its --help)",
+    )
 
     b = sub.add_parser(
         "bench",
@@ -400,10 +405,11 @@ BENCHES = ("ica", "run", "cluster", "timing", "ordering", "routes")
 
 def _dispatch(argv: list[str]) -> int:
     # these subcommands parse their own options (and --help)
-    if argv and argv[0] in ("experiment", "report", "link"):
-        from dica.tools import experiment, link, report
+    if argv and argv[0] in ("experiment", "report", "link", "network"):
+        from dica.tools import experiment, link, network, report
 
-        return {"experiment": experiment, "report": report, "link": link}[argv[0]].main(argv[1:])
+        cmds = {"experiment": experiment, "report": report, "link": link, "network": network}
+        return cmds[argv[0]].main(argv[1:])
     if len(argv) >= 2 and argv[0] == "bench" and argv[1] in BENCHES:
         from dica.tools import (
             bench_cluster,

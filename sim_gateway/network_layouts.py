@@ -1,0 +1,94 @@
+"""The built-in networks: a corridor of four junctions and a 3x3 grid, from plain XML.
+
+City streets at 50 km/h, two lanes each way (so two lanes on every approach),
+250 m blocks, and 250 m arms beyond the outer junctions where vehicles come in
+and leave. Built signal-free (priority junctions, every junction under its own
+ICA) or with SUMO's lights (``static``: the programs netconvert makes;
+``actuated``: SUMO's gap-based actuation), from the same nodes and edges, so a
+comparison differs in the control alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from dica.sim_gateway.scenario import (
+    NETCONVERT_FLAGS,
+    ScenarioError,
+    _netconvert,
+    netconvert_binary,
+)
+
+NETWORKS: tuple[str, ...] = ("corridor", "grid")
+LIGHTS: tuple[str, ...] = ("static", "actuated")
+BLOCK_M = 250.0
+ARM_M = 250.0
+LANES = 2
+CITY_MPS = 13.89  # 50 km/h
+
+
+@dataclass(frozen=True)
+class BuiltNetwork:
+    name: str
+    net_path: Path
+    junctions: tuple[str, ...]  # every junction of the network, west to east, south to north
+
+
+def _layout(name: str) -> list[tuple[int, int]]:
+    """The junctions' grid cells (column, row)."""
+    if name == "corridor":
+        return [(i, 0) for i in range(4)]
+    if name == "grid":
+        return [(i, j) for j in range(3) for i in range(3)]
+    raise ScenarioError(f"unknown network {name!r}; built-in networks: {', '.join(NETWORKS)}")
+
+
+def junction_name(i: int, j: int) -> str:
+    """``J<col><row>``: J00 is the south-west junction."""
+    return f"J{i}{j}"
+
+
+def build_network(name: str, out_dir: Path, lights: str | None = None) -> BuiltNetwork:
+    """Write ``<name>[-<lights>].{nod,edg}.xml`` and build the net in ``out_dir``."""
+    cells = _layout(name)
+    if lights is not None and lights not in LIGHTS:
+        raise ScenarioError(f"unknown lights {lights!r}; known: {', '.join(LIGHTS)}")
+    kind = "priority" if lights is None else "traffic_light"
+    nodes, edges = [], []
+    ids = {c: junction_name(*c) for c in cells}
+    for (i, j), jid in ids.items():
+        nodes.append(
+            f'  <node id="{jid}" x="{i * BLOCK_M:.1f}" y="{j * BLOCK_M:.1f}" type="{kind}"/>'
+        )
+    # each junction's four neighbours: another junction or an arm's far end
+    ends: dict[str, tuple[float, float]] = {}
+    links: set[tuple[str, str]] = set()
+    for (i, j), jid in ids.items():
+        for di, dj, side in ((1, 0, "E"), (-1, 0, "W"), (0, 1, "N"), (0, -1, "S")):
+            other = ids.get((i + di, j + dj))
+            if other is None:
+                end = f"{side}{i}{j}"
+                ends[end] = (i * BLOCK_M + di * ARM_M, j * BLOCK_M + dj * ARM_M)
+                links.add((end, jid))
+                links.add((jid, end))
+            else:
+                links.add((jid, other))
+    for end, (x, y) in sorted(ends.items()):
+        nodes.append(f'  <node id="{end}" x="{x:.1f}" y="{y:.1f}"/>')
+    for a, b in sorted(links):
+        edges.append(
+            f'  <edge id="{a}_{b}" from="{a}" to="{b}" numLanes="{LANES}" speed="{CITY_MPS}"/>'
+        )
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = name if lights is None else f"{name}-{lights}"
+    nod, edg, net = (out_dir / f"{stem}.{k}.xml" for k in ("nod", "edg", "net"))
+    nod.write_text("<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n")
+    edg.write_text("<edges>\n" + "\n".join(edges) + "\n</edges>\n")
+    flags = list(NETCONVERT_FLAGS)
+    if lights is not None:
+        flags += ["--tls.default-type", lights]
+    cmd = [netconvert_binary(), "-n", str(nod), "-e", str(edg), *flags, "-o", str(net)]
+    _netconvert(cmd, net)
+    return BuiltNetwork(name, net, tuple(ids[c] for c in cells))

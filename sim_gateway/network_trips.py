@@ -1,0 +1,106 @@
+"""Trips through a network, from SUMO's own trip records: travel time and delay from
+each vehicle's scheduled departure (waiting to be inserted included), and stops.
+
+SUMO writes a record per vehicle (``--tripinfo-output``, with the unfinished at
+the end): its departure and how long it waited to be inserted, its arrival, its
+time lost against driving at its ideal speed all the way, and how often it
+stood. The same records serve every control compared on a network (signal-free
+or lights), so the figures differ in the control alone. A vehicle the
+insertion hold took out of SUMO is counted from the departure its file
+scheduled, not from when it was put back.
+"""
+
+from __future__ import annotations
+
+import csv
+import math
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from dataclasses import astuple, dataclass, fields
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True, slots=True)
+class NetTrip:
+    vid: str
+    scheduled_s: float  # when its file had it depart
+    depart_s: float  # when SUMO inserted it
+    arrival_s: float  # NaN: still in the net at the end
+    travel_s: float  # arrival (or the end) less the scheduled departure
+    free_s: float  # the same route at its ideal speed (SUMO's duration less its time loss)
+    delay_s: float  # travel_s less free_s
+    stops: int  # how often it stood (SUMO's waitingCount)
+    route_m: float
+
+    @property
+    def finished(self) -> bool:
+        return not math.isnan(self.arrival_s)
+
+
+def read_trips(path: Path, scheduled: Mapping[str, float], end_s: float) -> list[NetTrip]:
+    """Each vehicle's trip from SUMO's tripinfo file; a vehicle SUMO recorded twice (taken
+    back after its first insertion, then put back) by its later record."""
+    last: dict[str, ET.Element] = {}
+    for el in ET.parse(path).getroot():
+        if el.tag == "tripinfo" and not el.get("vaporized"):
+            last[el.get("id", "")] = el
+    trips = []
+    for vid, el in last.items():
+        depart = float(el.get("depart", "nan"))
+        due = scheduled.get(vid, depart - float(el.get("departDelay", "0")))
+        arrival = float(el.get("arrival", "-1"))
+        done = arrival >= 0.0
+        duration = float(el.get("duration", "nan"))
+        loss = float(el.get("timeLoss", "0"))
+        travel = (arrival if done else end_s) - due
+        free = duration - loss
+        trips.append(
+            NetTrip(
+                vid,
+                due,
+                depart,
+                arrival if done else math.nan,
+                travel,
+                free,
+                travel - free,
+                int(el.get("waitingCount", "0")),
+                float(el.get("routeLength", "nan")),
+            )
+        )
+    return trips
+
+
+def summarize_trips(trips: list[NetTrip], waiting_to_enter: int) -> dict:
+    """The network's figures: vehicles, finished, mean and p95 delay and travel time over
+    the finished, stops; the unfinished (in the net at the end, or never inserted)."""
+    done = [t for t in trips if t.finished]
+    generated = len(trips) + waiting_to_enter
+
+    def stat(values: list[float], q: float | None = None) -> float:
+        if not values:
+            return math.nan
+        return float(np.percentile(values, q)) if q is not None else float(np.mean(values))
+
+    delays = [t.delay_s for t in done]
+    return {
+        "vehicles": generated,
+        "finished": len(done),
+        "finished_rate": len(done) / generated if generated else math.nan,
+        "in_net_at_end": len(trips) - len(done),
+        "waiting_to_enter_at_end": waiting_to_enter,
+        "mean_travel_time_s": stat([t.travel_s for t in done]),
+        "mean_delay_s": stat(delays),
+        "p95_delay_s": stat(delays, 95.0),
+        "max_delay_s": max(delays) if delays else math.nan,
+        "mean_stops": stat([float(t.stops) for t in done]),
+    }
+
+
+def write_trips_csv(path: Path, trips: list[NetTrip]) -> None:
+    with path.open("w", newline="") as f:
+        w = csv.writer(f)
+        w.writerow([x.name for x in fields(NetTrip)])
+        for t in sorted(trips, key=lambda t: (t.scheduled_s, t.vid)):
+            w.writerow([round(x, 3) if isinstance(x, float) else x for x in astuple(t)])

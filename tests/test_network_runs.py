@@ -1,0 +1,137 @@
+"""The built-in networks and their origin-destination demand, and ``dica network``: every
+junction signal-free or by lights on the same roads and the same vehicles, measured per
+vehicle from SUMO's own trip records, zero collisions by both checks."""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from collections import Counter
+from pathlib import Path
+
+import pytest
+
+from dica.ica.netfile import crossing_junctions
+from dica.sim_gateway.network_layouts import build_network
+from dica.sim_gateway.od_demand import OdDemand, read_turns, write_od_routes
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory: pytest.TempPathFactory):
+    d = tmp_path_factory.mktemp("networks")
+    return {n: build_network(n, d) for n in ("corridor", "grid")}
+
+
+def _routes(path: Path) -> list[tuple[float, list[str]]]:
+    return [
+        (float(v.get("depart")), v.find("route").get("edges").split())
+        for v in ET.parse(path).getroot().iter("vehicle")
+    ]
+
+
+def test_the_networks_are_a_corridor_of_four_and_a_3x3_grid(built):
+    assert crossing_junctions(built["corridor"].net_path) == ("J00", "J10", "J20", "J30")
+    assert len(crossing_junctions(built["grid"].net_path)) == 9
+    turns = read_turns(built["grid"].net_path, built["grid"].junctions)
+    assert len(turns.entries) == 12  # three roads in on each side
+    assert len(read_turns(built["corridor"].net_path, built["corridor"].junctions).entries) == 10
+
+
+def test_the_demand_comes_in_at_every_entry_at_its_volume_and_turns_by_the_ratios(built, tmp_path):
+    g = built["grid"]
+    out = tmp_path / "od.rou.xml"
+    n = write_od_routes(g.net_path, g.junctions, OdDemand(600.0, 1800.0, seed=3), out)
+    routes = _routes(out)
+    assert n == len(routes)
+    per_entry = Counter(edges[0] for _, edges in routes)
+    assert len(per_entry) == 12
+    for entry, count in per_entry.items():  # Poisson, 300 expected: within 4 sigma
+        assert abs(count - 300) < 4 * 300**0.5, (entry, count)
+    departs = [t for t, _ in routes]
+    assert departs == sorted(departs) and departs[0] > 0.0 and departs[-1] < 1800.0
+    # at the first junction: through where the road goes on, by the ratios
+    turns = read_turns(g.net_path, g.junctions)
+    first = Counter()
+    for _, edges in routes:
+        for t in ("left", "through", "right"):
+            if edges[1] in turns.next.get((edges[0], t), ()):
+                first[t] += 1
+    total = sum(first.values())
+    assert total == len(routes)
+    assert abs(first["through"] / total - 0.6) < 0.03
+    assert abs(first["left"] / total - 0.2) < 0.03
+    # every route is connected road to road and ends on a road out of the network
+    for _, edges in routes:
+        assert edges[-1] not in turns.inside
+        for a, b in itertools.pairwise(edges):
+            assert any(b in turns.next.get((a, t), ()) for t in ("left", "through", "right"))
+
+
+def test_the_same_seed_draws_the_same_vehicles(built, tmp_path):
+    g = built["corridor"]
+    a, b, c = (tmp_path / f"{k}.rou.xml" for k in "abc")
+    write_od_routes(g.net_path, g.junctions, OdDemand(300.0, 300.0, seed=21), a)
+    write_od_routes(g.net_path, g.junctions, OdDemand(300.0, 300.0, seed=21), b)
+    write_od_routes(g.net_path, g.junctions, OdDemand(300.0, 300.0, seed=66), c)
+    assert a.read_text() == b.read_text() != c.read_text()
+
+
+def _network(tmp_path: Path, *args: str) -> tuple[subprocess.CompletedProcess, Path]:
+    out = tmp_path / "run"
+    p = subprocess.run(
+        [sys.executable, "-m", "dica.tools.cli", "network", *args, "--out", str(out), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=600,
+    )  # fmt: skip
+    return p, out
+
+
+@pytest.mark.parametrize("control", ["dica", "actuated"])
+def test_a_corridor_runs_signal_free_and_by_lights_and_every_vehicle_leaves(tmp_path, control):
+    p, out = _network(
+        tmp_path, "--layout", "corridor", "--control", control, "--volume", "500",
+        "--duration", "180",
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    net = m["network"]
+    drawn = m["network_run"]["drawn_vehicles"]
+    assert net["vehicles"] == net["finished"] == drawn > 80
+    assert net["in_net_at_end"] == net["waiting_to_enter_at_end"] == 0
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    assert m["sumo_collisions_elsewhere"] == 0 and m["unconfirmed_entries"] == 0
+    assert set(m["junctions"]) == {"J00", "J10", "J20", "J30"}
+    with (out / "trips.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert len(rows) == drawn
+    assert all(float(r["delay_s"]) > -1.0 for r in rows)  # never faster than free flow
+    assert min(float(r["scheduled_s"]) for r in rows) >= 0.0
+    if control == "dica":
+        assert m["stood_inside"] == 0 and m["requests"]["count"] > drawn
+    else:
+        assert m["requests"]["count"] == 0  # the lights decide: no ICA
+    assert f"corridor, {control}: {drawn} vehicles, {drawn} finished" in p.stdout
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--turns", "1,2"], "--turns wants three ratios"),
+        (["--turns", "0,0,0"], "--turns wants three ratios"),
+        (["--junctions", "J00"], "a built-in layout runs all"),
+        (["--control", "static", "--algorithm", "basic"], "--algorithm is DICA's"),
+        (["--net", "nowhere.net.xml"], "network file not found"),
+        (["--volume", "-3"], "--volume must be a number of vehicles per hour"),
+        (["--routes", "nowhere.rou.xml"], "route file not found"),
+    ],
+)
+def test_what_a_network_run_cannot_serve_is_refused_in_one_line(tmp_path, args, says):
+    p, _ = _network(tmp_path, *args)
+    assert p.returncode == 2, p.stderr
+    assert says in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+    assert "Traceback" not in p.stderr
