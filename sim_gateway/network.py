@@ -27,11 +27,15 @@ from dica.sim_gateway.embedded import (
     record_step,
     request_figures,
 )
+from dica.sim_gateway.light_control import light_of
+from dica.sim_gateway.max_pressure import MaxPressure
 from dica.sim_gateway.network_trips import read_trips, summarize_trips
 from dica.sim_gateway.route_file import check_handovers
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
 from dica.sim_gateway.world import World
+
+LIGHT_CONTROLS = ("program", "max-pressure")
 
 
 def run_network(
@@ -41,10 +45,12 @@ def run_network(
     rrd_path: Path | None = None,
     run_dir: Path | None = None,
     until_empty_after_s: float | None = None,
-    signalised: bool = False,
+    lights: str | None = None,
 ) -> RunResult:
-    """Run the route file through ``inters``, each junction under its own ICA core (or,
-    ``signalised``, as the net's lights run them, watched and measured alike).
+    """Run the route file through ``inters``, each junction under its own ICA core, or
+    by the net's lights, watched and measured alike: ``lights`` ``program`` runs them as
+    the net (and the SUMO options' additional files) have them, ``max-pressure`` under
+    :class:`~sim_gateway.max_pressure.MaxPressure`.
 
     With ``run_dir`` SUMO's trip records go there (unless the SUMO options name a file
     of their own) and the result has the network's trips (``extra["network"]``,
@@ -54,7 +60,9 @@ def run_network(
     """
     if not cfg.routes_path:
         raise RunError("several junctions take their vehicles from a route file (--routes)")
-    light = signalised
+    if lights not in (None, *LIGHT_CONTROLS):
+        raise RunError(f"unknown light control {lights!r}; known: {', '.join(LIGHT_CONTROLS)}")
+    light = lights is not None
     spec = cfg.controller_spec()
     for inter in inters:
         schedule_for(cfg, inter, spec.config.step_s)  # each approach checked before SUMO
@@ -85,8 +93,14 @@ def run_network(
             predict_s=cfg.plan_lead_s, more=tuple(inters[1:]), signalised=light,
         )  # fmt: skip
         drivers = [LocalDrivers(ica, cfg) for ica in icas]
+        pressure = None
+        if lights == "max-pressure":
+            ids = dict.fromkeys(light_of(ls, x) for x in inters)
+            pressure = MaxPressure(ls, ids)
         try:
             while True:
+                if pressure is not None:
+                    pressure.step(world.t)
                 each = world.step_each()
                 for j, d, seen in zip(world.junctions, drivers, each, strict=False):
                     world.refresh_network_room(j, seen)
@@ -101,6 +115,8 @@ def run_network(
             if recorder is not None:
                 recorder.close()
         result = world.result(merged_requests(drivers), cmd)
+        if pressure is not None:
+            result.extra["max_pressure_switches"] = pressure.switches
         if len(drivers) > 1:
             for j, d in zip(world.junctions, drivers, strict=True):
                 result.extra["junctions"][j.inter.junction_id]["requests"] = d.requests()

@@ -5,11 +5,14 @@ City streets at 50 km/h, two lanes each way (so two lanes on every approach),
 and leave. Built signal-free (priority junctions, every junction under its own
 ICA) or with SUMO's lights (``static``: the programs netconvert makes;
 ``actuated``: SUMO's gap-based actuation), from the same nodes and edges, so a
-comparison differs in the control alone.
+comparison differs in the control alone. The lights get safe clearances: a
+yellow and an all-red after every green from the usual formulas
+(:mod:`sim_gateway.signals`) over the junctions' own ways through.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +22,9 @@ from dica.sim_gateway.scenario import (
     _netconvert,
     netconvert_binary,
 )
+from dica.sim_gateway.signals import all_red_time_s, yellow_time_s
+
+CAR_M = 5.0  # the demand's vehicles' length (sim_gateway.od_demand)
 
 NETWORKS: tuple[str, ...] = ("corridor", "grid")
 LIGHTS: tuple[str, ...] = ("static", "actuated")
@@ -33,6 +39,7 @@ class BuiltNetwork:
     name: str
     net_path: Path
     junctions: tuple[str, ...]  # every junction of the network, west to east, south to north
+    clearance_s: tuple[float, float] | None = None  # the lights' yellow and all-red
 
 
 def _layout(name: str) -> list[tuple[int, int]]:
@@ -87,8 +94,37 @@ def build_network(name: str, out_dir: Path, lights: str | None = None) -> BuiltN
     nod.write_text("<nodes>\n" + "\n".join(nodes) + "\n</nodes>\n")
     edg.write_text("<edges>\n" + "\n".join(edges) + "\n</edges>\n")
     flags = list(NETCONVERT_FLAGS)
+    clearance = None
     if lights is not None:
-        flags += ["--tls.default-type", lights]
+        free = build_network(name, out_dir)  # the same ways through, without lights
+        clearance = clearance_s(free.net_path, free.junctions)
+        flags += ["--tls.default-type", lights, "--tls.yellow.time", f"{clearance[0]:g}",
+                  "--tls.allred.time", f"{clearance[1]:g}"]  # fmt: skip
     cmd = [netconvert_binary(), "-n", str(nod), "-e", str(edg), *flags, "-o", str(net)]
     _netconvert(cmd, net)
-    return BuiltNetwork(name, net, tuple(ids[c] for c in cells))
+    return BuiltNetwork(name, net, tuple(ids[c] for c in cells), clearance)
+
+
+def clearance_s(net_path: Path, junctions: tuple[str, ...]) -> tuple[float, float]:
+    """Yellow and all-red for every light of the network, rounded up to whole seconds
+    (netconvert takes no fractions): the
+    longest the formulas ask over the junctions' links (a vehicle too close to stop
+    when the yellow starts reaches the line before it ends; one that crossed the line
+    as it ended is out of the junction before a conflicting link turns green)."""
+    import sumolib
+
+    net = sumolib.net.readNet(str(net_path), withInternal=True)
+    yellow = red = 0.0
+    for jid in junctions:
+        for c in net.getNode(jid).getConnections():
+            approach = c.getFromLane().getSpeed()
+            yellow = max(yellow, yellow_time_s(approach))
+            way, speed, lane = 0.0, approach, c.getViaLaneID()
+            while lane:
+                internal = net.getLane(lane)
+                way += internal.getLength()
+                speed = min(speed, internal.getSpeed())
+                nxt = [x for x in internal.getOutgoing() if x.getViaLaneID()]
+                lane = nxt[0].getViaLaneID() if nxt else ""
+            red = max(red, all_red_time_s(way, CAR_M, speed))
+    return float(math.ceil(yellow)), float(math.ceil(red))

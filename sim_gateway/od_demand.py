@@ -41,6 +41,8 @@ class OdDemand:
     duration_s: float  # vehicles come in over [0, duration_s)
     seed: int = 12
     turns: tuple[float, float, float] = (0.2, 0.6, 0.2)  # left, through, right
+    # vehicles per hour on particular entries (road ids), instead of volume_vph
+    entry_vph: tuple[tuple[str, float], ...] = ()
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.volume_vph) and self.volume_vph >= 0.0):
@@ -51,6 +53,9 @@ class OdDemand:
             raise DemandError(
                 f"turning ratios are three numbers >= 0 (left, through, right), got {self.turns}"
             )
+        for road, vph in self.entry_vph:
+            if not (math.isfinite(vph) and vph >= 0.0):
+                raise DemandError(f"the volume on {road} must be vehicles per hour >= 0, got {vph}")
 
 
 @dataclass(frozen=True)
@@ -121,8 +126,14 @@ def write_od_routes(net_path: Path, junctions: Sequence[str], demand: OdDemand, 
     turns = read_turns(net_path, junctions)
     rng = np.random.default_rng(demand.seed)
     rows: list[tuple[float, str, list[str]]] = []
-    rate = demand.volume_vph / 3600.0
+    own = dict(demand.entry_vph)
+    unknown = sorted(set(own) - set(turns.entries))
+    if unknown:
+        raise DemandError(
+            f"{unknown[0]} is not a road into the network; its roads in: {', '.join(turns.entries)}"
+        )
     for entry in turns.entries:
+        rate = own.get(entry, demand.volume_vph) / 3600.0
         t = 0.0
         while rate > 0.0:
             t += float(rng.exponential(1.0 / rate))

@@ -91,12 +91,27 @@ def _network(tmp_path: Path, *args: str) -> tuple[subprocess.CompletedProcess, P
     return p, out
 
 
-@pytest.mark.parametrize("control", ["dica", "actuated"])
-def test_a_corridor_runs_signal_free_and_by_lights_and_every_vehicle_leaves(tmp_path, control):
-    p, out = _network(
-        tmp_path, "--layout", "corridor", "--control", control, "--volume", "500",
-        "--duration", "180",
-    )  # fmt: skip
+CONTROLS = ("dica", "static", "actuated", "coordinated", "max-pressure")
+
+
+@pytest.fixture(scope="module")
+def corridor_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple]:
+    """The corridor under every control, the same vehicles (an arterial at 700 an hour each
+    way, the side roads at 250), for 180 s."""
+    d = tmp_path_factory.mktemp("corridor")
+    runs = {}
+    for control in CONTROLS:
+        runs[control] = _network(
+            d / control, "--layout", "corridor", "--control", control, "--volume", "250",
+            "--entry-volume", "W00_J00=700", "--entry-volume", "E30_J30=700",
+            "--duration", "180",
+        )  # fmt: skip
+    return runs
+
+
+@pytest.mark.parametrize("control", CONTROLS)
+def test_a_corridor_runs_signal_free_and_by_lights_and_every_vehicle_leaves(corridor_runs, control):
+    p, out = corridor_runs[control]
     assert p.returncode == 0, p.stderr
     m = json.loads((out / "metrics.json").read_text())
     net = m["network"]
@@ -115,7 +130,48 @@ def test_a_corridor_runs_signal_free_and_by_lights_and_every_vehicle_leaves(tmp_
         assert m["stood_inside"] == 0 and m["requests"]["count"] > drawn
     else:
         assert m["requests"]["count"] == 0  # the lights decide: no ICA
+    if control == "max-pressure":
+        assert m["max_pressure_switches"] > 10
+    if control == "coordinated":
+        offsets = ET.parse(out / "offsets.add.xml").getroot().findall("tlLogic")
+        assert len(offsets) == 4 and len({o.get("offset") for o in offsets}) > 1
     assert f"corridor, {control}: {drawn} vehicles, {drawn} finished" in p.stdout
+
+
+def test_every_control_sees_the_same_vehicles(corridor_runs):
+    demands = {c: (out / "od.rou.xml").read_text() for c, (_, out) in corridor_runs.items()}
+    assert len(set(demands.values())) == 1
+
+
+def test_the_lights_clear_every_green_with_a_yellow_and_an_all_red(tmp_path):
+    lit = build_network("corridor", tmp_path, "static")
+    assert lit.clearance_s == (4.0, 3.0)  # 1 s + 13.89 / 6; the longest left turn's way
+    root = ET.parse(lit.net_path).getroot()
+    for tl in root.iter("tlLogic"):
+        states = [(float(p.get("duration")), p.get("state")) for p in tl.iter("phase")]
+        for i, (_, state) in enumerate(states):
+            if "G" in state:  # a green: then a yellow, then all red
+                y, r = states[(i + 1) % len(states)], states[(i + 2) % len(states)]
+                assert "y" in y[1] and y[0] == 4.0
+                assert set(r[1]) == {"r"} and r[0] == 3.0
+
+
+def test_the_report_puts_the_signal_free_network_beside_the_best_light(corridor_runs, tmp_path):
+    root = next(iter(corridor_runs.values()))[1].parent.parent
+    p = subprocess.run(
+        [sys.executable, "-m", "dica.tools.cli", "report", str(root), "--out", str(tmp_path)],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "5 network runs in 5 groups" in p.stdout
+    md = (tmp_path / "networks.md").read_text()
+    for control in CONTROLS:
+        assert (
+            f"| corridor | 250/h per entry, E30_J30 700/h, W00_J00 700/h, 180 s | {control} |" in md
+        )
+    best = [ln for ln in md.splitlines() if ln.startswith("| corridor |") and "/ " in ln]
+    assert len(best) == 1  # one comparison row: DICA against the best of the three lights
+    assert (tmp_path / "network-corridor-delay.png").stat().st_size > 10_000
 
 
 @pytest.mark.parametrize(

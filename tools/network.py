@@ -25,12 +25,21 @@ from pathlib import Path
 from dica.tools import options
 from dica.tools.options import UsageError
 
-CONTROLS = ("dica", "static", "actuated")
+CONTROLS = ("dica", "static", "actuated", "coordinated", "max-pressure")
+# how run_network runs each control's lights (None: signal-free)
+LIGHTS_BY_CONTROL = {"dica": None, "static": "program", "actuated": "program",
+                     "coordinated": "program", "max-pressure": "max-pressure"}  # fmt: skip
+# the lights each control's net is built with
+NET_LIGHTS = {"static": "static", "actuated": "actuated", "coordinated": "static",
+              "max-pressure": "static"}  # fmt: skip
 DESCRIPTION = (
     "A network of junctions, every one signal-free under its own ICA (--control dica) or run "
-    "by lights (static: fixed-time programs; actuated: SUMO's actuated lights). The built-in "
-    "networks (--layout corridor|grid) are built from the same plain XML for every control; "
-    "your net (--net) runs as it is or with its lights rebuilt actuated. Vehicles come from "
+    "by lights with safe clearances: static (fixed-time programs), actuated (SUMO's actuated "
+    "lights), coordinated (fixed-time with green-wave offsets for the demand's main flows, "
+    "SUMO's tlsCoordinator) or max-pressure (the standard adaptive network controller). The "
+    "built-in networks (--layout corridor|grid) are built from the same plain XML for every "
+    "control; your net (--net) runs as it is or with its lights rebuilt actuated (its own "
+    "programs for static, coordinated and max-pressure). Vehicles come from "
     "--routes, or are drawn: --volume vehicles per hour on every road into the network, "
     "turning by --turns at each junction, for --duration seconds; the run goes on until "
     "every vehicle has left (at most --drain seconds more). Writes metrics.json (network: "
@@ -51,6 +60,17 @@ def _turns(text: str) -> tuple[float, float, float]:
     return parts  # type: ignore[return-value]
 
 
+def _entry(text: str) -> tuple[str, float]:
+    road, _, vph = text.partition("=")
+    try:
+        value = float(vph)
+    except ValueError:
+        value = math.nan
+    if not road or not (math.isfinite(value) and value >= 0.0):
+        raise UsageError(f"--entry-volume wants ROAD=VEHICLES_PER_HOUR, got {text!r}")
+    return road, value
+
+
 def parser() -> options.Parser:
     p = options.Parser(
         prog="dica network",
@@ -67,7 +87,8 @@ def parser() -> options.Parser:
     p.add_argument("--control", choices=CONTROLS, default="dica",
                    help="dica: every junction signal-free under its own ICA (default); static: "
                    "fixed-time lights (netconvert's programs, or your net's own); actuated: "
-                   "SUMO's actuated lights")  # fmt: skip
+                   "SUMO's actuated lights; coordinated: fixed-time with green-wave offsets; "
+                   "max-pressure: adaptive, junction by junction")  # fmt: skip
     p.add_argument(
         "--algorithm",
         default="enhanced",
@@ -80,6 +101,10 @@ def parser() -> options.Parser:
         default=300.0,
         help="vehicles per hour on every road into the network (default 300)",
     )
+    p.add_argument("--entry-volume", action="append", type=_entry, default=[],
+                   metavar="ROAD=VPH", help="vehicles per hour on one road into the network "
+                   "instead of --volume (repeat for more roads; e.g. the corridor's "
+                   "arterial: W00_J00 and E30_J30)")  # fmt: skip
     p.add_argument("--turns", type=_turns, default=(0.2, 0.6, 0.2), metavar="L,T,R",
                    help="turning ratios at each junction (default 0.2,0.6,0.2)")  # fmt: skip
     p.add_argument("--seed", type=int, default=12, help="the drawn demand's seed (default 12)")
@@ -132,14 +157,19 @@ def _main(argv: list[str] | None) -> int:
         n = None
         if routes is None:
             routes = out / "od.rou.xml"
-            demand = OdDemand(args.volume, args.duration, args.seed, args.turns)
+            demand = OdDemand(
+                args.volume, args.duration, args.seed, args.turns, tuple(args.entry_volume)
+            )
             n = write_od_routes(free_net, junctions, demand, routes)
         elif not routes.is_file():
             raise UsageError(f"route file not found: {routes}")
+        extra: tuple[str, ...] = ()
+        if args.control == "coordinated":
+            extra = ("--additional-files", str(_offsets(net, routes, out)))
         cfg = RunConfig(
             net_path=str(net), junction_id=junctions[0], routes_path=str(routes),
             junction_ids=junctions if len(junctions) > 1 else (), algorithm=args.algorithm,
-            duration_s=args.duration + args.drain, seed=args.seed,
+            duration_s=args.duration + args.drain, seed=args.seed, sumo_args=extra,
         )  # fmt: skip
         inters = [load_intersection(str(net), j) for j in junctions]
     except (RunError, NetworkError, ScenarioError, DemandError) as e:
@@ -157,7 +187,7 @@ def _main(argv: list[str] | None) -> int:
         try:
             result = run_network(
                 cfg, inters, progress=tick, run_dir=out, until_empty_after_s=args.duration,
-                signalised=args.control != "dica",
+                lights=LIGHTS_BY_CONTROL[args.control],
             )  # fmt: skip
         except RunError as e:
             raise UsageError(str(e)) from None
@@ -166,6 +196,7 @@ def _main(argv: list[str] | None) -> int:
         "algorithm": args.algorithm if args.control == "dica" else None,
         "junctions": list(junctions), "routes": str(routes),
         "volume_vph": None if args.routes else args.volume,
+        "entry_vph": None if args.routes else dict(args.entry_volume),
         "turns": None if args.routes else list(args.turns), "seed": args.seed,
         "demand_s": args.duration, "drawn_vehicles": n,
     }  # fmt: skip
@@ -183,7 +214,9 @@ def _nets(args, layout: str | None, out: Path) -> tuple[Path, Path, tuple[str, .
 
     if layout is not None:
         free = build_network(layout, out / "net")
-        lit = free if args.control == "dica" else build_network(layout, out / "net", args.control)
+        lit = free
+        if args.control != "dica":
+            lit = build_network(layout, out / "net", NET_LIGHTS[args.control])
         return lit.net_path, free.net_path, free.junctions
     if not args.net.is_file():
         raise UsageError(f"network file not found: {args.net}")
@@ -191,6 +224,25 @@ def _nets(args, layout: str | None, out: Path) -> tuple[Path, Path, tuple[str, .
     if args.control == "actuated":
         return _actuated(args.net, out / "net"), args.net, junctions
     return args.net, args.net, junctions
+
+
+def _offsets(net: Path, routes: Path, out: Path) -> Path:
+    """Green-wave offsets of the net's fixed-time lights for the demand's main flows, by
+    SUMO's own tlsCoordinator (at 0.9 x the limit, the demand's drivers' pace from a
+    standing start), as an additional file."""
+    import subprocess
+
+    import sumo
+
+    tool = Path(sumo.SUMO_HOME) / "tools" / "tlsCoordinator.py"
+    offsets = out / "offsets.add.xml"
+    cmd = [sys.executable, str(tool), "-n", str(net), "-r", str(routes), "-o", str(offsets),
+           "--speed-factor", "0.9"]  # fmt: skip
+    p = subprocess.run(cmd, capture_output=True, text=True, timeout=300, check=False)
+    if p.returncode != 0 or not offsets.is_file():
+        tail = " | ".join(p.stderr.strip().splitlines()[-3:])
+        raise UsageError(f"tlsCoordinator could not coordinate {net.name}: {tail}")
+    return offsets
 
 
 def _actuated(net: Path, out_dir: Path) -> Path:

@@ -39,6 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from dica.tools import options
+from dica.tools.network_report import load_network_runs
+from dica.tools.network_report import write_report as write_network_report
 
 FIELDS = [
     ("throughput", "rho", "{:.3f}"),
@@ -66,6 +68,8 @@ def load_runs(root: Path) -> list[dict]:
         if not cfg_path.exists():
             continue
         metrics = json.loads(m.read_text())
+        if "network_run" in metrics:  # a dica network run: tools/network_report.py
+            continue
         cfg = json.loads(cfg_path.read_text())["run"]
         weights = cfg.get("approach_weights") or []
         shape = []
@@ -457,7 +461,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"dica report: no such directory: {args.runs}", file=sys.stderr)
         return 2
     runs = load_runs(args.runs)
-    if not runs:
+    network_runs = load_network_runs(args.runs)
+    if not runs and not network_runs:
         print(
             f"dica report: no runs (metrics.json with config.json) under {args.runs}",
             file=sys.stderr,
@@ -465,6 +470,14 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     out = args.out or args.runs / "report"
     out.mkdir(parents=True, exist_ok=True)
+    if network_runs:
+        groups, n = write_network_report(network_runs, out)
+        print(
+            f"{len(network_runs)} network runs in {groups} groups; wrote {out}/networks.md "
+            f"and {n} plots"
+        )
+        if not runs:
+            return 0
     agg = aggregate(runs)
     images = plots(agg, out)
     (out / "report.md").write_text(markdown(agg, images))
