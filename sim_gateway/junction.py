@@ -168,9 +168,11 @@ class Junction:
     passing: set[str] = field(default_factory=set)
     # route-file vehicles by SUMO id: the crossing it is on now (or made last)
     by_sumo: dict[str, Car] = field(default_factory=dict)
-    # per exit lane, the room beyond the junction [m] (measured only where vehicles go on
-    # past the exit lane: a route file's; see measure_room)
+    # per exit road, the room beyond the junction this step [m] (measured only where
+    # vehicles go on past the exit lane, a route file's, and on demand: room_of)
     room: dict[str, float] = field(default_factory=dict)
+    measuring: bool = False  # room is measured (a route file's vehicles go on beyond)
+    road_lanes: dict[str, list[str]] = field(default_factory=dict)  # exit road: its lanes
     own_lanes: frozenset[str] = frozenset()  # its incoming, internal and exit lanes (covers)
     # per incoming lane, the vehicles on it that are not the junction's (a route file's
     # whose route ends there, or one the junction before has not let go yet): their
@@ -187,21 +189,30 @@ class Junction:
             )  # fmt: skip
         return lane.startswith(f":{self.inter.junction_id}_") or lane in self.own_lanes
 
-    def measure_room(self, ls) -> None:
-        """Each exit lane's room: how far from the exit line the next vehicle's front could
-        have to stop were the vehicles beyond to brake (:func:`lane_room`), over every
-        lane of the exit road a vehicle may change from: a vehicle changing lanes
-        beyond the junction takes its stopping point with it, so the least room over
+    def measure_room(self) -> None:
+        """Measure the room beyond the junction this step (:meth:`room_of`, on demand)."""
+        self.measuring = True
+        self.room = {}
+
+    def room_of(self, ls, out_lane: str) -> float:
+        """An exit lane's room this step: how far from the exit line the next vehicle's
+        front could have to stop were the vehicles beyond to brake (:func:`lane_room`),
+        over every lane of the exit road a vehicle may change from: a vehicle changing
+        lanes beyond the junction takes its stopping point with it, so the least room over
         the road's lanes is one no lane change can shrink (only a vehicle entering the
-        road can, as the ICA's one car more allows)."""
-        by_edge: dict[str, list[str]] = {}
-        for lane in self.inter.out_lanes:
-            by_edge.setdefault(lane.rsplit("_", 1)[0], []).append(lane)
-        for edge, lanes in by_edge.items():
-            road = [f"{edge}_{i}" for i in range(ls.edge.getLaneNumber(edge))]
-            room = min(lane_room(ls, x) for x in road if _for_vehicles(ls, x))
-            for lane in lanes:
-                self.room[lane] = room
+        road can, as the ICA's one car more allows). inf where it is not measured (the
+        random demand's exit lanes end where vehicles leave the net)."""
+        if not self.measuring:
+            return math.inf
+        edge = out_lane.rsplit("_", 1)[0]
+        room = self.room.get(edge)
+        if room is None:
+            road = self.road_lanes.get(edge)
+            if road is None:
+                lanes = [f"{edge}_{i}" for i in range(ls.edge.getLaneNumber(edge))]
+                road = self.road_lanes[edge] = [x for x in lanes if _for_vehicles(ls, x)]
+            room = self.room[edge] = min(lane_room(ls, x) for x in road)
+        return room
 
     @classmethod
     def open(

@@ -45,6 +45,7 @@ class NetworkGate:
         self.peak_m = 0.0  # the most queue the network held at once
         self.counted: set[str] = set()  # SUMO ids inside the network this step
         self._length: dict[str, float] = {}
+        self._enters: dict[tuple[str, str], bool] = {}  # per (in, out) lane: it enters
 
     @property
     def closes(self) -> bool:
@@ -57,8 +58,14 @@ class NetworkGate:
 
     def entering(self, c: Car) -> bool:
         """Whether ``c``'s crossing takes it into the network from outside."""
-        links = self.links
-        return edge_of(c.route.out_lane) in links and edge_of(c.route.in_lane) not in links
+        r = c.route
+        key = (r.in_lane, r.out_lane)
+        enters = self._enters.get(key)
+        if enters is None:
+            links = self.links
+            enters = edge_of(r.out_lane) in links and edge_of(r.in_lane) not in links
+            self._enters[key] = enters
+        return enters
 
     def measure(self, ls, junctions: Iterable[Junction]) -> None:
         """Count the queue inside the network: the vehicles on its links, and those

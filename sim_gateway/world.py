@@ -159,7 +159,7 @@ class World:
                     Reads.subscribe(ls, c.sumo, self.want_xy)
                     held.add(c.sumo)
             for j in self.junctions:  # beyond a junction its vehicles go on, and may queue
-                j.measure_room(ls)
+                j.measure_room()
                 j.note_strangers(ls)
             if self.gate is not None:
                 self.gate.forget(ls.simulation.getArrivedIDList())
@@ -238,7 +238,7 @@ class World:
             refused_seq=c.refused_seq,
             kept_seq=c.kept_seq,
             follows=follows,
-            exit_room_m=j.room.get(c.route.out_lane, math.inf),
+            exit_room_m=j.room_of(self.ls, c.route.out_lane) if on_approach else math.inf,
             network_room_m=self.network_room(c),
         )
         return Seen(c, obs)

@@ -25,6 +25,8 @@ class Intersection:
     comm_length_m: float = 50.0
     _by_lanes: Mapping[tuple[str, str], Route] = field(init=False, repr=False)
     _by_id: Mapping[str, Route] = field(init=False, repr=False)
+    _in_lanes: tuple[str, ...] = field(init=False, repr=False)
+    _out_lanes: tuple[str, ...] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         by_lanes = {(r.in_lane, r.out_lane): r for r in self.routes}
@@ -32,14 +34,16 @@ class Intersection:
             raise ValueError("two routes join the same incoming and outgoing lane")
         object.__setattr__(self, "_by_lanes", by_lanes)
         object.__setattr__(self, "_by_id", {r.id: r for r in self.routes})
+        object.__setattr__(self, "_in_lanes", tuple(sorted({r.in_lane for r in self.routes})))
+        object.__setattr__(self, "_out_lanes", tuple(sorted({r.out_lane for r in self.routes})))
 
     @property
     def in_lanes(self) -> tuple[str, ...]:
-        return tuple(sorted({r.in_lane for r in self.routes}))
+        return self._in_lanes
 
     @property
     def out_lanes(self) -> tuple[str, ...]:
-        return tuple(sorted({r.out_lane for r in self.routes}))
+        return self._out_lanes
 
     def route(self, in_lane: str, out_lane: str) -> Route | None:
         return self._by_lanes.get((in_lane, out_lane))
