@@ -371,7 +371,8 @@ def parser() -> argparse.ArgumentParser:
         help="benchmarks: ica (seconds per REQUEST per DICA variant), run (real-time factor), "
         "cluster (Zenoh round trip, lockstep real-time factor), timing (the real-time "
         "cluster under delay, jitter, loss, duplication and reordering), ordering (the EV "
-        "ordering solvers), routes (a user's net and demand file against SUMO alone)",
+        "ordering solvers), routes (a user's net and demand file against SUMO alone), network "
+        "(the 3x3 grid, every junction signal-free, against SUMO alone)",
     )
     b.add_argument("what", choices=list(BENCHES))
     b.add_argument(
@@ -400,7 +401,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
 
 
-BENCHES = ("ica", "run", "cluster", "timing", "ordering", "routes")
+BENCHES = ("ica", "run", "cluster", "timing", "ordering", "routes", "network")
 
 
 def _dispatch(argv: list[str]) -> int:
@@ -414,6 +415,7 @@ def _dispatch(argv: list[str]) -> int:
         from dica.tools import (
             bench_cluster,
             bench_ica,
+            bench_network,
             bench_ordering,
             bench_routes,
             bench_run,
@@ -427,6 +429,7 @@ def _dispatch(argv: list[str]) -> int:
             "timing": bench_timing,
             "ordering": bench_ordering,
             "routes": bench_routes,
+            "network": bench_network,
         }[argv[1]]
         return bench.main(argv[2:])
     args = options.parse(parser(), argv)

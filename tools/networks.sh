@@ -1,0 +1,43 @@
+#!/usr/bin/env bash
+# Networks: the built-in corridor of four junctions and the 3x3 grid, every junction
+# signal-free (enhanced DICA) against actuated, coordinated fixed-time and max-pressure
+# lights, at three demand levels (light, medium, near the lights' saturation), seeds 12,
+# 21 and 66, DEMAND seconds of vehicles (default 3600) and then until every vehicle has
+# left; then the report (networks.md). Resumable: finished runs are skipped. Two runs at
+# a time; about 70 minutes on 2 cores with an hour of demand.
+#   bash tools/networks.sh [OUT] [DEMAND]        (default runs/networks 3600)
+set -euo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
+cd "$root"
+bash tools/setup.sh
+out="${1:-runs/networks}"
+demand="${2:-3600}"
+mkdir -p "$out"
+# the corridor: the arterial's two ends at 400, 800 and 1100 vehicles/h, the side roads at
+# 200; the grid: every road in at 200, 400 and 650
+corridor="400 800 1100"
+grid="200 400 650"
+jobs="$out/jobs.txt"
+: > "$jobs"
+for seed in 12 21 66; do
+  for control in dica actuated coordinated max-pressure; do
+    for v in $corridor; do
+      echo "corridor-$v-$control-s$seed --layout corridor --volume 200 --entry-volume W00_J00=$v --entry-volume E30_J30=$v --control $control --seed $seed" >> "$jobs"
+    done
+    for v in $grid; do
+      echo "grid-$v-$control-s$seed --layout grid --volume $v --control $control --seed $seed" >> "$jobs"
+    done
+  done
+done
+run_one() {
+  name="$1"; shift
+  dir="$out/$name"
+  [ -f "$dir/metrics.json" ] && return 0
+  rm -rf "$dir"
+  .venv/bin/dica network "$@" --duration "$demand" --drain 1800 --out "$dir" --quiet \
+    > "$out/$name.log" 2>&1 || echo "$name: exit $? (see $out/$name.log)"
+}
+export -f run_one
+export out demand
+xargs -P 2 -L 1 bash -c 'run_one "$@"' _ < "$jobs"
+.venv/bin/dica report "$out" --out "$out/report"
