@@ -349,13 +349,13 @@ def _run(
         ls.close()
 
 
-def open_recording(inter: Intersection, rrd_path: Path | None):
+def open_recording(inter: Intersection, rrd_path: Path | None, application_id: str = "dica"):
     if rrd_path is None:
         return None
     from dica.sim_gateway.recording import SpaceTimeRecorder
 
     try:
-        rec = SpaceTimeRecorder(inter, rrd_path)
+        rec = SpaceTimeRecorder(inter, rrd_path, application_id=application_id)
     except OSError as e:
         raise RunError(f"cannot write {rrd_path}: {e}") from None
     rec.geometry()

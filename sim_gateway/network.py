@@ -55,8 +55,8 @@ def run_network(
     With ``run_dir`` SUMO's trip records go there (unless the SUMO options name a file
     of their own) and the result has the network's trips (``extra["network"]``,
     ``result.net_trips``). With ``until_empty_after_s`` the run ends early once that
-    time is past and every vehicle has left. The recording, if asked for, shows the
-    first junction's views.
+    time is past and every vehicle has left. With ``rrd_path`` each junction is recorded
+    with its own views (:func:`recording_path`).
     """
     if not cfg.routes_path:
         raise RunError("several junctions take their vehicles from a route file (--routes)")
@@ -73,12 +73,6 @@ def run_network(
     for ica in icas:
         ica.prepare()
     _, _, horizon = schedule_for(cfg, inters[0], spec.config.step_s)
-    if rrd_path is not None and len(inters) > 1:
-        print(
-            f"note: the recording shows junction {inters[0].junction_id}, the first of "
-            f"{len(inters)}",
-            file=sys.stderr,
-        )
     info = trip_file(cfg, run_dir)
     if info is not None and str(info) not in cfg.sumo_args:
         more = ("--tripinfo-output", str(info), "--tripinfo-output.write-unfinished", "true")
@@ -87,9 +81,14 @@ def run_network(
     cmd = start_sumo(ls, cfg, spec.config.step_s)
     closed = False
     try:
-        recorder = open_recording(inters[0], rrd_path) if not light else None
+        recorders = []
+        if rrd_path is not None and not light:
+            recorders = [
+                open_recording(x, recording_path(rrd_path, x, k), f"dica {x.junction_id}")
+                for k, x in enumerate(inters)
+            ]
         world = World(
-            ls, cfg, inters[0], spec.config, [], horizon, want_xy=bool(recorder),
+            ls, cfg, inters[0], spec.config, [], horizon, want_xy=bool(recorders),
             predict_s=cfg.plan_lead_s, more=tuple(inters[1:]), signalised=light,
         )  # fmt: skip
         drivers = [LocalDrivers(ica, cfg) for ica in icas]
@@ -106,14 +105,14 @@ def run_network(
                     world.refresh_network_room(j, seen)
                     world.apply(d.step(world.t, seen), j)
                     world.counted_confirmed(j)
-                if recorder is not None:
-                    record_step(recorder, drivers[0], each[0], cfg, world.t)
+                for rec, d, seen in zip(recorders, drivers, each, strict=False):
+                    record_step(rec, d, seen, cfg, world.t)
                 world.end_step(progress)
                 if world.done() or world.emptied(until_empty_after_s):
                     break
         finally:
-            if recorder is not None:
-                recorder.close()
+            for rec in recorders:
+                rec.close()
         result = world.result(merged_requests(drivers), cmd)
         if pressure is not None:
             result.extra["max_pressure_switches"] = pressure.switches
@@ -133,6 +132,14 @@ def run_network(
     finally:
         if not closed:
             ls.close()
+
+
+def recording_path(rrd_path: Path, inter: Intersection, k: int) -> Path:
+    """Where junction ``k``'s recording goes: the first at ``rrd_path``, each other beside
+    it as ``<stem>-<junction>.rrd`` (``dica view`` opens them all, one recording each)."""
+    if k == 0:
+        return rrd_path
+    return rrd_path.with_name(f"{rrd_path.stem}-{inter.junction_id}{rrd_path.suffix}")
 
 
 def trip_file(cfg: RunConfig, run_dir: Path | None) -> Path | None:

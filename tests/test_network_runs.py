@@ -191,3 +191,22 @@ def test_what_a_network_run_cannot_serve_is_refused_in_one_line(tmp_path, args, 
     assert p.returncode == 2, p.stderr
     assert says in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
     assert "Traceback" not in p.stderr
+
+
+def test_each_junction_is_recorded_with_its_own_views(tmp_path):
+    """--record: one recording per junction, each with its own lanes' space-time charts
+    and its own vehicles' plans (dica view opens every .rrd of the run)."""
+    from tests.test_recording import _read
+
+    p, out = _network(tmp_path, "--layout", "corridor", "--volume", "400", "--duration", "60",
+                      "--record")  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    files = {f.name for f in out.glob("*.rrd")}
+    assert files == {"spacetime.rrd", "spacetime-J10.rrd", "spacetime-J20.rrd",
+                     "spacetime-J30.rrd"}  # fmt: skip
+    for name, junction in (("spacetime.rrd", "J00"), ("spacetime-J20.rrd", "J20")):
+        data = _read(out / name)
+        plans = {e.split("/")[4] for e in data if e.endswith("/plans")}
+        assert plans and all(lane.split("_")[1] == junction for lane in plans), plans
+    q, _ = _network(tmp_path / "lit", "--layout", "corridor", "--control", "static", "--record")
+    assert q.returncode == 2 and "--record draws the ICAs' reservations" in q.stderr

@@ -114,6 +114,10 @@ def parser() -> options.Parser:
                    "(default 900)")  # fmt: skip
     p.add_argument("--out", type=Path, help="output directory (default runs/network-...)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--record", action="store_true",
+                   help="with --control dica: also write each junction's Rerun space-time "
+                   "views, OUT/spacetime.rrd (the first) and OUT/spacetime-<junction>.rrd "
+                   "(open them all with dica view OUT)")  # fmt: skip
     return p
 
 
@@ -146,6 +150,8 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError("--junctions chooses junctions of --net; a built-in layout runs all")
     if args.control != "dica" and args.algorithm != "enhanced":
         raise UsageError(f"--algorithm is DICA's; --control {args.control} runs lights")
+    if args.control != "dica" and args.record:
+        raise UsageError("--record draws the ICAs' reservations: it needs --control dica")
     layout = args.layout or ("grid" if args.net is None else None)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = options.out_dir(
@@ -187,6 +193,7 @@ def _main(argv: list[str] | None) -> int:
         try:
             result = run_network(
                 cfg, inters, progress=tick, run_dir=out, until_empty_after_s=args.duration,
+                rrd_path=out / "spacetime.rrd" if args.record else None,
                 lights=LIGHTS_BY_CONTROL[args.control],
             )  # fmt: skip
         except RunError as e:
