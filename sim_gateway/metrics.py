@@ -83,6 +83,20 @@ class TripLog:
         self.crossed_cum.append(crossed)
         self.generated_cum.append(generated)
 
+    def longest_standstill_s(self) -> float:
+        """The longest time [s] vehicles stood waiting in the regions while none crossed:
+        a network that locks shows it growing to the end of the run."""
+        longest, since = 0.0, None
+        for t, w, n, prev in zip(
+            self.t_s[1:], self.waiting[1:], self.crossed_cum[1:], self.crossed_cum[:-1], strict=True
+        ):
+            if w > 0 and n == prev:
+                since = t if since is None else since
+                longest = max(longest, t - since)
+            else:
+                since = None
+        return longest
+
 
 def _trips(gen: list[Trip]) -> tuple[list[Trip], np.ndarray, np.ndarray]:
     """The crossed trips of ``gen``, their trip times and their delays (the

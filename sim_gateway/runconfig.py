@@ -116,6 +116,10 @@ class RunConfig:
     # several junctions, each under its own ICA (sim_gateway/network.py); junction_id is
     # the first of them. Empty: one junction
     junction_ids: tuple[str, ...] = ()
+    # several junctions: the network gate keeps the queue on the links between them below
+    # their least cycle's capacity, so the network cannot lock (ica.core.gridlock); off,
+    # nothing bounds it (and a cycle of full links may stand still for ever)
+    network_gate: bool = True
 
     def controller_spec(self) -> ControllerSpec:
         """The controller this run drives (a light runs FIFO underneath, never asked)."""

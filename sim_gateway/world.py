@@ -86,7 +86,7 @@ class World:
         if cfg.routes_path:
             rf = read_route_file(Path(cfg.routes_path))
             check_types(ls, rf, ica_cfg.kinematics)
-            if not signalised:  # lights do not hold vehicles for room: no gate
+            if not signalised and cfg.network_gate:  # lights hold no vehicle for room
                 longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
                 self.gate = NetworkGate((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
             self.hold = InsertionHold(ls, rf, self.gate)
@@ -336,6 +336,7 @@ class World:
             extra["insertions_held"] = self.hold.holds
             extra["insertions_not_held"] = self.hold.unheld
             extra["sumo_collisions_elsewhere"] = self.sumo_collisions_elsewhere
+            extra["longest_standstill_s"] = self.log.longest_standstill_s()
         if self.gate is not None and self.gate.closes:
             extra["network_gate"] = {
                 "capacity_m": round(self.gate.capacity_m, 1),

@@ -209,3 +209,14 @@ def test_a_blocked_exit_holds_vehicles_short_of_the_line_not_inside(nets, tmp_pa
     # the ones due while it stood waited for it, and went
     assert max(float(t.get("waitingTime")) for t in east) > 30.0
     assert res.extra["accounted"]["lost"] == 0
+
+
+def test_a_standstill_is_the_longest_wait_with_no_crossing():
+    from dica.sim_gateway.metrics import TripLog
+
+    log = TripLog()
+    for t, waiting, crossed in [(0, 0, 0), (1, 2, 0), (2, 2, 0), (3, 2, 1), (4, 3, 1),
+                                (5, 3, 1), (6, 3, 1), (7, 0, 1), (8, 1, 1)]:  # fmt: skip
+        log.sample(float(t), waiting, crossed, 5)
+    # vehicles wait from 1 s to 2 s (a crossing at 3 s), then from 4 s to 6 s: 2 s
+    assert log.longest_standstill_s() == 2.0

@@ -249,3 +249,13 @@ def test_the_command_line_runs_every_junction_of_a_grid(nets, tmp_path):
 
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert set(metrics["junctions"]) == set(GRID)
+    assert metrics["network_gate"]["links"] == 24  # the grid's links form cycles: gated
+    q = subprocess.run(
+        [sys.executable, "-m", "dica.tools.cli", "run", "--net", str(nets["grid"]),
+         "--junctions", "all", "--routes", str(routes), "--duration", "20", "--quiet",
+         "--no-network-gate", "--out", str(tmp_path / "free")],
+        capture_output=True, text=True, cwd=ROOT, timeout=600,
+    )  # fmt: skip
+    assert q.returncode == 0, q.stderr + q.stdout
+    free = json.loads((tmp_path / "free" / "metrics.json").read_text())
+    assert "network_gate" not in free

@@ -9,6 +9,7 @@ processes) both build on these two modules and on nothing of each other.
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from dica.tools import options
@@ -80,6 +81,7 @@ def run_config(args: argparse.Namespace):
             routes_path=str(args.routes) if getattr(args, "routes", None) else None,
             begin_s=getattr(args, "begin", 0.0),
             junction_ids=junctions if len(junctions) > 1 else (),
+            network_gate=getattr(args, "network_gate", True),
         )
     except RunError as e:
         raise UsageError(str(e)) from None
@@ -88,8 +90,9 @@ def run_config(args: argparse.Namespace):
 
 def chosen_junctions(net: Path, text: str) -> tuple[str, ...]:
     """--junctions: the ids it names, or every junction of ``net`` where two roads or
-    more come in (``all``)."""
-    from dica.ica.netfile import NetworkError, crossing_junctions
+    more come in (``all``) that the ICA can serve; each one it cannot is left to the net's
+    own control, with a note saying why."""
+    from dica.ica.netfile import NetworkError, crossing_junctions, load_intersection
 
     if text.strip() == "all":
         try:
@@ -98,7 +101,17 @@ def chosen_junctions(net: Path, text: str) -> tuple[str, ...]:
             raise UsageError(str(e)) from None
         if not found:
             raise UsageError(f"{net} has no junction where two roads or more come in")
-        return found
+        served = []
+        for j in found:
+            try:
+                load_intersection(net, j)
+            except NetworkError as e:
+                print(f"note: junction {j} stays as the net has it: {e}", file=sys.stderr)
+            else:
+                served.append(j)
+        if not served:
+            raise UsageError(f"{net}: the ICA can serve none of its junctions")
+        return tuple(served)
     ids = tuple(x.strip() for x in text.split(","))
     if not all(ids):
         raise UsageError(f"--junctions wants all or J1,J2,..., got {text!r}")

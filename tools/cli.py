@@ -320,8 +320,9 @@ def parser() -> argparse.ArgumentParser:
     )
     add_run_args(r)
     options.add(
-        r, "--junctions", "--run-up", "--exit-spacing", "--lead", "--window", "--revocation",
-        "--out", "--quiet", out={"help": "output directory (default runs/run-ALG-TIMESTAMP)"},
+        r, "--junctions", "--network-gate", "--run-up", "--exit-spacing", "--lead", "--window",
+        "--revocation", "--out", "--quiet",
+        out={"help": "output directory (default runs/run-ALG-TIMESTAMP)"},
     )  # fmt: skip
     r.add_argument(
         "--record",

@@ -95,6 +95,10 @@ def parser() -> options.Parser:
         help="with --control dica: the DICA variant (default enhanced)",
     )
     p.add_argument("--routes", type=Path, help="a SUMO route file instead of drawn demand")
+    p.add_argument("--no-network-gate", dest="network_gate", action="store_false",
+                   help="with --control dica: no bound on the queue on the links between the "
+                   "junctions (by default it stays below their least cycle's capacity, so the "
+                   "network cannot lock; on a net of short links that bound is small)")  # fmt: skip
     p.add_argument(
         "--volume",
         type=float,
@@ -176,6 +180,7 @@ def _main(argv: list[str] | None) -> int:
             net_path=str(net), junction_id=junctions[0], routes_path=str(routes),
             junction_ids=junctions if len(junctions) > 1 else (), algorithm=args.algorithm,
             duration_s=args.duration + args.drain, seed=args.seed, sumo_args=extra,
+            network_gate=args.network_gate,
         )  # fmt: skip
         inters = [load_intersection(str(net), j) for j in junctions]
     except (RunError, NetworkError, ScenarioError, DemandError) as e:
@@ -285,6 +290,9 @@ def _report(out: Path, result, control: str) -> int:
         f"({result.extra.get('sumo_collisions_elsewhere', 0)} elsewhere), "
         f"{stood} vehicles stood inside a junction, {unconfirmed} unconfirmed entries"
     )
+    still = result.extra.get("longest_standstill_s", 0.0)
+    if still >= 60.0:
+        print(f"note: for {still:.0f} s vehicles waited and none crossed (a network locked?)")
     gate = result.extra.get("network_gate")
     if gate:
         peak, bound = gate["peak_m"], gate["capacity_m"]

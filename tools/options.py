@@ -130,6 +130,14 @@ OPTIONS: dict[str, Option] = {
             "net has them. Needs --routes; instead of --junction",
             metavar="all|J1,J2,...",
         ),
+        Option(
+            "--network-gate",
+            "with --junctions: keep the queue on the links between the junctions below their "
+            "least cycle's capacity, so the network cannot lock (default); --no-network-gate: "
+            "no bound (a net of short links then carries more, and may stand still)",
+            action=argparse.BooleanOptionalAction,
+            default=True,
+        ),
         # -- the controller
         Option(
             "--algorithm",
