@@ -19,6 +19,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from dica.ica.core.controller import build_controller
+from dica.ica.core.gridlock import QUEUE_GAP_M
 from dica.ica.core.intersection import Intersection
 from dica.sim_gateway.demand import schedule_for
 from dica.sim_gateway.embedded import (
@@ -91,6 +92,15 @@ def run_network(
             ls, cfg, inters[0], spec.config, [], horizon, want_xy=bool(recorders),
             predict_s=cfg.plan_lead_s, more=tuple(inters[1:]), signalised=light,
         )  # fmt: skip
+        gate = world.gate
+        if gate is not None and gate.closes:
+            print(
+                f"note: the network gate holds the queue on the {len(gate.links)} links between "
+                f"the junctions to {gate.capacity_m:.0f} m (about "
+                f"{gate.capacity_m / (5.0 + QUEUE_GAP_M):.0f} cars), their least cycle's capacity,"
+                " so the network cannot lock; --no-network-gate lifts it",
+                file=sys.stderr,
+            )
         drivers = [LocalDrivers(ica, cfg) for ica in icas]
         pressure = None
         if lights == "max-pressure":
