@@ -152,7 +152,9 @@ class Traffic:
         ls, comm = self.ls, j.inter.comm_length_m
         out = []
         for lane in j.inter.in_lanes:
-            for vin in ls.lane.getLastStepVehicleIDs(lane):
+            # front first (SUMO lists a lane's vehicles rear first): the ICA queues a lane's
+            # vehicles in the order it hears of them, which must be the order they stand in
+            for vin in reversed(ls.lane.getLastStepVehicleIDs(lane)):
                 now = j.by_sumo.get(vin)
                 if (now is not None and not now.exited) or vin in j.passing or vin in held:
                     continue
@@ -253,14 +255,24 @@ class Traffic:
 
     # -- detection and exit ----------------------------------------------------
     def detect(self, j: Junction, c: Car, lane: str, vw: Reads, t: float) -> bool:
-        """Note ``c`` in the region once its front is past the entry line; False while not."""
+        """Note ``c`` in the region once its front is past the entry line; False while not.
+
+        The time it crossed the line is interpolated back from where it is now. A route
+        file's vehicle may appear in the region without crossing it (inserted on a road
+        shorter than the region, or let go there by the junction before): it arrives now,
+        at most a step back, never before a vehicle already ahead of it in its lane (the
+        ICA queues a lane's vehicles in the order they arrive, and a queue that
+        disagrees with the road holds the lane up for ever)."""
         comm = j.inter.comm_length_m
         d = j.lane_len_m.get(lane, math.inf) - vw.getLanePosition(c.sumo)
         if lane != c.route.in_lane or d > comm:
             return False
         v = vw.getSpeed(c.sumo)
         trip = self.log.trips[c.vin]
-        trip.entered_s = t - (comm - d) / v if v > 0.1 else t
+        back = (comm - d) / v if v > 0.1 else 0.0
+        if c.adopted_lcm is not None:
+            back = min(back, self.ica_cfg.step_s)
+        trip.entered_s = t - back
         c.detected_s = trip.entered_s
         trip.free_flow_s = self.free_flow_s(c.route, comm, v, c.length_m)
         return True

@@ -259,3 +259,54 @@ def test_the_command_line_runs_every_junction_of_a_grid(nets, tmp_path):
     assert q.returncode == 0, q.stderr + q.stdout
     free = json.loads((tmp_path / "free" / "metrics.json").read_text())
     assert "network_gate" not in free
+
+
+SHORT_NODES = """<nodes>
+ <node id="A" x="0" y="0" type="priority"/> <node id="W" x="-45" y="0"/>
+ <node id="E" x="250" y="0"/> <node id="N" x="0" y="250"/> <node id="S" x="0" y="-250"/>
+</nodes>"""
+SHORT_EDGES = """<edges>
+ <edge id="WA" from="W" to="A" numLanes="1" speed="13.89"/>
+ <edge id="AE" from="A" to="E" numLanes="1" speed="13.89"/>
+ <edge id="NA" from="N" to="A" numLanes="1" speed="13.89"/>
+ <edge id="AS" from="A" to="S" numLanes="1" speed="13.89"/>
+</edges>"""
+# on a road in shorter than the region, a fast vehicle and a slow one just behind it: each
+# appears in the region without crossing its line; the fast one waits for its exit road,
+# where a vehicle stands for 15 s
+SHORT_ROUTES = """<routes>
+  <vType id="car" accel="2.6" decel="4.5" length="5" sigma="0"/>
+  <vehicle id="block" type="car" depart="0" departSpeed="0">
+    <route edges="AE"/><stop lane="AE_0" endPos="20" duration="15"/>
+  </vehicle>
+  <vehicle id="fast" type="car" depart="1" departSpeed="max"><route edges="WA AE"/></vehicle>
+  <vehicle id="slow" type="car" depart="2" departSpeed="1"><route edges="WA AE"/></vehicle>
+  <flow id="cross" type="car" begin="0" end="60" vehsPerHour="300" from="NA" to="AS"/>
+</routes>"""
+
+
+def test_vehicles_that_appear_in_the_region_are_queued_in_the_order_they_stand(tmp_path):
+    """Interpolating each one's arrival back to a line it never crossed put the slow one
+    first (by seconds): the fast one ahead of it was refused as not the head, and the slow
+    one behind it never asked; the lane stood still for ever."""
+    from dica.sim_gateway.scenario import netconvert_binary
+    from tests.user_nets import make
+
+    (tmp_path / "s.nod.xml").write_text(SHORT_NODES)
+    (tmp_path / "s.edg.xml").write_text(SHORT_EDGES)
+    net = tmp_path / "short.net.xml"
+    make([netconvert_binary(), "-n", str(tmp_path / "s.nod.xml"), "-e",
+          str(tmp_path / "s.edg.xml"), "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    routes = tmp_path / "short.rou.xml"
+    routes.write_text(SHORT_ROUTES)
+    info = tmp_path / "tripinfo.xml"
+    cfg = RunConfig(
+        net_path=str(net), junction_id="A", routes_path=str(routes), duration_s=120.0,
+        sumo_args=("--tripinfo-output", str(info)),
+    )  # fmt: skip
+    res = embedded.run(cfg, load_intersection(cfg.net_path, "A"), run_dir=tmp_path)
+    assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
+    arrived = {t.get("id") for t in ET.parse(info).getroot() if not t.get("vaporized")}
+    assert {"fast", "slow"} <= arrived
+    assert res.requests["rejections"].get("no_room", 0) > 0  # the fast one waited
+    assert res.requests["rejections"].get("not_head", 0) == 0
