@@ -4,8 +4,8 @@
 # lights, at three demand levels (light, medium, near the lights' saturation), seeds 12,
 # 21 and 66, DEMAND seconds of vehicles (default 3600) and then until every vehicle has
 # left; then the report (networks.md). Resumable: finished runs are skipped. Two runs at
-# a time; about 40 minutes per seed on 2 cores with an hour of demand. SEEDS="12" runs
-# one seed only.
+# a time; about 40 minutes per seed on 2 cores with an hour of demand (the corridor about
+# 6 of them). SEEDS="12" runs one seed only, LAYOUTS="corridor" one network only.
 #   bash tools/networks.sh [OUT] [DEMAND]        (default runs/networks 3600)
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -18,6 +18,8 @@ mkdir -p "$out"
 # 200; the grid: every road in at 200, 400 and 650
 corridor="400 800 1100"
 grid="200 400 650"
+case " ${LAYOUTS:-corridor grid} " in *" corridor "*) ;; *) corridor="" ;; esac
+case " ${LAYOUTS:-corridor grid} " in *" grid "*) ;; *) grid="" ;; esac
 jobs="$out/jobs.txt"
 : > "$jobs"
 for seed in ${SEEDS:-12 21 66}; do
