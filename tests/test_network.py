@@ -250,6 +250,8 @@ def test_the_command_line_runs_every_junction_of_a_grid(nets, tmp_path):
     metrics = json.loads((tmp_path / "run" / "metrics.json").read_text())
     assert set(metrics["junctions"]) == set(GRID)
     assert metrics["network_gate"]["links"] == 24  # the grid's links form cycles: gated
+    assert metrics["network"]["vehicles"] > 0  # each vehicle's whole trip, from SUMO's records
+    assert (tmp_path / "run" / "trips.csv").is_file()
     q = subprocess.run(
         [sys.executable, "-m", "dica.tools.cli", "run", "--net", str(nets["grid"]),
          "--junctions", "all", "--routes", str(routes), "--duration", "20", "--quiet",

@@ -184,12 +184,18 @@ def cmd_run(args: argparse.Namespace) -> int:
             if cfg.junction_ids:
                 from dica.sim_gateway.network import run_network
 
-                result = run_network(cfg, intersections(cfg), progress=tick, rrd_path=rrd)
+                result = run_network(
+                    cfg, intersections(cfg), progress=tick, rrd_path=rrd, run_dir=out
+                )
             else:
                 result = run(cfg, inter, progress=tick, rrd_path=rrd, run_dir=out)
         except RunError as e:
             raise UsageError(str(e)) from None
     write_outputs(out, cfg, result)
+    if result.net_trips is not None:  # several junctions: each vehicle's whole trip too
+        from dica.sim_gateway.network_trips import write_trips_csv
+
+        write_trips_csv(out / "trips.csv", result.net_trips)
     return report_run(out, result)
 
 
