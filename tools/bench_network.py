@@ -23,6 +23,7 @@ import time
 from pathlib import Path
 
 from dica.tools import options
+from dica.tools.bench_routes import sumo_alone
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -39,29 +40,6 @@ def _run(cmd: list[str], cwd: Path | None = None) -> tuple[subprocess.CompletedP
             cmd, proc.returncode, out.read().decode(), err.read().decode()
         )
     return done, usage.ru_maxrss / 1024.0
-
-
-def sumo_alone(net: Path, routes: Path, duration_s: float) -> tuple[float, float]:
-    """Wall seconds and peak MiB of SUMO on its own with the run's step and options."""
-    from dica.sim_gateway.sumo_io import sumo_command
-
-    code = (
-        "import contextlib, io, sys, time\n"
-        "with contextlib.redirect_stdout(io.StringIO()):\n"
-        "    import libsumo\n"
-        "cmd = sys.argv[1:]\n"
-        "t = time.perf_counter()\n"
-        "libsumo.start(cmd)\n"
-        f"while libsumo.simulation.getTime() < {duration_s!r} - 1e-9:\n"
-        "    libsumo.simulation.step()\n"
-        "libsumo.close()\n"
-        "print(time.perf_counter() - t)\n"
-    )
-    cmd = sumo_command(str(net), 0.05, ("-r", str(routes)))
-    p, rss = _run([sys.executable, "-c", code, *cmd])
-    if p.returncode != 0:
-        raise RuntimeError(f"SUMO alone failed: {p.stderr.strip().splitlines()[-1:]}")
-    return float(p.stdout.strip().splitlines()[-1]), rss
 
 
 def dica_network(routes: Path, duration_s: float, out: Path) -> tuple[dict, float]:
@@ -96,7 +74,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         alone, best, rss = [], None, 0.0
         for i in range(args.repeat):
-            wall, _ = sumo_alone(lit.net_path, routes, args.duration)
+            wall = sumo_alone(lit.net_path, routes, args.duration)
             alone.append(wall)
             m, peak = dica_network(routes, args.duration, d / f"run{i}")
             rss = max(rss, peak)
