@@ -37,6 +37,7 @@ from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
 from dica.sim_gateway.world import World
 
 LIGHT_CONTROLS = ("program", "max-pressure")
+NETWORK_RRD = "network.rrd"  # beside the junctions' recordings: the network from above
 
 
 def run_network(
@@ -82,12 +83,17 @@ def run_network(
     cmd = start_sumo(ls, cfg, spec.config.step_s)
     closed = False
     try:
-        recorders = []
+        recorders, top = [], None
         if rrd_path is not None and not light:
             recorders = [
                 open_recording(x, recording_path(rrd_path, x, k), f"dica {x.junction_id}")
                 for k, x in enumerate(inters)
             ]
+            if len(inters) > 1:
+                from dica.sim_gateway.recording.network_view import NetworkView
+
+                top = NetworkView(ls, inters, rrd_path.with_name(NETWORK_RRD))
+                top.geometry()
         world = World(
             ls, cfg, inters[0], spec.config, [], horizon, want_xy=bool(recorders),
             predict_s=cfg.plan_lead_s, more=tuple(inters[1:]), signalised=light,
@@ -117,12 +123,16 @@ def run_network(
                     world.counted_confirmed(j)
                 for rec, d, seen in zip(recorders, drivers, each, strict=False):
                     record_step(rec, d, seen, cfg, world.t)
+                if top is not None:
+                    top.step(world.t, world.junctions, drivers)
                 world.end_step(progress)
                 if world.done() or world.emptied(until_empty_after_s):
                     break
         finally:
             for rec in recorders:
                 rec.close()
+            if top is not None:
+                top.close()
         result = world.result(merged_requests(drivers), cmd)
         if pressure is not None:
             result.extra["max_pressure_switches"] = pressure.switches

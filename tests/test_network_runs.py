@@ -195,19 +195,28 @@ def test_what_a_network_run_cannot_serve_is_refused_in_one_line(tmp_path, args, 
 
 def test_each_junction_is_recorded_with_its_own_views(tmp_path):
     """--record: one recording per junction, each with its own lanes' space-time charts
-    and its own vehicles' plans (dica view opens every .rrd of the run)."""
-    from tests.test_recording import _read
+    and its own vehicles' plans, and the network from above with every vehicle and every
+    junction's plans (dica view opens every .rrd of the run)."""
+    from tests.test_recording import _read, _rows, _static
 
     p, out = _network(tmp_path, "--layout", "corridor", "--volume", "400", "--duration", "60",
                       "--record")  # fmt: skip
     assert p.returncode == 0, p.stderr
     files = {f.name for f in out.glob("*.rrd")}
     assert files == {"spacetime.rrd", "spacetime-J10.rrd", "spacetime-J20.rrd",
-                     "spacetime-J30.rrd"}  # fmt: skip
+                     "spacetime-J30.rrd", "network.rrd"}  # fmt: skip
     for name, junction in (("spacetime.rrd", "J00"), ("spacetime-J20.rrd", "J20")):
         data = _read(out / name)
         plans = {e.split("/")[4] for e in data if e.endswith("/plans")}
         assert plans and all(lane.split("_")[1] == junction for lane in plans), plans
+    top = _read(out / "network.rrd")
+    names = _static(top["/network/names"], "Points2D:labels")
+    assert sorted(names) == ["J00", "J10", "J20", "J30"]
+    vehicles = _rows(top["/network/vehicles"], "LineStrips2D:strips")
+    assert len(vehicles) >= 100  # every 0.5 s
+    assert max(len(v) for _, v in vehicles) >= 10
+    plans = _rows(top["/network/plans"], "LineStrips2D:strips")
+    assert sum(1 for _, p in plans if p) >= 50  # confirmed plans, held at some junction
     q, _ = _network(tmp_path / "lit", "--layout", "corridor", "--control", "static", "--record")
     assert q.returncode == 2 and "--record draws the ICAs' reservations" in q.stderr
 

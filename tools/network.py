@@ -120,8 +120,9 @@ def parser() -> options.Parser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--record", action="store_true",
                    help="with --control dica: also write each junction's Rerun space-time "
-                   "views, OUT/spacetime.rrd (the first) and OUT/spacetime-<junction>.rrd "
-                   "(open them all with dica view OUT)")  # fmt: skip
+                   "views, OUT/spacetime.rrd (the first) and OUT/spacetime-<junction>.rrd, "
+                   "and the network from above, OUT/network.rrd (open them all with dica "
+                   "view OUT)")  # fmt: skip
     return p
 
 
