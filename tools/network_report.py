@@ -11,6 +11,7 @@ max-pressure) by mean delay at each demand, as the network issue states it.
 from __future__ import annotations
 
 import json
+import re
 from collections import defaultdict
 from pathlib import Path
 
@@ -40,6 +41,16 @@ def demand_label(run: dict) -> str:
     for road, vph in sorted((run.get("entry_vph") or {}).items()):
         label += f", {road} {vph:g}/h"
     return label + f", {run['demand_s']:g} s"
+
+
+def busiest_vph(demand: str) -> float:
+    """The most vehicles per hour a demand label gives any road in (0: a route file)."""
+    found = [float(x) for x in re.findall(r"([0-9.]+)/h", demand)]
+    return max(found) if found else 0.0
+
+
+def _case_key(case: tuple[str, str]) -> tuple:
+    return (case[0], busiest_vph(case[1]), case[1])
 
 
 def aggregate(runs: list[dict]) -> dict[tuple[str, str, str], dict]:
@@ -82,7 +93,7 @@ def markdown(agg: dict[tuple[str, str, str], dict], images: list[str]) -> str:
         "p95 delay [s] | mean travel [s] | stops | collisions | stood inside |",
         "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for (layout, demand), controls in sorted(by_case.items()):
+    for (layout, demand), controls in sorted(by_case.items(), key=lambda kv: _case_key(kv[0])):
         for c in sorted(
             controls, key=lambda c: CONTROL_ORDER.index(c) if c in CONTROL_ORDER else 9
         ):
@@ -100,7 +111,7 @@ def markdown(agg: dict[tuple[str, str, str], dict], images: list[str]) -> str:
         "finished: DICA / best light |",
         "|---|---|---|---|---|---|---|",
     ]
-    for (layout, demand), controls in sorted(by_case.items()):
+    for (layout, demand), controls in sorted(by_case.items(), key=lambda kv: _case_key(kv[0])):
         lit = {c: r for c, r in controls.items() if c in BEST_LIGHTS and r["mean_delay_s"]}
         if "dica" not in controls or not lit:
             continue
@@ -118,7 +129,7 @@ def markdown(agg: dict[tuple[str, str, str], dict], images: list[str]) -> str:
 
 
 def plots(agg: dict[tuple[str, str, str], dict], out: Path) -> list[str]:
-    """Per layout: mean delay against the volume per entry, one line per control."""
+    """Per layout: mean delay against the busiest road in's volume, a line per control."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -129,9 +140,9 @@ def plots(agg: dict[tuple[str, str, str], dict], out: Path) -> list[str]:
     for layout in layouts:
         series: dict[str, list[tuple[float, float]]] = defaultdict(list)
         for (lay, demand, control), row in agg.items():
-            if lay != layout or row["mean_delay_s"] is None or "/h per entry" not in demand:
+            if lay != layout or row["mean_delay_s"] is None or not busiest_vph(demand):
                 continue
-            series[control].append((float(demand.split("/")[0]), row["mean_delay_s"]))
+            series[control].append((busiest_vph(demand), row["mean_delay_s"]))
         if not series:
             continue
         fig, ax = plt.subplots(figsize=(7, 4.5))
@@ -140,7 +151,7 @@ def plots(agg: dict[tuple[str, str, str], dict], out: Path) -> list[str]:
         ):
             pts = sorted(series[control])
             ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=control)
-        ax.set_xlabel("vehicles per hour on each road in")
+        ax.set_xlabel("vehicles per hour on the busiest road in")
         ax.set_ylabel("mean delay from the scheduled departure [s]")
         ax.set_title(f"{layout}: mean delay per vehicle")
         ax.grid(alpha=0.3)
