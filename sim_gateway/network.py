@@ -1,5 +1,6 @@
 """Several junctions of a route file's net, each signal-free under its own ICA, in one
-process (``dica run --junctions``).
+process (``dica run --junctions``, ``dica network``), or the same junctions run by
+lights and measured alike (the network baselines).
 
 SUMO drives the file's vehicles between the junctions; each junction takes a
 vehicle over in its region (:meth:`Traffic.adopt`), its ICA core plans the
@@ -7,7 +8,9 @@ crossing, and once the vehicle's rear is out SUMO's driver has it again until
 the next junction's region. A vehicle is one junction's at a time. Each
 junction confirms a crossing only if its exit lane will have room beyond it
 (the downstream-space rule, :mod:`ica.core.dica`), so a queue from the next
-junction backs up on the link and not into the one behind it. The other
+junction backs up on the link and not into the one behind it, and the network
+gate (:mod:`sim_gateway.network_gate`) keeps the queue on the links below their
+least cycle's capacity, so no cycle of full links stands still. The other
 junctions of the net stay as the net has them (their lights or priorities).
 """
 
