@@ -33,7 +33,8 @@ for seed in ${SEEDS:-12 21 66}; do
   done
 done
 run_one() {
-  name="$1"; shift
+  local name="$1" dir
+  shift
   dir="$out/$name"
   [ -f "$dir/metrics.json" ] && return 0
   rm -rf "$dir"
@@ -42,5 +43,6 @@ run_one() {
 }
 export -f run_one
 export out demand
-xargs -P 2 -L 1 bash -c 'run_one "$@"' _ < "$jobs"
+# a run that fails says so in its log and the report goes on without it
+xargs -P 2 -L 1 bash -c 'run_one "$@"' _ < "$jobs" || echo "some runs failed: see $out/*.log"
 .venv/bin/dica report "$out" --out "$out/report"
