@@ -56,8 +56,12 @@ def junction_name(i: int, j: int) -> str:
     return f"J{i}{j}"
 
 
-def build_network(name: str, out_dir: Path, lights: str | None = None) -> BuiltNetwork:
-    """Write ``<name>[-<lights>].{nod,edg}.xml`` and build the net in ``out_dir``."""
+def build_network(
+    name: str, out_dir: Path, lights: str | None = None, free: BuiltNetwork | None = None
+) -> BuiltNetwork:
+    """Write ``<name>[-<lights>].{nod,edg}.xml`` and build the net in ``out_dir``. The
+    lights' clearances come from the signal-free net of the same name: ``free`` if
+    already built, else it is built too."""
     cells = _layout(name)
     if lights is not None and lights not in LIGHTS:
         raise ScenarioError(f"unknown lights {lights!r}; known: {', '.join(LIGHTS)}")
@@ -96,7 +100,8 @@ def build_network(name: str, out_dir: Path, lights: str | None = None) -> BuiltN
     flags = list(NETCONVERT_FLAGS)
     clearance = None
     if lights is not None:
-        free = build_network(name, out_dir)  # the same ways through, without lights
+        if free is None or free.name != name or free.clearance_s is not None:
+            free = build_network(name, out_dir)  # the same ways through, without lights
         clearance = clearance_s(free.net_path, free.junctions)
         flags += ["--tls.default-type", lights, "--tls.yellow.time", f"{clearance[0]:g}",
                   "--tls.allred.time", f"{clearance[1]:g}"]  # fmt: skip

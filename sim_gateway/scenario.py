@@ -231,26 +231,34 @@ def light_net(net_path: Path, junction_id: str, tls: str, out_dir: Path) -> tupl
         )
     program = tls_program_type(Path(net_path), light_id(Path(net_path), junction_id))
     if tls == "actuated" and program != "actuated":
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        out = out_dir / f"{Path(net_path).name.removesuffix('.net.xml')}-tls-actuated.net.xml"
-        cmd = [
-            netconvert_binary(),
-            "--sumo-net-file",
-            str(net_path),
-            "--tls.rebuild",
-            "--tls.default-type",
-            "actuated",
-            *NETCONVERT_FLAGS,
-            "--output-file",
-            str(out),
-        ]
-        _netconvert(cmd, out)
+        out = rebuilt_actuated(Path(net_path), Path(out_dir), "-tls-actuated")
         return out, (
             f"junction {junction_id}'s light was {program or 'of no known type'}: "
             f"rebuilt actuated by netconvert in {out}"
         )
     return Path(net_path), None
+
+
+def rebuilt_actuated(
+    net_path: Path, out_dir: Path, suffix: str, flags: tuple[str, ...] = NETCONVERT_FLAGS
+) -> Path:
+    """``net_path`` with every light rebuilt actuated by netconvert (junctions without a
+    light stay so), written to ``out_dir`` as ``<stem><suffix>.net.xml``."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    out = out_dir / f"{net_path.name.removesuffix('.net.xml')}{suffix}.net.xml"
+    cmd = [
+        netconvert_binary(),
+        "--sumo-net-file",
+        str(net_path),
+        "--tls.rebuild",
+        "--tls.default-type",
+        "actuated",
+        *flags,
+        "--output-file",
+        str(out),
+    ]
+    _netconvert(cmd, out)
+    return out
 
 
 def _netconvert(cmd: list[str], out_net: Path) -> None:

@@ -67,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="dica-bench-network-") as tmp:
         d = Path(tmp)
         free = build_network("grid", d / "net")
-        lit = build_network("grid", d / "net", "static")
+        lit = build_network("grid", d / "net", "static", free)
         routes = d / "od.rou.xml"
         n = write_od_routes(
             free.net_path, free.junctions, OdDemand(args.volume, args.duration), routes

@@ -229,7 +229,7 @@ def _nets(args, layout: str | None, out: Path) -> tuple[Path, Path, tuple[str, .
         free = build_network(layout, out / "net")
         lit = free
         if args.control != "dica":
-            lit = build_network(layout, out / "net", NET_LIGHTS[args.control])
+            lit = build_network(layout, out / "net", NET_LIGHTS[args.control], free)
         return lit.net_path, free.net_path, free.junctions
     if not args.net.is_file():
         raise UsageError(f"network file not found: {args.net}")
@@ -259,15 +259,11 @@ def _offsets(net: Path, routes: Path, out: Path) -> Path:
 
 
 def _actuated(net: Path, out_dir: Path) -> Path:
-    """The user's net with its lights rebuilt actuated (the junctions without stay so)."""
-    from dica.sim_gateway.scenario import NETCONVERT_FLAGS, _netconvert, netconvert_binary
+    """The user's net with its lights rebuilt actuated (the junctions without stay so),
+    its geometry as it was (no flags that redraw the junctions)."""
+    from dica.sim_gateway.scenario import NETCONVERT_FLAGS, rebuilt_actuated
 
-    out_dir.mkdir(parents=True, exist_ok=True)
-    built = out_dir / f"{net.name.removesuffix('.net.xml')}-actuated.net.xml"
-    cmd = [netconvert_binary(), "--sumo-net-file", str(net), "--tls.rebuild",
-           "--tls.default-type", "actuated", *NETCONVERT_FLAGS[:4], "-o", str(built)]  # fmt: skip
-    _netconvert(cmd, built)
-    return built
+    return rebuilt_actuated(net, out_dir, "-actuated", NETCONVERT_FLAGS[:4])
 
 
 def _report(out: Path, result, control: str) -> int:
