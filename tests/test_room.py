@@ -90,3 +90,34 @@ def test_another_exit_lane_does_not_count(ch45_net):
     assert isinstance(_ask(ica, west, "a", 0.0, room=math.inf), Confirmation)
     b = _ask(ica, south, "b", 0.0, room=_need(south) + 0.1)
     assert not (isinstance(b, Rejection) and b.reason is Reason.NO_ROOM)
+
+
+def _enter(ica, route: Route, vin: str, t: float, room: float, t_obs=None):
+    req = propose(
+        route, vin=vin, seq=1, t0_s=t, dist_to_entry_m=40.0, speed_mps=10.0, config=ica.config
+    )
+    obs = t if t_obs is None else t_obs
+    return ica.handle(dataclasses.replace(req, t_obs_s=obs, network_room_m=room), t)
+
+
+def test_the_network_gate_lets_in_what_fits_and_counts_who_it_let_in_since(ch45_net):
+    """A vehicle entering a network of junctions: room for its length and standstill gap
+    confirms it, a centimetre less refuses it; one let in after a vehicle observed the
+    room takes its share of it, one let in before does not (the roadside counted it)."""
+    from dica.ica.core.gridlock import QUEUE_GAP_M
+
+    inter, ica = _ica(ch45_net)
+    west, south = inter.route(*WEST), inter.route(*EAST_OUT_FROM_SOUTH)
+    need = LENGTH + QUEUE_GAP_M
+    ica.advance(0.0)
+    ica.detect("a", west.in_lane, 0.0)
+    short = _enter(ica, west, "a", 0.0, room=need - 0.01)
+    assert isinstance(short, Rejection) and short.reason is Reason.NO_ROOM
+    assert "network of junctions" in short.detail
+    assert isinstance(_enter(ica, west, "a", 0.0, room=need), Confirmation)
+    # b observed the room at 0.0, before a was let in: a takes its share
+    ica.detect("b", south.in_lane, 0.0)
+    late = _enter(ica, south, "b", 0.0, room=2 * need - 0.01, t_obs=0.0)
+    assert isinstance(late, Rejection) and late.reason is Reason.NO_ROOM
+    # observed after a was let in, the roadside's room already counts it
+    assert isinstance(_enter(ica, south, "b", 0.1, room=need, t_obs=0.1), Confirmation)
