@@ -37,6 +37,7 @@ import math
 import time
 from collections import Counter
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -67,6 +68,17 @@ NOTICE_S = 1.0  # [s sim] how long a realtime STATE keeps naming a vehicle after
 AGE_BINS_MS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)  # command age histogram
 
 
+@dataclass
+class Fleet:
+    """Which agent hosts each vehicle. A network's junctions share one, so a vehicle
+    keeps its agent from one junction to the next (the agent serves them all)."""
+
+    owner: dict[str, str] = field(default_factory=dict)
+    load: Counter[str] = field(default_factory=Counter)  # vehicles in some region, per agent
+    hosted: Counter[str] = field(default_factory=Counter)  # vehicles ever handed, per agent
+    adoptions: int = 0  # vehicles handed on from an agent that died
+
+
 class ZenohDrivers:
     """The vehicles' decisions, made by agent processes reached over Zenoh."""
 
@@ -83,6 +95,7 @@ class ZenohDrivers:
         speed: float = 1.0,
         step_timeout_s: float = 30.0,
         resend_s: float = 0.5,
+        fleet: Fleet | None = None,
         log: logging.Logger,
     ) -> None:
         if clock not in CLOCKS:
@@ -106,10 +119,10 @@ class ZenohDrivers:
         self.alive: set[str] = set()
         self.ica_alive = False
         self.ica_outages = 0
-        self.owner: dict[str, str] = {}
-        self.load: Counter[str] = Counter()
-        self.hosted: Counter[str] = Counter()
-        self.adoptions = 0
+        self.fleet = fleet if fleet is not None else Fleet()
+        self.owner = self.fleet.owner
+        self.load = self.fleet.load
+        self.here: set[str] = set()  # vehicles in this region counted in their agent's load
         self.agent_deaths = 0
         self.multi_wave_steps = 0
         self.resent_states = 0
@@ -179,7 +192,10 @@ class ZenohDrivers:
             item = self.inbox.get(timeout=0.1)
             if item is not None:
                 self._note(item)
-        self.log.info("ICA and %d agents up: %s", len(self.alive), ", ".join(sorted(self.alive)))
+        self.log.info(
+            "ICA and %d agents up at %s: %s",
+            len(self.alive), self.junction, ", ".join(sorted(self.alive)),
+        )  # fmt: skip
         self._t0_wall = time.monotonic()
 
     def end(self, t: float, copies: int = 5) -> None:
@@ -259,8 +275,9 @@ class ZenohDrivers:
         for s in seen:
             if s.obs.exited:
                 agent = self.owner.get(s.car.vin)
-                if agent is not None and s.car.vin in self.known:
+                if agent is not None and s.car.vin in self.here:
                     self.load[agent] -= 1
+                self.here.discard(s.car.vin)
                 self.known.discard(s.car.vin)
                 self.wake.pop(s.car.vin, None)
         self._pending = (k, len(waves) - 1, waves[-1] if waves else {}, out)
@@ -406,6 +423,9 @@ class ZenohDrivers:
     def _owner(self, vin: str) -> str | None:
         agent = self.owner.get(vin)
         if agent is not None and agent in self.alive:
+            if vin not in self.here:  # hosted at an earlier junction: its agent keeps it
+                self.here.add(vin)
+                self.load[agent] += 1
             return agent
         return self._assign(vin)
 
@@ -423,11 +443,12 @@ class ZenohDrivers:
         agent = min(free, key=lambda a: (self.load[a], a))
         old = self.owner.get(vin)
         if old is not None:
-            self.adoptions += 1
+            self.fleet.adoptions += 1
             self.known.discard(vin)
         self.owner[vin] = agent
+        self.here.add(vin)
         self.load[agent] += 1
-        self.hosted[agent] += 1
+        self.fleet.hosted[agent] += 1
         return agent
 
     def _wait_commands(
@@ -532,8 +553,8 @@ class ZenohDrivers:
                 gone = sorted(v for v, a in self.owner.items() if a == name and v in self.known)
                 self.load.pop(name, None)
                 self.log.error(
-                    "vehicle agent %s is gone; %d of its vehicles go to the other agents",
-                    name, len(gone),
+                    "vehicle agent %s is gone; %d of its vehicles at %s go to the other agents",
+                    name, len(gone), self.junction,
                 )  # fmt: skip
                 for vin in gone:
                     self.known.discard(vin)
@@ -549,9 +570,11 @@ class ZenohDrivers:
         elif item.what == "ica" and item.key == self._ica_key:
             if self.ica_alive and not up and not self.ended:
                 self.ica_outages += 1
-                self.log.error("the ICA is gone: no new plans until it is back")
+                self.log.error(
+                    "the ICA of %s is gone: no new plans until it is back", self.junction
+                )
             elif up and not self.ica_alive and self.ica_outages:
-                self.log.info("the ICA is back")
+                self.log.info("the ICA of %s is back", self.junction)
             self.ica_alive = up
 
     def _vehicle_state(self, s: Seen) -> VehicleState:
@@ -589,9 +612,9 @@ class ZenohDrivers:
         return {
             "clock": self.clock,
             "speed": self.speed if self.clock == "realtime" else None,
-            "agents": dict(sorted(self.hosted.items())),
+            "agents": dict(sorted(self.fleet.hosted.items())),
             "agent_deaths": self.agent_deaths,
-            "adoptions": self.adoptions,
+            "adoptions": self.fleet.adoptions,
             "ica_outages": self.ica_outages,
             "multi_wave_steps": self.multi_wave_steps,
             "revoke_waves": self.revoke_waves,

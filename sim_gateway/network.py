@@ -20,6 +20,7 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from dica.ica.core.controller import build_controller
 from dica.ica.core.gridlock import QUEUE_GAP_M
@@ -39,6 +40,9 @@ from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
 from dica.sim_gateway.world import World
 
+if TYPE_CHECKING:
+    from dica.sim_gateway.network_cluster import Cluster
+
 LIGHT_CONTROLS = ("program", "max-pressure")
 NETWORK_RRD = "network.rrd"  # beside the junctions' recordings: the network from above
 
@@ -51,6 +55,7 @@ def run_network(
     run_dir: Path | None = None,
     until_empty_after_s: float | None = None,
     lights: str | None = None,
+    cluster: Cluster | None = None,
 ) -> RunResult:
     """Run the route file through ``inters``, each junction under its own ICA core, or
     by the net's lights, watched and measured alike: ``lights`` ``program`` runs them as
@@ -61,7 +66,9 @@ def run_network(
     of their own) and the result has the network's trips (``extra["network"]``,
     ``result.net_trips``). With ``until_empty_after_s`` the run ends early once that
     time is past and every vehicle has left. With ``rrd_path`` each junction is recorded
-    with its own views (:func:`recording_path`).
+    with its own views (:func:`recording_path`). With ``cluster`` the junctions' ICAs
+    and the vehicles' agents are processes reached over Zenoh
+    (:mod:`sim_gateway.network_cluster`) instead of cores in this process.
     """
     if not cfg.routes_path:
         raise RunError("several junctions take their vehicles from a route file (--routes)")
@@ -74,10 +81,12 @@ def run_network(
     if not light:
         for line in check_handovers(inters, spec.config.kinematics):
             print(f"note: {line}", file=sys.stderr)
-    icas = [] if light else [build_controller(spec, inter) for inter in inters]
+    icas = [] if light or cluster else [build_controller(spec, inter) for inter in inters]
     for ica in icas:
         ica.prepare()
     _, _, horizon = schedule_for(cfg, inters[0], spec.config.step_s)
+    if cluster is not None:
+        cluster.wait_for_peers()
     info = trip_file(cfg, run_dir)
     if info is not None and str(info) not in cfg.sumo_args:
         more = ("--tripinfo-output", str(info), "--tripinfo-output.write-unfinished", "true")
@@ -87,7 +96,7 @@ def run_network(
     closed = False
     try:
         recorders, top = [], None
-        if rrd_path is not None and not light:
+        if rrd_path is not None and icas:
             recorders = [
                 open_recording(x, recording_path(rrd_path, x, k), f"dica {x.junction_id}")
                 for k, x in enumerate(inters)
@@ -98,8 +107,10 @@ def run_network(
                 top = NetworkView(ls, inters, rrd_path.with_name(NETWORK_RRD))
                 top.geometry()
         world = World(
-            ls, cfg, inters[0], spec.config, [], horizon, want_xy=bool(recorders),
-            predict_s=cfg.plan_lead_s, more=tuple(inters[1:]), signalised=light,
+            ls, cfg, inters[0], spec.config, [], horizon,
+            want_xy=bool(recorders) or cluster is not None,
+            predict_s=cluster.predict_s if cluster else cfg.plan_lead_s,
+            more=tuple(inters[1:]), signalised=light,
         )  # fmt: skip
         gate = world.gate
         if gate is not None and gate.closes:
@@ -120,6 +131,8 @@ def run_network(
                 if pressure is not None:
                     pressure.step(world.t)
                 each = world.step_each()
+                if cluster is not None:
+                    cluster.decide(world, each)
                 for j, d, seen in zip(world.junctions, drivers, each, strict=False):
                     world.refresh_network_room(j, seen)
                     world.apply(d.step(world.t, seen), j)
@@ -131,12 +144,20 @@ def run_network(
                 world.end_step(progress)
                 if world.done() or world.emptied(until_empty_after_s):
                     break
+                if cluster is not None:
+                    cluster.checkpoint(world, cmd)
+        except BaseException as e:
+            if cluster is not None:
+                cluster.stopped(world, cmd, e)
+            raise
         finally:
             for rec in recorders:
                 rec.close()
             if top is not None:
                 top.close()
         result = world.result(merged_requests(drivers), cmd)
+        if cluster is not None:
+            cluster.finish(world, result)
         if pressure is not None:
             result.extra["max_pressure_switches"] = pressure.switches
         if len(drivers) > 1:
@@ -178,6 +199,8 @@ def trip_file(cfg: RunConfig, run_dir: Path | None) -> Path | None:
 def merged_requests(drivers: Sequence[LocalDrivers]) -> dict:
     """The run's requests over every junction's ICA: counts and rejections added, the
     request times' median and p99 over all of them."""
+    if not drivers:
+        return {}  # lights, or the ICAs are processes of their own (they keep the figures)
     if len(drivers) == 1:
         return drivers[0].requests()
     rejections: dict[str, int] = {}

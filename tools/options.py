@@ -519,7 +519,7 @@ def check(args: argparse.Namespace) -> None:
             raise UsageError("--junction names one junction, --junctions several: give one")
         if values.get("net") is None:
             raise UsageError("--junctions names junctions of --net: give --net")
-        if values.get("routes") is None:
+        if "routes" in values and values.get("routes") is None:
             raise UsageError("--junctions takes its vehicles from a route file: give --routes")
     elif values.get("net") is not None and not values.get("junction"):
         raise UsageError("--net needs --junction (the junction id in that network)")

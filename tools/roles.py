@@ -16,7 +16,14 @@ import time
 from pathlib import Path
 
 from dica.tools import options
-from dica.tools.args import add_run_args, headway_s, intersection, report_run, run_config
+from dica.tools.args import (
+    add_run_args,
+    headway_s,
+    intersection,
+    intersections,
+    report_run,
+    run_config,
+)
 from dica.tools.options import UsageError
 
 
@@ -72,6 +79,9 @@ def cmd_router(args: argparse.Namespace) -> int:
         conf = zenoh.Config.from_file(str(path))
         if args.listen:
             conf.insert_json5("listen/endpoints", json.dumps(args.listen.split(",")))
+        if args.connect:  # the neighbouring roadside units' routers: a mesh, routed by Zenoh
+            conf.insert_json5("connect/endpoints", json.dumps(args.connect.split(",")))
+            conf.insert_json5("connect/timeout_ms", "-1")  # a neighbour may come up later
         session = zenoh.open(conf)
     except Exception as e:
         raise UsageError(f"the Zenoh router would not start ({path}): {e}") from None
@@ -201,11 +211,19 @@ def cmd_ica(args: argparse.Namespace) -> int:
 
 # -- agent ---------------------------------------------------------------------
 def cmd_agent(args: argparse.Namespace) -> int:
+    import threading
+
     from dica.ica.core.controller import ControllerSpec
     from dica.schemas.keys import KeyChunkError
     from dica.vehicle_agent.agent import Agent
 
-    inter = intersection(args)
+    if args.junctions:
+        from dica.tools.args import chosen_junctions
+
+        ids = chosen_junctions(args.net, args.junctions)
+        inters = [intersection(argparse.Namespace(**{**vars(args), "junction": j})) for j in ids]
+    else:
+        inters = [intersection(args)]
     lead = None if args.lead == "auto" else args.lead
     try:
         config = ControllerSpec.of("enhanced", args.margin).config
@@ -213,32 +231,50 @@ def cmd_agent(args: argparse.Namespace) -> int:
         raise UsageError(str(e)) from None
     session, log = _session(args, f"agent {args.id}", signer=args.id)
     try:
-        agent = Agent(
-            session,
-            args.id,
-            inter,
-            config,
-            retry_s=args.retry,
-            lead_s=lead,
-            log=log,
-        )
+        # one machine per vehicle and junction: a vehicle this agent hosts keeps it from
+        # one junction to the next (the gateway hands it on), and asks each one's ICA
+        agents = [
+            Agent(session, args.id, x, config, retry_s=args.retry, lead_s=lead, log=log)
+            for x in inters
+        ]
     except KeyChunkError as e:
         session.close()
         raise UsageError(f"--id: {e}") from None
-    agent.inbox.stop_on_signals()
-    log.info("vehicle agent %s up for junction %s", args.id, inter.junction_id)
+    agents[0].inbox.stop_on_signals()
+    for a in agents[1:]:  # one signal stops them all
+        a.inbox.stopping = agents[0].inbox.stopping
+    names = ", ".join(x.junction_id for x in inters)
+    log.info("vehicle agent %s up for junction%s %s", args.id, "s" * (len(inters) > 1), names)
+    stopping = agents[0].inbox.stopping
+
+    def serve(a: Agent) -> None:
+        try:
+            a.run()
+        finally:
+            stopping.set()  # the run's end (or a failure) at one junction ends them all
+
+    threads = [threading.Thread(target=serve, args=(a,), name=a.inter.junction_id) for a in agents]
     try:
-        agent.run()
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
     finally:
-        agent.close()
+        stopping.set()
+        for t in threads:
+            if t.is_alive():
+                t.join()
+        for a in agents:
+            a.close()
         session.close()
-        log.info("stopped: %s", json.dumps(agent.summary()))
+        for a in agents:
+            log.info("stopped at %s: %s", a.inter.junction_id, json.dumps(a.summary()))
     return 0
 
 
 # -- gateway -------------------------------------------------------------------
 def cmd_gateway(args: argparse.Namespace) -> int:
-    from dica.sim_gateway.gateway import ZenohDrivers, run_gateway
+    from dica.sim_gateway.gateway import Fleet, ZenohDrivers, run_gateway
     from dica.sim_gateway.outputs import write_outputs
     from dica.sim_gateway.runconfig import LIGHTS, RunError
 
@@ -248,25 +284,33 @@ def cmd_gateway(args: argparse.Namespace) -> int:
     if cfg.algorithm == "rdica":  # the cluster's way: no ICA re-plans over a link
         cfg = dataclasses.replace(cfg, revocation="drop")
     out = options.out_dir(args.out or Path("runs") / time.strftime("cluster-%Y%m%d-%H%M%S"))
+    inters = intersections(cfg) if cfg.junction_ids else [inter]
     session, log = _session(args, "gateway")
+    fleet = Fleet()  # a vehicle keeps its agent from one junction to the next
     try:
-        drivers = ZenohDrivers(
-            session,
-            inter.junction_id,
-            cfg,
-            agents=args.agents,
-            observers=args.observers,
-            per_agent=args.per_agent,
-            clock=args.clock,
-            speed=args.speed,
-            step_timeout_s=args.step_timeout,
-            resend_s=args.resend,
-            log=log,
-        )
+        drivers = [
+            ZenohDrivers(
+                session,
+                x.junction_id,
+                cfg,
+                agents=args.agents,
+                observers=args.observers,
+                per_agent=args.per_agent,
+                clock=args.clock,
+                speed=args.speed,
+                step_timeout_s=args.step_timeout,
+                resend_s=args.resend,
+                fleet=fleet,
+                log=log,
+            )
+            for x in inters
+        ]
     except RunError as e:
         session.close()
         raise UsageError(str(e)) from None
-    drivers.inbox.stop_on_signals()
+    drivers[0].inbox.stop_on_signals()
+    for d in drivers[1:]:  # one signal stops every junction's waits
+        d.inbox.stopping = drivers[0].inbox.stopping
     last = [0.0]
 
     def tick(t: float, waiting: int, crossed: int) -> None:
@@ -278,18 +322,41 @@ def cmd_gateway(args: argparse.Namespace) -> int:
         write_outputs(out, cfg, result, mode="cluster", incomplete=why)
 
     try:
-        result = run_gateway(session, cfg, inter, drivers, peers_timeout_s=args.peers_timeout,
-                             progress=tick, checkpoint=checkpoint,
-                             checkpoint_every_s=args.checkpoint_every)  # fmt: skip
+        if cfg.junction_ids:
+            result = _run_network_gateway(args, cfg, inters, drivers, out, tick, checkpoint)
+        else:
+            result = run_gateway(session, cfg, inter, drivers[0],
+                                 peers_timeout_s=args.peers_timeout, progress=tick,
+                                 checkpoint=checkpoint,
+                                 checkpoint_every_s=args.checkpoint_every)  # fmt: skip
     except RunError as e:
         log.error("%s", e)
         raise UsageError(str(e)) from None
     finally:
-        drivers.close()
+        for d in drivers:
+            d.close()
         session.close()
     write_outputs(out, cfg, result, mode="cluster")
+    if result.net_trips is not None:
+        from dica.sim_gateway.network_trips import write_trips_csv
+
+        write_trips_csv(out / "trips.csv", result.net_trips)
     log.info("wrote %s", out / "metrics.json")
     return report_run(out, result)
+
+
+def _run_network_gateway(args, cfg, inters, drivers, out: Path, tick, checkpoint):
+    """Several junctions, each its own ICA process, as ``dica run --junctions`` runs them."""
+    from dica.sim_gateway.network import run_network
+    from dica.sim_gateway.network_cluster import Cluster
+
+    cluster = Cluster(
+        drivers,
+        peers_timeout_s=args.peers_timeout,
+        checkpoint=checkpoint,
+        checkpoint_every_s=args.checkpoint_every,
+    )
+    return run_network(cfg, inters, progress=tick, run_dir=out, cluster=cluster)
 
 
 # -- observer ------------------------------------------------------------------
@@ -337,6 +404,11 @@ def add_role_parsers(sub) -> None:
     )
     r.add_argument("--config", type=Path, help="router JSON5 (default deploy/zenoh/router.json5)")
     r.add_argument("--listen", help="endpoint(s) to listen on, e.g. tcp/127.0.0.1:7447")
+    r.add_argument(
+        "--connect",
+        help="other routers' endpoint(s) to connect to, comma-separated: roadside units' "
+        "routers in a mesh (Zenoh routes between them; each link needs one side to connect)",
+    )
     r.add_argument(
         "--log-refused",
         action="store_true",
@@ -386,7 +458,10 @@ def add_role_parsers(sub) -> None:
     )
     a.add_argument("--id", required=True, help="this agent's name (letters, digits, _.:-+)")
     options.add(
-        a, *options.NET, "--margin", "--retry", "--lead",
+        a, *options.NET, "--junctions", "--margin", "--retry", "--lead",
+        junctions={"help": "serve several junctions of --net (J1,J2,... or all, as the "
+                   "gateway's --junctions): the agent keeps each vehicle it hosts from one "
+                   "junction to the next"},
         lead={"type": options.seconds_or_auto, "default": "auto",
               "help": "realtime: how far ahead of its observation a REQUEST's plan starts "
               "[sim s]; auto (default) uses the measured round trip plus a margin. Lockstep "
@@ -423,7 +498,8 @@ def add_role_parsers(sub) -> None:
     )
     add_run_args(g, algorithm={"help": options.ALGORITHMS_HELP})
     options.add(
-        g, "--agents", "--observers", "--per-agent", "--clock", "--speed", "--step-timeout",
+        g, "--junctions", "--network-gate", "--agents", "--observers", "--per-agent", "--clock",
+        "--speed", "--step-timeout",
         "--resend", "--checkpoint-every", "--peers-timeout", "--progress-every", "--out",
         out={"help": "output directory (default runs/cluster-TIMESTAMP)"},
     )  # fmt: skip
