@@ -145,6 +145,7 @@ class Proxy:
     router_port: int
     framed: bool = True
     host: str = "127.0.0.1"
+    router_host: str | None = None  # the router's host, if not this one (another host's)
 
     @property
     def endpoint(self) -> str:
@@ -233,7 +234,7 @@ class Emulator:
     def _handler(self, p: Proxy):
         async def handle(reader, writer) -> None:
             try:
-                r2, w2 = await asyncio.open_connection(p.host, p.router_port)
+                r2, w2 = await asyncio.open_connection(p.router_host or p.host, p.router_port)
             except OSError:
                 writer.close()
                 return

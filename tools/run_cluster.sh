@@ -1,6 +1,8 @@
 #!/usr/bin/env bash
 # Start the whole cluster on this host: a Zenoh router, the ICA, the Rerun
-# observer, N vehicle agents and the SUMO gateway, each its own process with
+# observer, N vehicle agents and the SUMO gateway (for a network of junctions:
+# a router per roadside unit in a mesh, an ICA and an observer per junction),
+# each its own process with
 # its own log in RUN_DIR/logs/, optionally behind a link emulator that delays,
 # loses, duplicates and reorders their messages. A role that crashes is
 # restarted (the ICA from its journal; a dead agent's vehicles go to the
@@ -23,6 +25,18 @@ scenario and roles:
   --layout ch45|ch3     built-in intersection (default ch45)
   --net FILE --junction ID
                         any SUMO net instead
+  --net FILE --junctions all|J1,J2,... --routes FILE
+                        a network: each junction signal-free under its own ICA process,
+                        the vehicles from the route file, every agent serving every junction
+  --rsus N              with --junctions: the roadside units, each with its own Zenoh router
+                        serving a run of consecutive junctions (default: one per junction);
+                        each router connects to the ones before it (a mesh); the gateway
+                        and agent i connect to roadside unit 1 and i (round robin)
+  --netns               each roadside unit a host of its own: a Linux network namespace
+                        (router, its junctions' ICAs and observers) on a private LAN
+                        (10.77.0.0/24, a bridge in a namespace of its own) with the
+                        gateway and agents on another; the link emulator, if any, sits
+                        on the vehicles' host before each roadside unit. Needs root
   --algorithm NAME      ICA controller: enhanced (default), basic, t1..t4, fifo, ...,
                         rdica (reactive DICA: emergency vehicles first)
   --ev-prob P           probability an arrival is an emergency vehicle (default 0.02
@@ -95,7 +109,7 @@ die() { echo "run_cluster: $*" >&2; exit 2; }
 number() { [[ "$2" =~ ^[0-9]+([.][0-9]+)?$ ]] || die "$1 wants a non-negative number, got '$2'"; }
 prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1 must be at most 0.9, got $2"; }
 
-layout=ch45 net="" junction="" algorithm=enhanced volume=500 duration=600 seed=12
+layout=ch45 net="" junction="" junctions="" rsus="" netns=0 algorithm=enhanced volume=500 duration=600 seed=12
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
 delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
 max_age="" restart=1 router_rules=1 ev_prob="" solver="" platoon=(--platoon) headway="" run_up=(--run-up)
@@ -107,6 +121,9 @@ while [ $# -gt 0 ]; do
     --layout) layout="$2"; shift 2 ;;
     --net) net="$(from_caller "$2")"; shift 2 ;;
     --junction) junction="$2"; shift 2 ;;
+    --junctions) junctions="$2"; shift 2 ;;
+    --rsus) rsus="$2"; shift 2 ;;
+    --netns) netns=1; shift ;;
     --algorithm) algorithm="$2"; shift 2 ;;
     --ev-prob) ev_prob="$2"; shift 2 ;;
     --solver) solver="$2"; shift 2 ;;
@@ -169,6 +186,16 @@ for r in "${parts[@]}"; do
     *) die "--faulty takes all or a comma list of agents, ica, gateway, observer; got '$r'" ;;
   esac
 done
+if [ "$netns" = 1 ]; then
+  [ "$secure" = 0 ] || die "--secure with --netns: not yet (the site's certificate names loopback)"
+  [ "${#live[@]}" = 0 ] || die "--live serves on the gateway's host; not with --netns"
+  if [ "$faulty" = all ]; then faulty_roles=(agents gateway); fi
+  for r in "${faulty_roles[@]}"; do
+    case "$r" in agents|gateway) ;; *) die "with --netns the emulated links are the vehicles' host's to the roadside units: --faulty agents,gateway" ;; esac
+  done
+  [ "$(id -u)" = 0 ] || die "--netns makes network namespaces: run as root"
+  command -v ip >/dev/null || die "--netns needs the ip command (iproute2)"
+fi
 lossy=$(awk -v a="$loss" -v b="$dup" -v c="$reorder" 'BEGIN { print (a + b + c > 0) ? 1 : 0 }')
 faults=$(awk -v a="$delay" -v b="$jitter" 'BEGIN { print (a + b > 0) ? 1 : 0 }')
 [ "$lossy" = 1 ] && faults=1
@@ -205,14 +232,79 @@ except ScenarioError as e:
     sys.exit(f'run_cluster: {e}')
 print(sc.net_path, sc.junction_id)" "$layout") || exit 2
 fi
-[ -n "$junction" ] || die "--net needs --junction"
 [ -f "$net" ] || die "no net file $net"
-scen=(--net "$net" --junction "$junction")
+ids=()  # a network's junctions (one ICA and one observer each)
+if [ -n "$junctions" ]; then
+  [ -z "$junction" ] || die "--junction names one junction, --junctions several: give one"
+  [[ " ${demand[*]} " == *" --routes "* ]] || die "--junctions takes its vehicles from a route file: give --routes"
+  read -r -a ids < <("$py" -c "
+import sys
+from dica.tools.args import chosen_junctions
+from dica.tools.options import UsageError
+from pathlib import Path
+try:
+    print(' '.join(chosen_junctions(Path(sys.argv[1]), sys.argv[2])))
+except UsageError as e:
+    sys.exit(f'run_cluster: {e}')" "$net" "$junctions") || exit 2
+  [ "$secure" = 0 ] || die "--secure serves one junction for now; run a network without it"
+  [ "${#live[@]}" = 0 ] || die "--live records one junction; a network's observers write .rrd files"
+  [ -n "$rsus" ] || rsus=${#ids[@]}
+  [[ "$rsus" =~ ^[0-9]+$ ]] && [ "$rsus" -ge 1 ] && [ "$rsus" -le "${#ids[@]}" ] ||
+    die "--rsus wants 1 to ${#ids[@]} (the junctions), got '$rsus'"
+  scen=(--net "$net" --junctions "$(IFS=,; echo "${ids[*]}")")
+else
+  [ -z "$rsus" ] || die "--rsus goes with --junctions"
+  [ -n "$junction" ] || die "--net needs --junction"
+  scen=(--net "$net" --junction "$junction")
+fi
 
 out="${out:-runs/cluster-$(date +%Y%m%d-%H%M%S)}"
 mkdir -p "$out/logs" "$out/pids"
 free_port() { "$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
 [ -n "$port" ] || port="$(free_port)"
+# roadside units: RSU k's router on rsu_port[k]; a single junction has one
+n_rsu=${rsus:-1}
+declare -A rsu_port=() rsu_of=()
+rsu_port[1]=$port
+for k in $(seq 2 "$n_rsu"); do rsu_port[$k]="$(free_port)"; done
+for i in "${!ids[@]}"; do rsu_of[${ids[$i]}]=$((i * n_rsu / ${#ids[@]} + 1)); done
+# where each roadside unit's router is reached: loopback, or (--netns) its host's address
+declare -A rsu_addr=()
+for k in $(seq "$n_rsu"); do rsu_addr[$k]=127.0.0.1; done
+tag=$(($$ % 10000))  # this run's namespaces and links
+lan="dica$tag-lan" vehicles="dica$tag-veh"
+host_ns() { echo "dica$tag-rsu$1"; }
+netns_down() {
+  local k
+  for k in $(seq "$n_rsu"); do ip netns del "$(host_ns "$k")" 2>/dev/null || true; done
+  ip netns del "$vehicles" 2>/dev/null || true
+  ip netns del "$lan" 2>/dev/null || true
+}
+netns_host() {  # netns_host NS ADDR I: a host on the LAN's bridge
+  ip netns add "$1"
+  ip link add "d${tag}v$3" type veth peer name "d${tag}b$3"
+  ip link set "d${tag}v$3" netns "$1"
+  ip link set "d${tag}b$3" netns "$lan"
+  ip -n "$lan" link set "d${tag}b$3" master br0 up
+  ip -n "$1" addr add "$2/24" dev "d${tag}v$3"
+  ip -n "$1" link set "d${tag}v$3" up
+  ip -n "$1" link set lo up
+}
+in_ns=()  # in_ns_of NAME sets in_ns: the command prefix that runs NAME on its host
+in_ns_of() { in_ns=(); [ "$netns" = 1 ] && in_ns=(ip netns exec "$1"); return 0; }
+if [ "$netns" = 1 ]; then
+  netns_down
+  trap netns_down EXIT  # until stop_all takes over
+  ip netns add "$lan" || die "cannot make network namespaces here"
+  ip -n "$lan" link add br0 type bridge
+  ip -n "$lan" link set br0 up
+  netns_host "$vehicles" 10.77.0.2 0
+  for k in $(seq "$n_rsu"); do
+    rsu_addr[$k]="10.77.0.$((10 + k))"
+    rsu_port[$k]=7447
+    netns_host "$(host_ns "$k")" "${rsu_addr[$k]}" "$k"
+  done
+fi
 scheme=tcp
 router_conf=()
 if [ "$secure" = 1 ]; then
@@ -235,28 +327,38 @@ PY
   fi
   scheme=tls
 fi
-listen="$scheme/127.0.0.1:$port"
 
 # the link emulator: one proxy per faulty process, faults per role in $out/link/faults.json
 is_faulty() { local r; for r in "${faulty_roles[@]}"; do [ "$r" = "$1" ] && return 0; done; return 1; }
 proxy_json=()
 declare -A endpoint=()
-route_through_link() {  # route_through_link NAME ROLE
+route_through_link() {  # route_through_link NAME ROLE RSU: a proxy on NAME's host
   local lp framed
   lp="$(free_port)"
   framed=$([ "$secure" = 1 ] && echo false || echo true)
-  proxy_json+=("{\"name\": \"$1\", \"role\": \"$2\", \"listen_port\": $lp, \"router_port\": $port, \"framed\": $framed}")
+  proxy_json+=("{\"name\": \"$1\", \"role\": \"$2\", \"listen_port\": $lp, \"router_port\": ${rsu_port[$3]}, \"router_host\": \"${rsu_addr[$3]}\", \"framed\": $framed}")
   endpoint[$1]="$scheme/127.0.0.1:$lp"
 }
-names_all=(ica gateway)
-[ "$record" = 1 ] && names_all+=(observer)
-for i in $(seq "$agents"); do names_all+=("agent-$i"); done
+declare -A router_of=()  # each process's roadside unit
+router_of[gateway]=1
+names_all=(gateway)
+if [ "${#ids[@]}" -gt 0 ]; then
+  for j in "${ids[@]}"; do
+    names_all+=("ica-$j"); router_of["ica-$j"]=${rsu_of[$j]}
+    if [ "$record" = 1 ]; then names_all+=("observer-$j"); router_of["observer-$j"]=${rsu_of[$j]}; fi
+  done
+else
+  names_all+=(ica); router_of[ica]=1
+  if [ "$record" = 1 ]; then names_all+=(observer); router_of[observer]=1; fi
+fi
+for i in $(seq "$agents"); do names_all+=("agent-$i"); router_of["agent-$i"]=$(((i - 1) % n_rsu + 1)); done
 for name in "${names_all[@]}"; do
-  role="$name"; [[ "$name" == agent-* ]] && role=agents
+  role="${name%%-*}"; [ "$role" = agent ] && role=agents
+  k=${router_of[$name]}
   if [ "$faults" = 1 ] && is_faulty "$role"; then
-    route_through_link "$name" "$role"
+    route_through_link "$name" "$role" "$k"
   else
-    endpoint[$name]="$scheme/127.0.0.1:$port"
+    endpoint[$name]="$scheme/${rsu_addr[$k]}:${rsu_port[$k]}"
   fi
 done
 
@@ -275,9 +377,8 @@ restart_role() {  # the same command again (the observer into a new .rrd, never 
   local name="$1" n="${restarts[$1]:-0}"
   restarts[$name]=$((n + 1))
   local cmd="${cmd_of[$name]}"
-  if [ "$name" = observer ]; then
-    cmd="${cmd//spacetime.rrd/spacetime.$((n + 1)).rrd}"
-    cmd="${cmd//spacetime.$n.rrd/spacetime.$((n + 1)).rrd}"
+  if [[ "$name" == observer* ]]; then
+    if [ "$n" = 0 ]; then cmd="${cmd//.rrd /.1.rrd }"; else cmd="${cmd//.$n.rrd /.$((n + 1)).rrd }"; fi
   fi
   echo "$(date +%H:%M:%S) restarting $name (restart $((n + 1)))" >> "$out/logs/restarts.log"
   echo "run_cluster: $name died; restarting it (restart $((n + 1)))" >&2
@@ -301,6 +402,7 @@ stop_all() {  # reverse start order: TERM each group, then KILL what is left aft
   done
   wait 2>/dev/null || true
   rm -f "$out"/pids/*
+  [ "$netns" = 0 ] || netns_down
 }
 trap stop_all EXIT
 trap 'echo "run_cluster: interrupted, stopping all processes" >&2; exit 130' INT TERM
@@ -314,8 +416,21 @@ wait_ready() {  # wait_ready NAME: its log says ready
   die "the $1 did not start"
 }
 
-start router "$dica" router "${router_conf[@]}" --listen "$listen"
-wait_ready router
+if [ "${#ids[@]}" -gt 0 ]; then  # a router per roadside unit, each connected to the ones before
+  mesh=()
+  for k in $(seq "$n_rsu"); do
+    peers=(); [ "${#mesh[@]}" -gt 0 ] && peers=(--connect "$(IFS=,; echo "${mesh[*]}")")
+    in_ns_of "$(host_ns "$k")"
+    start "router-$k" "${in_ns[@]}" "$dica" router "${router_conf[@]}" \
+      --listen "$scheme/${rsu_addr[$k]}:${rsu_port[$k]}" "${peers[@]}"
+    wait_ready "router-$k"
+    mesh+=("$scheme/${rsu_addr[$k]}:${rsu_port[$k]}")
+  done
+else
+  in_ns_of "$(host_ns 1)"
+  start router "${in_ns[@]}" "$dica" router "${router_conf[@]}" --listen "$scheme/${rsu_addr[1]}:${rsu_port[1]}"
+  wait_ready router
+fi
 if [ "${#proxy_json[@]}" -gt 0 ]; then
   mkdir -p "$out/link"
   { echo "{\"seed\": $seed, \"proxies\": ["; (IFS=','; echo "${proxy_json[*]}"); echo "]}"; } > "$out/link/spec.json"
@@ -327,7 +442,8 @@ path, d, j, l, du, r, *roles = sys.argv[1:]
 f = Faults(float(d), float(j), float(l), float(du), float(r))
 write_profile(Path(path), {role: f for role in roles})
 PY
-  start link "$dica" link serve "$out/link"
+  in_ns_of "$vehicles"
+  start link "${in_ns[@]}" "$dica" link serve "$out/link"
   wait_ready link
 fi
 link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to the router
@@ -338,27 +454,50 @@ link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to
     if [ -f "$out/zenoh/$2.seal" ]; then role_link+=(--seal "$out/zenoh/$2.seal"); fi
   fi
 }
-link_for ica ica
-start ica "$dica" ica "${scen[@]}" --algorithm "$algorithm" --out "$out" \
-  --time-pad "$time_pad" --max-age "$max_age" --seed "$seed" "${solver_args[@]}" \
-  "${platoon[@]}" \
-  "${run_up[@]}" "${exit_spacing[@]}" "${role_link[@]}"
-if [ "$record" = 1 ]; then
-  link_for observer observer
-  start observer "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" --time-pad "$time_pad" \
-    "${live[@]}" "${role_link[@]}"
+ica_args=(--algorithm "$algorithm" --time-pad "$time_pad" --max-age "$max_age" --seed "$seed"
+  "${solver_args[@]}" "${platoon[@]}" "${run_up[@]}" "${exit_spacing[@]}")
+if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal in ica/J/)
+  first=1
+  for j in "${ids[@]}"; do
+    link_for "ica-$j" ica
+    in_ns_of "$(host_ns "${rsu_of[$j]}")"
+    start "ica-$j" "${in_ns[@]}" "$dica" ica --net "$net" --junction "$j" --out "$out/ica/$j" "${ica_args[@]}" \
+      "${role_link[@]}"
+    if [ "$record" = 1 ]; then  # spacetime.rrd for the first, spacetime-J.rrd beside it
+      rrd="$out/spacetime-$j.rrd"; [ "$first" = 1 ] && rrd="$out/spacetime.rrd"
+      link_for "observer-$j" observer
+      start "observer-$j" "${in_ns[@]}" "$dica" observer --net "$net" --junction "$j" --rrd "$rrd" \
+        --time-pad "$time_pad" "${role_link[@]}"
+    fi
+    first=0
+  done
+else
+  link_for ica ica
+  in_ns_of "$(host_ns 1)"
+  start ica "${in_ns[@]}" "$dica" ica "${scen[@]}" --out "$out" "${ica_args[@]}" "${role_link[@]}"
+  if [ "$record" = 1 ]; then
+    link_for observer observer
+    start observer "${in_ns[@]}" "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" --time-pad "$time_pad" \
+      "${live[@]}" "${role_link[@]}"
+  fi
 fi
 for i in $(seq "$agents"); do
   link_for "agent-$i" "agent-$i"
-  start "agent-$i" "$dica" agent --id "agent-$i" "${scen[@]}" --lead "$lead" "${role_link[@]}"
+  in_ns_of "$vehicles"
+  start "agent-$i" "${in_ns[@]}" "$dica" agent --id "agent-$i" "${scen[@]}" --lead "$lead" "${role_link[@]}"
 done
 link_for gateway gateway
-start gateway "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$volume" \
+in_ns_of "$vehicles"
+start gateway "${in_ns[@]}" "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$volume" \
   --duration "$duration" --seed "$seed" --agents "$agents" --per-agent "$per_agent" \
   --clock "$clock" --speed "$speed" --observers "$record" --time-pad "$time_pad" \
   --out "$out" "${ev_args[@]}" "${platoon[@]}" "${demand[@]}" "${role_link[@]}" "${extra[@]}"
 gateway_pid="${pid_of[gateway]}"
-echo "run_cluster: router on tcp/127.0.0.1:$port; ${#order[@]} processes; logs in $out/logs/"
+if [ "${#ids[@]}" -gt 0 ]; then
+  echo "run_cluster: ${#ids[@]} junctions (${ids[*]}) on $n_rsu roadside units' routers from tcp/127.0.0.1:$port; ${#order[@]} processes; logs in $out/logs/"
+else
+  echo "run_cluster: router on tcp/127.0.0.1:$port; ${#order[@]} processes; logs in $out/logs/"
+fi
 if [ "$faults" = 1 ]; then
   echo "run_cluster: links of ${faulty_roles[*]}: delay ${delay} ms, jitter ${jitter} ms, loss $loss, dup $dup, reorder $reorder (dica link set $out/link ...)"
 fi
@@ -409,7 +548,7 @@ fi
 # the run is over: the ICA, the agents and the observer stop on the clock's end
 deadline=$((SECONDS + 120))
 for name in "${order[@]}"; do
-  case "$name" in router|link) continue ;; esac  # these go last
+  case "$name" in router|router-*|link) continue ;; esac  # these go last
   pid="${pid_of[$name]}"
   [ -n "$pid" ] || continue
   while alive "$pid" && [ "$SECONDS" -lt "$deadline" ]; do sleep 0.2; done
