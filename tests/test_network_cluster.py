@@ -1,0 +1,204 @@
+"""A network of junctions as a cluster: one ICA process per junction, one Zenoh router
+per roadside unit in a mesh, agents that serve every junction; real SUMO, real Zenoh.
+
+* lockstep over loopback, two roadside units: the embedded run's decisions, byte for
+  byte, with every junction recorded by its own observer;
+* each roadside unit a host of its own (a Linux network namespace on a private LAN),
+  the gateway and the agents on another: lockstep equals the embedded run again, and
+  real time with delayed, lost and repeated messages between the hosts is safe;
+* one junction's ICA killed, then its router: its vehicles stop short of its line,
+  the others go on, nothing collides, and the ICA comes back from its journal.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from dica.tools.loopback import free_port
+from tests.cluster_proc import logs_tail, stop_cluster
+
+ROOT = Path(__file__).resolve().parents[1]
+DICA = [sys.executable, "-m", "dica.tools.cli"]
+DURATION = "90"
+
+needs_netns = pytest.mark.skipif(
+    os.geteuid() != 0 or shutil.which("ip") is None,
+    reason="network namespaces need root and iproute2",
+)
+
+
+@pytest.fixture(scope="module")
+def corridor(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The built-in corridor (four junctions), 90 s of its demand at 500 an hour per road
+    in, and its embedded run: every junction under its own ICA core in one process."""
+    from dica.sim_gateway.network_layouts import build_network
+    from dica.sim_gateway.od_demand import OdDemand, write_od_routes
+
+    d = tmp_path_factory.mktemp("corridor")
+    built = build_network("corridor", d / "net")
+    routes = d / "od.rou.xml"
+    write_od_routes(built.net_path, built.junctions, OdDemand(500, 80, 12), routes)
+    scen = ["--net", str(built.net_path), "--routes", str(routes), "--junctions", "all"]
+    emb = d / "embedded"
+    p = subprocess.run(
+        [*DICA, "run", *scen, "--duration", DURATION, "--out", str(emb), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    return {"scen": scen, "embedded": emb, "junctions": built.junctions}
+
+
+def _cluster(out: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:
+    cmd = ["bash", "tools/run_cluster.sh", "--out", str(out), *args]
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        stdout, stderr = proc.communicate(timeout=timeout)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"the run did not end in {timeout:g} s\n{logs_tail(out)}")
+    finally:
+        stop_cluster(proc)
+    return subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr)
+
+
+def _safe_and_whole(m: dict) -> None:
+    assert m["complete"] is True
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    assert m["unconfirmed_entries"] == 0 and m["stood_inside"] == 0
+    acc = m["accounted"]
+    assert acc["lost"] == 0
+    assert acc["crossed"] + acc["in_region"] + acc["not_yet_in_region"] == acc["generated"]
+
+
+def _same_as_embedded(out: Path, corridor: dict) -> dict:
+    emb = corridor["embedded"]
+    for name in ("vehicles.csv", "trips.csv"):
+        assert (out / name).read_bytes() == (emb / name).read_bytes(), name
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    assert m["mode"] == "cluster" and m["clock"] == "lockstep"
+    assert m["crossed"] > 100
+    # a vehicle keeps its agent from one junction to the next: each was handed once
+    vins = {line.split(",", 1)[0] for line in (out / "vehicles.csv").read_text().splitlines()[1:]}
+    assert sum(m["agents"].values()) == len(vins)
+    for j in corridor["junctions"]:
+        ica = json.loads((out / "ica" / j / "ica.json").read_text())
+        assert ica["confirmed"] >= m["junctions"][j]["crossed"] > 10
+    return m
+
+
+def test_lockstep_network_cluster_makes_the_embedded_decisions(tmp_path, corridor):
+    out = tmp_path / "cl"
+    port = free_port()
+    p = _cluster(out, *corridor["scen"], "--duration", DURATION, "--rsus", "2", "--port", str(port))
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "4 junctions" in p.stdout and "2 roadside units" in p.stdout
+    _same_as_embedded(out, corridor)
+    for j, rrd in zip(corridor["junctions"], ("spacetime.rrd", "spacetime-J10.rrd",
+                                              "spacetime-J20.rrd", "spacetime-J30.rrd"),
+                      strict=True):  # fmt: skip
+        assert (out / rrd).stat().st_size > 10_000, j
+        assert (out / "logs" / f"observer-{j}.log").exists()
+    assert {f"router-{k}.log" for k in (1, 2)} <= {f.name for f in (out / "logs").iterdir()}
+    time.sleep(0.5)
+    left = subprocess.run(["pgrep", "-f", f"127.0.0.1:{port}"], capture_output=True, text=True)
+    assert left.stdout.strip() == "", f"processes left running: {left.stdout}"
+
+
+@needs_netns
+def test_roadside_units_on_hosts_of_their_own(tmp_path, corridor):
+    out = tmp_path / "ns"
+    p = _cluster(out, *corridor["scen"], "--duration", DURATION, "--netns", "--no-record")
+    assert p.returncode == 0, p.stdout + p.stderr
+    _same_as_embedded(out, corridor)
+    # each roadside unit on a host of its own; every agent asked every junction's ICA
+    for k in range(1, len(corridor["junctions"]) + 1):
+        assert (
+            f"listening on tcp/10.77.0.{10 + k}:7447"
+            in (out / "logs" / f"router-{k}.log").read_text()
+        )
+    agent = (out / "logs" / "agent-2.log").read_text()
+    assert all(f"stopped at {j}" in agent for j in corridor["junctions"])
+    assert not [n for n in _namespaces() if n.startswith("dica")], "namespaces left behind"
+
+    # real time, the links between the vehicles' host and the roadside units late, lossy
+    out = tmp_path / "rt"
+    p = _cluster(
+        out, *corridor["scen"], "--duration", "60", "--netns", "--no-record",
+        "--clock", "realtime", "--speed", "3",
+        "--delay", "15", "--jitter", "10", "--loss", "0.02", "--dup", "0.02",
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    assert m["clock"] == "realtime" and m["crossed"] > 50
+    ages = [v["cluster"]["command_age_ms"]["median"] for v in m["junctions"].values()]
+    assert min(ages) > 15  # the delay was really there
+
+
+@needs_netns
+def test_a_junctions_ica_then_its_router_killed(tmp_path, corridor):
+    import signal
+
+    from dica.ica.journal import records
+
+    out = tmp_path / "kill"
+    cmd = ["bash", "tools/run_cluster.sh", "--out", str(out), *corridor["scen"],
+           "--duration", DURATION, "--netns", "--no-record", "--clock", "realtime",
+           "--speed", "2", "--", "--progress-every", "5"]  # fmt: skip
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+        start_new_session=True,
+    )  # fmt: skip
+    try:
+        _at(out, 20, proc)
+        os.kill(int((out / "pids" / "ica-J10").read_text()), signal.SIGKILL)
+        _at(out, 40, proc)
+        os.kill(int((out / "pids" / "router-2").read_text()), signal.SIGKILL)
+        stdout, stderr = proc.communicate(timeout=240)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"the run did not end\n{logs_tail(out)}")
+    finally:
+        stop_cluster(proc)
+    assert proc.returncode == 0, stdout + stderr
+    assert "restarting ica-J10" in stdout and "restarting router-2" in stdout
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)  # no vehicle entered J10 unconfirmed: they stopped short of its line
+    per = m["junctions"]
+    assert per["J10"]["cluster"]["ica_outages"] == 2  # the ICA, then its router
+    assert all(per[j]["cluster"]["ica_outages"] == 0 for j in ("J00", "J20", "J30"))
+    assert all(per[j]["crossed"] > 15 for j in per)  # the rest went on, J10 too after
+    ica = json.loads((out / "ica" / "J10" / "ica.json").read_text())
+    assert ica["journal_replays"] == 1 and len(ica["incarnations"]) == 2
+    replayed = ica["incarnations"][1]["journal_replayed"]["confirmations"]
+    assert replayed > 0  # it kept the promises made before the crash
+    confirms = [
+        r for r in records(out / "ica" / "J10" / "ica-journal.msgpack")[0] if r["k"] == "confirm"
+    ]
+    assert len(confirms) > replayed + 10  # and went on confirming
+    log = (out / "logs" / "gateway.log").read_text()
+    assert log.count("the ICA of J10 is back") == 2
+
+
+def _at(out: Path, t_s: int, proc: subprocess.Popen, timeout: float = 180) -> None:
+    log = out / "logs" / "gateway.log"
+    deadline = time.monotonic() + timeout
+    while not (log.exists() and f"t={t_s} s" in log.read_text()):
+        assert proc.poll() is None, logs_tail(out)
+        assert time.monotonic() < deadline, f"the cluster never got to t={t_s} s\n{logs_tail(out)}"
+        time.sleep(0.1)
+
+
+def _namespaces() -> list[str]:
+    p = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True)
+    return [line.split()[0] for line in p.stdout.splitlines() if line.strip()]
