@@ -102,6 +102,12 @@ class Keyring:
             return  # keep the keys read before; a half-written file is read next time
         self._keys, self._mtime = keys, mtime
 
+    def names(self) -> set[str]:
+        """Every writer the keyring holds a key of."""
+        with self._lock:
+            self._load()
+            return set(self._keys)
+
     def open(self, data: bytes, writer: str | None) -> bytes | None:
         """The body of an envelope signed by ``writer`` (by name and key); else None."""
         from cryptography.exceptions import InvalidSignature
@@ -162,11 +168,7 @@ class Guard:
 
     def knows(self, name: str) -> bool:
         """Whether ``name`` is one of the site's writers (always, on an open site)."""
-        if self.keyring is None:
-            return True
-        with self.keyring._lock:
-            self.keyring._load()
-            return name in self.keyring._keys
+        return self.keyring is None or name in self.keyring.names()
 
 
 NONE = Guard(None, None)

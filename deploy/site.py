@@ -52,11 +52,12 @@ from dica.deploy import ZENOH_CONFIGS
 ROUTER_TEMPLATE = ZENOH_CONFIGS / "secure" / "router.json5"
 CLIENT_TEMPLATE = ZENOH_CONFIGS / "client.json5"
 ROLES = ("ica", "gateway", "observer")  # one identity each; agents have one apiece
-SIGNERS = ("ica", "gateway")  # roles that write (the observer only listens); agents too
 KEYRING = "keyring.json"
+# every site's files; the ICA's (ica.json5 and ica.seal, or one pair per junction's ICA
+# on a site of several junctions: see ica_users) besides
 FILES = (
     "users.txt", "router.json5", "ca.pem", "site.json", KEYRING,
-    *(f"{r}.json5" for r in ROLES), *(f"{r}.seal" for r in SIGNERS),
+    "gateway.json5", "observer.json5", "gateway.seal",
 )  # fmt: skip
 AGENT = "@agent"  # the template's stand-ins (verbatim key chunks, which match no real key)
 JUNCTION = "@j"
@@ -71,6 +72,24 @@ _RESERVED = {*ROLES, "router", "users", "ca"}
 
 class SecureConfigError(Exception):
     """Why the configs were not written (one line for the user)."""
+
+
+def ica_users(junctions: Sequence[str], own: bool = False) -> tuple[str, ...]:
+    """The ICAs' identities: ``ica`` for them all, or (``own``) each junction's ICA its
+    own (``ica-<J>``, :func:`schemas.keys.ica_name`), so the router keeps it to its own
+    junction's keys and its seal is good for those only."""
+    from dica.schemas.keys import ica_name
+
+    return tuple(ica_name(j) for j in junctions) if own else ("ica",)
+
+
+def site_roles(junctions: Sequence[str], own_icas: bool = False) -> tuple[str, ...]:
+    """Every role's identity on a site serving ``junctions`` (agents apart)."""
+    return (*ica_users(junctions, own_icas), *ROLES[1:])
+
+
+def _is_role(user: str) -> bool:
+    return user in ROLES or user.startswith("ica-")
 
 
 def agent_names(agents: int | str | Sequence[str]) -> tuple[str, ...]:
@@ -89,7 +108,7 @@ def agent_names(agents: int | str | Sequence[str]) -> tuple[str, ...]:
             raise SecureConfigError(
                 f"agent name {name!r}: use 1-64 letters, digits and _.+- (a letter or digit first)"
             )
-        if name in _RESERVED:
+        if name in _RESERVED or name.startswith("ica-"):
             raise SecureConfigError(f"agent name {name!r} is taken by the site's own files")
     dup = sorted({n for n in chosen if chosen.count(n) > 1})
     if dup:
@@ -126,10 +145,12 @@ def write_secure_configs(
     days: int = 365,
     agents: int | str | Sequence[str] = 1,
     junctions: str | Sequence[str] = DEFAULT_JUNCTIONS,
+    own_icas: bool = False,
 ) -> dict[str, Path]:
     """Write a new site into ``out``: the router's config, every role's and one
     per agent (``agents``: see :func:`agent_names`); the paths by file name.
-    The rules name ``junctions`` (the roles' ``--junction``), and no other.
+    The rules name ``junctions`` (the roles' ``--junction``), and no other. With
+    ``own_icas`` each junction's ICA has an identity of its own (:func:`ica_users`).
 
     ``hosts`` are the names and addresses clients reach the router by (its
     certificate is valid for these only; the first is the clients' default
@@ -144,15 +165,16 @@ def write_secure_configs(
     if days < 1:
         raise SecureConfigError(f"--days must be at least 1, got {days}")
     out = out.resolve()
+    icas = ica_users(junctions, own_icas)
     earlier = _users(out / "users.txt") if (out / "users.txt").is_file() else {}
     stale = [f"{u}.json5" for u in earlier if u not in ROLES]
-    mine = (*FILES, *stale, *(f"{a}.json5" for a in agents), *(f"{a}.seal" for a in agents))
+    mine = (*FILES, *stale, *(f"{x}.{e}" for x in (*icas, *agents) for e in ("json5", "seal")))
     clash = [f for f in mine if (out / f).exists()]
     if clash and not force:
         raise SecureConfigError(f"{out} already holds {', '.join(clash)} (--force replaces them)")
     ca_pem, key_pem, cert_pem = _certificates(hosts, days)
     tls = {"listen_private_key_base64": _b64(key_pem), "listen_certificate_base64": _b64(cert_pem)}
-    passwords = {user: _password() for user in (*ROLES, *agents)}
+    passwords = {user: _password() for user in (*site_roles(junctions, own_icas), *agents)}
     endpoint = f"tls/{_endpoint_host(hosts[0])}:{PORT}"
     texts = {
         "ca.pem": ca_pem.decode(),
@@ -161,7 +183,7 @@ def write_secure_configs(
     }
     for user in passwords:
         texts[f"{user}.json5"] = _client_text(user, passwords[user], endpoint, ca_pem, hosts)
-    texts.update(_seals((*SIGNERS, *agents), {}))
+    texts.update(_seals((*icas, "gateway", *agents), {}))
     try:
         out.mkdir(parents=True, exist_ok=True)
         out.chmod(0o700)
@@ -218,12 +240,12 @@ def revoke_agents(out: Path, agents: str | Sequence[str]) -> tuple[str, ...]:
     for name in gone:
         (out / f"{name}.json5").unlink(missing_ok=True)
         (out / f"{name}.seal").unlink(missing_ok=True)
-    return tuple(u for u in passwords if u not in ROLES)
+    return tuple(u for u in passwords if not _is_role(u))
 
 
 def site_agents(out: Path) -> tuple[str, ...]:
     """The agents the site in ``out`` has, in the order they were issued."""
-    return tuple(u for u in _site(out.resolve())[0] if u not in ROLES)
+    return tuple(u for u in _site(out.resolve())[0] if not _is_role(u))
 
 
 def site_junctions(out: Path) -> tuple[str, ...]:
@@ -231,37 +253,58 @@ def site_junctions(out: Path) -> tuple[str, ...]:
     return _site(out.resolve())[5]
 
 
-def router_config(agents: Sequence[str], junctions: Sequence[str] = DEFAULT_JUNCTIONS) -> dict:
+def router_config(
+    agents: Sequence[str], junctions: Sequence[str] = DEFAULT_JUNCTIONS, own_icas: bool = False
+) -> dict:
     """The router template with every key copied once per junction (``@j``), the
-    agent rules once per agent (``@agent``), and no TLS material or password file."""
+    agent rules once per agent (``@agent``), and no TLS material or password file.
+    ``own_icas``: the ICA rules once per junction, each for that junction's ICA."""
     import zenoh
 
     conf = json.loads(str(zenoh.Config.from_file(str(ROUTER_TEMPLATE))))
     acl = conf["access_control"]
+    if own_icas:  # each junction's ICA its own rules, on its own junction's keys
+        _own_copies(
+            acl,
+            "ica",
+            {
+                ica: {JUNCTION: j}
+                for ica, j in zip(ica_users(junctions, True), junctions, strict=True)
+            },
+        )
     for rule in acl["rules"]:
         keys = (k.replace(JUNCTION, j) for k in rule["key_exprs"] for j in junctions)
         rule["key_exprs"] = list(dict.fromkeys(keys))
-    policy = next(p for p in acl["policies"] if p["id"] == "agent")
-    subject = next(s for s in acl["subjects"] if s["id"] == "agent")
+    _own_copies(acl, "agent", {name: {AGENT: name} for name in agents})
+    return conf
+
+
+def _own_copies(acl: dict, role: str, users: dict[str, dict[str, str]]) -> None:
+    """Replace ``role``'s subject, policy and rules with one copy per user, each rule's
+    keys with that user's stand-ins filled in (``users``: name -> {stand-in: value})."""
+    policy = next(p for p in acl["policies"] if p["id"] == role)
+    subject = next(s for s in acl["subjects"] if s["id"] == role)
     templates = [r for r in acl["rules"] if r["id"] in policy["rules"]]
     acl["rules"] = [r for r in acl["rules"] if r["id"] not in policy["rules"]]
     acl["subjects"].remove(subject)
     acl["policies"].remove(policy)
-    for name in agents:
+    for name, fill in users.items():
         for rule in templates:
             own = copy.deepcopy(rule)
             own["id"] = f"{rule['id']}/{name}"
-            own["key_exprs"] = [k.replace(AGENT, name) for k in rule["key_exprs"]]
+            keys = own["key_exprs"]
+            for stand_in, value in fill.items():
+                keys = [k.replace(stand_in, value) for k in keys]
+            own["key_exprs"] = keys
             acl["rules"].append(own)
-        acl["subjects"].append({"id": f"agent/{name}", "usernames": [name]})
+        acl["subjects"].append({"id": f"{role}/{name}", "usernames": [name]})
         acl["policies"].append(
             {
-                "id": f"agent/{name}",
-                "subjects": [f"agent/{name}"],
+                "id": f"{role}/{name}",
+                "subjects": [f"{role}/{name}"],
                 "rules": [f"{r['id']}/{name}" for r in templates],
             }
         )
-    return conf
 
 
 def _site_texts(
@@ -272,8 +315,8 @@ def _site_texts(
     junctions: Sequence[str],
 ) -> dict[str, str]:
     """``users.txt`` and ``router.json5`` for these users (roles first, then agents)."""
-    agents = [u for u in passwords if u not in ROLES]
-    router = router_config(agents, junctions)
+    agents = [u for u in passwords if not _is_role(u)]
+    router = router_config(agents, junctions, own_icas="ica" not in passwords)
     router["transport"]["auth"]["usrpwd"]["dictionary_file"] = str(out / "users.txt")
     router["transport"]["link"].setdefault("tls", {}).update(tls)
     head = (
@@ -295,7 +338,12 @@ def _client_text(user: str, password: str, endpoint: str, ca_pem: bytes, hosts) 
     conf["connect"]["endpoints"] = [endpoint]
     conf["transport"]["auth"]["usrpwd"].update(user=user, password=password)
     conf["transport"]["link"].setdefault("tls", {})["root_ca_certificate_base64"] = _b64(ca_pem)
-    who = f"the {user} role" if user in ROLES else f"vehicle agent {user} (dica agent --id {user})"
+    if user in ROLES:
+        who = f"the {user} role"
+    elif _is_role(user):
+        who = f"the ICA of junction {user.removeprefix('ica-')}"
+    else:
+        who = f"vehicle agent {user} (dica agent --id {user})"
     return (
         f"// The client config of {who}, by dica secure-config on {dt.date.today()}, "
         f"for {', '.join(hosts)}.\n// Holds its password: keep it private.\n"
@@ -313,7 +361,7 @@ def _site(out: Path):
             f"{out} holds no site written by dica secure-config (no {', '.join(missing)})"
         )
     try:
-        router, client = _written(out / "router.json5"), _written(out / f"{ROLES[0]}.json5")
+        router, client = _written(out / "router.json5"), _written(out / "gateway.json5")
         tls = router["transport"]["link"]["tls"]
         tls = {k: tls[k] for k in ("listen_private_key_base64", "listen_certificate_base64")}
         endpoint = client["connect"]["endpoints"][0]

@@ -36,6 +36,17 @@ def use_guard(guard: seal.Guard) -> None:
     GUARD = guard
 
 
+def writer(key: str, action: str) -> str | None:
+    """Who must have sealed a message on ``key`` (:func:`keys.writer_of`); on a site of
+    several junctions, where each ICA has its own key, the ICA of the key's junction."""
+    name = keys.writer_of(key, action)
+    if name == "ica" and GUARD.keyring is not None:
+        own = keys.ica_name(key.split("/")[1])  # a key writer_of names is dica/<j>/...
+        if GUARD.knows(own):
+            return own
+    return name
+
+
 def known_writer(name: str) -> bool:
     """Whether ``name`` holds a key of this site (every name, on an open site)."""
     return GUARD.knows(name)
@@ -129,7 +140,7 @@ class Inbox:
 
         def cb(sample) -> None:
             key = str(sample.key_expr)
-            body = GUARD.take(sample.payload.to_bytes(), keys.writer_of(key, "put"))
+            body = GUARD.take(sample.payload.to_bytes(), writer(key, "put"))
             if body is not None:
                 self._q.put(Item(what, body, key))
 
@@ -141,7 +152,7 @@ class Inbox:
         def cb(query) -> None:
             key = str(query.key_expr)
             payload = query.payload.to_bytes() if query.payload is not None else b""
-            body = GUARD.take(payload, keys.writer_of(key, "query"))
+            body = GUARD.take(payload, writer(key, "query"))
             if body is None:
                 query.drop()
                 return
@@ -240,7 +251,7 @@ def reply_body(reply_, key: str) -> bytes | None:
     and (on a secured site) sealed by the one who may answer on it."""
     if reply_.ok is None or str(reply_.ok.key_expr) != key:
         return None
-    return GUARD.take(reply_.ok.payload.to_bytes(), keys.writer_of(key, "reply"))
+    return GUARD.take(reply_.ok.payload.to_bytes(), writer(key, "reply"))
 
 
 def every_answer() -> dict:

@@ -102,6 +102,12 @@ def _one(name: str) -> str:
     return name if name == "*" else chunk(name)
 
 
+def ica_name(junction: str) -> str:
+    """The identity of junction ``junction``'s ICA on a site of several junctions, where
+    each ICA has its own log-in and seal (a one-junction site's ICA is plain ``ica``)."""
+    return f"ica-{chunk(junction)}"
+
+
 def writer_of(key: str, action: str) -> str | None:
     """The one role (or agent) that may write a message on ``key``.
 

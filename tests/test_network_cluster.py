@@ -16,7 +16,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -24,10 +23,9 @@ import pytest
 
 from dica.tools.loopback import free_port
 from tests.cluster_proc import logs_tail, stop_cluster
+from tests.network_corridor import DURATION, corridor_and_its_embedded_run
 
 ROOT = Path(__file__).resolve().parents[1]
-DICA = [sys.executable, "-m", "dica.tools.cli"]
-DURATION = "90"
 
 needs_netns = pytest.mark.skipif(
     os.geteuid() != 0 or shutil.which("ip") is None,
@@ -37,23 +35,7 @@ needs_netns = pytest.mark.skipif(
 
 @pytest.fixture(scope="module")
 def corridor(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    """The built-in corridor (four junctions), 90 s of its demand at 500 an hour per road
-    in, and its embedded run: every junction under its own ICA core in one process."""
-    from dica.sim_gateway.network_layouts import build_network
-    from dica.sim_gateway.od_demand import OdDemand, write_od_routes
-
-    d = tmp_path_factory.mktemp("corridor")
-    built = build_network("corridor", d / "net")
-    routes = d / "od.rou.xml"
-    write_od_routes(built.net_path, built.junctions, OdDemand(500, 80, 12), routes)
-    scen = ["--net", str(built.net_path), "--routes", str(routes), "--junctions", "all"]
-    emb = d / "embedded"
-    p = subprocess.run(
-        [*DICA, "run", *scen, "--duration", DURATION, "--out", str(emb), "--quiet"],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
-    )  # fmt: skip
-    assert p.returncode == 0, p.stderr
-    return {"scen": scen, "embedded": emb, "junctions": built.junctions}
+    return corridor_and_its_embedded_run(tmp_path_factory.mktemp("corridor"))
 
 
 def _cluster(out: Path, *args: str, timeout: float = 300) -> subprocess.CompletedProcess:

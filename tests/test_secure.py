@@ -62,7 +62,12 @@ ATTACKERS = ("ica", "gateway", "observer", B)
 def test_configs_are_private_and_never_silently_replaced(tmp_path):
     paths = write_secure_configs(tmp_path / "z", agents=2)
     assert stat.S_IMODE((tmp_path / "z").stat().st_mode) == 0o700
-    assert set(paths) == {*FILES, f"{A}.json5", f"{B}.json5", f"{A}.seal", f"{B}.seal"}
+    assert set(paths) == {
+        *FILES,
+        "ica.json5",
+        "ica.seal",
+        *(f"{x}.{e}" for x in (A, B) for e in ("json5", "seal")),
+    }
     for path in paths.values():
         assert stat.S_IMODE(path.stat().st_mode) == 0o600, path.name
     users = paths["users.txt"].read_text().split()

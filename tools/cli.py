@@ -226,9 +226,11 @@ def cmd_secure_config(args: argparse.Namespace) -> int:
 
     run = f"dica router --config {args.out.resolve() / 'router.json5'}"
     try:
-        new_site_only = (args.host, args.days, args.junction)
+        new_site_only = (args.host, args.days, args.junction, args.ica_per_junction or None)
         if (args.add_agent or args.revoke_agent) and any(x is not None for x in new_site_only):
-            raise UsageError("--host, --days and --junction make a new site (--agents)")
+            raise UsageError(
+                "--host, --days, --junction and --ica-per-junction make a new site (--agents)"
+            )
         if args.add_agent:
             added = site.add_agents(args.out, args.add_agent, args.force)
             for name, path in added.items():
@@ -244,12 +246,16 @@ def cmd_secure_config(args: argparse.Namespace) -> int:
         hosts = tuple(args.host) if args.host else site.DEFAULT_HOSTS
         days = 365 if args.days is None else args.days
         junctions = args.junction or site.DEFAULT_JUNCTIONS
-        paths = site.write_secure_configs(args.out, args.force, hosts, days, args.agents, junctions)
+        paths = site.write_secure_configs(
+            args.out, args.force, hosts, days, args.agents, junctions, args.ica_per_junction
+        )
     except site.SecureConfigError as e:
         raise UsageError(str(e)) from None
     print(f"router:   {run}")
-    for role in site.ROLES:
-        print(f"{role + ':':10}dica {role} --zenoh-config {paths[role + '.json5']} ...")
+    for user in site.site_roles(site.junction_names(junctions), args.ica_per_junction):
+        role, _, j = user.partition("-")  # ica-<J>: the ICA of junction J
+        more = f" --seal {paths[user + '.seal']} --junction {j}" if j else ""
+        print(f"{user + ':':10}dica {role} --zenoh-config {paths[user + '.json5']}{more} ...")
     for name in site.agent_names(args.agents):
         print(f"{name + ':':10}dica agent --zenoh-config {paths[name + '.json5']} --id {name} ...")
     return 0
@@ -357,7 +363,7 @@ def parser() -> argparse.ArgumentParser:
         description=SECURE_CONFIG_DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    options.add(sc, "site", "--host", "--days", "site-junction", "--force")
+    options.add(sc, "site", "--host", "--days", "site-junction", "--ica-per-junction", "--force")
     options.add(sc.add_mutually_exclusive_group(), "site-agents", "--add-agent", "--revoke-agent")
     sc.set_defaults(func=cmd_secure_config)
 

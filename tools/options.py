@@ -462,6 +462,13 @@ OPTIONS: dict[str, Option] = {
             key="site-junction",
         ),
         Option(
+            "--ica-per-junction",
+            "a new site of several junctions: each junction's ICA its own log-in and seal "
+            "(ica-<J>.json5, ica-<J>.seal), kept to its own junction's keys, instead of one "
+            "ICA identity for them all",
+            action="store_true",
+        ),
+        Option(
             "--force",
             "replace a site written before; with --add-agent, a new password for an agent the "
             "site has",

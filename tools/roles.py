@@ -175,7 +175,7 @@ def cmd_ica(args: argparse.Namespace) -> int:
     ica = build_controller(spec, inter)
     ica.prepare()  # before serving: no request waits for it
     journal_path = args.journal or (args.out / "ica-journal.msgpack" if args.out else None)
-    session, log = _session(args, "ica")
+    session, log = _session(args, _ica_signer(args, inter.junction_id))
     try:
         service = IcaService(session, ica, inter.junction_id, log)
         service.inbox.stop_on_signals()
@@ -207,6 +207,21 @@ def cmd_ica(args: argparse.Namespace) -> int:
         if stats_path is not None:
             write_stats(stats_path, service.stats)
     return 0
+
+
+def _ica_signer(args: argparse.Namespace, junction: str) -> str:
+    """The name the ICA seals with: ``ica``, or on a secured site of several junctions,
+    where each ICA has its own key, its junction's ICA's (``ica-<J>``)."""
+    from dica.deploy.seal import Keyring, SealError
+    from dica.schemas.keys import ica_name
+
+    if args.keyring is None or args.seal is None:
+        return "ica"
+    try:
+        known = Keyring(args.keyring).names()
+    except SealError as e:
+        raise UsageError(str(e)) from None
+    return ica_name(junction) if ica_name(junction) in known else "ica"
 
 
 # -- agent ---------------------------------------------------------------------

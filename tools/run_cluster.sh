@@ -29,7 +29,8 @@ scenario and roles:
                         a network: each junction signal-free under its own ICA process,
                         the vehicles from the route file, every agent serving every junction
   --rsus N              with --junctions: the roadside units, each with its own Zenoh router
-                        serving a run of consecutive junctions (default: one per junction);
+                        serving a run of consecutive junctions (default: one per junction;
+                        with --secure one for all);
                         each router connects to the ones before it (a mesh); the gateway
                         and agent i connect to roadside unit 1 and i (round robin)
   --netns               each roadside unit a host of its own: a Linux network namespace
@@ -246,11 +247,12 @@ try:
     print(' '.join(chosen_junctions(Path(sys.argv[1]), sys.argv[2])))
 except UsageError as e:
     sys.exit(f'run_cluster: {e}')" "$net" "$junctions") || exit 2
-  [ "$secure" = 0 ] || die "--secure serves one junction for now; run a network without it"
   [ "${#live[@]}" = 0 ] || die "--live records one junction; a network's observers write .rrd files"
-  [ -n "$rsus" ] || rsus=${#ids[@]}
+  if [ -z "$rsus" ]; then rsus=${#ids[@]}; [ "$secure" = 1 ] && rsus=1; fi
   [[ "$rsus" =~ ^[0-9]+$ ]] && [ "$rsus" -ge 1 ] && [ "$rsus" -le "${#ids[@]}" ] ||
     die "--rsus wants 1 to ${#ids[@]} (the junctions), got '$rsus'"
+  [ "$secure" = 0 ] || [ "$rsus" = 1 ] ||
+    die "--secure: the routers of a mesh do not log in to each other yet; use --rsus 1"
   scen=(--net "$net" --junctions "$(IFS=,; echo "${ids[*]}")")
 else
   [ -z "$rsus" ] || die "--rsus goes with --junctions"
@@ -308,7 +310,10 @@ fi
 scheme=tcp
 router_conf=()
 if [ "$secure" = 1 ]; then
-  "$dica" secure-config --force --out "$out/zenoh" --agents "$agents" --junction "$junction" >/dev/null
+  site_junctions=()
+  for j in "${ids[@]:-$junction}"; do site_junctions+=(--junction "$j"); done
+  [ "${#ids[@]}" -gt 1 ] && site_junctions+=(--ica-per-junction)  # each ICA its own log-in
+  "$dica" secure-config --force --out "$out/zenoh" --agents "$agents" "${site_junctions[@]}" >/dev/null
   router_conf=(--config "$out/zenoh/router.json5" --log-refused)
   if [ "$router_rules" = 0 ]; then
     "$py" - "$out/zenoh/router.json5" <<'PY'
@@ -459,7 +464,8 @@ ica_args=(--algorithm "$algorithm" --time-pad "$time_pad" --max-age "$max_age" -
 if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal in ica/J/)
   first=1
   for j in "${ids[@]}"; do
-    link_for "ica-$j" ica
+    ica_id=ica; [ "${#ids[@]}" -gt 1 ] && ica_id="ica-$j"  # each its own log-in and seal
+    link_for "ica-$j" "$ica_id"
     in_ns_of "$(host_ns "${rsu_of[$j]}")"
     start "ica-$j" "${in_ns[@]}" "$dica" ica --net "$net" --junction "$j" --out "$out/ica/$j" "${ica_args[@]}" \
       "${role_link[@]}"
