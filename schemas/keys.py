@@ -74,7 +74,7 @@ def state(junction: str, agent: str = "*") -> str:
 
 
 def vehicles(junction: str) -> str:
-    return f"sim/{chunk(junction)}/vehicles"  # every vehicle in the region, each step (observers)
+    return f"sim/{chunk(junction)}/vehicles"  # every vehicle in the region (ICA, observers)
 
 
 def command(junction: str, agent: str = "*") -> str:

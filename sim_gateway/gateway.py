@@ -65,6 +65,7 @@ from dica.vehicle_agent.actuation import BIG, NO_PLAN, Actuation
 CLOCKS = ("lockstep", "realtime")
 PREDICT_S = 2.0  # [s sim] how far ahead a realtime STATE says where each asker will be
 NOTICE_S = 1.0  # [s sim] how long a realtime STATE keeps naming a vehicle after news about it
+VEHICLES_EVERY = 20  # steps: how often VEHICLES goes out with no news and no observer
 AGE_BINS_MS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)  # command age histogram
 
 
@@ -123,6 +124,7 @@ class ZenohDrivers:
         self.owner = self.fleet.owner
         self.load = self.fleet.load
         self.here: set[str] = set()  # vehicles in this region counted in their agent's load
+        self.owner_news = False  # a vehicle changed hands since the last VEHICLES
         self.agent_deaths = 0
         self.multi_wave_steps = 0
         self.resent_states = 0
@@ -256,7 +258,7 @@ class ZenohDrivers:
         k = self._k
         self._clock_pub.put(encode(Clock(k, t, self.clock, self.speed, False, now_ns())))
         stamp = now_ns()
-        if self._vehicles_pub.matching_status.matching:  # the ICA or an observer listens
+        if self._vehicles_due(k, seen):
             everyone = tuple(self._vehicle_state(s) for s in seen)
             self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
         if self.clock == "lockstep":
@@ -301,6 +303,15 @@ class ZenohDrivers:
             if pace > 0:
                 time.sleep(pace)
         return out
+
+    def _vehicles_due(self, k: int, seen: list[Seen]) -> bool:
+        """Whether this step's VEHICLES goes out: every step while an observer draws them;
+        else, for the ICA (which keeps only who hosts each vehicle), the step after a
+        vehicle changed hands or left, and every VEHICLES_EVERY steps lest one be lost."""
+        news, self.owner_news = self.owner_news or any(s.obs.exited for s in seen), False
+        if not (self.observers or news or k % VEHICLES_EVERY == 0):
+            return False
+        return self._vehicles_pub.matching_status.matching  # the ICA or an observer listens
 
     def _publish_state(self, agent: str, state: State) -> None:
         pub = self._state_pubs.get(agent)
@@ -426,6 +437,7 @@ class ZenohDrivers:
             if vin not in self.here:  # hosted at an earlier junction: its agent keeps it
                 self.here.add(vin)
                 self.load[agent] += 1
+                self.owner_news = True  # news to this junction's ICA
             return agent
         return self._assign(vin)
 
@@ -446,6 +458,7 @@ class ZenohDrivers:
             self.fleet.adoptions += 1
             self.known.discard(vin)
         self.owner[vin] = agent
+        self.owner_news = True
         self.here.add(vin)
         self.load[agent] += 1
         self.fleet.hosted[agent] += 1

@@ -184,3 +184,25 @@ def _at(out: Path, t_s: int, proc: subprocess.Popen, timeout: float = 180) -> No
 def _namespaces() -> list[str]:
     p = subprocess.run(["ip", "netns", "list"], capture_output=True, text=True)
     return [line.split()[0] for line in p.stdout.splitlines() if line.strip()]
+
+
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (["--junctions", "J00,NOPE"], "junction 'NOPE' not in"),
+        (["--junctions", "all", "--rsus", "9"], "--rsus wants 1 to 4"),
+        (["--junctions", "all", "--junction", "J00"], "--junction names one junction"),
+        (["--junction", "J00", "--rsus", "2"], "--rsus goes with --junctions"),
+        (["--junctions", "all", "--secure", "--rsus", "2"], "use --rsus 1"),
+        (["--junctions", "all", "--netns", "--faulty", "ica", "--delay", "5"], "--faulty agents"),
+    ],
+)
+def test_a_network_the_cluster_cannot_run_is_one_clear_line(tmp_path, corridor, args, says):
+    scen = [a for a in corridor["scen"] if a not in ("--junctions", "all")]
+    p = subprocess.run(
+        ["bash", "tools/run_cluster.sh", "--out", str(tmp_path / "x"), *scen, *args],
+        capture_output=True, text=True, cwd=ROOT, timeout=60,
+    )  # fmt: skip
+    assert p.returncode == 2, p.stdout + p.stderr
+    assert says in p.stderr and "Traceback" not in p.stderr, p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1, p.stderr

@@ -9,7 +9,11 @@ the room beyond, counts the network gate and checks every step), each for
 ``--duration`` simulated seconds on one core. Reports the best wall time of each
 and their ratio, the signal-free run's real-time factor, each ICA's request p99,
 and the peak memory of a run of the whole duration and of one a third as long
-(flat memory: the two close).
+(flat memory: the two close). With ``--cluster S`` also the lockstep cluster of the
+same grid for S simulated seconds (``run_cluster.sh --junctions all``: an ICA
+process per junction, a router per roadside unit, two agents) next to the embedded
+run of the same S: their real-time factors, each ICA process's request p99, and
+whether the two made the same decisions.
 """
 
 from __future__ import annotations
@@ -52,6 +56,44 @@ def dica_network(routes: Path, duration_s: float, out: Path) -> tuple[dict, floa
     return json.loads((out / "metrics.json").read_text()), rss
 
 
+def cluster(net: Path, routes: Path, duration_s: float, rsus: int, out: Path) -> dict:
+    """The lockstep cluster of the grid and the embedded run of the same vehicles."""
+    scen = ["--net", str(net), "--routes", str(routes), "--junctions", "all"]
+    common = [*scen, "--duration", f"{duration_s:g}"]
+    t0 = time.perf_counter()
+    p = subprocess.run(
+        ["bash", "tools/run_cluster.sh", "--out", str(out / "cl"), "--no-record",
+         "--rsus", str(rsus), *common],
+        capture_output=True, text=True, cwd=ROOT,
+    )  # fmt: skip
+    whole = time.perf_counter() - t0
+    if p.returncode != 0:
+        raise RuntimeError(f"the cluster run failed: {p.stderr.strip().splitlines()[-3:]}")
+    e, _ = _run([*DICA, "run", *common, "--out", str(out / "emb"), "--quiet"], cwd=ROOT)
+    if e.returncode != 0:
+        raise RuntimeError(f"the embedded run failed: {e.stderr.strip().splitlines()[-1:]}")
+    m = json.loads((out / "cl" / "metrics.json").read_text())
+    me = json.loads((out / "emb" / "metrics.json").read_text())
+    p99 = {j: r["ica"]["compute_p99_ms"] for j, r in m["roles"].items()}  # each ICA's own
+    same = (out / "cl" / "vehicles.csv").read_bytes() == (out / "emb" / "vehicles.csv").read_bytes()
+    return {
+        "duration_s": duration_s,
+        "roadside_units": rsus,
+        "cluster_wall_s": m["wall_s"],
+        "cluster_real_time_factor": m["real_time_factor"],
+        "cluster_whole_script_s": whole,
+        "embedded_wall_s": me["wall_s"],
+        "embedded_real_time_factor": me["real_time_factor"],
+        "wall_ratio_cluster_to_embedded": m["wall_s"] / me["wall_s"],
+        "ica_process_p99_ms": p99,
+        "same_decisions": same,
+        "collisions": m["collisions"] + m["sumo_collisions"],
+    }
+
+
+DICA = [sys.executable, "-m", "dica.tools.cli"]
+
+
 def main(argv: list[str] | None = None) -> int:
     from dica.sim_gateway.network_layouts import build_network
     from dica.sim_gateway.od_demand import OdDemand, write_od_routes
@@ -62,6 +104,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--volume", type=float, default=400.0,
                    help="vehicles per hour on each road in (default 400)")  # fmt: skip
     p.add_argument("--repeat", type=int, default=2, help="runs of each (default 2)")
+    p.add_argument(
+        "--cluster",
+        type=float,
+        default=0.0,
+        metavar="S",
+        help="also the lockstep cluster for S simulated s (default 0: not)",
+    )
+    p.add_argument("--rsus", type=int, default=3,
+                   help="the cluster's roadside units, each a router (default 3)")  # fmt: skip
     args = options.parse(p, argv)
     started = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="dica-bench-network-") as tmp:
@@ -81,6 +132,11 @@ def main(argv: list[str] | None = None) -> int:
             if best is None or m["wall_s"] < best["wall_s"]:
                 best = m
         third, rss_third = dica_network(routes, args.duration / 3.0, d / "third")
+        lockstep = (
+            cluster(free.net_path, routes, args.cluster, args.rsus, d / "cluster")
+            if args.cluster > 0
+            else None
+        )
     per_ica = {j: x["requests"]["p99_ms"] for j, x in best["junctions"].items()}
     result = {
         "net": "built-in 3x3 grid, 2 lanes each way, 250 m blocks, 50 km/h",
@@ -98,6 +154,7 @@ def main(argv: list[str] | None = None) -> int:
         "peak_rss_mib_third_duration": rss_third,
         "third_duration_real_time_factor": third["real_time_factor"],
         "collisions": best["collisions"] + best["sumo_collisions"],
+        "lockstep_cluster": lockstep,
         "bench_wall_s": time.perf_counter() - started,
     }
     if args.json:
@@ -114,6 +171,17 @@ def main(argv: list[str] | None = None) -> int:
             f"  peak memory: {rss:.0f} MiB ({rss_third:.0f} MiB over a third of the time); "
             f"collisions {result['collisions']}"
         )
+        if lockstep is not None:
+            c = lockstep
+            print(
+                f"  lockstep cluster, {c['duration_s']:g} s, 9 ICA processes, "
+                f"{c['roadside_units']} routers, 2 agents: {c['cluster_wall_s']:.1f} s wall, "
+                f"{c['cluster_real_time_factor']:.1f}x real time (embedded "
+                f"{c['embedded_real_time_factor']:.0f}x, ratio "
+                f"{c['wall_ratio_cluster_to_embedded']:.1f}); worst ICA process's p99 "
+                f"{max(c['ica_process_p99_ms'].values()):.2f} ms; same decisions: "
+                f"{'yes' if c['same_decisions'] else 'NO'}; collisions {c['collisions']}"
+            )
     return 0
 
 

@@ -240,13 +240,17 @@ if [ -n "$junctions" ]; then
   [[ " ${demand[*]} " == *" --routes "* ]] || die "--junctions takes its vehicles from a route file: give --routes"
   read -r -a ids < <("$py" -c "
 import sys
+from dica.ica.netfile import NetworkError, load_intersection
 from dica.tools.args import chosen_junctions
 from dica.tools.options import UsageError
 from pathlib import Path
 try:
-    print(' '.join(chosen_junctions(Path(sys.argv[1]), sys.argv[2])))
-except UsageError as e:
-    sys.exit(f'run_cluster: {e}')" "$net" "$junctions") || exit 2
+    ids = chosen_junctions(Path(sys.argv[1]), sys.argv[2])
+    for j in ids:  # each one the ICA can serve, before any role starts
+        load_intersection(sys.argv[1], j)
+except (UsageError, NetworkError) as e:
+    sys.exit(f'run_cluster: {e}')
+print(' '.join(ids))" "$net" "$junctions") || exit 2
   [ "${#live[@]}" = 0 ] || die "--live records one junction; a network's observers write .rrd files"
   if [ -z "$rsus" ]; then rsus=${#ids[@]}; [ "$secure" = 1 ] && rsus=1; fi
   [[ "$rsus" =~ ^[0-9]+$ ]] && [ "$rsus" -ge 1 ] && [ "$rsus" -le "${#ids[@]}" ] ||
