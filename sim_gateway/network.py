@@ -155,7 +155,8 @@ def run_network(
                 rec.close()
             if top is not None:
                 top.close()
-        result = world.result(merged_requests(drivers), cmd)
+        # a cluster's ICAs are processes of their own: they keep the request figures
+        result = world.result({} if cluster else merged_requests(drivers), cmd)
         if cluster is not None:
             cluster.finish(world, result)
         if pressure is not None:
@@ -199,8 +200,6 @@ def trip_file(cfg: RunConfig, run_dir: Path | None) -> Path | None:
 def merged_requests(drivers: Sequence[LocalDrivers]) -> dict:
     """The run's requests over every junction's ICA: counts and rejections added, the
     request times' median and p99 over all of them."""
-    if not drivers:
-        return {}  # lights, or the ICAs are processes of their own (they keep the figures)
     if len(drivers) == 1:
         return drivers[0].requests()
     rejections: dict[str, int] = {}
