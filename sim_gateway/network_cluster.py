@@ -10,7 +10,10 @@ In lockstep the junctions decide one after another within a step, in the
 embedded runner's order, and the network gate counts what each let in before the
 next one is asked (as :func:`sim_gateway.network.run_network` does with the ICA
 cores in one process): the run equals the embedded one. In real time every
-junction's states go out first and the answers are taken as they come.
+junction's states go out first and the answers are taken as they come; since no
+junction then knows what the others are letting in, each tells its vehicles
+entering the network the gate's room less every other vehicle asking to enter
+anywhere (:meth:`~sim_gateway.world.World.pending_network_m`).
 """
 
 from __future__ import annotations
@@ -65,8 +68,9 @@ class Cluster:
                 world.apply(d.collect(world.t), j)
                 world.counted_confirmed(j)
             return
+        pending = world.pending_network_m(each)
         for j, d, seen in pairs:
-            world.refresh_network_room(j, seen)
+            world.refresh_network_room(j, seen, pending)
             d.send(world.t, seen)
         for j, d, _ in pairs:
             world.apply(d.collect(world.t), j)

@@ -93,12 +93,28 @@ class NetworkGate:
                 self._count(ls, c.sumo)
         self.peak_m = max(self.peak_m, self.used_m)
 
-    def _count(self, ls, vid: str) -> None:
+    def need_m(self, ls, vid: str) -> float:
+        """The queue length ``vid`` takes inside the network."""
         n = self._length.get(vid)
         if n is None:
             n = self._length[vid] = ls.vehicle.getLength(vid)
+        return n + QUEUE_GAP_M
+
+    def pending_m(self, ls, cars: Iterable[Car]) -> float:
+        """The queue length of the vehicles among ``cars`` entering the network and not
+        counted yet: any of them may be being let in right now by an ICA whose answer
+        has not come."""
+        if not self.closes:
+            return 0.0
+        return sum(
+            self.need_m(ls, c.sumo)
+            for c in cars
+            if c.sumo not in self.counted and not c.exited and self.entering(c)
+        )
+
+    def _count(self, ls, vid: str) -> None:
         self.counted.add(vid)
-        self.used_m += n + QUEUE_GAP_M
+        self.used_m += self.need_m(ls, vid)
 
     def forget(self, gone: Iterable[str]) -> None:
         for vid in gone:

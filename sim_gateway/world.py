@@ -26,7 +26,7 @@ from __future__ import annotations
 import bisect
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -251,15 +251,28 @@ class World:
             return math.inf
         return g.room_m
 
-    def refresh_network_room(self, j: Junction, seen: list[Seen]) -> None:
+    def refresh_network_room(self, j: Junction, seen: list[Seen], pending_m: float = 0.0) -> None:
         """Before ``j``'s vehicles ask: tell the ones entering the network what room the
-        junctions that answered before it this step have left."""
+        junctions that answered before it this step have left, less ``pending_m`` (what
+        ICAs answering at the same time may be letting in, :meth:`pending_network_m`;
+        a vehicle's own length is not held against it)."""
         g = self.gate
         if g is None or not g.closes:
             return
         for s in seen:
             if g.entering(s.car):
-                s.obs = replace(s.obs, network_room_m=g.room_m)
+                others = pending_m - g.pending_m(self.ls, (s.car,)) if pending_m else 0.0
+                s.obs = replace(s.obs, network_room_m=g.room_m - others)
+
+    def pending_network_m(self, each: Sequence[Sequence[Seen]]) -> float:
+        """The queue length of every vehicle now asking to enter the network and not let
+        in yet, at every junction: where the junctions' ICAs answer at the same time (the
+        real-time cluster), each tells its vehicles the room less all of these, so that
+        together they cannot let in more than the gate holds."""
+        g = self.gate
+        if g is None or not g.closes:
+            return 0.0
+        return g.pending_m(self.ls, (s.car for seen in each for s in seen))
 
     def counted_confirmed(self, j: Junction) -> None:
         """After ``j``'s ICA answered: the vehicles it let into the network take room."""

@@ -6,6 +6,7 @@ per roadside unit in a mesh, agents that serve every junction; real SUMO, real Z
 * each roadside unit a host of its own (a Linux network namespace on a private LAN),
   the gateway and the agents on another: lockstep equals the embedded run again, and
   real time with delayed, lost and repeated messages between the hosts is safe;
+* nine ICAs in real time on a grid driven past saturation: the network gate holds;
 * one junction's ICA killed, then its router: its vehicles stop short of its line,
   the others go on, nothing collides, and the ICA comes back from its journal.
 """
@@ -126,6 +127,31 @@ def test_roadside_units_on_hosts_of_their_own(tmp_path, corridor):
     assert m["clock"] == "realtime" and m["crossed"] > 50
     ages = [v["cluster"]["command_age_ms"]["median"] for v in m["junctions"].values()]
     assert min(ages) > 15  # the delay was really there
+
+
+def test_a_real_time_cluster_keeps_the_network_gate(tmp_path):
+    """Nine ICAs answering at once, none waiting for the others' answers, on the test
+    grid's six heavy streams: the queue on the links reaches the gate's bound and never
+    passes it, since each junction's vehicles are told the room less every vehicle
+    asking to enter anywhere."""
+    from tests.test_gridlock import HEAVY
+    from tests.user_nets import build_nets
+
+    net = build_nets(tmp_path)["grid"]
+    routes = tmp_path / "heavy.rou.xml"
+    routes.write_text(HEAVY)
+    out = tmp_path / "rt"
+    p = _cluster(
+        out, "--net", str(net), "--junctions", "all", "--routes", str(routes),
+        "--duration", "180", "--clock", "realtime", "--speed", "3", "--rsus", "3",
+        "--no-record",
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    gate = m["network_gate"]
+    assert gate["links"] == 24
+    assert 0.95 * gate["capacity_m"] <= gate["peak_m"] <= gate["capacity_m"]
 
 
 @needs_netns
