@@ -204,3 +204,15 @@ def _distinct(xy: np.ndarray) -> np.ndarray:
 
 def _conn_name(conn: sumolib.net.connection.Connection) -> str:
     return f"connection {conn.getFromLane().getID()}->{conn.getToLane().getID()}"
+
+
+def lane_shapes(net_path: str | Path, lanes: list[str]) -> list[np.ndarray]:
+    """The shapes (K, 2) of ``lanes`` as the net draws them (lanes it lacks are left out)."""
+    net = _read(Path(net_path))
+    out = []
+    for lane in lanes:
+        try:
+            out.append(_xy(net.getLane(lane).getShape()))
+        except (KeyError, IndexError, ValueError):
+            continue
+    return out

@@ -2,7 +2,7 @@
 per roadside unit in a mesh, agents that serve every junction; real SUMO, real Zenoh.
 
 * lockstep over loopback, two roadside units: the embedded run's decisions, byte for
-  byte, with every junction recorded by its own observer;
+  byte, with every junction recorded by its own observer and the network from above;
 * each roadside unit a host of its own (a Linux network namespace on a private LAN),
   the gateway and the agents on another: lockstep equals the embedded run again, and
   real time with delayed, lost and repeated messages between the hosts is safe;
@@ -93,6 +93,15 @@ def test_lockstep_network_cluster_makes_the_embedded_decisions(tmp_path, corrido
         assert (out / rrd).stat().st_size > 10_000, j
         assert (out / "logs" / f"observer-{j}.log").exists()
     assert {f"router-{k}.log" for k in (1, 2)} <= {f.name for f in (out / "logs").iterdir()}
+    # the network from above, from the wire: every junction, its vehicles and their plans
+    from tests.test_recording import _read, _rows, _static
+
+    top = _read(out / "network.rrd")
+    assert sorted(_static(top["/network/names"], "Points2D:labels")) == list(corridor["junctions"])
+    vehicles = _rows(top["/network/vehicles"], "LineStrips2D:strips")
+    assert len(vehicles) >= 100 and max(len(v) for _, v in vehicles) >= 5
+    plans = _rows(top["/network/plans"], "LineStrips2D:strips")
+    assert sum(1 for _, p in plans if p) >= 50
     time.sleep(0.5)
     left = subprocess.run(["pgrep", "-f", f"127.0.0.1:{port}"], capture_output=True, text=True)
     assert left.stdout.strip() == "", f"processes left running: {left.stdout}"

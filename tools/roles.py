@@ -376,6 +376,8 @@ def _run_network_gateway(args, cfg, inters, drivers, out: Path, tick, checkpoint
 
 # -- observer ------------------------------------------------------------------
 def cmd_observer(args: argparse.Namespace) -> int:
+    if args.junctions:
+        return _network_observer(args)
     inter = intersection(args)
     session, log = _session(args, "observer")
     from dica.sim_gateway.observer import Observer
@@ -408,6 +410,37 @@ def cmd_observer(args: argparse.Namespace) -> int:
             "wrote %s: %d steps, %d confirmations, %d reorderings, %d plans withdrawn",
             args.rrd, obs.steps, obs.confirmations, obs.reorders, obs.withdrawn,
         )  # fmt: skip
+    return 0
+
+
+def _network_observer(args: argparse.Namespace) -> int:
+    """The top view of several junctions (the cluster's network.rrd)."""
+    from dica.ica.netfile import lane_shapes
+    from dica.sim_gateway.network_observer import NetworkObserver
+    from dica.sim_gateway.recording.network_view import route_lanes
+    from dica.tools.args import chosen_junctions
+
+    if not args.net:
+        raise UsageError("--junctions needs --net")
+    if args.live:
+        raise UsageError("--live records one junction: leave out --junctions")
+    ids = chosen_junctions(args.net, args.junctions)
+    inters = [intersection(argparse.Namespace(**{**vars(args), "junction": j})) for j in ids]
+    shapes = lane_shapes(args.net, route_lanes(inters))
+    session, log = _session(args, "observer")
+    try:
+        obs = NetworkObserver(session, inters, shapes, args.rrd, log)
+    except (OSError, RuntimeError) as e:
+        session.close()
+        raise UsageError(f"cannot write {args.rrd}: {e}") from None
+    obs.inbox.stop_on_signals()
+    log.info("recording the network of %s from above into %s", ",".join(ids), args.rrd)
+    try:
+        obs.run()
+    finally:
+        obs.close()
+        session.close()
+        log.info("wrote %s: %d moments, %d confirmations", args.rrd, obs.steps, obs.confirmations)
     return 0
 
 
@@ -493,7 +526,13 @@ def add_role_parsers(sub) -> None:
         "recording over gRPC on 127.0.0.1 while it writes, for dica view --live. Stops at the "
         "run's end or on SIGTERM.",
     )
-    options.add(o, *options.NET, "--margin", "--time-pad")
+    options.add(
+        o, *options.NET, "--junctions", "--margin", "--time-pad",
+        junctions={"help": "instead of --junction: the network of these junctions of --net "
+                   "(J1,J2,... or all) from above, every junction's vehicles and confirmed "
+                   "plans in one recording (run_cluster.sh writes it as network.rrd)",
+                   "metavar": "all|J1,J2,..."},
+    )  # fmt: skip
     o.add_argument("--rrd", type=Path, required=True, help="the .rrd file to write")
     o.add_argument(
         "--live",

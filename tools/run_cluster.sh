@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # Start the whole cluster on this host: a Zenoh router, the ICA, the Rerun
 # observer, N vehicle agents and the SUMO gateway (for a network of junctions:
-# a router per roadside unit in a mesh, an ICA and an observer per junction),
+# a router per roadside unit in a mesh, an ICA and an observer per junction, and one
+# observer of the whole network from above),
 # each its own process with
 # its own log in RUN_DIR/logs/, optionally behind a link emulator that delays,
 # loses, duplicates and reorders their messages. A role that crashes is
@@ -356,6 +357,7 @@ if [ "${#ids[@]}" -gt 0 ]; then
     names_all+=("ica-$j"); router_of["ica-$j"]=${rsu_of[$j]}
     if [ "$record" = 1 ]; then names_all+=("observer-$j"); router_of["observer-$j"]=${rsu_of[$j]}; fi
   done
+  if [ "$record" = 1 ] && [ "${#ids[@]}" -gt 1 ]; then names_all+=(observer-network); router_of[observer-network]=1; fi
 else
   names_all+=(ica); router_of[ica]=1
   if [ "$record" = 1 ]; then names_all+=(observer); router_of[observer]=1; fi
@@ -481,6 +483,12 @@ if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal 
     fi
     first=0
   done
+  if [ "$record" = 1 ] && [ "${#ids[@]}" -gt 1 ]; then  # the network from above: network.rrd
+    link_for observer-network observer
+    in_ns_of "$(host_ns 1)"
+    start observer-network "${in_ns[@]}" "$dica" observer --rrd "$out/network.rrd" --net "$net" \
+      --junctions "$(IFS=,; echo "${ids[*]}")" "${role_link[@]}"
+  fi
 else
   link_for ica ica
   in_ns_of "$(host_ns 1)"
@@ -496,11 +504,13 @@ for i in $(seq "$agents"); do
   in_ns_of "$vehicles"
   start "agent-$i" "${in_ns[@]}" "$dica" agent --id "agent-$i" "${scen[@]}" --lead "$lead" "${role_link[@]}"
 done
+observers=$record  # per junction: its own observer, and in a network the top view's
+[ "$record" = 1 ] && [ "${#ids[@]}" -gt 1 ] && observers=2
 link_for gateway gateway
 in_ns_of "$vehicles"
 start gateway "${in_ns[@]}" "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$volume" \
   --duration "$duration" --seed "$seed" --agents "$agents" --per-agent "$per_agent" \
-  --clock "$clock" --speed "$speed" --observers "$record" --time-pad "$time_pad" \
+  --clock "$clock" --speed "$speed" --observers "$observers" --time-pad "$time_pad" \
   --out "$out" "${ev_args[@]}" "${platoon[@]}" "${demand[@]}" "${role_link[@]}" "${extra[@]}"
 gateway_pid="${pid_of[gateway]}"
 if [ "${#ids[@]}" -gt 0 ]; then
@@ -570,5 +580,6 @@ if [ -s "$out/logs/restarts.log" ]; then
 fi
 echo "run_cluster: metrics  $out/metrics.json"
 [ "$record" = 1 ] && echo "run_cluster: rerun    $out/spacetime.rrd  (view: .venv/bin/dica view $out)"
+[ "$record" = 1 ] && [ "${#ids[@]}" -gt 1 ] && echo "run_cluster: network  $out/network.rrd (the junctions from above)"
 echo "run_cluster: logs     $out/logs/"
 exit "$status"

@@ -1,6 +1,11 @@
-"""The network seen from above: every junction's area and lanes, every vehicle in the net
-as SUMO has it, coloured by what it is doing, and every junction's confirmed plans as
-the paths their vehicles will fly, in one ``.rrd`` of its own.
+"""The network seen from above: every junction's area and lanes, the vehicles coloured by
+what they are doing, and every junction's confirmed plans as the paths their vehicles
+will fly, in one ``.rrd`` of its own.
+
+:class:`TopDrawing` draws; what it is fed comes from SUMO in an embedded run
+(:class:`NetworkView`: every vehicle in the net) and from the wire in a cluster
+(:class:`sim_gateway.network_observer.NetworkObserver`: the vehicles in the
+junctions' regions, which is what the gateway publishes).
 
 The junctions' space-time charts stay in their own recordings (one per junction,
 :func:`sim_gateway.network.recording_path`); this one answers where on the
@@ -31,29 +36,21 @@ EVERY_S = 0.5  # [s sim] the view is drawn this often
 SUMO_RGBA = rgba((150, 150, 150))  # a vehicle SUMO's driver has (between the regions)
 
 
-class NetworkView:
-    """Writes the network's top view to ``path`` as the run goes."""
+class TopDrawing:
+    """The top view's Rerun stream, written to ``path`` as the run goes."""
 
-    def __init__(self, ls, inters: Sequence[Intersection], path: Path) -> None:
-        self.ls = ls
+    def __init__(self, inters: Sequence[Intersection], path: Path) -> None:
         self.inters = list(inters)
         self.path = Path(path)
-        self._next_s = 0.0
         self.rec = rr.RecordingStream("dica network")
         self.rec.set_log_time_enabled(False)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         view = rrb.Spatial2DView(origin="network", name="network: every junction, from above")
         self.rec.set_sinks(rr.FileSink(str(self.path)), default_blueprint=rrb.Blueprint(view))
 
-    def geometry(self) -> None:
-        """Static: the lanes the junctions' routes use, each junction's area and name."""
-        ls, lanes = self.ls, set()
-        for x in self.inters:
-            for r in x.routes:
-                lanes.update((r.in_lane, r.out_lane, *r.via_lanes))
-        strips = [
-            np.asarray(ls.lane.getShape(lane), dtype=float) * FLIP_Y for lane in sorted(lanes)
-        ]
+    def geometry(self, lane_shapes: Sequence[np.ndarray]) -> None:
+        """Static: the lanes (SUMO's shapes, world frame), each junction's area and name."""
+        strips = [np.asarray(x, dtype=float).reshape(-1, 2) * FLIP_Y for x in lane_shapes]
         self.rec.log("network/lanes", rr.LineStrips2D(strips, colors=LANE_EDGE_RGB, radii=0.15),
                      static=True)  # fmt: skip
         areas = [np.vstack([x.region, x.region[:1]]) * FLIP_Y for x in self.inters]
@@ -66,12 +63,71 @@ class NetworkView:
             static=True,
         )
 
+    def moment(
+        self,
+        t_s: float,
+        front: np.ndarray,
+        angle_deg: np.ndarray,
+        length: np.ndarray,
+        width: np.ndarray,
+        colours: Sequence,
+        paths: Sequence[np.ndarray],
+        names: Sequence[str],
+    ) -> None:
+        """One moment: vehicles by front-bumper centre and SUMO angle, and the plans' paths
+        (world frame)."""
+        self.rec.set_time("sim_time", duration=t_s)
+        if len(front):
+            heading = sumo_heading_rad(np.asarray(angle_deg, dtype=float))
+            c, s = np.cos(heading), np.sin(heading)
+            front = np.asarray(front, dtype=float).reshape(-1, 2)
+            cx, cy = front[:, 0] - c * length / 2.0, front[:, 1] - s * length / 2.0
+            boxes = outlines(cx, cy, c, s, length / 2.0, width / 2.0)
+            self.rec.log("network/vehicles", rr.LineStrips2D(boxes, colors=colours, radii=0.2))
+        else:
+            self.rec.log("network/vehicles", rr.Clear(recursive=False))
+        if paths:
+            self.rec.log(
+                "network/plans",
+                rr.LineStrips2D(
+                    [np.asarray(p, dtype=float) * FLIP_Y for p in paths],
+                    colors=STATUS_RGBA[Status.CONFIRMED], radii=0.35, labels=list(names),
+                ),
+            )  # fmt: skip
+        else:
+            self.rec.log("network/plans", rr.Clear(recursive=False))
+
+    def close(self) -> None:
+        self.rec.flush()
+        self.rec.disconnect()
+
+
+def route_lanes(inters: Sequence[Intersection]) -> list[str]:
+    """Every lane the junctions' routes use (in, through, out), sorted."""
+    lanes: set[str] = set()
+    for x in inters:
+        for r in x.routes:
+            lanes.update((r.in_lane, r.out_lane, *r.via_lanes))
+    return sorted(lanes)
+
+
+class NetworkView:
+    """The embedded run's top view: every vehicle in the net as SUMO has it."""
+
+    def __init__(self, ls, inters: Sequence[Intersection], path: Path) -> None:
+        self.ls = ls
+        self.draw = TopDrawing(inters, path)
+        self._next_s = 0.0
+
+    def geometry(self) -> None:
+        lanes = route_lanes(self.draw.inters)
+        self.draw.geometry([self.ls.lane.getShape(lane) for lane in lanes])
+
     def step(self, t_s: float, junctions: Iterable, drivers: Iterable) -> None:
         """This moment, if one is due: every vehicle in the net, and the plans held."""
         if t_s + 1e-9 < self._next_s:
             return
         self._next_s = t_s + EVERY_S
-        ls = self.ls
         status: dict[str, int] = {}
         paths, names = [], []
         for j, d in zip(junctions, drivers, strict=False):
@@ -89,33 +145,20 @@ class NetworkView:
                 v = d.vehicles.get(c.vin) if d is not None else None
                 conf = v.confirmation if v is not None else None
                 if conf is not None and c.plan_s is not None:
-                    paths.append(np.column_stack([conf.tss.x_m, conf.tss.y_m]) * FLIP_Y)
+                    paths.append(np.column_stack([conf.tss.x_m, conf.tss.y_m]))
                     names.append(c.vin)
-        ids = ls.vehicle.getIDList()
-        self.rec.set_time("sim_time", duration=t_s)
-        if ids:
-            v = ls.vehicle
-            front = np.array([v.getPosition(x) for x in ids], dtype=float)
-            heading = sumo_heading_rad(np.array([v.getAngle(x) for x in ids]))
-            length = np.array([v.getLength(x) for x in ids])
-            width = np.array([v.getWidth(x) for x in ids])
-            c, s = np.cos(heading), np.sin(heading)
-            cx, cy = front[:, 0] - c * length / 2.0, front[:, 1] - s * length / 2.0
-            boxes = outlines(cx, cy, c, s, length / 2.0, width / 2.0)
-            colours = [STATUS_RGBA[status[x]] if x in status else SUMO_RGBA for x in ids]
-            self.rec.log("network/vehicles", rr.LineStrips2D(boxes, colors=colours, radii=0.2))
-        else:
-            self.rec.log("network/vehicles", rr.Clear(recursive=False))
-        if paths:
-            self.rec.log(
-                "network/plans",
-                rr.LineStrips2D(
-                    paths, colors=STATUS_RGBA[Status.CONFIRMED], radii=0.35, labels=names
-                ),
-            )
-        else:
-            self.rec.log("network/plans", rr.Clear(recursive=False))
+        v = self.ls.vehicle
+        ids = v.getIDList()
+        self.draw.moment(
+            t_s,
+            np.array([v.getPosition(x) for x in ids], dtype=float).reshape(-1, 2),
+            np.array([v.getAngle(x) for x in ids], dtype=float),
+            np.array([v.getLength(x) for x in ids], dtype=float),
+            np.array([v.getWidth(x) for x in ids], dtype=float),
+            [STATUS_RGBA[status[x]] if x in status else SUMO_RGBA for x in ids],
+            paths,
+            names,
+        )
 
     def close(self) -> None:
-        self.rec.flush()
-        self.rec.disconnect()
+        self.draw.close()
