@@ -57,7 +57,7 @@ class InsertionHold:
         self.gate = gate if gate is not None and gate.closes else None
         self.held: list[Held] = []
         self.roads: set[str] = set()  # threatened this step
-        self.first_road: dict[str, str] = {}  # a pending vehicle's first road, read once
+        self.first_road: dict[str, tuple[str, ...]] = {}  # a pending vehicle's route, read once
         self.holds = 0  # vehicles taken out of SUMO's insertion, once each time
         # each held vehicle's departure as the file scheduled it (put back, SUMO counts
         # from then): its trip counts from here (sim_gateway/network_trips.py)
@@ -83,17 +83,16 @@ class InsertionHold:
         for room in the network."""
         self.roads = roads = self.threatened(junctions)
         gate = self.gate
-        room = gate.room_m if gate is not None else 0.0
+        taken: dict[str, float] = {}  # of the gate's rooms, by those let go this step
         keep = []
         for h in self.held:
             if h.edges[0] in roads:
                 keep.append(h)
             elif gate is not None and h.edges[0] in gate.links:
-                if h.cost_m > room:
-                    keep.append(h)
-                else:
-                    room -= h.cost_m
+                if self._fits(gate.rooms(h.edges, 0), h.cost_m, taken):
                     self._put_back(h)
+                else:
+                    keep.append(h)
             else:
                 self._put_back(h)
         self.held = keep
@@ -102,20 +101,29 @@ class InsertionHold:
         v, first = self.ls.vehicle, self.first_road
         pending = self.ls.simulation.getPendingVehicles()
         for p in pending:
-            road = first.get(p)
-            if road is None:
-                road = first[p] = v.getRoute(p)[0]
+            route = first.get(p)
+            if route is None:
+                route = first[p] = v.getRoute(p)
+            road = route[0]
             if road in roads:
                 self._take(p)
             elif gate is not None and road in gate.links:
                 cost = v.getLength(p) + QUEUE_GAP_M
-                if cost > room:
+                if not self._fits(gate.rooms(route, 0), cost, taken):
                     self._take(p)
-                else:
-                    room -= cost
         if len(first) > 2 * len(pending) + 1024:  # forget the ones inserted since
             live = set(pending)
             self.first_road = {p: r for p, r in first.items() if p in live}
+
+    def _fits(self, rooms: tuple[str, ...], cost_m: float, taken: dict[str, float]) -> bool:
+        """Whether a vehicle that would hold ``rooms`` fits the gate after ``taken``; if
+        so, it takes its share of them."""
+        assert self.gate is not None
+        if cost_m > self.gate.room_on(rooms, taken):
+            return False
+        for r in rooms:
+            taken[r] = taken.get(r, 0.0) + cost_m
+        return True
 
     def after_step(self, departed: Iterable[str]) -> set[str]:
         """Take back who SUMO has just inserted at the start of a threatened road (it does
@@ -125,16 +133,14 @@ class InsertionHold:
         gate = self.gate
         if not self.roads and gate is None:
             return taken
-        room = gate.room_m if gate is not None else 0.0
+        room: dict[str, float] = {}
         v = self.ls.vehicle
         for vid in departed:
             road = v.getRoadID(vid)
             take = road in self.roads and v.getLanePosition(vid) < GUARD_M
             if not take and gate is not None and road in gate.links:
                 cost = v.getLength(vid) + QUEUE_GAP_M
-                take = cost > room
-                if not take:
-                    room -= cost
+                take = not self._fits(gate.rooms(v.getRoute(vid), 0), cost, room)
             if take and self._take(vid):
                 taken.add(vid)
         return taken

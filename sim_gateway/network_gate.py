@@ -3,58 +3,137 @@ how much more may come in.
 
 A network of junctions whose links form cycles can stand still for ever once a
 cycle of links is full (every vehicle at a link's head waiting for room on the
-next). The gate keeps the queue length inside the network (every vehicle on a
-link, and every one confirmed onto a link from outside, at its length plus
-:data:`~ica.core.gridlock.QUEUE_GAP_M`) at most the smallest cycle's capacity
-(:func:`~ica.core.gridlock.cycle_capacity_m`): the ICAs let a vehicle in from
-outside only while it fits (``Observation.network_room_m``), and a route
-file's vehicles that would start on a link wait out of SUMO until it does
-(:class:`~sim_gateway.insertion.InsertionHold`). Moving between links, a
-vehicle neither adds nor takes room, so the bound holds for the whole run.
+next). The gate bounds what the links hold, counting every vehicle on a link and
+every one confirmed onto a link from outside at its length plus
+:data:`~ica.core.gridlock.QUEUE_GAP_M`, by one of two rules:
+
+* ``route`` (the default): a few links are chosen that every cycle of links
+  passes through (:func:`~ica.core.gridlock.feedback_links`); each vehicle holds
+  room on every one of them on its route ahead, from the moment it is let in
+  until it leaves that link, and none is ever promised more than its capacity
+  (:func:`~ica.core.gridlock.link_capacity_m`): so none of them fills, and a
+  cycle of full links cannot form;
+* ``cycle``: the whole network holds at most its smallest cycle's capacity
+  (:func:`~ica.core.gridlock.cycle_capacity_m`), whatever the routes: a cycle
+  of full links would hold more.
+
+Either way the ICAs let a vehicle in from outside only while it fits
+(``Observation.network_room_m``, the least room on what it would hold), and a
+route file's vehicles that would start on a link wait out of SUMO until they
+fit (:class:`~sim_gateway.insertion.InsertionHold`). Moving from link to link,
+a vehicle takes no room it did not hold already, so the bound holds for the
+whole run (``docs/architecture.md``, "Gridlock").
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 
 from dica.ica.core.dica import ROOM_GAP_M, ROOM_SLACK_M
 from dica.ica.core.gridlock import (
     QUEUE_GAP_M,
     cycle_capacity_m,
     edge_of,
+    feedback_links,
     full_need_m,
     internal_roads,
+    link_arcs,
     link_capacity_m,
 )
 from dica.ica.core.intersection import Intersection
 from dica.sim_gateway.junction import Car, Junction
 
+RULES = ("route", "cycle")
+WHOLE = "*"  # the cycle rule's one room: the whole network's
+
 
 class NetworkGate:
-    """The network's queue length this step and the room left for one more vehicle."""
+    """What the links hold this step, and the room left on what a vehicle would hold."""
 
     def __init__(
-        self, inters: Sequence[Intersection], max_length_m: float, decel_mps2: float
+        self,
+        inters: Sequence[Intersection],
+        max_length_m: float,
+        decel_mps2: float,
+        rule: str = "route",
     ) -> None:
+        if rule not in RULES:
+            raise ValueError(f"network gate rule {rule!r}: use one of {', '.join(RULES)}")
+        self.rule = rule
         self.links = internal_roads(inters)
         need = full_need_m(inters, max_length_m, decel_mps2, ROOM_GAP_M, ROOM_SLACK_M)
         self.link_capacity_m = link_capacity_m(inters, need)
         self.capacity_m = cycle_capacity_m(inters, self.link_capacity_m)
-        self.used_m = 0.0
+        # the links every cycle passes through: the ones the route rule keeps from filling
+        self.guarded = feedback_links(link_arcs(inters, self.links), self.link_capacity_m)
+        # the rooms a vehicle may hold: each guarded link's (route), or the network's (cycle)
+        self.room_cap_m: dict[str, float] = (
+            {e: self.link_capacity_m[e] for e in self.guarded}
+            if rule == "route"
+            else {WHOLE: self.capacity_m}
+        )
+        self.held_m: dict[str, float] = {}  # per room, what the vehicles hold of it now
+        self.used_m = 0.0  # the queue length inside the network (every vehicle once)
         self.peak_m = 0.0  # the most queue the network held at once
+        self.peak_share = 0.0  # the most any room was held, as a share of its capacity
         self.counted: set[str] = set()  # SUMO ids inside the network this step
         self._length: dict[str, float] = {}
         self._enters: dict[tuple[str, str], bool] = {}  # per (in, out) lane: it enters
+        self._runs: dict[str, dict[str, tuple[str, ...]]] = {}  # vehicle -> road -> rooms
 
     @property
     def closes(self) -> bool:
         """Whether the links form a cycle at all (else the gate never closes)."""
         return math.isfinite(self.capacity_m)
 
-    @property
-    def room_m(self) -> float:
-        return self.capacity_m - self.used_m
+    def rooms(self, edges: Sequence[str], start: int) -> tuple[str, ...]:
+        """The rooms a vehicle holds whose route is ``edges``, from ``edges[start]`` on:
+        every guarded link of the run of links starting there (route), or the network's
+        (cycle); none if it does not start on a link."""
+        links = self.links
+        if start >= len(edges) or edges[start] not in links:
+            return ()
+        if self.rule == "cycle":
+            return (WHOLE,)
+        run = []
+        for e in edges[start:]:
+            if e not in links:
+                break
+            if e in self.guarded:
+                run.append(e)
+        return tuple(dict.fromkeys(run))
+
+    def room_on(self, rooms: Iterable[str], extra: Mapping[str, float] | None = None) -> float:
+        """The least room left on ``rooms`` (less ``extra`` taken of each; inf: none)."""
+        cap, held = self.room_cap_m, self.held_m
+        least = math.inf
+        for r in rooms:
+            left = cap[r] - held.get(r, 0.0) - (extra.get(r, 0.0) if extra else 0.0)
+            least = min(least, left)
+        return least
+
+    def rooms_of(self, ls, vid: str, road: str) -> tuple[str, ...]:
+        """The rooms vehicle ``vid`` holds from ``road`` on (the next time its route
+        comes to it); read from SUMO once per vehicle and road."""
+        runs = self._runs.get(vid)
+        if runs is None:
+            runs = self._runs[vid] = {}
+        run = runs.get(road)
+        if run is None:
+            route = ls.vehicle.getRoute(vid)
+            i = max(0, ls.vehicle.getRouteIndex(vid))
+            k = next((n for n in range(i, len(route)) if route[n] == road), None)
+            if k is None:  # not on its route (never for a crossing it was confirmed for)
+                run = self.rooms((road,), 0) if self.rule == "cycle" else tuple(self.guarded)
+            else:
+                run = self.rooms(route, k)
+            runs[road] = run
+        return run
+
+    def room_for(self, ls, c: Car) -> float:
+        """The room left for ``c``, entering the network: the least on what it would hold."""
+        return self.room_on(self.rooms_of(ls, c.sumo, edge_of(c.route.out_lane)))
 
     def entering(self, c: Car) -> bool:
         """Whether ``c``'s crossing takes it into the network from outside."""
@@ -68,18 +147,19 @@ class NetworkGate:
         return enters
 
     def measure(self, ls, junctions: Iterable[Junction]) -> None:
-        """Count the queue inside the network: the vehicles on its links, and those
-        confirmed onto one that are not on it yet."""
+        """Count what the network holds: the vehicles on its links, and those confirmed
+        onto one that are not on it yet."""
         if not self.closes:
             return
         self.counted = set()
+        self.held_m = {}
         self.used_m = 0.0
         for e in self.links:
             for x in ls.edge.getLastStepVehicleIDs(e):
-                self._count(ls, x)
+                self._count(ls, x, e)
         for j in junctions:
             self.count_confirmed(ls, j)
-        self.peak_m = max(self.peak_m, self.used_m)
+        self._peaks()
 
     def count_confirmed(self, ls, j: Junction) -> None:
         """Count ``j``'s vehicles confirmed onto a link and not counted yet (after its
@@ -89,9 +169,10 @@ class NetworkGate:
         for c in j.active:
             if c.plan_s is None or c.exited or c.sumo in self.counted:
                 continue
-            if edge_of(c.route.out_lane) in self.links and c.sumo in j.present:
-                self._count(ls, c.sumo)
-        self.peak_m = max(self.peak_m, self.used_m)
+            road = edge_of(c.route.out_lane)
+            if road in self.links and c.sumo in j.present:
+                self._count(ls, c.sumo, road)
+        self._peaks()
 
     def need_m(self, ls, vid: str) -> float:
         """The queue length ``vid`` takes inside the network."""
@@ -112,10 +193,22 @@ class NetworkGate:
             if c.sumo not in self.counted and not c.exited and self.entering(c)
         )
 
-    def _count(self, ls, vid: str) -> None:
+    def _count(self, ls, vid: str, road: str) -> None:
         self.counted.add(vid)
-        self.used_m += self.need_m(ls, vid)
+        n = self.need_m(ls, vid)
+        self.used_m += n
+        held = self.held_m
+        for r in self.rooms_of(ls, vid, road):
+            held[r] = held.get(r, 0.0) + n
+
+    def _peaks(self) -> None:
+        self.peak_m = max(self.peak_m, self.used_m)
+        cap = self.room_cap_m
+        for r, m in self.held_m.items():
+            if cap[r] > 0.0:
+                self.peak_share = max(self.peak_share, m / cap[r])
 
     def forget(self, gone: Iterable[str]) -> None:
         for vid in gone:
             self._length.pop(vid, None)
+            self._runs.pop(vid, None)

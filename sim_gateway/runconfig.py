@@ -120,6 +120,7 @@ class RunConfig:
     # their least cycle's capacity, so the network cannot lock (ica.core.gridlock); off,
     # nothing bounds it (and a cycle of full links may stand still for ever)
     network_gate: bool = True
+    network_gate_rule: str = "route"  # sim_gateway.network_gate.RULES
 
     def controller_spec(self) -> ControllerSpec:
         """The controller this run drives (a light runs FIFO underneath, never asked)."""

@@ -88,7 +88,9 @@ class World:
             check_types(ls, rf, ica_cfg.kinematics)
             if not signalised and cfg.network_gate:  # lights hold no vehicle for room
                 longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
-                self.gate = NetworkGate((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
+                self.gate = NetworkGate(
+                    (inter, *more), longest, ica_cfg.kinematics.decel_mps2, cfg.network_gate_rule
+                )
             self.hold = InsertionHold(ls, rf, self.gate)
         define_vehicle_types(ls, ica_cfg, cfg.length_m, cfg.width_m, any(v.ev for v in schedule))
         self.junctions = [
@@ -249,7 +251,7 @@ class World:
         g = self.gate
         if g is None or not g.closes or not g.entering(c):
             return math.inf
-        return g.room_m
+        return g.room_for(self.ls, c)
 
     def refresh_network_room(self, j: Junction, seen: list[Seen], pending_m: float = 0.0) -> None:
         """Before ``j``'s vehicles ask: tell the ones entering the network what room the
@@ -262,7 +264,7 @@ class World:
         for s in seen:
             if g.entering(s.car):
                 others = pending_m - g.pending_m(self.ls, (s.car,)) if pending_m else 0.0
-                s.obs = replace(s.obs, network_room_m=g.room_m - others)
+                s.obs = replace(s.obs, network_room_m=g.room_for(self.ls, s.car) - others)
 
     def pending_network_m(self, each: Sequence[Sequence[Seen]]) -> float:
         """The queue length of every vehicle now asking to enter the network and not let
@@ -351,10 +353,15 @@ class World:
             extra["sumo_collisions_elsewhere"] = self.sumo_collisions_elsewhere
             extra["longest_standstill_s"] = self.log.longest_standstill_s()
         if self.gate is not None and self.gate.closes:
+            g = self.gate
             extra["network_gate"] = {
-                "capacity_m": round(self.gate.capacity_m, 1),
-                "peak_m": round(self.gate.peak_m, 1),
-                "links": len(self.gate.links),
+                "rule": g.rule,
+                "capacity_m": round(g.capacity_m, 1),
+                "least_link_capacity_m": round(min(g.link_capacity_m.values()), 1),
+                "guarded_links": len(g.guarded),
+                "peak_m": round(g.peak_m, 1),
+                "peak_share": round(g.peak_share, 3),
+                "links": len(g.links),
             }
         if len(self.junctions) > 1:
             extra["junctions"] = {

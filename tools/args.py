@@ -82,6 +82,7 @@ def run_config(args: argparse.Namespace):
             begin_s=getattr(args, "begin", 0.0),
             junction_ids=junctions if len(junctions) > 1 else (),
             network_gate=getattr(args, "network_gate", True),
+            network_gate_rule=getattr(args, "network_gate_rule", "route"),
         )
     except RunError as e:
         raise UsageError(str(e)) from None

@@ -332,7 +332,8 @@ def parser() -> argparse.ArgumentParser:
     )
     add_run_args(r)
     options.add(
-        r, "--junctions", "--network-gate", "--run-up", "--exit-spacing", "--lead", "--window",
+        r, "--junctions", "--network-gate", "--network-gate-rule", "--run-up", "--exit-spacing",
+        "--lead", "--window",
         "--revocation", "--out", "--quiet",
         out={"help": "output directory (default runs/run-ALG-TIMESTAMP)"},
     )  # fmt: skip

@@ -96,9 +96,13 @@ def parser() -> options.Parser:
     )
     p.add_argument("--routes", type=Path, help="a SUMO route file instead of drawn demand")
     p.add_argument("--no-network-gate", dest="network_gate", action="store_false",
-                   help="with --control dica: no bound on the queue on the links between the "
-                   "junctions (by default it stays below their least cycle's capacity, so the "
-                   "network cannot lock; on a net of short links that bound is small)")  # fmt: skip
+                   help="with --control dica: no bound on what the links between the "
+                   "junctions hold (by default the network gate bounds it, so the network "
+                   "cannot lock)")  # fmt: skip
+    p.add_argument("--network-gate-rule", choices=("route", "cycle"), default="route",
+                   help="with --control dica: route (default: a vehicle let in holds room on "
+                   "every link of its route ahead, no link promised more than its capacity) "
+                   "or cycle (the whole network at most its least cycle's capacity)")  # fmt: skip
     p.add_argument(
         "--volume",
         type=float,
@@ -181,7 +185,7 @@ def _main(argv: list[str] | None) -> int:
             net_path=str(net), junction_id=junctions[0], routes_path=str(routes),
             junction_ids=junctions if len(junctions) > 1 else (), algorithm=args.algorithm,
             duration_s=args.duration + args.drain, seed=args.seed, sumo_args=extra,
-            network_gate=args.network_gate,
+            network_gate=args.network_gate, network_gate_rule=args.network_gate_rule,
         )  # fmt: skip
         inters = [load_intersection(str(net), j) for j in junctions]
     except (RunError, NetworkError, ScenarioError, DemandError) as e:
@@ -292,8 +296,14 @@ def _report(out: Path, result, control: str) -> int:
         print(f"note: for {still:.0f} s vehicles waited and none crossed (a network locked?)")
     gate = result.extra.get("network_gate")
     if gate:
-        peak, bound = gate["peak_m"], gate["capacity_m"]
-        print(f"network gate: the queue on the links peaked at {peak:.0f} of {bound:.0f} m")
+        if gate["rule"] == "cycle":
+            peak, bound = gate["peak_m"], gate["capacity_m"]
+            print(f"network gate: the queue on the links peaked at {peak:.0f} of {bound:.0f} m")
+        else:
+            print(
+                f"network gate: the fullest link was promised {gate['peak_share']:.0%} of its "
+                f"capacity at most (the queue on the links peaked at {gate['peak_m']:.0f} m)"
+            )
     print(f"{result.sim_time_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json")
     bad = result.safety["overlaps"] or result.sumo_collisions or unconfirmed
     if control == "dica":

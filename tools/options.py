@@ -132,11 +132,19 @@ OPTIONS: dict[str, Option] = {
         ),
         Option(
             "--network-gate",
-            "with --junctions: keep the queue on the links between the junctions below their "
-            "least cycle's capacity, so the network cannot lock (default); --no-network-gate: "
-            "no bound (a net of short links then carries more, and may stand still)",
+            "with --junctions: bound what the links between the junctions hold, so the "
+            "network cannot lock (default; see --network-gate-rule); --no-network-gate: no "
+            "bound (the network carries more, and may stand still)",
             action=argparse.BooleanOptionalAction,
             default=True,
+        ),
+        Option(
+            "--network-gate-rule",
+            "the network gate's bound: route (default: a vehicle let in holds room on every "
+            "link of its route ahead, and no link is promised more than its capacity) or "
+            "cycle (the whole network holds at most its smallest cycle's capacity)",
+            choices=("route", "cycle"),
+            default="route",
         ),
         # -- the controller
         Option(

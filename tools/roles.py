@@ -552,7 +552,8 @@ def add_role_parsers(sub) -> None:
     )
     add_run_args(g, algorithm={"help": options.ALGORITHMS_HELP})
     options.add(
-        g, "--junctions", "--network-gate", "--agents", "--observers", "--per-agent", "--clock",
+        g, "--junctions", "--network-gate", "--network-gate-rule", "--agents", "--observers",
+        "--per-agent", "--clock",
         "--speed", "--step-timeout",
         "--resend", "--checkpoint-every", "--peers-timeout", "--progress-every", "--out",
         out={"help": "output directory (default runs/cluster-TIMESTAMP)"},

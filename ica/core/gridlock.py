@@ -105,3 +105,54 @@ def cycle_capacity_m(inters: Sequence[Intersection], capacity_m: dict[str, float
                     dist[f] = nd
                     heapq.heappush(heap, (nd, f))
     return best
+
+
+def link_arcs(inters: Iterable[Intersection], links: Iterable[str]) -> dict[str, set[str]]:
+    """Per link, the links a vehicle can drive onto next (by one of the junctions' routes)."""
+    links = set(links)
+    arcs: dict[str, set[str]] = {e: set() for e in links}
+    for x in inters:
+        for r in x.routes:
+            a, b = edge_of(r.in_lane), edge_of(r.out_lane)
+            if a in links and b in links:
+                arcs[a].add(b)
+    return arcs
+
+
+def feedback_links(arcs: dict[str, set[str]], capacity_m: dict[str, float]) -> frozenset[str]:
+    """Links that every cycle of links passes through (a feedback vertex set): if none of
+    these ever fills, no cycle of full links can form. Greedy: drop links on no cycle
+    (nothing comes in, or nothing goes on), then take the link on the most paths through
+    (in times out), the larger capacity first, until no cycle is left."""
+    succ = {e: set(f) for e, f in arcs.items()}
+    pred: dict[str, set[str]] = {e: set() for e in succ}
+    for e, fs in succ.items():
+        for f in fs:
+            pred.setdefault(f, set()).add(e)
+            succ.setdefault(f, set())
+    chosen: set[str] = set()
+
+    def drop(e: str) -> None:
+        for f in succ.pop(e):
+            pred[f].discard(e)
+        for f in pred.pop(e):
+            succ[f].discard(e)
+
+    while succ:
+        bare = [e for e in succ if not succ[e] or not pred[e]]
+        if bare:
+            for e in bare:
+                if e in succ:
+                    drop(e)
+            continue
+        loops = sorted(e for e in succ if e in succ[e])  # a link onto itself: a cycle alone
+        pick = (
+            loops[0]
+            if loops
+            else max(
+                sorted(succ), key=lambda e: (len(pred[e]) * len(succ[e]), capacity_m.get(e, 0.0))
+            )
+        )
+        chosen.add(pick)
+        drop(pick)
+    return frozenset(chosen)
