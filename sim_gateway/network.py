@@ -9,8 +9,8 @@ the next junction's region. A vehicle is one junction's at a time. Each
 junction confirms a crossing only if its exit lane will have room beyond it
 (the downstream-space rule, :mod:`ica.core.dica`), so a queue from the next
 junction backs up on the link and not into the one behind it, and the network
-gate (:mod:`sim_gateway.network_gate`) keeps the queue on the links below their
-least cycle's capacity, so no cycle of full links stands still. The other
+gate (:mod:`sim_gateway.network_gate`) lets vehicles into the links only while
+no cycle of them can fill, so no cycle of full links stands still. The other
 junctions of the net stay as the net has them (their lights or priorities).
 """
 
@@ -113,12 +113,22 @@ def run_network(
             more=tuple(inters[1:]), signalised=light,
         )  # fmt: skip
         gate = world.gate
-        if gate is not None and gate.closes:
+        if gate is not None and gate.closes and gate.rule == "cycle":
             print(
                 f"note: the network gate holds the queue on the {len(gate.links)} links between "
                 f"the junctions to {gate.capacity_m:.0f} m (about "
                 f"{gate.capacity_m / (5.0 + QUEUE_GAP_M):.0f} cars), their least cycle's capacity,"
                 " so the network cannot lock; --no-network-gate lifts it",
+                file=sys.stderr,
+            )
+        elif gate is not None and gate.closes:
+            least = min(gate.room_cap_m.values())
+            print(
+                f"note: the network gate guards {len(gate.guarded)} of the {len(gate.links)} links"
+                " between the junctions (every cycle of links passes one): a vehicle is let in "
+                "only with room on those its route takes (the least holds "
+                f"{least:.0f} m, about {least / (5.0 + QUEUE_GAP_M):.0f} cars), so the network "
+                "cannot lock; --no-network-gate lifts it",
                 file=sys.stderr,
             )
         drivers = [LocalDrivers(ica, cfg) for ica in icas]

@@ -116,8 +116,8 @@ class RunConfig:
     # several junctions, each under its own ICA (sim_gateway/network.py); junction_id is
     # the first of them. Empty: one junction
     junction_ids: tuple[str, ...] = ()
-    # several junctions: the network gate keeps the queue on the links between them below
-    # their least cycle's capacity, so the network cannot lock (ica.core.gridlock); off,
+    # several junctions: the network gate bounds what the links between them hold, by the
+    # route or the cycle rule, so the network cannot lock (sim_gateway.network_gate); off,
     # nothing bounds it (and a cycle of full links may stand still for ever)
     network_gate: bool = True
     network_gate_rule: str = "route"  # sim_gateway.network_gate.RULES

@@ -5,10 +5,12 @@ Each ICA confirms a crossing only if the exit road has room for the vehicle
 beyond the junction (:meth:`DicaIca._check_room`), so no vehicle ever stands
 inside a junction. What that leaves is the network's own deadlock: a cycle of
 links, each so full that the vehicle at its head waits for room on the next.
-Such a cycle holds at least its capacity (:func:`cycle_capacity_m`, in metres
-of queue), so a network that never holds more than its smallest cycle's
-capacity can never stand still: the network gate admits a vehicle into it
-only while there is that much room (``docs/architecture.md``, "Gridlock").
+Such a cycle holds more than its capacity (:func:`cycle_capacity_m`, in metres
+of queue), every link of it more than its own (:func:`link_capacity_m`). So a
+network whose links together never hold more than its smallest cycle's
+capacity (the cycle rule), or in which a set of links that every cycle passes
+(:func:`feedback_links`) never holds more than each one's capacity (the route
+rule), can never stand still (``docs/architecture.md``, "Gridlock").
 
 Pure: the junctions' routes in, numbers out.
 """
