@@ -159,20 +159,23 @@ class NetworkGate:
                 self._count(ls, x, e)
         for j in junctions:
             self.count_confirmed(ls, j)
-        self._peaks()
+        self._peaks()  # once more: the vehicles on the links alone
 
     def count_confirmed(self, ls, j: Junction) -> None:
         """Count ``j``'s vehicles confirmed onto a link and not counted yet (after its
         ICA's answers this step, before the next junction's ask)."""
         if not self.closes:
             return
+        more = False
         for c in j.active:
             if c.plan_s is None or c.exited or c.sumo in self.counted:
                 continue
             road = edge_of(c.route.out_lane)
             if road in self.links and c.sumo in j.present:
                 self._count(ls, c.sumo, road)
-        self._peaks()
+                more = True
+        if more:
+            self._peaks()
 
     def need_m(self, ls, vid: str) -> float:
         """The queue length ``vid`` takes inside the network."""
