@@ -6,7 +6,8 @@ per roadside unit in a mesh, agents that serve every junction; real SUMO, real Z
 * each roadside unit a host of its own (a Linux network namespace on a private LAN),
   the gateway and the agents on another: lockstep equals the embedded run again, and
   real time with delayed, lost and repeated messages between the hosts is safe;
-* nine ICAs in real time on a grid driven past saturation: the network gate holds;
+* nine ICAs on a grid driven past saturation: lockstep equals the embedded run with
+  the network gate closed, and in real time the gate holds;
 * one junction's ICA killed, then its router: its vehicles stop short of its line,
   the others go on, nothing collides, and the ICA comes back from its journal.
 """
@@ -24,7 +25,7 @@ import pytest
 
 from dica.tools.loopback import free_port
 from tests.cluster_proc import logs_tail, stop_cluster
-from tests.network_corridor import DURATION, corridor_and_its_embedded_run
+from tests.network_corridor import DICA, DURATION, corridor_and_its_embedded_run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -136,6 +137,33 @@ def test_roadside_units_on_hosts_of_their_own(tmp_path, corridor):
     assert m["clock"] == "realtime" and m["crossed"] > 50
     ages = [v["cluster"]["command_age_ms"]["median"] for v in m["junctions"].values()]
     assert min(ages) > 15  # the delay was really there
+
+
+def test_lockstep_cluster_of_a_gated_grid_makes_the_embedded_decisions(tmp_path):
+    """The test grid's heavy streams, nine ICAs: the network gate closes (a guarded link
+    promised all of its room), and lockstep over Zenoh still equals the embedded run byte
+    for byte, each junction told the room the ones before it this step left."""
+    from tests.test_gridlock import HEAVY
+    from tests.user_nets import build_nets
+
+    net = build_nets(tmp_path)["grid"]
+    routes = tmp_path / "heavy.rou.xml"
+    routes.write_text(HEAVY)
+    scen = ["--net", str(net), "--junctions", "all", "--routes", str(routes), "--duration", "90"]
+    emb = tmp_path / "emb"
+    e = subprocess.run(
+        [*DICA, "run", *scen, "--out", str(emb), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert e.returncode == 0, e.stderr
+    out = tmp_path / "cl"
+    p = _cluster(out, *scen, "--rsus", "3", "--no-record")
+    assert p.returncode == 0, p.stdout + p.stderr
+    for name in ("vehicles.csv", "trips.csv"):
+        assert (out / name).read_bytes() == (emb / name).read_bytes(), name
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    assert m["network_gate"]["peak_share"] >= 0.95 and m["crossed"] > 150
 
 
 def test_a_real_time_cluster_keeps_the_network_gate(tmp_path):
