@@ -6,10 +6,11 @@ every junction and share one :class:`~sim_gateway.gateway.Fleet`, so a vehicle
 keeps its agent from one junction to the next. The routers between them (one per
 roadside unit, in a mesh) are Zenoh's business: nothing here forwards anything.
 
-In lockstep the junctions decide one after another within a step, in the
-embedded runner's order, and the network gate counts what each let in before the
-next one is asked (as :func:`sim_gateway.network.run_network` does with the ICA
-cores in one process): the run equals the embedded one. In real time every
+In lockstep the junctions decide in the embedded runner's order, and the network
+gate counts what each let in before the next one whose vehicles may enter the
+network is asked (as :func:`sim_gateway.network.run_network` does with the ICA
+cores in one process); junctions with no such vehicle this step are asked
+together with the one before: the run equals the embedded one. In real time every
 junction's states go out first and the answers are taken as they come; since no
 junction then knows what the others are letting in, each tells its vehicles
 entering the network the gate's room less every other vehicle asking to enter
@@ -62,17 +63,33 @@ class Cluster:
         """This step's plans from every junction, applied to the world."""
         pairs = list(zip(world.junctions, self.drivers, each, strict=True))
         if self.lockstep:
+            # in the embedded order; a junction whose vehicles may enter the network waits
+            # for the answers of every such junction before it (the room they leave), the
+            # others go out with them: the same decisions, fewer round trips in a row
+            asked: list[tuple] = []
+            entering = False
             for j, d, seen in pairs:
+                enters = world.may_enter_network(seen)
+                if enters and entering:
+                    self._collect(world, asked)
+                    asked, entering = [], False
                 world.refresh_network_room(j, seen)
                 d.send(world.t, seen)
-                world.apply(d.collect(world.t), j)
-                world.counted_confirmed(j)
+                asked.append((j, d))
+                entering = entering or enters
+            self._collect(world, asked)
             return
         pending = world.pending_network_m(each)
         for j, d, seen in pairs:
             world.refresh_network_room(j, seen, pending)
             d.send(world.t, seen)
         for j, d, _ in pairs:
+            world.apply(d.collect(world.t), j)
+            world.counted_confirmed(j)
+
+    @staticmethod
+    def _collect(world: World, asked: list[tuple]) -> None:
+        for j, d in asked:
             world.apply(d.collect(world.t), j)
             world.counted_confirmed(j)
 

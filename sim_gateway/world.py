@@ -266,6 +266,12 @@ class World:
                 others = pending_m - g.pending_m(self.ls, (s.car,)) if pending_m else 0.0
                 s.obs = replace(s.obs, network_room_m=g.room_for(self.ls, s.car) - others)
 
+    def may_enter_network(self, seen: Sequence[Seen]) -> bool:
+        """Whether any of these vehicles' crossings takes it into a network the gate
+        guards (its junction's answers may change the room the next one is told)."""
+        g = self.gate
+        return g is not None and g.closes and any(g.entering(s.car) for s in seen)
+
     def pending_network_m(self, each: Sequence[Sequence[Seen]]) -> float:
         """The queue length of every vehicle now asking to enter the network and not let
         in yet, at every junction: where the junctions' ICAs answer at the same time (the
