@@ -7,7 +7,8 @@ It hears what the gateway publishes, the vehicles in each junction's region
 so it draws those vehicles, coloured by what they are doing, and the paths of
 the plans they hold; a vehicle between two regions, driven by SUMO's driver,
 is not on the wire and not drawn. Like the junctions' observers it is no
-lockstep participant and stops at the run's end on the clock.
+lockstep participant and stops at the run's end on the clock. With
+``live_port`` it also serves the view on 127.0.0.1 as it writes it.
 """
 
 from __future__ import annotations
@@ -50,11 +51,12 @@ class NetworkObserver:
         rrd_path: Path,
         log: logging.Logger,
         name: str = "network",
+        live_port: int | None = None,
     ) -> None:
         self.inters = {x.junction_id: x for x in inters}
         self.log = log
         self.inbox = Inbox()
-        self.draw = TopDrawing(inters, rrd_path)
+        self.draw = TopDrawing(inters, rrd_path, live_port)
         self.draw.geometry(lane_shapes)
         self.ended = False
         self.steps = 0  # moments drawn

@@ -755,6 +755,25 @@ def test_live_recording_serves_on_loopback_and_writes_the_same_file(ch45, tmp_pa
     assert len(_rows(data["/junction/vehicles"], "LineStrips2D:strips")) == 60 // TOP_EVERY
 
 
+def test_the_network_view_serves_live_and_writes_the_same_file(ch45, tmp_path):
+    from dica.sim_gateway.recording.network_view import TopDrawing
+
+    port = _free_port()
+    top = TopDrawing([ch45], tmp_path / "network.rrd", live_port=port)
+    top.geometry([r.points(np.linspace(0.0, r.cross_length_m, 8)) for r in ch45.routes])
+    assert _port_open(port)
+    for k in range(10):
+        top.moment(k * 0.5, np.array([[0.0, 0.0]]), np.array([90.0]), np.array([5.0]),
+                   np.array([1.8]), [(0, 0, 0, 255)], [], [])  # fmt: skip
+    top.close()
+    deadline = time.monotonic() + 5
+    while _port_open(port) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert not _port_open(port)
+    data = _read(tmp_path / "network.rrd")
+    assert len(_rows(data["/network/vehicles"], "LineStrips2D:strips")) == 10
+
+
 # -- dica view ---------------------------------------------------------------------
 @pytest.mark.parametrize("case", ["missing", "empty", "not_rrd", "live_nothing", "none"])
 def test_view_without_a_recording_is_one_line_and_status_2(case, tmp_path, capsys):

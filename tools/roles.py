@@ -422,19 +422,21 @@ def _network_observer(args: argparse.Namespace) -> int:
 
     if not args.net:
         raise UsageError("--junctions needs --net")
-    if args.live:
-        raise UsageError("--live records one junction: leave out --junctions")
     ids = chosen_junctions(args.net, args.junctions)
     inters = [intersection(argparse.Namespace(**{**vars(args), "junction": j})) for j in ids]
     shapes = lane_shapes(args.net, route_lanes(inters))
+    live = args.grpc_port if args.live else None
     session, log = _session(args, "observer")
     try:
-        obs = NetworkObserver(session, inters, shapes, args.rrd, log)
+        obs = NetworkObserver(session, inters, shapes, args.rrd, log, live_port=live)
     except (OSError, RuntimeError) as e:
         session.close()
-        raise UsageError(f"cannot write {args.rrd}: {e}") from None
+        what = f"port {live} on 127.0.0.1" if live else args.rrd
+        raise UsageError(f"cannot write {what}: {e}") from None
     obs.inbox.stop_on_signals()
     log.info("recording the network of %s from above into %s", ",".join(ids), args.rrd)
+    if live:
+        log.info("live on rerun+http://127.0.0.1:%d/proxy (watch: dica view --live)", live)
     try:
         obs.run()
     finally:

@@ -70,7 +70,8 @@ scenario and roles:
   --speed F             realtime clock speed factor (default 1)
   --no-record           no Rerun observer and no .rrd
   --live                the observer also serves the recording on 127.0.0.1:9876
-                        as it is made; watch with: .venv/bin/dica view --live [--web]
+                        as it is made (a network: its view from above); watch with:
+                        .venv/bin/dica view --live [--web]
   --secure              TLS, log-ins and per-role access rules on the router, and every
                         message sealed by its writer, with fresh secrets in RUN_DIR/zenoh/
                         (see dica secure-config --help)
@@ -252,7 +253,6 @@ try:
 except (UsageError, NetworkError) as e:
     sys.exit(f'run_cluster: {e}')
 print(' '.join(ids))" "$net" "$junctions") || exit 2
-  [ "${#live[@]}" = 0 ] || die "--live records one junction; a network's observers write .rrd files"
   if [ -z "$rsus" ]; then rsus=${#ids[@]}; [ "$secure" = 1 ] && rsus=1; fi
   [[ "$rsus" =~ ^[0-9]+$ ]] && [ "$rsus" -ge 1 ] && [ "$rsus" -le "${#ids[@]}" ] ||
     die "--rsus wants 1 to ${#ids[@]} (the junctions), got '$rsus'"
@@ -478,8 +478,9 @@ if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal 
     if [ "$record" = 1 ]; then  # spacetime.rrd for the first, spacetime-J.rrd beside it
       rrd="$out/spacetime-$j.rrd"; [ "$first" = 1 ] && rrd="$out/spacetime.rrd"
       link_for "observer-$j" observer
+      one=(); [ "${#ids[@]}" = 1 ] && one=("${live[@]}")  # several: the top view is live
       start "observer-$j" "${in_ns[@]}" "$dica" observer --net "$net" --junction "$j" --rrd "$rrd" \
-        --time-pad "$time_pad" "${role_link[@]}"
+        --time-pad "$time_pad" "${one[@]}" "${role_link[@]}"
     fi
     first=0
   done
@@ -487,7 +488,7 @@ if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal 
     link_for observer-network observer
     in_ns_of "$(host_ns 1)"
     start observer-network "${in_ns[@]}" "$dica" observer --rrd "$out/network.rrd" --net "$net" \
-      --junctions "$(IFS=,; echo "${ids[*]}")" "${role_link[@]}"
+      --junctions "$(IFS=,; echo "${ids[*]}")" "${live[@]}" "${role_link[@]}"
   fi
 else
   link_for ica ica

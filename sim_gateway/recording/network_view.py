@@ -39,14 +39,21 @@ SUMO_RGBA = rgba((150, 150, 150))  # a vehicle SUMO's driver has (between the re
 class TopDrawing:
     """The top view's Rerun stream, written to ``path`` as the run goes."""
 
-    def __init__(self, inters: Sequence[Intersection], path: Path) -> None:
+    def __init__(
+        self, inters: Sequence[Intersection], path: Path, live_port: int | None = None
+    ) -> None:
+        """``live_port``: also serve the view over gRPC on 127.0.0.1 at that port while
+        it is written (``dica view --live``)."""
         self.inters = list(inters)
         self.path = Path(path)
         self.rec = rr.RecordingStream("dica network")
         self.rec.set_log_time_enabled(False)
         self.path.parent.mkdir(parents=True, exist_ok=True)
         view = rrb.Spatial2DView(origin="network", name="network: every junction, from above")
-        self.rec.set_sinks(rr.FileSink(str(self.path)), default_blueprint=rrb.Blueprint(view))
+        sinks: list = [rr.FileSink(str(self.path))]
+        if live_port is not None:
+            sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=live_port))
+        self.rec.set_sinks(*sinks, default_blueprint=rrb.Blueprint(view))
 
     def geometry(self, lane_shapes: Sequence[np.ndarray]) -> None:
         """Static: the lanes (SUMO's shapes, world frame), each junction's area and name."""
