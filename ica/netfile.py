@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import sumolib
 
+from dica.ica.core.crosswalk import Crosswalk
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import SpeedCaps, Turn
 from dica.ica.core.route import Route, build_route, classify_turn
@@ -85,7 +86,25 @@ def load_intersection(
         routes=tuple(routes),
         region=_region(node, routes),
         comm_length_m=comm_length_m,
+        crosswalks=_crosswalks(net, junction_id),
     )
+
+
+def _crosswalks(net: sumolib.net.Net, junction_id: str) -> tuple[Crosswalk, ...]:
+    """The junction's pedestrian crossings: SUMO's crossing edges ``:<junction>_c<k>``,
+    each one lane with a centre line and a width."""
+    out = []
+    prefix = f":{junction_id}_"
+    for e in net.getEdges(withInternal=True):
+        if e.getFunction() != "crossing" or not e.getID().startswith(prefix):
+            continue
+        lane = e.getLanes()[0]
+        crossed = tuple(getattr(x, "getID", lambda x=x: str(x))() for x in e.getCrossingEdges())
+        try:
+            out.append(Crosswalk(e.getID(), _xy(lane.getShape()), float(lane.getWidth()), crossed))
+        except ValueError as exc:
+            raise NetworkError(f"bad geometry for crossing {e.getID()}: {exc}") from exc
+    return tuple(sorted(out, key=lambda c: c.id))
 
 
 def crossing_junctions(net_path: str | Path) -> tuple[str, ...]:

@@ -46,11 +46,13 @@ def cmd_scenario(args: argparse.Namespace) -> int:
 
 # -- geometry -------------------------------------------------------------------
 def cmd_geometry(args: argparse.Namespace) -> int:
+    from dica.ica.core.crosswalk import spans
     from dica.ica.core.zones import ConflictTables, Shape
 
     inter = intersection(args)
     tables = ConflictTables(inter, margin_m=args.margin)
     shape = Shape.of(5.0, 1.8)
+    over = spans(inter.routes, inter.crosswalks, shape.length_m, shape.width_m, args.margin)
     rows = []
     for r in inter.routes:
         conflicting = [
@@ -64,18 +66,45 @@ def cmd_geometry(args: argparse.Namespace) -> int:
                 "speed_cap_kmh": round(r.speed_cap_mps * 3.6, 1),
                 "conflicts_with": len(conflicting),
                 "compatible_with": len(inter.routes) - 1 - len(conflicting),
+                # the crossings it passes over: the front positions over which a car touches
+                "crossings": [
+                    {"crossing": c, "s_from_m": round(a, 2), "s_to_m": round(b, 2)}
+                    for c, a, b in over[r.id]
+                ],
             }
         )
+    walks = [
+        {"crossing": c.id, "length_m": round(c.length_m, 2), "width_m": round(c.width_m, 2),
+         "crosses": list(c.crosses)}
+        for c in inter.crosswalks
+    ]  # fmt: skip
     if args.json:
-        print(json.dumps({"junction": inter.junction_id, "routes": rows}, indent=2))
+        doc = {"junction": inter.junction_id, "routes": rows, "crossings": walks}
+        print(json.dumps(doc, indent=2))
         return 0
-    print(f"junction {inter.junction_id}: {len(rows)} routes, region {inter.comm_length_m} m")
-    head = ("route", "turn", "length m", "cap km/h", "conflicts", "compatible")
-    print(f"{head[0]:<24} {head[1]:<8} {head[2]:>9} {head[3]:>9} {head[4]:>9} {head[5]:>10}")
+    print(
+        f"junction {inter.junction_id}: {len(rows)} routes, region {inter.comm_length_m} m, "
+        f"{len(walks)} pedestrian crossings"
+    )
+    head = ("route", "turn", "length m", "cap km/h", "conflicts", "compatible", "crossings")
+    print(
+        f"{head[0]:<24} {head[1]:<8} {head[2]:>9} {head[3]:>9} {head[4]:>9} {head[5]:>10}  "
+        f"{head[6]}"
+    )
     for row in rows:
+        passes = ", ".join(
+            f"{x['crossing']} ({x['s_from_m']:.1f} to {x['s_to_m']:.1f} m)"
+            for x in row["crossings"]
+        )
         print(
             f"{row['route']:<24} {row['turn']:<8} {row['cross_length_m']:>9.2f} "
             f"{row['speed_cap_kmh']:>9.1f} {row['conflicts_with']:>9} {row['compatible_with']:>10}"
+            f"  {passes or '-'}"
+        )
+    for w in walks:
+        print(
+            f"crossing {w['crossing']}: {w['length_m']:.1f} m across, {w['width_m']:.1f} m wide, "
+            f"over {' and '.join(w['crosses']) or 'no road named'}"
         )
     return 0
 
@@ -302,7 +331,9 @@ def parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     sc.set_defaults(func=cmd_scenario)
 
-    g = sub.add_parser("geometry", help="routes, turn classes and conflicts of a junction")
+    g = sub.add_parser(
+        "geometry", help="routes, turn classes, conflicts and pedestrian crossings of a junction"
+    )
     options.add(g, *options.NET, "--margin", "--json")
     g.set_defaults(func=cmd_geometry)
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from dica.ica.core.crosswalk import Crosswalk
 from dica.ica.core.route import Route
 
 
@@ -17,12 +18,14 @@ class Intersection:
     ``comm_length_m`` is the length of the communication region: its entry
     line lies that far upstream of every entry line (50 m in the dissertation).
     ``region`` (K, 2) is the junction's area polygon as SUMO draws it.
+    ``crosswalks`` are its pedestrian crossings (none where the net has none).
     """
 
     junction_id: str
     routes: tuple[Route, ...]
     region: np.ndarray
     comm_length_m: float = 50.0
+    crosswalks: tuple[Crosswalk, ...] = ()
     _by_lanes: Mapping[tuple[str, str], Route] = field(init=False, repr=False)
     _by_id: Mapping[str, Route] = field(init=False, repr=False)
     _in_lanes: tuple[str, ...] = field(init=False, repr=False)

@@ -129,3 +129,14 @@ def across(route: Route, s: float) -> np.ndarray:
 def route_lanes(inter: Intersection) -> np.ndarray:
     """Per route (in ``inter.routes`` order), the index of its lane in ``inter.in_lanes``."""
     return np.array([inter.in_lanes.index(r.in_lane) for r in inter.routes])
+
+
+def crossing_outlines(inter: Intersection) -> list[np.ndarray]:
+    """Closed outlines (5, 2), viewer frame, of every strip of the junction's pedestrian
+    crossings (one per segment of a crossing's centre line)."""
+    out = []
+    for c in inter.crosswalks:
+        for strip in c.strips():
+            corners = strip.corners()[0]
+            out.append(np.vstack([corners, corners[:1]]) * FLIP_Y)
+    return out

@@ -23,8 +23,14 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from dica.ica.core.intersection import Intersection
-from dica.sim_gateway.recording.geometry import FLIP_Y, outlines, sumo_heading_rad
+from dica.sim_gateway.recording.geometry import (
+    FLIP_Y,
+    crossing_outlines,
+    outlines,
+    sumo_heading_rad,
+)
 from dica.sim_gateway.recording.style import (
+    CROSSING_RGB,
     LANE_EDGE_RGB,
     REGION_RGB,
     STATUS_RGBA,
@@ -63,6 +69,13 @@ class TopDrawing:
         areas = [np.vstack([x.region, x.region[:1]]) * FLIP_Y for x in self.inters]
         self.rec.log("network/junctions", rr.LineStrips2D(areas, colors=REGION_RGB, radii=0.3),
                      static=True)  # fmt: skip
+        walks = [w for x in self.inters for w in crossing_outlines(x)]
+        if walks:
+            self.rec.log(
+                "network/crossings",
+                rr.LineStrips2D(walks, colors=CROSSING_RGB, radii=0.15),
+                static=True,
+            )
         centres = np.array([np.asarray(x.region).mean(axis=0) for x in self.inters]) * FLIP_Y
         self.rec.log(
             "network/names",

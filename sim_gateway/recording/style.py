@@ -25,6 +25,7 @@ LANE_EDGE_RGB: RGB = (170, 170, 170)
 ROUTE_RGB: RGB = (205, 205, 205)  # routes through the junction
 ENTRY_RGB: RGB = (30, 30, 30)  # entry and exit lines
 REGION_START_RGB: RGB = (150, 60, 150)  # where the communication region starts
+CROSSING_RGB: RGB = (200, 160, 40)  # pedestrian crossings
 TEXT_RGB: RGB = (60, 60, 60)  # names and legends
 FRAME_RGB: RGB = (120, 120, 120)  # chart axis labels
 GRID_RGB: RGB = (185, 185, 185)  # time ticks

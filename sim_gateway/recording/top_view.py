@@ -22,12 +22,14 @@ from dica.sim_gateway.recording.geometry import (
     LANE_WIDTH_M,
     across,
     clipped,
+    crossing_outlines,
     offset,
     outlines,
     route_lanes,
 )
 from dica.sim_gateway.recording.rows import RowBuffer
 from dica.sim_gateway.recording.style import (
+    CROSSING_RGB,
     ENTRY_RGB,
     LANE_EDGE_RGB,
     REGION_RGB,
@@ -108,7 +110,8 @@ class TopView:
         self._label_at = LabelPlaces(inter)
 
     def geometry(self, rec: rr.RecordingStream) -> None:
-        """Static: the junction, lane edges, entry and region start lines, routes, legend."""
+        """Static: the junction, lane edges, entry and region start lines, routes, the
+        pedestrian crossings (where the net has them), legend."""
         inter = self.intersection
         comm = inter.comm_length_m
         region = np.asarray(inter.region, dtype=float)
@@ -163,6 +166,15 @@ class TopView:
             ),
             static=True,
         )
+        walks = crossing_outlines(inter)
+        if walks:
+            names = [c.id for c in inter.crosswalks for _ in c.strips()]
+            rec.log(
+                "junction/crossings",
+                rr.LineStrips2D(walks, radii=0.12, colors=[CROSSING_RGB], labels=names,
+                                show_labels=False, draw_order=0.8),
+                static=True,
+            )  # fmt: skip
         self._legend(rec)
 
     def _legend(self, rec: rr.RecordingStream) -> None:

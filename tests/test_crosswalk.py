@@ -1,0 +1,127 @@
+"""Pedestrian crossings in the junction's geometry: read from any net that has them, each
+a strip that a vehicle on a route touches over one span of front positions."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dica.ica.core.crosswalk import Crosswalk, span, spans
+from dica.ica.core.limits import SpeedCaps, Turn
+from dica.ica.core.route import build_route
+from dica.ica.netfile import load_intersection
+from tests.user_nets import make, tool
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _straight() -> object:
+    """West to east along y = 0: the entry line at x = 0, the exit line at x = 20."""
+    return build_route(
+        route_id="w>e", in_lane="w_0", out_lane="e_0", via_lanes=(),
+        in_shape=np.array([[-100.0, 0.0], [0.0, 0.0]]), via_shapes=[],
+        out_shape=np.array([[20.0, 0.0], [120.0, 0.0]]), turn=Turn.THROUGH,
+        caps=SpeedCaps(), approach_m=60.0, tail_m=20.0,
+    )  # fmt: skip
+
+
+def test_a_car_holds_a_crossing_from_its_front_in_to_its_rear_out():
+    # a 4 m strip across the road at x = 10: a 5 m car touches it from front at 8 to rear
+    # at 12, front at 17
+    walk = Crosswalk("c", np.array([[10.0, -6.0], [10.0, 6.0]]), 4.0)
+    a, b = span(_straight(), walk, 5.0, 1.8)
+    assert 7.7 <= a <= 8.0 and 17.0 <= b <= 17.3
+    # grown by a margin: longer on both sides
+    a2, b2 = span(_straight(), walk, 5.0, 1.8, margin_m=0.5)
+    assert a2 == pytest.approx(a - 0.5, abs=0.11) and b2 == pytest.approx(b + 0.5, abs=0.11)
+    assert walk.length_m == pytest.approx(12.0)
+
+
+def test_a_crossing_off_the_route_is_never_touched():
+    walk = Crosswalk("far", np.array([[10.0, 8.0], [10.0, 20.0]]), 4.0)  # beside the road
+    assert span(_straight(), walk, 5.0, 1.8) is None
+    assert spans((_straight(),), (walk,), 5.0, 1.8) == {"w>e": []}
+
+
+def test_a_bent_crossing_is_one_strip_per_segment():
+    walk = Crosswalk("bent", np.array([[0.0, 0.0], [5.0, 0.0], [5.0, 0.0], [5.0, 5.0]]), 3.0)
+    strips = walk.strips()
+    assert len(strips) == 2  # the segment of no length is left out
+    assert walk.length_m == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize(
+    "shape, width",
+    [(np.array([[0.0, 0.0]]), 4.0), (np.array([[0.0, 0.0], [1.0, 0.0]]), 0.0),
+     (np.array([[0.0, np.nan], [1.0, 0.0]]), 4.0)],
+)  # fmt: skip
+def test_a_crossing_needs_a_centre_line_and_a_width(shape, width):
+    with pytest.raises(ValueError, match="crossing x"):
+        Crosswalk("x", shape, width)
+
+
+@pytest.fixture(scope="module")
+def walk_net(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 3x3 grid of 2-lane streets, 100 m blocks, with sidewalks and crossings guessed."""
+    out = tmp_path_factory.mktemp("crosswalk") / "xwalk.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "100",
+          "--default.lanenumber", "2", "--sidewalks.guess", "true",
+          "--crossings.guess", "true", "--no-turnarounds", "true", "-o", str(out)])  # fmt: skip
+    return out
+
+
+def test_a_nets_crossings_are_read_and_every_route_passes_two(walk_net):
+    x = load_intersection(walk_net, "B1")
+    assert [c.id for c in x.crosswalks] == [":B1_c0", ":B1_c1", ":B1_c2", ":B1_c3"]
+    for c in x.crosswalks:
+        assert c.width_m == pytest.approx(4.0) and 10.0 < c.length_m < 15.0
+        assert len(c.crosses) == 2  # the arm's road in and its road out
+    over = spans(x.routes, x.crosswalks, 5.0, 1.8, 0.25)
+    for r in x.routes:
+        first, last = over[r.id]  # the crossing on its arm in, then the one on its arm out
+        assert first[0] != last[0]
+        assert -0.5 < first[1] < 0.5  # just past the entry line
+        assert last[2] > r.cross_length_m  # the rear clears it after the exit line
+        arm_in = r.in_lane.rsplit("_", 1)[0]
+        assert arm_in in next(c for c in x.crosswalks if c.id == first[0]).crosses
+
+
+def test_a_net_without_crossings_has_none(tmp_path):
+    from tests.user_nets import build_nets
+
+    assert load_intersection(build_nets(tmp_path)["grid"], "B1").crosswalks == ()
+
+
+def test_geometry_lists_the_crossings(walk_net):
+    p = subprocess.run(
+        [sys.executable, "-m", "dica.tools.cli", "geometry", "--net", str(walk_net),
+         "--junction", "B1", "--json"],
+        capture_output=True, text=True, cwd=ROOT, timeout=60,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    doc = json.loads(p.stdout)
+    assert len(doc["crossings"]) == 4
+    assert all(len(r["crossings"]) == 2 for r in doc["routes"])
+
+
+def test_the_recording_draws_the_crossings(walk_net, tmp_path):
+    from dica.sim_gateway.recording import SpaceTimeRecorder
+    from dica.sim_gateway.recording.network_view import TopDrawing
+    from tests.test_recording import _read, _static
+
+    x = load_intersection(walk_net, "B1")
+    rec = SpaceTimeRecorder(x, tmp_path / "b1.rrd")
+    rec.geometry()
+    rec.close()
+    strips = _static(_read(tmp_path / "b1.rrd")["/junction/crossings"], "LineStrips2D:strips")
+    assert len(strips) == 4 and all(len(s) == 5 for s in strips)  # closed rectangles
+    top = TopDrawing([x, load_intersection(walk_net, "A1")], tmp_path / "network.rrd")
+    top.geometry([])
+    top.close()
+    strips = _static(_read(tmp_path / "network.rrd")["/network/crossings"], "LineStrips2D:strips")
+    assert len(strips) == 4 + 3  # A1, on the grid's edge, has three arms
