@@ -4,6 +4,7 @@ a strip that a vehicle on a route touches over one span of front positions."""
 from __future__ import annotations
 
 import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -125,3 +126,85 @@ def test_the_recording_draws_the_crossings(walk_net, tmp_path):
     top.close()
     strips = _static(_read(tmp_path / "network.rrd")["/network/crossings"], "LineStrips2D:strips")
     assert len(strips) == 4 + 3  # A1, on the grid's edge, has three arms
+
+
+# -- walkers and vehicles ------------------------------------------------------------
+def _car(ica, route, vin: str, t0: float, d: float = 30.0, speed: float = 10.0):
+    from dica.ica.core.proposal import propose
+    from dica.ica.core.request import Confirmation
+
+    ica.detect(vin, route.in_lane, t0)
+    out = ica.handle(
+        propose(route, vin=vin, seq=0, t0_s=t0, dist_to_entry_m=d, speed_mps=speed,
+                config=ica.config),
+        t0,
+    )  # fmt: skip
+    assert isinstance(out, Confirmation), out
+    return out
+
+
+def _holds(ica, vin: str, crossing: str) -> tuple[float, float]:
+    from dica.ica.core.walk import hold
+
+    c = ica.confirmed[vin]
+    (a, b) = next((a, b) for cid, a, b in ica.crossing_spans(c.dtot.route, c.dtot.shape)
+                  if cid == crossing)  # fmt: skip
+    return hold(c.dtot.trajectory, a, b, c.out_mps)
+
+
+def test_a_walker_crosses_once_the_confirmed_vehicles_are_clear(walk_net):
+    from dica.ica.core.dica import Dica
+
+    x = load_intersection(walk_net, "B1")
+    ica = Dica(x)
+    through = x.route("A1B1_1", "B1C1_1")  # west to east: crosses c3 (its arm in), then c1
+    _car(ica, through, "car", 0.0)
+    t_in, t_out = _holds(ica, "car", ":B1_c3")
+    assert 0.0 < t_in < t_out
+    slot = ica.walk("amy", ":B1_c3", 0.0, 0.0)  # at the kerb as the car comes
+    assert slot.start_s >= t_out + ica.walks.gap_s - 1e-9  # after the car, not before it:
+    assert t_in < ica.walks.walk_s(":B1_c3") + ica.walks.gap_s  # no room before it
+    assert slot.end_s - slot.start_s == pytest.approx(12.8 / 1.0 + 2.0)
+    # a crossing no vehicle holds: at once
+    assert ica.walk("bob", ":B1_c0", 1.0, 1.0).start_s == 1.0
+
+
+@pytest.mark.parametrize("compiled", [True, False])  # the compiled rounds, the Python loop
+def test_a_vehicle_waits_for_the_walkers_on_its_way(walk_net, compiled, monkeypatch):
+    from dica.ica.core.dica import Dica
+
+    monkeypatch.setattr(Dica, "compiled_loop", compiled)
+    x = load_intersection(walk_net, "B1")
+    free = Dica(x)
+    through = x.route("A1B1_1", "B1C1_1")
+    alone = _car(free, through, "car", 0.0)
+    ica = Dica(x)
+    slot = ica.walk("amy", ":B1_c1", 0.0, 0.0)  # the crossing on its way out
+    held = _car(ica, through, "car", 0.0)
+    assert held.entry_time_s > alone.entry_time_s  # it waits
+    t_in, _ = _holds(ica, "car", ":B1_c1")
+    assert t_in >= slot.end_s + ica.walks.gap_s - ica.config.step_s - 1e-9
+    # a route that passes neither walker's crossing does not wait
+    other = x.route("B0B1_1", "B1C1_1")  # north, turning right: c2 then c1
+    assert {cid for cid, _, _ in ica.crossing_spans(other, ica.confirmed["car"].dtot.shape)} \
+        == {":B1_c2", ":B1_c1"}  # fmt: skip
+    right = x.route("B2B1_1", "B1A1_1")  # south turning right: c0 then c3, none held
+    ica2 = Dica(x)
+    ica2.walk("amy", ":B1_c1", 0.0, 0.0)
+    base = Dica(x)
+    assert _car(ica2, right, "r", 0.0).entry_time_s == _car(base, right, "r", 0.0).entry_time_s
+
+
+def test_walkers_are_forgotten_once_across_and_bad_asks_refused(walk_net):
+    from dica.ica.core.dica import Dica
+    from dica.ica.core.request import RequestError
+
+    x = load_intersection(walk_net, "B1")
+    ica = Dica(x)
+    slot = ica.walk("amy", ":B1_c1", 0.0, 0.0)
+    ica.advance(slot.end_s + 0.1)
+    assert ica.walks.slots[":B1_c1"] == []
+    with pytest.raises(RequestError, match="no crossing"):
+        ica.walk("amy", ":A0_c0", 0.0, 0.0)
+    with pytest.raises(RequestError, match="not finite"):
+        ica.walk("amy", ":B1_c1", math.nan, 0.0)

@@ -56,6 +56,7 @@ from dica.ica.core.route import Route
 from dica.ica.core.search import Found, Search, plan_entry
 from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.validate import check_request
+from dica.ica.core.walk import WalkSlot, Walkways, hold
 from dica.ica.core.zones import ConflictTables, Shape
 
 LEFT_MEMORY_S = 20.0  # [s] how long exit spacing remembers a vehicle that has left
@@ -137,6 +138,10 @@ class Dica:
         self._gone: list[tuple[float, str, float, str]] = []
         # vehicles let into a network of junctions lately: (confirmed [s], length)
         self._entries: list[tuple[float, float]] = []
+        # people crossing: the walkers' reservations of the crossings (None: there are
+        # none), and per route and shape the crossings it passes (ica.core.crosswalk)
+        self.walks = Walkways(intersection.crosswalks) if intersection.crosswalks else None
+        self._walk_spans: dict[tuple[str, Shape], list[tuple[str, float, float]]] = {}
 
     def prepare(self) -> None:
         """Work a controller can do once before it serves, so that no request waits
@@ -186,6 +191,8 @@ class Dica:
         for vin in gone:  # the room they take counts for requests observed before they left
             c = self._confirmed[vin]
             self._gone.append((c.out_s, c.dtot.route.out_lane, c.length_m, vin))
+        if self.walks is not None:
+            self.walks.advance(now_s)
         oldest = now_s - self.config.max_request_age_s - 1.0  # the oldest t_obs still taken
         self._gone = [g for g in self._gone if g[0] > oldest]
         self._entries = [e for e in self._entries if e[0] > oldest]
@@ -462,6 +469,56 @@ class Dica:
                 f"the network of junctions has {max(room, 0.0):.1f} m of room, {need:.1f} m "
                 f"needed ({taken:.1f} m taken by vehicles let in since)",
             )
+
+    # -- people crossing --------------------------------------------------------------
+    def crossing_spans(self, route: Route, shape: Shape) -> list[tuple[str, float, float]]:
+        """The crossings ``route`` passes, with the front positions over which a vehicle
+        of ``shape`` (grown by the margin) holds each, worked out once."""
+        key = (route.id, shape)
+        got = self._walk_spans.get(key)
+        if got is None:
+            from dica.ica.core.crosswalk import spans
+
+            got = spans(
+                (route,), self.intersection.crosswalks, shape.length_m, shape.width_m,
+                self.config.margin_m,
+            )[route.id]  # fmt: skip
+            self._walk_spans[key] = got
+        return got
+
+    def walk(self, person: str, crossing: str, ready_s: float, now_s: float) -> WalkSlot:
+        """A walker at the kerb of ``crossing`` from ``ready_s`` asks to cross: the slot
+        it is given, the first clear of every confirmed vehicle, held from then on."""
+        if self.walks is None or crossing not in self.walks.crosswalks:
+            raise RequestError(Reason.BAD_STATE, f"{crossing!r} is no crossing of this junction")
+        if not (math.isfinite(ready_s) and math.isfinite(now_s)):
+            raise RequestError(Reason.NOT_FINITE, f"times of {person}'s request are not finite")
+        pad = 2.0 * self.config.time_pad_s
+        busy = []
+        for c in self._confirmed.values():
+            for cid, a, b in self.crossing_spans(c.dtot.route, c.dtot.shape):
+                if cid == crossing:
+                    t_in, t_out = hold(c.dtot.trajectory, a, b, c.out_mps)
+                    busy.append((t_in - pad, t_out + pad))
+        start = self.walks.earliest(crossing, max(ready_s, now_s), busy)
+        return self.walks.reserve(person, crossing, start)
+
+    def walk_conflict(
+        self, route: Route, shape: Shape, traj: Trajectory, exit_mps: float
+    ) -> Conflict | None:
+        """A plan on ``route`` that would hold a crossing while a walker has it: the
+        conflict that delays it the most (until the walker is across), or None."""
+        walks = self.walks
+        if walks is None or not any(walks.slots.values()):
+            return None
+        pad = 2.0 * self.config.time_pad_s
+        worst: Conflict | None = None
+        for cid, a, b in self.crossing_spans(route, shape):
+            t_in, t_out = hold(traj, a, b, exit_mps)
+            d = walks.delay(cid, t_in - pad, t_out + pad)
+            if d > 0.0 and (worst is None or d > worst.delay_s):
+                worst = Conflict(f"walkers on {cid}", t_in, d)
+        return worst
 
     def exit_order(self, route: Route, out_s: float, out_mps: float) -> Conflict | None:
         """checkFV beyond the junction: a plan may not leave by an exit lane ahead of a

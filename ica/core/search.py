@@ -292,7 +292,7 @@ class Search:
                 elif found is None:
                     break
                 else:
-                    late = self._exit_conflict(found.out_s, found.out_mps)
+                    late = self._exit_conflict(found.traj, found.out_s, found.out_mps)
                     if late is None:
                         return found
                     target = found.traj.entry_time_s() - req.t0_s + max(late.delay_s, cfg.step_s)
@@ -340,7 +340,7 @@ class Search:
                     conflicts.append(Conflict(leader.vin, *found))
                     conflicts.sort(key=lambda c: c.first_time_s)
             out_s, out_mps = float(dtot.t_s[-1]), dtot.exit_speed_mps
-            late = self._exit_conflict(out_s, out_mps)
+            late = self._exit_conflict(traj, out_s, out_mps)
             if late is not None:
                 conflicts.append(late)
                 conflicts.sort(key=lambda c: c.first_time_s)
@@ -405,14 +405,19 @@ class Search:
         out_s, out_mps = _exit_of(final, arrays)
         return Found(final, out_s, out_mps, iteration, req.t0_s + earliest, arrays=arrays)
 
-    def _exit_conflict(self, out_s: float, out_mps: float) -> Conflict | None:
-        """The exit rules (:meth:`Dica.exit_order`, with exit spacing
-        :meth:`Dica.exit_spacing`): the conflict that delays a plan leaving at
-        ``out_s`` at ``out_mps`` the most, or None."""
+    def _exit_conflict(self, traj: Trajectory, out_s: float, out_mps: float) -> Conflict | None:
+        """The rules the conflict search does not see: the exit rules
+        (:meth:`Dica.exit_order`, with exit spacing :meth:`Dica.exit_spacing`) of a
+        plan leaving at ``out_s`` at ``out_mps``, and the walkers on the crossings it
+        passes (:meth:`Dica.walk_conflict`): the conflict that delays ``traj`` the most,
+        or None."""
         ica = self.ica
         late = ica.exit_order(self.route, out_s, out_mps)
         if ica.config.exit_spacing:
             gap = ica.exit_spacing(self.route, out_s, out_mps, self.shape.length_m)
             if gap is not None and (late is None or gap.delay_s > late.delay_s):
                 late = gap
+        walk = ica.walk_conflict(self.route, self.shape, traj, out_mps)
+        if walk is not None and (late is None or walk.delay_s > late.delay_s):
+            late = walk
         return late
