@@ -22,8 +22,9 @@ import numpy as np
 from dica.deploy.transport import Inbox, Item
 from dica.ica.core.intersection import Intersection
 from dica.schemas import keys
-from dica.schemas.codec import DecodeError, decode
+from dica.schemas.codec import decode
 from dica.schemas.messages import Clock, Response, State, VehicleState
+from dica.sim_gateway.observer import listen
 from dica.sim_gateway.recording.network_view import EVERY_S, SUMO_RGBA, TopDrawing
 from dica.sim_gateway.recording.style import STATUS_RGBA, Status
 
@@ -83,16 +84,7 @@ class NetworkObserver:
         ]
 
     def run(self) -> None:
-        while not self.inbox.stopping.is_set():
-            item = self.inbox.get(timeout=0.2)
-            if item is None:
-                if self.ended:
-                    break  # the end is announced and nothing more is queued
-                continue
-            try:
-                self._on(item)
-            except DecodeError as e:
-                self.log.warning("dropped a bad %s message: %s", item.what, e)
+        listen(self.inbox, self._on, lambda: self.ended, self.log)
 
     def close(self) -> None:
         self._emit()

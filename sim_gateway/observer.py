@@ -47,6 +47,24 @@ from dica.schemas.messages import (
 from dica.sim_gateway.recording import SpaceTimeRecorder
 
 
+def listen(inbox: Inbox, on, ended, log: logging.Logger) -> None:
+    """An observer's loop: each message to ``on`` until a signal, or ``ended()`` and
+    nothing more queued. A bad message, or one the recording cannot draw, is logged
+    and dropped."""
+    while not inbox.stopping.is_set():
+        item = inbox.get(timeout=0.2)
+        if item is None:
+            if ended():
+                break  # the end is announced and nothing more is queued
+            continue
+        try:
+            on(item)
+        except DecodeError as e:
+            log.warning("dropped a bad %s message: %s", item.what, e)
+        except ValueError as e:  # the recorder refuses what it cannot draw
+            log.warning("not recorded (%s): %s", item.what, e)
+
+
 @dataclass(slots=True)
 class _Revoked:
     """A revoked plan followed until its fate is drawn."""
@@ -107,18 +125,7 @@ class Observer:
         self._token = session.liveliness().declare_token(keys.observer_alive(j, name))
 
     def run(self) -> None:
-        while not self.inbox.stopping.is_set():
-            item = self.inbox.get(timeout=0.2)
-            if item is None:
-                if self.ended:
-                    break  # the end is announced and nothing more is queued
-                continue
-            try:
-                self._on(item)
-            except DecodeError as e:
-                self.log.warning("dropped a bad %s message: %s", item.what, e)
-            except ValueError as e:  # the recorder refuses what it cannot draw
-                self.log.warning("not recorded (%s): %s", item.what, e)
+        listen(self.inbox, self._on, lambda: self.ended, self.log)
 
     def close(self) -> None:
         self._emit()

@@ -14,6 +14,7 @@ import dataclasses
 import json
 import time
 from pathlib import Path
+from typing import NoReturn
 
 from dica.tools import options
 from dica.tools.args import (
@@ -394,11 +395,25 @@ def cmd_observer(args: argparse.Namespace) -> int:
             live_port=live,
         )
     except (OSError, RuntimeError) as e:
-        session.close()
-        what = f"port {live} on 127.0.0.1" if live else args.rrd
-        raise UsageError(f"cannot write {what}: {e}") from None
+        _cannot_record(session, args, live, e)
+    _record(obs, session, log, live, f"recording junction {inter.junction_id} into {args.rrd}")
+    log.info(
+        "wrote %s: %d steps, %d confirmations, %d reorderings, %d plans withdrawn",
+        args.rrd, obs.steps, obs.confirmations, obs.reorders, obs.withdrawn,
+    )  # fmt: skip
+    return 0
+
+
+def _cannot_record(session, args: argparse.Namespace, live: int | None, e: Exception) -> NoReturn:
+    session.close()
+    what = f"port {live} on 127.0.0.1" if live else args.rrd
+    raise UsageError(f"cannot write {what}: {e}") from None
+
+
+def _record(obs, session, log, live: int | None, start: str) -> None:
+    """An observer's run: until the run's end or a signal, then its file closed."""
     obs.inbox.stop_on_signals()
-    log.info("recording junction %s into %s", inter.junction_id, args.rrd)
+    log.info("%s", start)
     if live:
         log.info("live on rerun+http://127.0.0.1:%d/proxy (watch: dica view --live)", live)
     try:
@@ -406,11 +421,6 @@ def cmd_observer(args: argparse.Namespace) -> int:
     finally:
         obs.close()
         session.close()
-        log.info(
-            "wrote %s: %d steps, %d confirmations, %d reorderings, %d plans withdrawn",
-            args.rrd, obs.steps, obs.confirmations, obs.reorders, obs.withdrawn,
-        )  # fmt: skip
-    return 0
 
 
 def _network_observer(args: argparse.Namespace) -> int:
@@ -430,19 +440,10 @@ def _network_observer(args: argparse.Namespace) -> int:
     try:
         obs = NetworkObserver(session, inters, shapes, args.rrd, log, live_port=live)
     except (OSError, RuntimeError) as e:
-        session.close()
-        what = f"port {live} on 127.0.0.1" if live else args.rrd
-        raise UsageError(f"cannot write {what}: {e}") from None
-    obs.inbox.stop_on_signals()
-    log.info("recording the network of %s from above into %s", ",".join(ids), args.rrd)
-    if live:
-        log.info("live on rerun+http://127.0.0.1:%d/proxy (watch: dica view --live)", live)
-    try:
-        obs.run()
-    finally:
-        obs.close()
-        session.close()
-        log.info("wrote %s: %d moments, %d confirmations", args.rrd, obs.steps, obs.confirmations)
+        _cannot_record(session, args, live, e)
+    _record(obs, session, log, live, f"recording the network of {','.join(ids)} from above "
+            f"into {args.rrd}")  # fmt: skip
+    log.info("wrote %s: %d moments, %d confirmations", args.rrd, obs.steps, obs.confirmations)
     return 0
 
 
