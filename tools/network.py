@@ -101,8 +101,9 @@ def parser() -> options.Parser:
                    "cannot lock)")  # fmt: skip
     p.add_argument("--network-gate-rule", choices=("route", "cycle"), default="route",
                    help="with --control dica: route (default: a vehicle let in holds room on "
-                   "every link of its route ahead, no link promised more than its capacity) "
-                   "or cycle (the whole network at most its least cycle's capacity)")  # fmt: skip
+                   "each guarded link of its route ahead, the few links every cycle passes, "
+                   "none promised more than its capacity) or cycle (the whole network at "
+                   "most its least cycle's capacity)")  # fmt: skip
     p.add_argument(
         "--volume",
         type=float,

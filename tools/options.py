@@ -140,9 +140,10 @@ OPTIONS: dict[str, Option] = {
         ),
         Option(
             "--network-gate-rule",
-            "the network gate's bound: route (default: a vehicle let in holds room on every "
-            "link of its route ahead, and no link is promised more than its capacity) or "
-            "cycle (the whole network holds at most its smallest cycle's capacity)",
+            "the network gate's bound: route (default: a vehicle let in holds room on each "
+            "guarded link of its route ahead, the few links every cycle passes, and none is "
+            "promised more than its capacity) or cycle (the whole network holds at most its "
+            "smallest cycle's capacity)",
             choices=("route", "cycle"),
             default="route",
         ),
