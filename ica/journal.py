@@ -10,7 +10,8 @@ serves again: no confirmation after the restart conflicts with one before.
 The file is a stream of msgpack maps. A record cut short by a crash is the
 last one and was never answered, so it is dropped on replay. A DETECT keeps
 what the detector read (an emergency vehicle, its speed): reactive DICA's
-priority rests on it, so a restarted ICA still lets the EV go first. Journals
+priority rests on it, so a restarted ICA still lets the EV go first. A walker's
+slot is kept too: a restarted ICA never confirms a vehicle through it. Journals
 written before the flag existed replay with every vehicle a normal one.
 """
 
@@ -36,6 +37,7 @@ class Replayed:
     detects: int = 0
     confirmations: int = 0
     cancels: int = 0
+    walks: int = 0
     skipped: int = 0  # records the core refused (a geometry that changed, a bad record)
     truncated: bool = False
 
@@ -96,6 +98,11 @@ class Journal:
     def cancel(self, vin: str, seq: int) -> None:
         self._write({"k": "cancel", "vin": vin, "seq": seq})
 
+    def walk(self, person: str, crossing: str, start_s: float) -> None:
+        """A walker's slot: the crossing is theirs from ``start_s`` (as long as the core
+        gives a walk across it)."""
+        self._write({"k": "walk", "person": person, "crossing": crossing, "start": start_s})
+
 
 def records(path: Path) -> tuple[list[dict], bool]:
     """The journal's records in order, and whether a torn record ended it."""
@@ -155,6 +162,9 @@ def replay(path: Path, ica: Controller) -> Replayed:
             elif kind == "cancel":
                 ica.cancel(rec["vin"], int(rec["seq"]))
                 out.cancels += 1
+            elif kind == "walk" and getattr(ica, "walks", None) is not None:
+                ica.walks.reserve(str(rec["person"]), str(rec["crossing"]), float(rec["start"]))
+                out.walks += 1
             else:
                 out.skipped += 1
         except (RequestError, KeyError, TypeError, ValueError):

@@ -65,6 +65,7 @@ from dica.schemas.messages import (
     Cancel,
     Clock,
     Detect,
+    Go,
     Place,
     Reject,
     Reorder,
@@ -72,6 +73,7 @@ from dica.schemas.messages import (
     Revoke,
     State,
     Stats,
+    Walk,
 )
 
 HOLD_S = 2.0  # [s wall] longest a request may wait for the clock to reach its time
@@ -90,6 +92,7 @@ class ServiceStats:
     superseded: int = 0
     detects: int = 0
     cancels: int = 0
+    walks: int = 0  # walkers given a slot on a crossing
     bad_messages: int = 0
     acks: int = 0
     ignored_clocks: int = 0
@@ -112,6 +115,7 @@ class ServiceStats:
             "superseded": self.superseded,
             "detects": self.detects,
             "cancels": self.cancels,
+            "walks": self.walks,
             "bad_messages": self.bad_messages,
             "acks": self.acks,
             "ignored_clocks": self.ignored_clocks,
@@ -169,6 +173,7 @@ class IcaService:
             "detects": done.detects,
             "confirmations": done.confirmations,
             "cancels": done.cancels,
+            "walks": done.walks,
             "skipped": done.skipped,
             "truncated": done.truncated,
             "confirmed_set_after": len(self.ica.confirmed),
@@ -198,6 +203,7 @@ class IcaService:
             self.session.declare_queryable(keys.request(j), self.inbox.query_cb("request")),
             self.session.declare_queryable(keys.detect(j), self.inbox.query_cb("detect")),
             self.session.declare_queryable(keys.cancel(j), self.inbox.query_cb("cancel")),
+            self.session.declare_queryable(keys.walk(j), self.inbox.query_cb("walk")),
             self.session.declare_queryable(keys.ica_stats(j), self.inbox.query_cb("stats")),
             self.session.declare_subscriber(self._clock_key, self.inbox.sample_cb("clock")),
             self.session.declare_subscriber(keys.ack(j), self.inbox.sample_cb("ack")),
@@ -254,6 +260,8 @@ class IcaService:
             self._on_cancel(item)
         elif item.what == "vehicles":
             self._on_vehicles(item)
+        elif item.what == "walk":
+            self._on_walk(item)
         elif item.what == "stats":
             self.note_reactive()
             body = json.dumps(self.stats.as_dict())
@@ -488,6 +496,34 @@ class IcaService:
                 self.journal.cancel(msg.vin, msg.seq)
         reply(item.query, item.key, encode(Ack(msg.vin, msg.seq, Cancel.KIND, now_ns())))
 
+    def _on_walk(self, item: Item) -> None:
+        """A walker at the kerb, asked for by the roadside: the slot, journalled before
+        it is answered (a restarted ICA never confirms a vehicle through it)."""
+        try:
+            msg = decode(item.payload, Walk)
+        except DecodeError as e:
+            self._bad(item, e)
+            self._reject(item.query, "?", -1, Reason.BAD_MESSAGE, f"{e.why.value}: {e.detail}")
+            return
+        if keys.last(item.key) != "gateway":
+            self.stats.not_theirs += 1
+            self._reject(item.query, msg.person, -1, Reason.BAD_STATE, "only the roadside asks")
+            return
+        walk = getattr(self.ica, "walk", None)
+        if walk is None:
+            self._reject(item.query, msg.person, -1, Reason.BAD_STATE, "no crossings served here")
+            return
+        try:
+            slot = walk(msg.person, msg.crossing, msg.ready_s, self.now_s)
+        except RequestError as e:
+            self._reject(item.query, msg.person, -1, e.reason, e.detail)
+            return
+        if self.journal is not None:
+            self.journal.walk(slot.person, slot.crossing, slot.start_s)
+        self.stats.walks += 1
+        go = Go(slot.person, slot.crossing, slot.start_s, slot.end_s, now_ns())
+        reply(item.query, item.key, encode(go))
+
     # -- helpers -------------------------------------------------------------
     def _expire_held(self) -> None:
         if not self._held:
@@ -560,7 +596,8 @@ def write_stats(path: Path, stats: ServiceStats) -> None:
     runs.append(mine)
     total: dict = {"incarnations": runs}
     for k in ("requests", "confirmed", "repeated", "superseded", "detects", "cancels",
-              "bad_messages", "acks", "ignored_clocks", "not_theirs", "handovers"):  # fmt: skip
+              "walks", "bad_messages", "acks", "ignored_clocks", "not_theirs",
+              "handovers"):  # fmt: skip
         total[k] = sum(int(r.get(k, 0)) for r in runs)
     rej: dict[str, int] = {}
     for r in runs:

@@ -37,6 +37,11 @@ def cancel(junction: str, agent: str = "*") -> str:
     return f"dica/{chunk(junction)}/cancel/{_one(agent)}"
 
 
+def walk(junction: str, asker: str = "*") -> str:
+    """Queryable (ICA): a walker asks to cross, through ``asker`` (the roadside)."""
+    return f"dica/{chunk(junction)}/walk/{_one(asker)}"
+
+
 def ack(junction: str, agent: str = "*") -> str:
     """Publication (agent): ACK of a RESPONSE received."""
     return f"dica/{chunk(junction)}/ack/{_one(agent)}"
@@ -128,7 +133,7 @@ def writer_of(key: str, action: str) -> str | None:
         if kind == "stats" and name:
             return {"query": "gateway", "reply": name}.get(action)
     elif space == "dica":
-        if kind in ("request", "detect", "cancel") and name:
+        if kind in ("request", "detect", "cancel", "walk") and name:
             return {"query": name, "reply": "ica"}.get(action)
         if kind == "ack" and name:
             return name if action == "put" else None

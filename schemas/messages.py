@@ -99,6 +99,31 @@ class Reject:
 
 
 @dataclass(frozen=True, slots=True)
+class Walk:
+    """A walker at the kerb of ``crossing`` (SUMO's crossing edge id) since sim time
+    ``ready_s`` asks to cross; the roadside asks for it (its detector or push button)."""
+
+    KIND: ClassVar[str] = "walk"
+    person: str = lim(n=MAX_TEXT)
+    crossing: str = lim(n=MAX_TEXT)
+    ready_s: float = lim(*TIME)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class Go:
+    """The ICA's answer to a WALK: ``crossing`` is the walker's from ``start_s`` to
+    ``end_s`` (sim time); no vehicle is confirmed through it meanwhile."""
+
+    KIND: ClassVar[str] = "go"
+    person: str = lim(n=MAX_TEXT)
+    crossing: str = lim(n=MAX_TEXT)
+    start_s: float = lim(*TIME)
+    end_s: float = lim(*TIME)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
 class Ack:
     """Delivery receipt: the ICA for a DETECT or CANCEL, a vehicle for a RESPONSE or a
     REVOKE. ``of`` is the kind acknowledged; for a REVOKE, ``revoke`` says the actuator
@@ -316,6 +341,8 @@ MESSAGES: tuple[type, ...] = (
     Request,
     Response,
     Reject,
+    Walk,
+    Go,
     Ack,
     Revoke,
     Reorder,

@@ -208,3 +208,53 @@ def test_walkers_are_forgotten_once_across_and_bad_asks_refused(walk_net):
         ica.walk("amy", ":A0_c0", 0.0, 0.0)
     with pytest.raises(RequestError, match="not finite"):
         ica.walk("amy", ":B1_c1", math.nan, 0.0)
+
+
+# -- over Zenoh ------------------------------------------------------------------------
+def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(walk_net, tmp_path):
+    """WALK on dica/<j>/walk/gateway: a GO with the slot; anyone else refused; the slot
+    journalled, so the restarted ICA still delays a vehicle through that crossing."""
+    from dica.ica.convert import request_from_core
+    from dica.ica.core.dica import Dica
+    from dica.ica.core.proposal import propose
+    from dica.schemas import keys
+    from dica.schemas.codec import decode, encode, now_ns
+    from dica.schemas.messages import Ack, Clock, Detect, Go, Reject, Response, Walk
+    from dica.tools.loopback import router_and_ica
+
+    def ask(session, key, msg):
+        (r,) = [r for r in session.get(key, payload=encode(msg), timeout=5.0) if r.ok]
+        return decode(r.ok.payload.to_bytes())
+
+    def end(session, ica, k):
+        session.put(keys.clock("B1"), encode(Clock(k, 0.05 * k, "lockstep", 1.0, True, now_ns())))
+        assert ica.wait(15) == 0
+
+    args = ("--net", str(walk_net), "--junction", "B1", "--out", str(tmp_path))
+    with router_and_ica("B1", args) as (session, ica):
+        go = ask(session, keys.walk("B1", "gateway"), Walk("amy", ":B1_c1", 0.0, now_ns()))
+        assert isinstance(go, Go) and go.person == "amy" and go.start_s == 0.0
+        assert go.end_s == pytest.approx(12.8 + 2.0)
+        no = ask(session, keys.walk("B1", "agent-1"), Walk("bob", ":B1_c1", 0.0, now_ns()))
+        assert isinstance(no, Reject) and "only the roadside" in no.detail
+        no = ask(session, keys.walk("B1", "gateway"), Walk("bob", ":Z_c9", 0.0, now_ns()))
+        assert isinstance(no, Reject) and no.reason == "bad_state"
+        end(session, ica, 1)
+    with router_and_ica("B1", args) as (session, ica):  # the same journal
+        x = load_intersection(walk_net, "B1")
+        route = x.route("A1B1_1", "B1C1_1")  # leaves over :B1_c1
+        session.put(keys.clock("B1"), encode(Clock(1, 0.05, "lockstep", 1.0, False, now_ns())))
+        det = Detect("car", route.in_lane, 0.0, False, 10.0, now_ns())
+        assert isinstance(ask(session, keys.detect("B1", "a"), det), Ack)
+        req = propose(route, vin="car", seq=0, t0_s=0.05, dist_to_entry_m=30.0, speed_mps=10.0)
+        got = ask(session, keys.request("B1", "a"), request_from_core(req))
+        assert isinstance(got, Response)
+        alone = Dica(x)
+        alone.detect("car", route.in_lane, 0.0)
+        free = alone.handle(req, 0.05)
+        assert got.entry_time_s > free.entry_time_s + 5.0  # it waits for amy
+        end(session, ica, 2)
+    stats = json.loads((tmp_path / "ica.json").read_text())
+    first, second = stats["incarnations"]
+    assert first["walks"] == 1 and stats["walks"] == 1
+    assert second["journal_replayed"]["walks"] == 1

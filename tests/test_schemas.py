@@ -22,6 +22,7 @@ from dica.schemas.messages import (
     Clock,
     Command,
     Detect,
+    Go,
     Place,
     Reject,
     Reorder,
@@ -32,6 +33,7 @@ from dica.schemas.messages import (
     State,
     Stats,
     VehicleState,
+    Walk,
 )
 
 T = np.arange(0.0, 2.0, 0.05)
@@ -64,6 +66,8 @@ SAMPLES = {
     Reject: Reject("v00001", 3, "not_head", "v00000 is ahead", 1),
     Ack: Ack("v00001", 3, "response", 2),
     Cancel: Cancel("v00001", 3, 7),
+    Walk: Walk("p0001", ":C_c0", 12.5, 7),
+    Go: Go("p0001", ":C_c0", 14.0, 28.8, 7),
     Detect: Detect("v00001", "W_in_0", 10.05, True, 12.5, 3),
     Revoke: Revoke("v00001", 3, 12.4, 9),
     Reorder: Reorder(

@@ -472,7 +472,8 @@ def add_role_parsers(sub) -> None:
     i = sub.add_parser(
         "ica",
         help="the intersection control agent: a Zenoh queryable answering REQUESTs",
-        description="Serves dica/<junction>/request and dica/<junction>/detect, publishes "
+        description="Serves dica/<junction>/request, dica/<junction>/detect and the "
+        "walkers' dica/<junction>/walk, publishes "
         "confirmations on dica/<junction>/confirmed/<vin>, follows the sim clock. Stops on "
         "SIGTERM or when the clock announces the end of the run.",
     )
