@@ -292,10 +292,14 @@ def _uses() -> tuple[Use, ...]:
           for k in ("request", "detect", "cancel")),
         Use("queryable", f"dica/{J}/stats", ("ica",), "gateway", "", "ica", ""),
         Use("queryable", stats, (A,), "gateway", f"sim/{J}/stats/*", A, ""),
+        Use("queryable", f"dica/{J}/walk/gateway", ("ica",), "gateway", "", "ica",
+            f"dica/{J}/walk/*"),
         # queries: the owner asks, the witness serves
         *(Use("query", f"dica/{J}/{k}/{A}", (A,), "ica", f"dica/{J}/{k}/*", A, "")
           for k in ("request", "detect", "cancel")),
         Use("query", f"dica/{J}/stats", ("gateway",), "ica", "", "gateway", ""),
+        Use("query", f"dica/{J}/walk/gateway", ("gateway",), "ica", f"dica/{J}/walk/*",
+            "gateway", ""),
         Use("query", stats, ("gateway",), A, "", "gateway", f"sim/{J}/stats/*"),
         # replies travel back on the asked key: answering on another is refused
         Use("reply", stats, (A,), "gateway", f"sim/{J}/stats/*", A, "",
