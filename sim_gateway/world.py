@@ -83,6 +83,7 @@ class World:
         self.hold: InsertionHold | None = None
         # a route file's net of several junctions: how much queue its links may hold
         self.gate: NetworkGate | None = None
+        self.gate_holds = 0  # steps a vehicle at a region's head waited for the gate's room
         if cfg.routes_path:
             rf = read_route_file(Path(cfg.routes_path))
             check_types(ls, rf, ica_cfg.kinematics)
@@ -264,7 +265,10 @@ class World:
         for s in seen:
             if g.entering(s.car):
                 others = pending_m - g.pending_m(self.ls, (s.car,)) if pending_m else 0.0
-                s.obs = replace(s.obs, network_room_m=g.room_for(self.ls, s.car) - others)
+                room = g.room_for(self.ls, s.car) - others
+                s.obs = replace(s.obs, network_room_m=room)
+                if s.obs.may_ask and s.car.plan_s is None and room < g.need_m(self.ls, s.car.sumo):
+                    self.gate_holds += 1  # it may ask, and will be told no_room
 
     def may_enter_network(self, seen: Sequence[Seen]) -> bool:
         """Whether any of these vehicles' crossings takes it into a network the gate
@@ -368,6 +372,8 @@ class World:
                 "peak_m": round(g.peak_m, 1),
                 "peak_share": round(g.peak_share, 3),
                 "links": len(g.links),
+                # vehicle-seconds that vehicles free to ask spent refused room by the gate
+                "vehicle_s_held": round(self.gate_holds * self.h, 1),
             }
         if len(self.junctions) > 1:
             extra["junctions"] = {

@@ -252,3 +252,24 @@ def test_a_standstill_is_the_longest_wait_with_no_crossing():
         log.sample(float(t), waiting, crossed, 5)
     # vehicles wait from 1 s to 2 s (a crossing at 3 s), then from 4 s to 6 s: 2 s
     assert log.longest_standstill_s() == 2.0
+
+
+def test_a_run_says_how_long_the_gate_held_vehicles_back(tmp_path):
+    """The built-in grid at 650 an hour on every road in: under the cycle rule the links
+    reach their bound within 200 s, and heads of lanes are refused room for it; the
+    run says for how many vehicle-seconds."""
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "cycle"
+    p = subprocess.run(
+        [sys.executable, "-m", "dica.tools.cli", "network", "--layout", "grid", "--volume",
+         "650", "--seed", "12", "--duration", "200", "--drain", "0",
+         "--network-gate-rule", "cycle", "--out", str(out), "--quiet"],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    gate = json.loads((out / "metrics.json").read_text())["network_gate"]
+    assert gate["peak_m"] >= 0.95 * gate["capacity_m"]
+    assert gate["vehicle_s_held"] > 10.0
