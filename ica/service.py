@@ -401,11 +401,8 @@ class IcaService:
         return owner is None or owner == keys.last(item.key)
 
     def _on_request(self, item: Item, since: float | None = None) -> None:
-        try:
-            msg = decode(item.payload, Request)
-        except DecodeError as e:
-            self._bad(item, e)
-            self._reject(item.query, "?", -1, Reason.BAD_MESSAGE, f"{e.why.value}: {e.detail}")
+        msg = self._asked(item, Request)
+        if msg is None:
             return
         if not _is_chunk(msg.vin):
             self._reject(item.query, "?", msg.seq, Reason.BAD_STATE, "VIN has key characters")
@@ -453,11 +450,8 @@ class IcaService:
         reply(item.query, item.key, encode(reject_from_core(answer)))
 
     def _on_detect(self, item: Item) -> None:
-        try:
-            msg = decode(item.payload, Detect)
-        except DecodeError as e:
-            self._bad(item, e)
-            self._reject(item.query, "?", -1, Reason.BAD_MESSAGE, f"{e.why.value}: {e.detail}")
+        msg = self._asked(item, Detect)
+        if msg is None:
             return
         self.stats.detects += 1
         if not _is_chunk(msg.vin):
@@ -480,11 +474,8 @@ class IcaService:
         reply(item.query, item.key, encode(Ack(msg.vin, -1, Detect.KIND, now_ns())))
 
     def _on_cancel(self, item: Item) -> None:
-        try:
-            msg = decode(item.payload, Cancel)
-        except DecodeError as e:
-            self._bad(item, e)
-            self._reject(item.query, "?", -1, Reason.BAD_MESSAGE, f"{e.why.value}: {e.detail}")
+        msg = self._asked(item, Cancel)
+        if msg is None:
             return
         if not self._speaks_for(item, msg.vin):
             self.stats.not_theirs += 1
@@ -499,11 +490,8 @@ class IcaService:
     def _on_walk(self, item: Item) -> None:
         """A walker at the kerb, asked for by the roadside: the slot, journalled before
         it is answered (a restarted ICA never confirms a vehicle through it)."""
-        try:
-            msg = decode(item.payload, Walk)
-        except DecodeError as e:
-            self._bad(item, e)
-            self._reject(item.query, "?", -1, Reason.BAD_MESSAGE, f"{e.why.value}: {e.detail}")
+        msg = self._asked(item, Walk)
+        if msg is None:
             return
         if keys.last(item.key) != "gateway":
             self.stats.not_theirs += 1
@@ -525,6 +513,16 @@ class IcaService:
         reply(item.query, item.key, encode(go))
 
     # -- helpers -------------------------------------------------------------
+    def _asked(self, item: Item, kind: type):
+        """The query's message of ``kind``, or None: bytes that are not one are counted,
+        logged and answered with a REJECT ``bad_message``."""
+        try:
+            return decode(item.payload, kind)
+        except DecodeError as e:
+            self._bad(item, e)
+            self._reject(item.query, "?", -1, Reason.BAD_MESSAGE, f"{e.why.value}: {e.detail}")
+            return None
+
     def _expire_held(self) -> None:
         if not self._held:
             return

@@ -45,6 +45,7 @@ from dica.ica.core.conflict import (
     get_cv_batch,
     pack,
 )
+from dica.ica.core.crosswalk import spans
 from dica.ica.core.dtot import Dtot, build_dtot
 from dica.ica.core.gridlock import QUEUE_GAP_M
 from dica.ica.core.handover import Handover
@@ -477,8 +478,6 @@ class Dica:
         key = (route.id, shape)
         got = self._walk_spans.get(key)
         if got is None:
-            from dica.ica.core.crosswalk import spans
-
             got = spans(
                 (route,), self.intersection.crosswalks, shape.length_m, shape.width_m,
                 self.config.margin_m,

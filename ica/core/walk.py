@@ -18,7 +18,6 @@ do not conflict with each other. Pure: plans and times in, times out.
 from __future__ import annotations
 
 import bisect
-import math
 from dataclasses import dataclass
 
 from dica.ica.core.crosswalk import Crosswalk
@@ -110,8 +109,3 @@ class Walkways:
         for c, slots in self.slots.items():
             if slots and slots[0].end_s < now_s:
                 self.slots[c] = [w for w in slots if w.end_s >= now_s]
-
-    def held_until(self, crossing: str) -> float:
-        """The end of the last walker's slot on ``crossing`` (-inf: none)."""
-        slots = self.slots.get(crossing)
-        return max((w.end_s for w in slots), default=-math.inf) if slots else -math.inf
