@@ -497,18 +497,22 @@ class IcaService:
             self.stats.not_theirs += 1
             self._reject(item.query, msg.person, -1, Reason.BAD_STATE, "only the roadside asks")
             return
-        walk = getattr(self.ica, "walk", None)
-        if walk is None:
+        walks = getattr(self.ica, "walks", None)
+        if walks is None:
             self._reject(item.query, msg.person, -1, Reason.BAD_STATE, "no crossings served here")
             return
+        again = walks.slot_of(msg.person, msg.crossing) is not None
         try:
-            slot = walk(msg.person, msg.crossing, msg.ready_s, self.now_s)
+            slot = self.ica.walk(msg.person, msg.crossing, msg.ready_s, self.now_s)
         except RequestError as e:
             self._reject(item.query, msg.person, -1, e.reason, e.detail)
             return
-        if self.journal is not None:
-            self.journal.walk(slot.person, slot.crossing, slot.start_s)
-        self.stats.walks += 1
+        if again:
+            self.stats.repeated += 1  # the same slot again, journalled already
+        else:
+            if self.journal is not None:
+                self.journal.walk(slot.person, slot.crossing, slot.start_s)
+            self.stats.walks += 1
         go = Go(slot.person, slot.crossing, slot.start_s, slot.end_s, now_ns())
         reply(item.query, item.key, encode(go))
 

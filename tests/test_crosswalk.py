@@ -195,6 +195,24 @@ def test_a_vehicle_waits_for_the_walkers_on_its_way(walk_net, compiled, monkeypa
     assert _car(ica2, right, "r", 0.0).entry_time_s == _car(base, right, "r", 0.0).entry_time_s
 
 
+def test_a_walk_asked_twice_gets_the_same_slot(walk_net):
+    """A WALK repeated (its answer lost, or the message twice) must not hold the crossing
+    twice, nor move the walker's moment: even with a vehicle confirmed in between."""
+    from dica.ica.core.dica import Dica
+
+    x = load_intersection(walk_net, "B1")
+    ica = Dica(x)
+    first = ica.walk("amy", ":B1_c3", 0.0, 0.0)
+    _car(ica, x.route("A1B1_1", "B1C1_1"), "car", 0.5)  # over :B1_c3, after amy
+    assert ica.walk("amy", ":B1_c3", 0.0, 1.0) == first
+    assert ica.walks.reserve("amy", ":B1_c3", 99.0) == first  # a journal replayed twice
+    assert len(ica.walks.slots[":B1_c3"]) == 1
+    other = ica.walk("bob", ":B1_c3", 0.0, 1.0)  # another walker: a slot of its own
+    assert other.person == "bob" and len(ica.walks.slots[":B1_c3"]) == 2
+    ica.advance(first.end_s + 0.1)  # once across, amy may ask anew
+    assert ica.walks.slot_of("amy", ":B1_c3") is None
+
+
 def test_walkers_are_forgotten_once_across_and_bad_asks_refused(walk_net):
     from dica.ica.core.dica import Dica
     from dica.ica.core.request import RequestError
@@ -239,6 +257,11 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
         assert isinstance(no, Reject) and "only the roadside" in no.detail
         no = ask(session, keys.walk("B1", "gateway"), Walk("bob", ":Z_c9", 0.0, now_ns()))
         assert isinstance(no, Reject) and no.reason == "bad_state"
+        again = ask(session, keys.walk("B1", "gateway"), Walk("amy", ":B1_c1", 3.0, now_ns()))
+        assert again == Go("amy", ":B1_c1", go.start_s, go.end_s, again.sent_ns)  # the same
+        (bad,) = [r for r in session.get(keys.walk("B1", "gateway"), payload=b"\x93\x01",
+                                         timeout=5.0) if r.ok]  # fmt: skip
+        assert decode(bad.ok.payload.to_bytes()).reason == "bad_message"
         end(session, ica, 1)
     with router_and_ica("B1", args) as (session, ica):  # the same journal
         x = load_intersection(walk_net, "B1")
@@ -256,5 +279,5 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
         end(session, ica, 2)
     stats = json.loads((tmp_path / "ica.json").read_text())
     first, second = stats["incarnations"]
-    assert first["walks"] == 1 and stats["walks"] == 1
+    assert first["walks"] == 1 and first["repeated"] == 1 and stats["walks"] == 1
     assert second["journal_replayed"]["walks"] == 1

@@ -487,11 +487,15 @@ class Dica:
 
     def walk(self, person: str, crossing: str, ready_s: float, now_s: float) -> WalkSlot:
         """A walker at the kerb of ``crossing`` from ``ready_s`` asks to cross: the slot
-        it is given, the first clear of every confirmed vehicle, held from then on."""
+        it is given, the first clear of every confirmed vehicle, held from then on (asked
+        again, the same slot)."""
         if self.walks is None or crossing not in self.walks.crosswalks:
             raise RequestError(Reason.BAD_STATE, f"{crossing!r} is no crossing of this junction")
         if not (math.isfinite(ready_s) and math.isfinite(now_s)):
             raise RequestError(Reason.NOT_FINITE, f"times of {person}'s request are not finite")
+        held = self.walks.slot_of(person, crossing)
+        if held is not None:
+            return held
         pad = 2.0 * self.config.time_pad_s
         busy = []
         for c in self._confirmed.values():

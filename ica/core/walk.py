@@ -88,7 +88,17 @@ class Walkways:
             t = max(t, b + gap)
         return t
 
+    def slot_of(self, person: str, crossing: str) -> WalkSlot | None:
+        """The slot ``person`` holds on ``crossing``, if any (a WALK asked twice gets it
+        again, not a second one)."""
+        return next((w for w in self.slots.get(crossing, ()) if w.person == person), None)
+
     def reserve(self, person: str, crossing: str, start_s: float) -> WalkSlot:
+        """Hold ``crossing`` for ``person`` from ``start_s`` (the slot it holds already, if
+        it has one there)."""
+        held = self.slot_of(person, crossing)
+        if held is not None:
+            return held
         slot = WalkSlot(person, crossing, start_s, start_s + self.walk_s(crossing))
         bisect.insort(self.slots[crossing], slot, key=lambda x: x.start_s)
         return slot
