@@ -84,12 +84,7 @@ def cycle_capacity_m(inters: Sequence[Intersection], capacity_m: dict[str, float
 
     A set of vehicles that wait for each other for ever waits round such a cycle,
     every link of it full, so it holds at least this much queue."""
-    arcs: dict[str, set[str]] = {}
-    for x in inters:
-        for r in x.routes:
-            a, b = edge_of(r.in_lane), edge_of(r.out_lane)
-            if a in capacity_m and b in capacity_m:
-                arcs.setdefault(a, set()).add(b)
+    arcs = link_arcs(inters, capacity_m)
     best = math.inf
     for start in sorted(arcs):  # Dijkstra from each link back to itself
         dist = {start: capacity_m[start]}
