@@ -90,16 +90,22 @@ def load_intersection(
     )
 
 
+def is_crossing_of(edge_id: str, junction_id: str) -> bool:
+    """Whether ``edge_id`` names one of ``junction_id``'s crossings (``:<junction>_c<k>``;
+    not junction ``A_1``'s ``:A_1_c0`` for junction ``A``)."""
+    prefix = f":{junction_id}_c"
+    return edge_id.startswith(prefix) and edge_id[len(prefix) :].isdigit()
+
+
 def _crosswalks(net: sumolib.net.Net, junction_id: str) -> tuple[Crosswalk, ...]:
     """The junction's pedestrian crossings: SUMO's crossing edges ``:<junction>_c<k>``,
     each one lane with a centre line and a width."""
     out = []
-    prefix = f":{junction_id}_"
     for e in net.getEdges(withInternal=True):
-        if e.getFunction() != "crossing" or not e.getID().startswith(prefix):
+        if e.getFunction() != "crossing" or not is_crossing_of(e.getID(), junction_id):
             continue
         lane = e.getLanes()[0]
-        crossed = tuple(getattr(x, "getID", lambda x=x: str(x))() for x in e.getCrossingEdges())
+        crossed = tuple(x.getID() for x in e.getCrossingEdges())
         try:
             out.append(Crosswalk(e.getID(), _xy(lane.getShape()), float(lane.getWidth()), crossed))
         except ValueError as exc:

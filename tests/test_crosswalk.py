@@ -92,6 +92,18 @@ def test_a_nets_crossings_are_read_and_every_route_passes_two(walk_net):
         assert arm_in in next(c for c in x.crosswalks if c.id == first[0]).crosses
 
 
+@pytest.mark.parametrize(
+    "edge, junction, mine",
+    [(":B1_c0", "B1", True), (":B1_c12", "B1", True), (":B1_1_c0", "B1", False),
+     (":B1_w0", "B1", False), (":B1_c", "B1", False), (":B1_c0x", "B1", False),
+     (":cluster_1_2_c3", "cluster_1_2", True), (":B_c0", "B1", False)],
+)  # fmt: skip
+def test_a_crossing_belongs_to_its_own_junction_only(edge, junction, mine):
+    from dica.ica.netfile import is_crossing_of
+
+    assert is_crossing_of(edge, junction) is mine
+
+
 def test_a_net_without_crossings_has_none(tmp_path):
     from tests.user_nets import build_nets
 
