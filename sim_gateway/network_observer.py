@@ -66,7 +66,8 @@ class NetworkObserver:
         self._t_s = 0.0
         self._next_s = 0.0
         # per junction: the step its vehicles were last published at, and those vehicles
-        self._seen: dict[str, tuple[int, list[VehicleState]]] = {}
+        # by VIN (a message heard twice draws each once)
+        self._seen: dict[str, tuple[int, dict[str, VehicleState]]] = {}
         # per junction and vehicle: the newest confirmed plan's seq and path
         self._plans: dict[tuple[str, str], tuple[int, np.ndarray]] = {}
         self._decls = []
@@ -101,11 +102,13 @@ class NetworkObserver:
             if st.step > self._step:
                 self._emit()
                 self._step, self._t_s = st.step, st.t_s
-            step, vs = self._seen.get(j, (-1, []))
+            step, vs = self._seen.get(j, (-1, {}))
+            if st.step < step:
+                return  # late: this junction has been heard at a later step
             if step != st.step:
-                step, vs = st.step, []
+                step, vs = st.step, {}
                 self._seen[j] = (step, vs)
-            vs.extend(st.vehicles)
+            vs.update((v.vin, v) for v in st.vehicles)
         elif what == "confirmed":
             r = decode(item.payload, Response)
             seq, _ = self._plans.get((j, r.vin), (-1, None))
@@ -126,7 +129,7 @@ class NetworkObserver:
             if step != self._step:
                 continue
             inter = self.inters[j]
-            for v in seen:
+            for v in seen.values():
                 st = status_of(v, inter)
                 vs.append(v)
                 colours.append(SUMO_RGBA if st is None else STATUS_RGBA[st])
@@ -146,6 +149,6 @@ class NetworkObserver:
         )
         self.steps += 1
         # plans of vehicles no junction names any more are done with
-        here = {(j, v.vin) for j, (_, seen) in self._seen.items() for v in seen}
+        here = {(j, vin) for j, (_, seen) in self._seen.items() for vin in seen}
         for k in [k for k in self._plans if k not in here]:
             del self._plans[k]
