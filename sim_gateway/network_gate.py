@@ -43,8 +43,8 @@ from dica.ica.core.gridlock import (
 )
 from dica.ica.core.intersection import Intersection
 from dica.sim_gateway.junction import Car, Junction
+from dica.sim_gateway.runconfig import GATE_RULES
 
-RULES = ("route", "cycle")
 WHOLE = "*"  # the cycle rule's one room: the whole network's
 
 
@@ -58,8 +58,8 @@ class NetworkGate:
         decel_mps2: float,
         rule: str = "route",
     ) -> None:
-        if rule not in RULES:
-            raise ValueError(f"network gate rule {rule!r}: use one of {', '.join(RULES)}")
+        if rule not in GATE_RULES:
+            raise ValueError(f"network gate rule {rule!r}: use one of {', '.join(GATE_RULES)}")
         self.rule = rule
         self.links = internal_roads(inters)
         need = full_need_m(inters, max_length_m, decel_mps2, ROOM_GAP_M, ROOM_SLACK_M)

@@ -13,6 +13,7 @@ if TYPE_CHECKING:
 
 LIGHTS = ("fixed", "actuated", "reactive-light")  # SUMO drives; the junction is signalised
 REVOCATIONS = ("replan", "drop")  # how rdica's revoked vehicles get their next plan
+GATE_RULES = ("route", "cycle")  # the network gate's (sim_gateway.network_gate)
 
 
 class RunError(Exception):
@@ -120,7 +121,7 @@ class RunConfig:
     # route or the cycle rule, so the network cannot lock (sim_gateway.network_gate); off,
     # nothing bounds it (and a cycle of full links may stand still for ever)
     network_gate: bool = True
-    network_gate_rule: str = "route"  # sim_gateway.network_gate.RULES
+    network_gate_rule: str = "route"  # one of GATE_RULES
 
     def controller_spec(self) -> ControllerSpec:
         """The controller this run drives (a light runs FIFO underneath, never asked)."""

@@ -99,7 +99,7 @@ def parser() -> options.Parser:
                    help="with --control dica: no bound on what the links between the "
                    "junctions hold (by default the network gate bounds it, so the network "
                    "cannot lock)")  # fmt: skip
-    p.add_argument("--network-gate-rule", choices=("route", "cycle"), default="route",
+    p.add_argument("--network-gate-rule", choices=options.GATE_RULES, default="route",
                    help="with --control dica: route (default: a vehicle let in holds room on "
                    "each guarded link of its route ahead, the few links every cycle passes, "
                    "none promised more than its capacity) or cycle (the whole network at "

@@ -21,7 +21,14 @@ from pathlib import Path
 from typing import Any, NoReturn
 
 from dica.ica.core.config import SOLVERS, IcaConfig
-from dica.sim_gateway.runconfig import LIGHTS, LIMITS, REVOCATIONS, Limit, RunConfig
+from dica.sim_gateway.runconfig import (
+    GATE_RULES,
+    LIGHTS,
+    LIMITS,
+    REVOCATIONS,
+    Limit,
+    RunConfig,
+)
 from dica.sim_gateway.scenario import LAYOUTS
 
 
@@ -144,7 +151,7 @@ OPTIONS: dict[str, Option] = {
             "guarded link of its route ahead, the few links every cycle passes, and none is "
             "promised more than its capacity) or cycle (the whole network holds at most its "
             "smallest cycle's capacity)",
-            choices=("route", "cycle"),
+            choices=GATE_RULES,
             default="route",
         ),
         # -- the controller

@@ -349,6 +349,8 @@ route_through_link() {  # route_through_link NAME ROLE RSU: a proxy on NAME's ho
   proxy_json+=("{\"name\": \"$1\", \"role\": \"$2\", \"listen_port\": $lp, \"router_port\": ${rsu_port[$3]}, \"router_host\": \"${rsu_addr[$3]}\", \"framed\": $framed}")
   endpoint[$1]="$scheme/127.0.0.1:$lp"
 }
+top=0  # a network recorded: one observer more, of the whole network from above
+[ "$record" = 1 ] && [ "${#ids[@]}" -gt 1 ] && top=1
 declare -A router_of=()  # each process's roadside unit
 router_of[gateway]=1
 names_all=(gateway)
@@ -357,7 +359,7 @@ if [ "${#ids[@]}" -gt 0 ]; then
     names_all+=("ica-$j"); router_of["ica-$j"]=${rsu_of[$j]}
     if [ "$record" = 1 ]; then names_all+=("observer-$j"); router_of["observer-$j"]=${rsu_of[$j]}; fi
   done
-  if [ "$record" = 1 ] && [ "${#ids[@]}" -gt 1 ]; then names_all+=(observer-network); router_of[observer-network]=1; fi
+  if [ "$top" = 1 ]; then names_all+=(observer-network); router_of[observer-network]=1; fi
 else
   names_all+=(ica); router_of[ica]=1
   if [ "$record" = 1 ]; then names_all+=(observer); router_of[observer]=1; fi
@@ -484,7 +486,7 @@ if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal 
     fi
     first=0
   done
-  if [ "$record" = 1 ] && [ "${#ids[@]}" -gt 1 ]; then  # the network from above: network.rrd
+  if [ "$top" = 1 ]; then  # the network from above: network.rrd
     link_for observer-network observer
     in_ns_of "$(host_ns 1)"
     start observer-network "${in_ns[@]}" "$dica" observer --rrd "$out/network.rrd" --net "$net" \
@@ -505,8 +507,7 @@ for i in $(seq "$agents"); do
   in_ns_of "$vehicles"
   start "agent-$i" "${in_ns[@]}" "$dica" agent --id "agent-$i" "${scen[@]}" --lead "$lead" "${role_link[@]}"
 done
-observers=$record  # per junction: its own observer, and in a network the top view's
-[ "$record" = 1 ] && [ "${#ids[@]}" -gt 1 ] && observers=2
+observers=$((record + top))  # per junction: its own observer, and the top view's
 link_for gateway gateway
 in_ns_of "$vehicles"
 start gateway "${in_ns[@]}" "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$volume" \
@@ -581,6 +582,6 @@ if [ -s "$out/logs/restarts.log" ]; then
 fi
 echo "run_cluster: metrics  $out/metrics.json"
 [ "$record" = 1 ] && echo "run_cluster: rerun    $out/spacetime.rrd  (view: .venv/bin/dica view $out)"
-[ "$record" = 1 ] && [ "${#ids[@]}" -gt 1 ] && echo "run_cluster: network  $out/network.rrd (the junctions from above)"
+if [ "$top" = 1 ]; then echo "run_cluster: network  $out/network.rrd (the junctions from above)"; fi
 echo "run_cluster: logs     $out/logs/"
 exit "$status"
