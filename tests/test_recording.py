@@ -736,6 +736,14 @@ def _port_open(port: int) -> bool:
         return s.connect_ex(("127.0.0.1", port)) == 0
 
 
+def _port_closes(port: int, within_s: float = 5.0) -> bool:
+    """Whether nothing listens on ``port`` any more within ``within_s``."""
+    deadline = time.monotonic() + within_s
+    while _port_open(port) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return not _port_open(port)
+
+
 def test_live_recording_serves_on_loopback_and_writes_the_same_file(ch45, tmp_path):
     port = _free_port()
     confs = _confirmations(ch45)[:1]
@@ -747,10 +755,7 @@ def test_live_recording_serves_on_loopback_and_writes_the_same_file(ch45, tmp_pa
                   LENGTH_M, WIDTH_M, c.entry_time_s, c.exit_time_s)  # fmt: skip
     _fly(rec, confs, 60)
     rec.close()
-    deadline = time.monotonic() + 5
-    while _port_open(port) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not _port_open(port)
+    assert _port_closes(port)
     data = _read(tmp_path / "live.rrd")
     assert len(_rows(data["/junction/vehicles"], "LineStrips2D:strips")) == 60 // TOP_EVERY
 
@@ -766,10 +771,7 @@ def test_the_network_view_serves_live_and_writes_the_same_file(ch45, tmp_path):
         top.moment(k * 0.5, np.array([[0.0, 0.0]]), np.array([90.0]), np.array([5.0]),
                    np.array([1.8]), [(0, 0, 0, 255)], [], [])  # fmt: skip
     top.close()
-    deadline = time.monotonic() + 5
-    while _port_open(port) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert not _port_open(port)
+    assert _port_closes(port)
     data = _read(tmp_path / "network.rrd")
     assert len(_rows(data["/network/vehicles"], "LineStrips2D:strips")) == 10
 
