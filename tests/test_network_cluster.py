@@ -208,6 +208,8 @@ def test_a_junctions_ica_then_its_router_killed(tmp_path, corridor):
     try:
         _at(out, 20, proc)
         os.kill(int((out / "pids" / "ica-J10").read_text()), signal.SIGKILL)
+        # the router's outage counts apart only once the restarted ICA is back
+        _said(out, "the ICA of J10 is back", proc)
         _at(out, 40, proc)
         os.kill(int((out / "pids" / "router-2").read_text()), signal.SIGKILL)
         stdout, stderr = proc.communicate(timeout=240)
@@ -236,11 +238,16 @@ def test_a_junctions_ica_then_its_router_killed(tmp_path, corridor):
 
 
 def _at(out: Path, t_s: int, proc: subprocess.Popen, timeout: float = 180) -> None:
+    _said(out, f"t={t_s} s", proc, timeout)
+
+
+def _said(out: Path, words: str, proc: subprocess.Popen, timeout: float = 180) -> None:
+    """Wait until the gateway's log says `words` (the cluster still running)."""
     log = out / "logs" / "gateway.log"
     deadline = time.monotonic() + timeout
-    while not (log.exists() and f"t={t_s} s" in log.read_text()):
+    while not (log.exists() and words in log.read_text()):
         assert proc.poll() is None, logs_tail(out)
-        assert time.monotonic() < deadline, f"the cluster never got to t={t_s} s\n{logs_tail(out)}"
+        assert time.monotonic() < deadline, f"the gateway never said {words!r}\n{logs_tail(out)}"
         time.sleep(0.1)
 
 
