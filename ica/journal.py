@@ -26,6 +26,7 @@ import numpy as np
 
 from dica.ica.core.controller import Controller
 from dica.ica.core.request import Confirmation, RequestError, Tss
+from dica.ica.core.walk import WalkSlot
 
 
 class JournalError(Exception):
@@ -98,10 +99,13 @@ class Journal:
     def cancel(self, vin: str, seq: int) -> None:
         self._write({"k": "cancel", "vin": vin, "seq": seq})
 
-    def walk(self, person: str, crossing: str, start_s: float) -> None:
-        """A walker's slot: the crossing is theirs from ``start_s`` (as long as the core
-        gives a walk across it)."""
-        self._write({"k": "walk", "person": person, "crossing": crossing, "start": start_s})
+    def walk(self, slot: WalkSlot) -> None:
+        """A walker's slot, as the core holds it (:class:`ica.core.walk.WalkSlot`)."""
+        self._write(
+            {"k": "walk", "person": slot.person, "crossing": slot.crossing,
+             "start": slot.start_s, "end": slot.end_s, "side": slot.side,
+             "near": slot.near_m, "v_lo": slot.v_lo, "v_hi": slot.v_hi}
+        )  # fmt: skip
 
 
 def records(path: Path) -> tuple[list[dict], bool]:
@@ -163,7 +167,13 @@ def replay(path: Path, ica: Controller) -> Replayed:
                 ica.cancel(rec["vin"], int(rec["seq"]))
                 out.cancels += 1
             elif kind == "walk" and getattr(ica, "walks", None) is not None:
-                ica.walks.reserve(str(rec["person"]), str(rec["crossing"]), float(rec["start"]))
+                ica.walks.reserve(
+                    WalkSlot(
+                        str(rec["person"]), str(rec["crossing"]), float(rec["start"]),
+                        float(rec["end"]), int(rec["side"]), float(rec["near"]),
+                        float(rec["v_lo"]), float(rec["v_hi"]),
+                    )
+                )  # fmt: skip
                 out.walks += 1
             else:
                 out.skipped += 1

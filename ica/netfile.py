@@ -97,17 +97,44 @@ def is_crossing_of(edge_id: str, junction_id: str) -> bool:
     return edge_id.startswith(prefix) and edge_id[len(prefix) :].isdigit()
 
 
+CORNER_REACH_M = 1.0  # [m] a walking area this close to a crossing's end is at that end
+
+
+def _is_walking_area_of(edge_id: str, junction_id: str) -> bool:
+    prefix = f":{junction_id}_w"
+    return edge_id.startswith(prefix) and edge_id[len(prefix) :].isdigit()
+
+
+def _distance(polygon: np.ndarray, point: np.ndarray) -> float:
+    """From ``point`` to the nearest vertex or edge of ``polygon``'s outline."""
+    a, b = polygon, np.roll(polygon, -1, axis=0)
+    d = b - a
+    t = np.clip(((point - a) * d).sum(1) / np.maximum((d * d).sum(1), 1e-12), 0.0, 1.0)
+    return float(np.min(np.linalg.norm(a + t[:, None] * d - point, axis=1)))
+
+
 def _crosswalks(net: sumolib.net.Net, junction_id: str) -> tuple[Crosswalk, ...]:
     """The junction's pedestrian crossings: SUMO's crossing edges ``:<junction>_c<k>``,
     each one lane with a centre line and a width."""
     out = []
+    areas = [
+        _xy(e.getLanes()[0].getShape())
+        for e in net.getEdges(withInternal=True)
+        if e.getFunction() == "walkingarea" and _is_walking_area_of(e.getID(), junction_id)
+    ]
     for e in net.getEdges(withInternal=True):
         if e.getFunction() != "crossing" or not is_crossing_of(e.getID(), junction_id):
             continue
         lane = e.getLanes()[0]
         crossed = tuple(x.getID() for x in e.getCrossingEdges())
+        shape = _xy(lane.getShape())
+        ends = (shape[0], shape[-1]) if len(shape) else ()
+        corners = tuple(  # the walking areas its ends open onto
+            a for a in areas
+            if len(a) >= 3 and any(_distance(a, p) <= CORNER_REACH_M for p in ends)
+        )  # fmt: skip
         try:
-            out.append(Crosswalk(e.getID(), _xy(lane.getShape()), float(lane.getWidth()), crossed))
+            out.append(Crosswalk(e.getID(), shape, float(lane.getWidth()), crossed, corners))
         except ValueError as exc:
             raise NetworkError(f"bad geometry for crossing {e.getID()}: {exc}") from exc
     return tuple(sorted(out, key=lambda c: c.id))

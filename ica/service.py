@@ -503,7 +503,10 @@ class IcaService:
             return
         again = walks.slot_of(msg.person, msg.crossing) is not None
         try:
-            slot = self.ica.walk(msg.person, msg.crossing, msg.ready_s, self.now_s)
+            slot = self.ica.walk(
+                msg.person, msg.crossing, msg.ready_s, self.now_s, msg.walk_m, msg.speed_mps,
+                msg.side, msg.near_m,
+            )  # fmt: skip
         except RequestError as e:
             self._reject(item.query, msg.person, -1, e.reason, e.detail)
             return
@@ -511,7 +514,7 @@ class IcaService:
             self.stats.repeated += 1  # the same slot again, journalled already
         else:
             if self.journal is not None:
-                self.journal.walk(slot.person, slot.crossing, slot.start_s)
+                self.journal.walk(slot)
             self.stats.walks += 1
         go = Go(slot.person, slot.crossing, slot.start_s, slot.end_s, now_ns())
         reply(item.query, item.key, encode(go))

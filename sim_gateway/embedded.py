@@ -35,6 +35,7 @@ from dica.sim_gateway.runconfig import (
 from dica.sim_gateway.scenario import ScenarioError, light_net
 from dica.sim_gateway.signals import Phase as SignalPhase
 from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
+from dica.sim_gateway.walkers import Walkers
 from dica.sim_gateway.world import World
 from dica.vehicle_agent.actuation import Actuation
 from dica.vehicle_agent.machine import PENDING, Phase, Vehicle
@@ -124,6 +125,15 @@ class LocalDrivers:
         if self.order is not None:
             self.order.separations.precompute()  # none measured while a window waits
             self.link.window = []
+
+    def walk(self, walkers: Walkers, t: float) -> None:
+        """The roadside's WALK requests of this step, each answered with its slot, and the
+        walkers whose start has come let go."""
+        for ask in walkers.asks:
+            slot = self.ica.walk(ask.person, ask.crossing, ask.ready_s, t, ask.walk_m,
+                                 ask.speed_mps, ask.side, ask.near_m)  # fmt: skip
+            walkers.answer(ask.person, slot.start_s, slot.end_s, t)
+        walkers.release(t)
 
     def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
         self.ica.advance(t)
@@ -325,12 +335,17 @@ def _run(
         try:
             while True:
                 seen = world.step()
+                if world.walkers is not None and not light:
+                    drivers.walk(world.walkers, world.t)  # the roadside asks first
                 if not light:
                     world.apply(drivers.step(world.t, seen))
                 elif preempt is not None:
                     preempt.step(world.t, seen)
                 if recorder is not None:
                     record_step(recorder, drivers, seen, cfg, world.t)
+                    if world.walkers is not None:
+                        w = world.walkers
+                        recorder.rec.people(world.t, w.xy, w.waiting_mask())
                 world.end_step(progress)
                 if world.done():
                     break

@@ -55,15 +55,27 @@ from dica.deploy.transport import (
 from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode, encode, now_ns
 from dica.schemas.messages import BIG as WIRE_BIG
-from dica.schemas.messages import Clock, Command, Revoke, State, Stats, VehicleState
+from dica.schemas.messages import (
+    Clock,
+    Command,
+    Go,
+    Reject,
+    Revoke,
+    State,
+    Stats,
+    VehicleState,
+    Walk,
+)
 from dica.sim_gateway.demand import schedule_for
 from dica.sim_gateway.junction import Seen
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
+from dica.sim_gateway.walkers import Walkers
 from dica.sim_gateway.world import World
 from dica.vehicle_agent.actuation import BIG, NO_PLAN, Actuation
 
 CLOCKS = ("lockstep", "realtime")
 PREDICT_S = 2.0  # [s sim] how far ahead a realtime STATE says where each asker will be
+WALK_TIMEOUT_S = 2.0  # [s wall] how long the roadside waits for the ICA's GO to a WALK
 NOTICE_S = 1.0  # [s sim] how long a realtime STATE keeps naming a vehicle after news about it
 VEHICLES_EVERY = 20  # steps: how often VEHICLES goes out with no news and no observer
 AGE_BINS_MS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)  # command age histogram
@@ -140,6 +152,7 @@ class ZenohDrivers:
         self.revoke_waves = 0  # lockstep waves added for a REVOKE to another agent's vehicle
         self._seen_now: list[Seen] = []
         self.dropped_setpoints = 0
+        self.walks_unanswered = 0  # WALKs the ICA did not answer with a GO (asked again)
         self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
         self.age_ms: list[float] = []
         self.wait_s: list[float] = []
@@ -246,6 +259,31 @@ class ZenohDrivers:
         return out
 
     # -- one step ----------------------------------------------------------------
+    def walk(self, walkers: Walkers, t: float) -> None:
+        """The roadside's WALK requests of this step (and those left unanswered a second
+        ago), each asked of the ICA and answered before the step's CLOCK: the ICA decides
+        them on what it held after the last step, as the embedded runner does, before any
+        vehicle's request of this step. Then the walkers whose start has come go."""
+        key = keys.walk(self.junction, "gateway")
+        for ask in [*walkers.asks, *walkers.again(t)]:
+            msg = Walk(ask.person, ask.crossing, ask.ready_s, ask.walk_m, ask.speed_mps,
+                       ask.side, ask.near_m, now_ns())  # fmt: skip
+            got = None
+            for r in self.session.get(
+                key, payload=query_payload(encode(msg)), timeout=WALK_TIMEOUT_S, **every_answer()
+            ):
+                body = reply_body(r, key) if r.ok is not None else None
+                if got is None and body is not None:
+                    with contextlib.suppress(DecodeError):
+                        got = decode(body, Go, Reject)
+            if isinstance(got, Go):
+                walkers.answer(got.person, got.start_s, got.end_s, t)
+            else:
+                self.walks_unanswered += 1
+                why = "no answer" if got is None else f"refused: {got.detail}"
+                self.log.warning("WALK for %s at %s: %s", ask.person, ask.crossing, why)
+        walkers.release(t)
+
     def send(self, t: float, seen: list[Seen]) -> None:
         """Publish this step's CLOCK and STATEs; in lockstep, every wave but the
         last is also answered here. :meth:`collect` gets the last answers."""
@@ -624,6 +662,7 @@ class ZenohDrivers:
         hist = np.histogram(np.clip(age, 0, None), bins=[*AGE_BINS_MS, math.inf])[0]
         return {
             "clock": self.clock,
+            "walks_unanswered": self.walks_unanswered,
             "speed": self.speed if self.clock == "realtime" else None,
             "agents": dict(sorted(self.fleet.hosted.items())),
             "agent_deaths": self.agent_deaths,
@@ -700,6 +739,8 @@ def run_gateway(
         try:
             while True:
                 seen = world.step()
+                if world.walkers is not None:
+                    drivers.walk(world.walkers, world.t)  # the roadside asks first
                 drivers.send(world.t, seen)
                 world.end_step(progress)  # while the agents decide
                 world.apply(drivers.collect(world.t))

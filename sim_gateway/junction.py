@@ -19,7 +19,7 @@ from dica.ica.core.intersection import Intersection
 from dica.ica.core.route import Route
 from dica.ica.netfile import SERVED_CLASSES
 from dica.sim_gateway.demand import Arrival
-from dica.sim_gateway.safety import SafetyMonitor
+from dica.sim_gateway.safety import PersonCheck, SafetyMonitor
 from dica.sim_gateway.sumo_io import Reads, Watch
 from dica.vehicle_agent.actuation import NO_PLAN
 from dica.vehicle_agent.machine import Observation
@@ -148,6 +148,7 @@ class Junction:
     lane_len_m: dict[str, float]  # each incoming lane's length
     monitor: SafetyMonitor  # the collision check over its region
     watch: Watch  # the monitor's feed
+    person_check: PersonCheck | None = None  # vehicles touching people (with --peds)
     active: list[Car] = field(default_factory=list)  # inserted, not yet forgotten
     present: set[str] = field(default_factory=set)  # in SUMO at the last step
     last_in: dict[str, Car] = field(default_factory=dict)  # per lane, the last car to enter

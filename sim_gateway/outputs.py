@@ -1,4 +1,5 @@
-"""A run's files: metrics.json, vehicles.csv, timeseries.csv and config.json.
+"""A run's files: metrics.json, vehicles.csv, timeseries.csv and config.json (and
+persons.csv with people on foot).
 
 vehicles.csv times are seconds of simulation time: ``depart_s`` the scheduled
 arrival at the region's entry line, ``inserted_s`` when SUMO placed the
@@ -18,6 +19,9 @@ from pathlib import Path
 
 from dica.sim_gateway.metrics import summarize_ev
 from dica.sim_gateway.runconfig import RunConfig, RunResult
+
+PERSON_COLUMNS = ("person", "depart_s", "crossing", "kerb_s", "go_s", "on_s", "off_s", "wait_s",
+                  "speed_mps")  # fmt: skip
 
 
 def write_outputs(
@@ -101,6 +105,11 @@ def write_outputs(
                 ]
                 + ([int(tr.ev)] if with_ev else [])
             )
+    if result.persons is not None:
+        with _Replacing(out / "persons.csv") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(PERSON_COLUMNS))
+            w.writeheader()
+            w.writerows(result.persons)
     with _Replacing(out / "timeseries.csv") as fh:
         w = csv.writer(fh)
         w.writerow(["t_s", "waiting", "crossed", "generated", "flow_ratio"])

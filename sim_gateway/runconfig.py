@@ -67,6 +67,7 @@ LIMITS = {
     "retry_s": Limit("--retry", 0.05, 60.0, "s"),
     "ev_prob": Limit("--ev-prob", 0.0, 1.0),
     "begin_s": Limit("--begin", 0.0, 1e7, "s"),
+    "peds_per_h": Limit("--peds", 0.0, 3600.0, "persons per hour per crossing"),
 }
 
 
@@ -122,6 +123,8 @@ class RunConfig:
     # nothing bounds it (and a cycle of full links may stand still for ever)
     network_gate: bool = True
     network_gate_rule: str = "route"  # one of GATE_RULES
+    # [persons/h] people crossing at every crossing of the junctions (sim_gateway/walkers.py)
+    peds_per_h: float = 0.0
 
     def controller_spec(self) -> ControllerSpec:
         """The controller this run drives (a light runs FIFO underneath, never asked)."""
@@ -172,6 +175,9 @@ class RunConfig:
             if self.algorithm in LIGHTS:
                 raise RunError(f"--junctions runs the signal-free algorithms; {self.algorithm} "
                                "is a light's baseline for one --junction")  # fmt: skip
+            if self.peds_per_h:
+                raise RunError("--peds serves one --junction for now; a network's walkers "
+                               "are not asked for yet")  # fmt: skip
             if len(set(self.junction_ids)) < len(self.junction_ids):
                 raise RunError(f"--junctions names a junction twice: {','.join(self.junction_ids)}")
         if self.solver not in SOLVERS:
@@ -192,3 +198,4 @@ class RunResult:
     extra: dict = field(default_factory=dict)  # mode-specific facts (clock, agents, ...)
     # a network's trips from SUMO's records (sim_gateway/network_trips.py), if kept
     net_trips: list | None = None
+    persons: list[dict] | None = None  # one row per walker (sim_gateway/walkers.py)

@@ -422,3 +422,103 @@ def merge_reports(reports: Sequence[SafetyReport]) -> SafetyReport:
         gap_hist_edges_m=reports[0].gap_hist_edges_m,
         gap_hist_counts=[int(c) for c in counts],
     )
+
+
+@dataclass(frozen=True)
+class PersonReport:
+    """What the person check saw: vehicles touching people, and the closest approach."""
+
+    steps: int
+    hits: int  # (step, vehicle, person) touches
+    hit_pairs: list[tuple[float, str, str]]
+    min_gap_m: float
+    min_gap_pair: tuple[float, str, str] | None
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["hit_pairs"] = [list(p) for p in self.hit_pairs]
+        d["min_gap_m"] = self.min_gap_m if math.isfinite(self.min_gap_m) else None
+        d["min_gap_pair"] = None if self.min_gap_pair is None else list(self.min_gap_pair)
+        return d
+
+
+class PersonCheck:
+    """Counts vehicle rectangles touching a person's body, step by step, from SUMO's raw
+    poses: the same second opinion as :class:`SafetyMonitor`, for people.
+
+    A person is a disc around SUMO's position for it, as wide as its length or width,
+    whichever is more; a vehicle the rectangle behind its front bumper. Only people
+    within ``reach_m`` of the region are checked (those on the junction's crossings and
+    walking areas, and the sidewalks' ends).
+    """
+
+    def __init__(self, region: np.ndarray, reach_m: float = 5.0) -> None:
+        self._area = shapely.buffer(_region_polygon(region), reach_m)
+        shapely.prepare(self._area)
+        self._steps = 0
+        self._hits = 0
+        self._pairs: list[tuple[float, str, str]] = []
+        self._min_gap_m = math.inf
+        self._min_pair: tuple[float, str, str] | None = None
+
+    def observe(
+        self,
+        t_s: float,
+        vins: Sequence[str],
+        front_xy: np.ndarray,
+        angle_deg: np.ndarray,
+        length_m: np.ndarray,
+        width_m: np.ndarray,
+        people: Sequence[str],
+        people_xy: np.ndarray,
+        radius_m: np.ndarray,
+    ) -> int:
+        """Check one step; returns the vehicle-person touches found."""
+        self._steps += 1
+        if not len(vins) or not len(people):
+            return 0
+        pxy = np.asarray(people_xy, dtype=float).reshape(-1, 2)
+        inside = shapely.intersects(self._area, shapely.points(pxy))
+        if not inside.any():
+            return 0
+        idx = np.flatnonzero(inside)
+        pxy, rad = pxy[idx], np.asarray(radius_m, dtype=float)[idx]
+        names = [people[i] for i in idx]
+        xy = np.asarray(front_xy, dtype=float).reshape(-1, 2)
+        a = np.deg2rad(np.asarray(angle_deg, dtype=float))
+        head = np.stack([np.sin(a), np.cos(a)], axis=1)
+        side = np.stack([head[:, 1], -head[:, 0]], axis=1)
+        length = np.asarray(length_m, dtype=float)[:, None]
+        half_w = 0.5 * np.asarray(width_m, dtype=float)[:, None]
+        centre = xy - head * length / 2.0
+        # pairs that may come within 10 m: centre distance less both radii
+        reach = np.hypot(length[:, 0] / 2.0, half_w[:, 0])[:, None] + rad[None, :] + 10.0
+        dist = np.linalg.norm(centre[:, None, :] - pxy[None, :, :], axis=2)
+        iv, ip = np.nonzero(dist <= reach)
+        if not len(iv):
+            return 0
+        corners = np.stack(
+            [xy + side * half_w, xy - side * half_w, xy - head * length - side * half_w,
+             xy - head * length + side * half_w],
+            axis=1,
+        )  # fmt: skip
+        cars = shapely.polygons(corners[iv])
+        bodies = shapely.buffer(shapely.points(pxy[ip]), rad[ip])
+        gap = shapely.distance(cars, bodies)
+        touch = shapely.intersects(cars, bodies)
+        gap[touch] = 0.0
+        k = int(np.argmin(gap))
+        if gap[k] < self._min_gap_m:
+            self._min_gap_m = float(gap[k])
+            self._min_pair = (float(t_s), str(vins[iv[k]]), names[ip[k]])
+        found = int(touch.sum())
+        if found:
+            self._hits += found
+            for j in np.flatnonzero(touch)[: max(MAX_LISTED_OVERLAPS - len(self._pairs), 0)]:
+                self._pairs.append((float(t_s), str(vins[iv[j]]), names[ip[j]]))
+        return found
+
+    def report(self) -> PersonReport:
+        return PersonReport(
+            self._steps, self._hits, list(self._pairs), self._min_gap_m, self._min_pair
+        )

@@ -18,6 +18,13 @@ movements to netconvert's guess (2 lanes each way on every arm):
   ``A`` to the north-east, ``B`` to the south-west);
 - ``tee``: a west-east road with a road from the south ending at ``C``.
 
+Each has a ``-walk`` variant (``ch45-walk``, ...): a 2 m sidewalk along every
+road and a crossing over every arm, each with SUMO's walking areas at its ends.
+The crossings have priority (``priority="true"``), so SUMO's persons never
+wait for a gap on their own: at a signal-free junction the roadside holds them
+at the kerb until the ICA gives them the crossing (:mod:`sim_gateway.walkers`).
+Vehicle lanes count from 1 there (lane 0 is the sidewalk).
+
 Every approach is ``APPROACH_M`` long, so vehicles enter SUMO a few hundred
 metres before the 50 m communication region and a queue longer than the
 region is one SUMO drives.
@@ -44,7 +51,11 @@ from xml.sax.saxutils import quoteattr
 
 DISSERTATION_LAYOUTS: tuple[str, ...] = ("ch3", "ch45")
 OWN_LAYOUTS: tuple[str, ...] = ("skewed", "tee")
-LAYOUTS: tuple[str, ...] = DISSERTATION_LAYOUTS + OWN_LAYOUTS
+WALK = "-walk"  # a layout's variant with sidewalks and crossings
+LAYOUTS: tuple[str, ...] = tuple(
+    x + w for w in ("", WALK) for x in DISSERTATION_LAYOUTS + OWN_LAYOUTS
+)
+SIDEWALK_M = 2.0  # [m] width of the -walk layouts' sidewalks
 JUNCTION_ID = "C"
 ROAD_SPEED_MPS = 70.0 / 3.6
 APPROACH_M = 400.0  # [m] junction centre to the far end of every arm
@@ -311,6 +322,28 @@ def _doc(root: str, lines: list[str]) -> str:
     )
 
 
+def _sidewalks(files: dict[str, str], arms: Sequence[str]) -> dict[str, str]:
+    """``files`` with a sidewalk on every edge (vehicle lanes move up by one) and a
+    priority crossing over each arm."""
+    out = dict(files)
+    out["edg"] = files["edg"].replace('"/>', f'" sidewalkWidth="{SIDEWALK_M:.1f}"/>')
+    conns = files.get("con", _doc("connections", [])).splitlines()
+    for i, line in enumerate(conns):
+        if "fromLane=" in line:
+            words = line.split(" ")
+            for k, w in enumerate(words):
+                for key in ("fromLane", "toLane"):
+                    if w.startswith(f'{key}="'):
+                        n = int(w.split('"')[1])
+                        words[k] = w.replace(f'"{n}"', f'"{n + 1}"', 1)
+            conns[i] = " ".join(words)
+    crossings = [
+        f'    <crossing node="{JUNCTION_ID}" edges="{a}_in {a}_out" priority="true"/>' for a in arms
+    ]
+    out["con"] = "\n".join(conns[:-1] + crossings + conns[-1:]) + "\n"
+    return out
+
+
 def _own_xml(layout: str, approach_length_m: float, kind: str) -> dict[str, str]:
     nodes = [f'    <node id="{JUNCTION_ID}" x="0.00" y="0.00" type="{kind}"/>']
     edges = []
@@ -329,12 +362,16 @@ def _own_xml(layout: str, approach_length_m: float, kind: str) -> dict[str, str]
 def plain_xml(
     layout: str, approach_length_m: float = APPROACH_M, tls: str | None = None
 ) -> dict[str, str]:
-    """Node, edge and (for the dissertation's) connection files of a layout, keyed by
-    suffix (``nod``, ``edg``, ``con``)."""
+    """Node, edge and (for the dissertation's, and with sidewalks) connection files of a
+    layout, keyed by suffix (``nod``, ``edg``, ``con``)."""
     _check_layout(layout)
     _check_tls(tls)
     if not approach_length_m > 30.0:
         raise ScenarioError(f"approach_length_m must exceed 30 m, got {approach_length_m}")
+    if layout.endswith(WALK):
+        base = layout.removesuffix(WALK)
+        arms = [a[0] for a in _OWN_ARMS[base]] if base in OWN_LAYOUTS else list(APPROACHES)
+        return _sidewalks(plain_xml(base, approach_length_m, tls), arms)
     kind = "priority" if tls is None else "traffic_light"
     if layout in OWN_LAYOUTS:
         return _own_xml(layout, approach_length_m, kind)

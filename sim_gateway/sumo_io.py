@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dica.sim_gateway.runconfig import RunConfig, RunError
-from dica.sim_gateway.safety import SafetyMonitor
+from dica.sim_gateway.safety import PersonCheck, SafetyMonitor
 
 
 def import_libsumo():
@@ -117,6 +117,19 @@ class Reads:
         return self._get(vin, self._ls.constants.VAR_ANGLE, self._ls.vehicle.getAngle)
 
 
+_NONE = (np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
+
+
+@dataclass(slots=True)
+class People:
+    """This step's persons as SUMO places them, for a junction's person check."""
+
+    check: PersonCheck
+    ids: list[str]
+    xy: np.ndarray  # (n, 2) [m]
+    radius_m: np.ndarray  # (n,)
+
+
 @dataclass(slots=True)
 class Watch:
     """What the monitor is fed: every vehicle within ``radius_m`` of the junction.
@@ -141,14 +154,24 @@ class Watch:
             [c.VAR_POSITION, c.VAR_ANGLE],
         )
 
-    def feed(self, ls, monitor: SafetyMonitor, t: float, gone: Collection[str] = ()) -> None:
+    def feed(
+        self,
+        ls,
+        monitor: SafetyMonitor,
+        t: float,
+        gone: Collection[str] = (),
+        people: People | None = None,
+    ) -> None:
         """Hand the monitor this step's vehicles near the junction, sorted by id (but
-        those ``gone``: taken out of SUMO since the step)."""
+        those ``gone``: taken out of SUMO since the step); and with ``people``, the same
+        vehicles and this step's persons to its person check."""
         c = ls.constants
         near = ls.junction.getContextSubscriptionResults(self.junction_id) or {}
         vins = sorted(v for v in near if v not in gone)
         if not vins:
             monitor.observe(t, [], np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0))
+            if people is not None:
+                people.check.observe(t, [], *_NONE, people.ids, people.xy, people.radius_m)
             return
         for v in vins:
             if v not in self.sizes:
@@ -157,3 +180,7 @@ class Watch:
         ang = np.array([near[v][c.VAR_ANGLE] for v in vins], dtype=float)
         size = np.array([self.sizes[v] for v in vins], dtype=float)
         monitor.observe(t, vins, xy, ang, size[:, 0], size[:, 1])
+        if people is not None:
+            people.check.observe(
+                t, vins, xy, ang, size[:, 0], size[:, 1], people.ids, people.xy, people.radius_m
+            )

@@ -40,9 +40,10 @@ from dica.sim_gateway.metrics import TripLog, summarize
 from dica.sim_gateway.network_gate import NetworkGate
 from dica.sim_gateway.route_file import MAX_LENGTH_M, check_types, read_route_file
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
-from dica.sim_gateway.safety import merge_reports
-from dica.sim_gateway.sumo_io import Reads
+from dica.sim_gateway.safety import PersonCheck, merge_reports
+from dica.sim_gateway.sumo_io import People, Reads
 from dica.sim_gateway.traffic import Traffic, define_vehicle_types
+from dica.sim_gateway.walkers import Walkers, draw_legs, kerbs
 from dica.vehicle_agent.actuation import MODE_CONFIRMED, Actuation
 from dica.vehicle_agent.machine import Observation
 
@@ -109,9 +110,30 @@ class World:
         self.traffic = Traffic(ls, ica_cfg, cfg.length_m, self.log)
         self.traffic.register(self.junction)
         self._arrivals = [v.arrival_s for v in schedule]
+        # people on foot (--peds): put in, held at the kerb under an ICA, measured
+        self.walkers: Walkers | None = None
+        self.sumo_person_collisions = 0  # SUMO's vehicle-person reports
+        if cfg.peds_per_h > 0:
+            self.walkers = self._walkers(signalised, schedule)
         # how far ahead [s] each vehicle that may ask is told where its own control law will
         # take it (Observation.intent_m): as far as its agents plan ahead (their lead)
         self.actuator = Actuator(ls, ica_cfg, self.log, predict_s, shared=bool(cfg.routes_path))
+
+    def _walkers(self, signalised: bool, schedule: list[Arrival]) -> Walkers:
+        ends: dict = {}
+        for j in self.junctions:
+            if not j.inter.crosswalks:
+                raise RunError(
+                    f"--peds: junction {j.inter.junction_id} has no pedestrian crossings (a "
+                    "net with sidewalks and crossings has them, e.g. --layout ch45-walk)"
+                )
+            ends.update(kerbs(self.ls, j.inter))
+            j.person_check = PersonCheck(j.inter.region)
+        if not any(a and b for a, b in ends.values()):
+            raise RunError("--peds: no crossing has a sidewalk at both ends to walk from and to")
+        until = self.horizon if math.isfinite(self.horizon) else max(self._arrivals, default=0.0)
+        legs = draw_legs(ends, self.cfg.peds_per_h, until, self.cfg.seed)
+        return Walkers(self.ls, tuple(j.inter for j in self.junctions), legs, hold=not signalised)
 
     # the world's totals: over its junctions
     @property
@@ -145,11 +167,16 @@ class World:
         self._taken = taken
         self.traffic.note_blocked(first, fresh)
         t = self.t = ls.simulation.getTime()
+        people = self.walkers.people if self.walkers is not None else {}
         for hit in ls.simulation.getCollisions():
-            if any(j.covers(hit.lane) for j in self.junctions):
+            if hit.victim in people or hit.collider in people:
+                self.sumo_person_collisions += 1
+            elif any(j.covers(hit.lane) for j in self.junctions):
                 self.sumo_collisions += 1
             else:  # a route file's net beyond the junctions, driven by SUMO alone
                 self.sumo_collisions_elsewhere += 1
+        if self.walkers is not None:
+            self.walkers.step(t)
         present = set(ls.vehicle.getIDList())
         for vin in departed:
             if vin not in taken and self.traffic.departed(first, vin, t):
@@ -308,8 +335,10 @@ class World:
     def end_step(self, progress: Callable[[float, int, int], None] | None = None) -> None:
         """Check and log this step. Needs nothing from the drivers, so the cluster
         gateway runs it while the agents are deciding."""
+        w = self.walkers
         for j in self.junctions:
-            j.watch.feed(self.ls, j.monitor, self.t, self._taken)
+            people = None if w is None else People(j.person_check, w.present, w.xy, w.radius_m)
+            j.watch.feed(self.ls, j.monitor, self.t, self._taken, people)
         if self.t - self._last_sample >= 1.0 - 1e-9:
             generated = (
                 sum(len(j.cars) for j in self.junctions)
@@ -375,6 +404,20 @@ class World:
                 # vehicle-seconds that vehicles free to ask spent refused room by the gate
                 "vehicle_s_held": round(self.gate_holds * self.h, 1),
             }
+        persons = None
+        if self.walkers is not None:
+            checks = [j.person_check.report() for j in self.junctions]
+            closest = min(checks, key=lambda r: r.min_gap_m)
+            extra["walkers"] = {
+                **self.walkers.summary(end),
+                "per_hour_per_crossing": self.cfg.peds_per_h,
+                "person_hits": sum(r.hits for r in checks),
+                "person_hit_pairs": sorted(p for r in checks for p in r.hit_pairs)[:100],
+                "min_person_gap_m": closest.as_dict()["min_gap_m"],
+                "min_person_gap_pair": closest.as_dict()["min_gap_pair"],
+                "sumo_person_collisions": self.sumo_person_collisions,
+            }
+            persons = self.walkers.rows()
         if len(self.junctions) > 1:
             extra["junctions"] = {
                 j.inter.junction_id: {
@@ -397,4 +440,5 @@ class World:
             wall_s=time.perf_counter() - self._t_wall,
             sumo_command=cmd,
             extra=extra,
+            persons=persons,
         )

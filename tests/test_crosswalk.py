@@ -32,11 +32,11 @@ def _straight() -> object:
 
 
 def test_a_car_holds_a_crossing_from_its_front_in_to_its_rear_out():
-    # a 4 m strip across the road at x = 10: a 5 m car touches it from front at 8 to rear
-    # at 12, front at 17
+    # a 4 m strip across the road at x = 10 and a walker's body (BODY_M, 0.5 m) over each
+    # edge: a 5 m car touches it from front at 7.5 to rear at 12.5, front at 17.5
     walk = Crosswalk("c", np.array([[10.0, -6.0], [10.0, 6.0]]), 4.0)
     a, b = span(_straight(), walk, 5.0, 1.8)
-    assert 7.7 <= a <= 8.0 and 17.0 <= b <= 17.3
+    assert 7.2 <= a <= 7.5 and 17.5 <= b <= 17.8
     # grown by a margin: longer on both sides
     a2, b2 = span(_straight(), walk, 5.0, 1.8, margin_m=0.5)
     assert a2 == pytest.approx(a - 0.5, abs=0.11) and b2 == pytest.approx(b + 0.5, abs=0.11)
@@ -82,14 +82,20 @@ def test_a_nets_crossings_are_read_and_every_route_passes_two(walk_net):
     for c in x.crosswalks:
         assert c.width_m == pytest.approx(4.0) and 10.0 < c.length_m < 15.0
         assert len(c.crosses) == 2  # the arm's road in and its road out
+        assert len(c.corners) == 2  # a walking area at each end
     over = spans(x.routes, x.crosswalks, 5.0, 1.8, 0.25)
+    x_crosses = {c.id: c.crosses for c in x.crosswalks}
     for r in x.routes:
-        first, last = over[r.id]  # the crossing on its arm in, then the one on its arm out
-        assert first[0] != last[0]
-        assert -0.5 < first[1] < 0.5  # just past the entry line
+        # the crossing on its arm in, then the one on its arm out (and, turning, the
+        # corner of the one between, which its body sweeps)
+        first, last = over[r.id][0], over[r.id][-1]
+        assert first[0] != last[0] and 2 <= len(over[r.id]) <= 3
+        # at the entry line, or up to a few metres short of it: a walker's body over the
+        # strip's edge, and the corners' walking areas where the arm's lanes end
+        assert -3.0 < first[1] < 0.5
         assert last[2] > r.cross_length_m  # the rear clears it after the exit line
-        arm_in = r.in_lane.rsplit("_", 1)[0]
-        assert arm_in in next(c for c in x.crosswalks if c.id == first[0]).crosses
+        arms = {a for cid, *_ in over[r.id] for a in x_crosses[cid]}
+        assert r.in_lane.rsplit("_", 1)[0] in arms and r.out_lane.rsplit("_", 1)[0] in arms
 
 
 @pytest.mark.parametrize(
@@ -119,7 +125,7 @@ def test_geometry_lists_the_crossings(walk_net):
     assert p.returncode == 0, p.stderr
     doc = json.loads(p.stdout)
     assert len(doc["crossings"]) == 4
-    assert all(len(r["crossings"]) == 2 for r in doc["routes"])
+    assert all(len(r["crossings"]) >= 2 for r in doc["routes"])
 
 
 def test_the_recording_draws_the_crossings(walk_net, tmp_path):
@@ -164,21 +170,44 @@ def _holds(ica, vin: str, crossing: str) -> tuple[float, float]:
     return hold(c.dtot.trajectory, a, b, c.out_mps)
 
 
-def test_a_walker_crosses_once_the_confirmed_vehicles_are_clear(walk_net):
+def _meets(ica, vin: str, slot) -> bool:
+    """Whether confirmed ``vin``'s body and ``slot``'s walker can be on the same stretch of
+    its crossing at once (with the gap between)."""
+    c = ica.confirmed[vin]
+    t_in, t_out = _holds(ica, vin, slot.crossing)
+    u_lo, u_hi = ica.crossing_reach(c.dtot.route, c.dtot.shape)[slot.crossing]
+    length = ica.walks.crosswalks[slot.crossing].length_m
+    a, b = slot.over(u_lo, u_hi, length, ica.walks.clear_s)
+    gap = ica.walks.gap_s
+    return b > a and a - gap < t_out - 1e-9 and b + gap > t_in + 1e-9
+
+
+def test_a_walker_goes_once_the_confirmed_vehicles_are_past_its_way(walk_net):
     from dica.ica.core.dica import Dica
 
     x = load_intersection(walk_net, "B1")
-    ica = Dica(x)
-    through = x.route("A1B1_1", "B1C1_1")  # west to east: crosses c3 (its arm in), then c1
-    _car(ica, through, "car", 0.0)
-    t_in, t_out = _holds(ica, "car", ":B1_c3")
-    assert 0.0 < t_in < t_out
-    slot = ica.walk("amy", ":B1_c3", 0.0, 0.0)  # at the kerb as the car comes
-    assert slot.start_s >= t_out + ica.walks.gap_s - 1e-9  # after the car, not before it:
-    assert t_in < ica.walks.walk_s(":B1_c3") + ica.walks.gap_s  # no room before it
-    assert slot.end_s - slot.start_s == pytest.approx(12.8 / 1.0 + 2.0)
-    # a crossing no vehicle holds: at once
-    assert ica.walk("bob", ":B1_c0", 1.0, 1.0).start_s == 1.0
+    for side in (0, 1):
+        ica = Dica(x)
+        through = x.route("A1B1_1", "B1C1_1")  # west to east: crosses c3 (its arm in), then c1
+        _car(ica, through, "car", 0.0)
+        t_in, t_out = _holds(ica, "car", ":B1_c3")
+        assert 0.0 < t_in < t_out
+        slot = ica.walk("amy", ":B1_c3", 0.0, 0.0, side=side, near_m=2.0)  # as the car comes
+        assert not _meets(ica, "car", slot)
+        # a slow walk over the whole crossing from the car's own lane would meet it
+        lane = ica.crossing_reach(through, ica.confirmed["car"].dtot.shape)[":B1_c3"]
+        assert -12.0 <= lane[0] < lane[1] <= x.crosswalks[3].length_m + 12.0
+        # a walker of no stated speed: from 1.0 to 2.5 m/s
+        assert (slot.v_lo, slot.v_hi) == (1.0, 2.5)
+    # a new phase: stepping off 3 s late, a slow walk (1.0 m/s) from KERB_M (6 m) short of
+    # it to its far end, 2 s more
+    assert slot.end_s - slot.start_s == pytest.approx(3.0 + (12.8 + 6.0) / 1.0 + 2.0)
+    # a crossing no vehicle holds: with the junction's walk phase that has not begun
+    bob = ica.walk("bob", ":B1_c0", 0.0, 0.0)
+    assert bob.start_s == slot.start_s
+    # once it has begun, the next phase leaves the vehicles their window first
+    late = ica.walk("cyd", ":B1_c0", slot.start_s + 1.0, slot.start_s + 1.0)
+    assert late.start_s == pytest.approx(max(slot.end_s, bob.end_s) + ica.walks.phase_gap_s)
 
 
 @pytest.mark.parametrize("compiled", [True, False])  # the compiled rounds, the Python loop
@@ -190,17 +219,19 @@ def test_a_vehicle_waits_for_the_walkers_on_its_way(walk_net, compiled, monkeypa
     free = Dica(x)
     through = x.route("A1B1_1", "B1C1_1")
     alone = _car(free, through, "car", 0.0)
-    ica = Dica(x)
-    slot = ica.walk("amy", ":B1_c1", 0.0, 0.0)  # the crossing on its way out
-    held = _car(ica, through, "car", 0.0)
-    assert held.entry_time_s > alone.entry_time_s  # it waits
-    t_in, _ = _holds(ica, "car", ":B1_c1")
-    assert t_in >= slot.end_s + ica.walks.gap_s - ica.config.step_s - 1e-9
+    waited = []
+    for side in (0, 1):
+        ica = Dica(x)
+        slot = ica.walk("amy", ":B1_c1", 0.0, 0.0, side=side)  # the crossing on its way out
+        held = _car(ica, through, "car", 0.0)
+        assert not _meets(ica, "car", slot)  # never on her stretch while she may be there
+        waited.append(held.entry_time_s - alone.entry_time_s)
+    assert max(waited) > 0.5  # from one side or the other, she is in its lane as it comes
     # a route that passes neither walker's crossing does not wait
-    other = x.route("B0B1_1", "B1C1_1")  # north, turning right: c2 then c1
-    assert {cid for cid, _, _ in ica.crossing_spans(other, ica.confirmed["car"].dtot.shape)} \
-        == {":B1_c2", ":B1_c1"}  # fmt: skip
     right = x.route("B2B1_1", "B1A1_1")  # south turning right: c0 then c3, none held
+    assert ":B1_c1" not in {
+        cid for cid, _, _ in free.crossing_spans(right, free.confirmed["car"].dtot.shape)
+    }
     ica2 = Dica(x)
     ica2.walk("amy", ":B1_c1", 0.0, 0.0)
     base = Dica(x)
@@ -217,7 +248,9 @@ def test_a_walk_asked_twice_gets_the_same_slot(walk_net):
     first = ica.walk("amy", ":B1_c3", 0.0, 0.0)
     _car(ica, x.route("A1B1_1", "B1C1_1"), "car", 0.5)  # over :B1_c3, after amy
     assert ica.walk("amy", ":B1_c3", 0.0, 1.0) == first
-    assert ica.walks.reserve("amy", ":B1_c3", 99.0) == first  # a journal replayed twice
+    assert (
+        ica.walks.reserve(ica.walks.slot("amy", ":B1_c3", 99.0)) == first
+    )  # a journal replayed twice
     assert len(ica.walks.slots[":B1_c3"]) == 1
     other = ica.walk("bob", ":B1_c3", 0.0, 1.0)  # another walker: a slot of its own
     assert other.person == "bob" and len(ica.walks.slots[":B1_c3"]) == 2
@@ -262,14 +295,30 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
 
     args = ("--net", str(walk_net), "--junction", "B1", "--out", str(tmp_path))
     with router_and_ica("B1", args) as (session, ica):
-        go = ask(session, keys.walk("B1", "gateway"), Walk("amy", ":B1_c1", 0.0, now_ns()))
+        go = ask(
+            session,
+            keys.walk("B1", "gateway"),
+            Walk("amy", ":B1_c1", 0.0, 0.0, 0.0, 0, 0.0, now_ns()),
+        )
         assert isinstance(go, Go) and go.person == "amy" and go.start_s == 0.0
-        assert go.end_s == pytest.approx(12.8 + 2.0)
-        no = ask(session, keys.walk("B1", "agent-1"), Walk("bob", ":B1_c1", 0.0, now_ns()))
+        assert go.end_s == pytest.approx(3.0 + 12.8 + 6.0 + 2.0)
+        no = ask(
+            session,
+            keys.walk("B1", "agent-1"),
+            Walk("bob", ":B1_c1", 0.0, 0.0, 0.0, 0, 0.0, now_ns()),
+        )
         assert isinstance(no, Reject) and "only the roadside" in no.detail
-        no = ask(session, keys.walk("B1", "gateway"), Walk("bob", ":Z_c9", 0.0, now_ns()))
+        no = ask(
+            session,
+            keys.walk("B1", "gateway"),
+            Walk("bob", ":Z_c9", 0.0, 0.0, 0.0, 0, 0.0, now_ns()),
+        )
         assert isinstance(no, Reject) and no.reason == "bad_state"
-        again = ask(session, keys.walk("B1", "gateway"), Walk("amy", ":B1_c1", 3.0, now_ns()))
+        again = ask(
+            session,
+            keys.walk("B1", "gateway"),
+            Walk("amy", ":B1_c1", 3.0, 0.0, 0.0, 0, 0.0, now_ns()),
+        )
         assert again == Go("amy", ":B1_c1", go.start_s, go.end_s, again.sent_ns)  # the same
         (bad,) = [r for r in session.get(keys.walk("B1", "gateway"), payload=b"\x93\x01",
                                          timeout=5.0) if r.ok]  # fmt: skip
@@ -287,7 +336,7 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
         alone = Dica(x)
         alone.detect("car", route.in_lane, 0.0)
         free = alone.handle(req, 0.05)
-        assert got.entry_time_s > free.entry_time_s + 5.0  # it waits for amy
+        assert got.entry_time_s > free.entry_time_s + 1.0  # it waits for amy
         end(session, ica, 2)
     stats = json.loads((tmp_path / "ica.json").read_text())
     first, second = stats["incarnations"]

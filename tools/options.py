@@ -124,7 +124,8 @@ OPTIONS: dict[str, Option] = {
         Option(
             "--layout",
             "built-in intersection: ch3 (2 lanes in, 1 out), ch45 (3 in, 2 out; default), "
-            "skewed or tee",
+            "skewed or tee; each with -walk (ch45-walk, ...) has sidewalks and a crossing "
+            "over every arm",
             choices=LAYOUTS,
             default="ch45",
         ),
@@ -294,6 +295,16 @@ OPTIONS: dict[str, Option] = {
             "region at a time (default 0.02 for rdica and reactive-light, else 0)",
             float,
             limit=LIMITS["ev_prob"],
+        ),
+        Option(
+            "--peds",
+            "people on foot: N persons an hour at every pedestrian crossing of the junction(s), "
+            "held at the kerb until the ICA gives them the crossing (a net with crossings, "
+            "e.g. --layout ch45-walk; default 0)",
+            float,
+            default=0.0,
+            limit=LIMITS["peds_per_h"],
+            metavar="N",
         ),
         Option(
             "--approach-weights",
@@ -507,7 +518,8 @@ VOLUME_500 = {"default": 500.0, "help": "vehicles per 10 min (default 500)"}  # 
 NET = ("--layout", "--net", "--junction")
 PLAN = ("--margin", "--time-pad", "--platoon", "--headway", "--run-up", "--exit-spacing")
 TRAFFIC = ("--volume", "--volume-end", "--ramp", "--seed", "--duration", "--until-left",
-           "--ev-prob", "--approach-weights", "--sumo-args", "--routes", "--begin")  # fmt: skip
+           "--ev-prob", "--peds", "--approach-weights", "--sumo-args", "--routes",
+           "--begin")  # fmt: skip
 
 
 def check(args: argparse.Namespace) -> None:

@@ -23,7 +23,8 @@ Runs one scenario end to end over Zenoh on loopback and writes metrics.json,
 vehicles.csv, timeseries.csv, ica.json and spacetime.rrd into the run directory.
 
 scenario and roles:
-  --layout ch45|ch3     built-in intersection (default ch45)
+  --layout ch45|ch3     built-in intersection (default ch45; ch45-walk, ...: with sidewalks
+                        and crossings)
   --net FILE --junction ID
                         any SUMO net instead
   --net FILE --junctions all|J1,J2,... --routes FILE
@@ -62,6 +63,8 @@ scenario and roles:
                         SUMO drives its vehicles and the junction takes each over in its
                         region
   --begin S             with --routes: the simulated time the run starts at (default 0)
+  --peds N              people on foot: N an hour at every crossing (a net with crossings,
+                        e.g. --layout ch45-walk); the gateway asks the ICA for each
   --agents N            vehicle-agent processes (default 2)
   --per-agent K         most vehicles one agent hosts at a time (default 0: no limit)
   --clock lockstep|realtime
@@ -139,6 +142,7 @@ while [ $# -gt 0 ]; do
     --seed) seed="$2"; shift 2 ;;
     --routes) demand+=(--routes "$(from_caller "$2")"); shift 2 ;;
     --begin) demand+=(--begin "$2"); shift 2 ;;
+    --peds) demand+=(--peds "$2"); shift 2 ;;
     --agents) agents="$2"; shift 2 ;;
     --per-agent) per_agent="$2"; shift 2 ;;
     --clock) clock="$2"; shift 2 ;;

@@ -45,7 +45,7 @@ from dica.ica.core.conflict import (
     get_cv_batch,
     pack,
 )
-from dica.ica.core.crosswalk import spans
+from dica.ica.core.crosswalk import reach, spans
 from dica.ica.core.dtot import Dtot, build_dtot
 from dica.ica.core.gridlock import QUEUE_GAP_M
 from dica.ica.core.handover import Handover
@@ -57,7 +57,7 @@ from dica.ica.core.route import Route
 from dica.ica.core.search import Found, Search, plan_entry
 from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.validate import check_request
-from dica.ica.core.walk import WalkSlot, Walkways, hold
+from dica.ica.core.walk import CLAIM_S, HOLD_AHEAD_S, Hold, WalkSlot, Walkways, hold
 from dica.ica.core.zones import ConflictTables, Shape
 
 LEFT_MEMORY_S = 20.0  # [s] how long exit spacing remembers a vehicle that has left
@@ -143,6 +143,11 @@ class Dica:
         # none), and per route and shape the crossings it passes (ica.core.crosswalk)
         self.walks = Walkways(intersection.crosswalks) if intersection.crosswalks else None
         self._walk_spans: dict[tuple[str, Shape], list[tuple[str, float, float]]] = {}
+        self._walk_reach: dict[tuple[str, Shape], dict[str, tuple[float, float]]] = {}
+        # vehicles refused for holding a crossing too far ahead, since when; and how many
+        # went anyway after CLAIM_S
+        self._walk_refused: dict[str, float] = {}
+        self.walk_claims = 0
 
     def prepare(self) -> None:
         """Work a controller can do once before it serves, so that no request waits
@@ -194,6 +199,10 @@ class Dica:
             self._gone.append((c.out_s, c.dtot.route.out_lane, c.length_m, vin))
         if self.walks is not None:
             self.walks.advance(now_s)
+            if self._walk_refused:
+                self._walk_refused = {
+                    v: t for v, t in self._walk_refused.items() if v in self._lane_of
+                }
         oldest = now_s - self.config.max_request_age_s - 1.0  # the oldest t_obs still taken
         self._gone = [g for g in self._gone if g[0] > oldest]
         self._entries = [e for e in self._entries if e[0] > oldest]
@@ -391,6 +400,8 @@ class Dica:
 
         leader = self._leader(req.vin, lane)
         found = Search(self, req, route, shape, traj, leader).best()
+        if self.walks is not None:
+            self._check_walk_ahead(req.vin, route, shape, found, now_s)
         conf = self._store(req.vin, req.seq, found, route, shape, req.length_m)
         if entering and done is None:
             self._entries.append((now_s, float(req.length_m)))
@@ -485,40 +496,114 @@ class Dica:
             self._walk_spans[key] = got
         return got
 
-    def walk(self, person: str, crossing: str, ready_s: float, now_s: float) -> WalkSlot:
-        """A walker at the kerb of ``crossing`` from ``ready_s`` asks to cross: the slot
-        it is given, the first clear of every confirmed vehicle, held from then on (asked
-        again, the same slot)."""
+    def crossing_reach(self, route: Route, shape: Shape) -> dict[str, tuple[float, float]]:
+        """Per crossing ``route`` passes, the stretch of it a vehicle of ``shape`` (grown
+        by the margin) covers there (:func:`ica.core.crosswalk.reach`), worked out once."""
+        key = (route.id, shape)
+        got = self._walk_reach.get(key)
+        if got is None:
+            got = {}
+            for cid, _a, _b in self.crossing_spans(route, shape):
+                c = next(x for x in self.intersection.crosswalks if x.id == cid)
+                u = reach(route, c, shape.length_m, shape.width_m, self.config.margin_m)
+                if u is not None:
+                    got[cid] = u
+            self._walk_reach[key] = got
+        return got
+
+    def _holds(self, crossing: str) -> list[Hold]:
+        """The confirmed vehicles' holds of ``crossing``: when, and over which stretch."""
+        pad = 2.0 * self.config.time_pad_s
+        busy: list[Hold] = []
+        for c in self._confirmed.values():
+            route, shape = c.dtot.route, c.dtot.shape
+            for cid, a, b in self.crossing_spans(route, shape):
+                if cid == crossing:
+                    t_in, t_out = hold(c.dtot.trajectory, a, b, c.out_mps)
+                    u_lo, u_hi = self.crossing_reach(route, shape)[cid]
+                    busy.append((t_in - pad, t_out + pad, u_lo, u_hi))
+        return busy
+
+    def walk(
+        self,
+        person: str,
+        crossing: str,
+        ready_s: float,
+        now_s: float,
+        walk_m: float = 0.0,
+        speed_mps: float = 0.0,
+        side: int = 0,
+        near_m: float = 0.0,
+    ) -> WalkSlot:
+        """A walker at the kerb of ``crossing`` from ``ready_s``, ``near_m`` short of its
+        end ``side`` and ``walk_m`` from being off the corner beyond, walking at
+        ``speed_mps`` (0: not stated), asks to cross: the slot it is given, held from then
+        on (asked again, the same slot). It goes with a walk phase that has not begun if
+        its way is clear from then, else it starts a new phase, no sooner than the
+        vehicles' window after the last and clear of every confirmed vehicle
+        (:mod:`ica.core.walk`)."""
         if self.walks is None or crossing not in self.walks.crosswalks:
             raise RequestError(Reason.BAD_STATE, f"{crossing!r} is no crossing of this junction")
-        if not (math.isfinite(ready_s) and math.isfinite(now_s)):
-            raise RequestError(Reason.NOT_FINITE, f"times of {person}'s request are not finite")
+        if not all(math.isfinite(x) for x in (ready_s, now_s, walk_m, speed_mps)):
+            raise RequestError(Reason.NOT_FINITE, f"figures of {person}'s request are not finite")
+        if walk_m < 0.0 or speed_mps < 0.0:
+            raise RequestError(Reason.BAD_STATE, f"{person}'s walk or speed is negative")
+        if side not in (0, 1) or near_m < 0.0:
+            raise RequestError(Reason.BAD_STATE, f"{person}'s side or distance is not one")
         held = self.walks.slot_of(person, crossing)
         if held is not None:
             return held
-        pad = 2.0 * self.config.time_pad_s
-        busy = []
-        for c in self._confirmed.values():
-            for cid, a, b in self.crossing_spans(c.dtot.route, c.dtot.shape):
-                if cid == crossing:
-                    t_in, t_out = hold(c.dtot.trajectory, a, b, c.out_mps)
-                    busy.append((t_in - pad, t_out + pad))
-        start = self.walks.earliest(crossing, max(ready_s, now_s), busy)
-        return self.walks.reserve(person, crossing, start)
+        walks = self.walks
+        busy = self._holds(crossing)
+        at = max(ready_s, now_s)
+        want = walks.slot(person, crossing, at, walk_m, speed_mps, side, near_m)
+        start = walks.joinable(want, at, busy)  # a phase that has not begun: go with it
+        if start is None:
+            start = walks.earliest(want, max(at, walks.next_phase_s()), busy)
+            # a new phase lasts long enough for anyone at the kerb to join it while it waits
+            span = max(want.end_s - want.start_s, walks.phase_s(crossing))
+            want = dataclasses.replace(want, end_s=want.start_s + span)
+        shift = start - want.start_s
+        return walks.reserve(dataclasses.replace(want, start_s=start, end_s=want.end_s + shift))
+
+    def _check_walk_ahead(
+        self, vin: str, route: Route, shape: Shape, found: Found, now_s: float
+    ) -> None:
+        """Refuse a plan that holds a crossing later than :data:`HOLD_AHEAD_S` from now
+        (walkers asking meanwhile would wait for it), unless ``vin`` was first refused for
+        that :data:`CLAIM_S` ago or more: then it goes, so no vehicle starves."""
+        late = 0.0
+        for _cid, a, b in self.crossing_spans(route, shape):
+            late = max(late, hold(found.traj, a, b, found.out_mps)[1] - now_s)
+        if late <= HOLD_AHEAD_S:
+            self._walk_refused.pop(vin, None)
+            return
+        since = self._walk_refused.setdefault(vin, now_s)
+        if now_s - since >= CLAIM_S:
+            del self._walk_refused[vin]
+            self.walk_claims += 1
+            return
+        raise RequestError(
+            Reason.WALKERS,
+            f"its plan holds a crossing {late:.1f} s ahead; walkers may be given it first "
+            f"(at most {HOLD_AHEAD_S:.0f} s ahead)",
+        )
 
     def walk_conflict(
         self, route: Route, shape: Shape, traj: Trajectory, exit_mps: float
     ) -> Conflict | None:
-        """A plan on ``route`` that would hold a crossing while a walker has it: the
-        conflict that delays it the most (until the walker is across), or None."""
+        """A plan on ``route`` that would meet a walker on a crossing: the conflict that
+        delays it the most (until the walker is past its stretch), or None."""
         walks = self.walks
         if walks is None or not any(walks.slots.values()):
             return None
         pad = 2.0 * self.config.time_pad_s
         worst: Conflict | None = None
+        stretch = self.crossing_reach(route, shape)
         for cid, a, b in self.crossing_spans(route, shape):
             t_in, t_out = hold(traj, a, b, exit_mps)
-            d = walks.delay(cid, t_in - pad, t_out + pad)
+            u_lo, u_hi = stretch[cid]
+            d = walks.delay(cid, t_in - pad, t_out + pad, u_lo, u_hi)
             if d > 0.0 and (worst is None or d > worst.delay_s):
                 worst = Conflict(f"walkers on {cid}", t_in, d)
         return worst

@@ -78,6 +78,9 @@ class Reason(StrEnum):
     FOLLOW = "follow"
     # its exit lane beyond the junction has no room for it yet: ask again later
     NO_ROOM = "no_room"
+    # its plan would hold a pedestrian crossing too far ahead, where walkers at the kerb
+    # may be given it first: ask again later
+    WALKERS = "walkers"
 
 
 class RequestError(Exception):

@@ -1,40 +1,83 @@
-"""People crossing: the time each pedestrian crossing is reserved for walkers, and what
-a vehicle's plan must keep clear of.
+"""People crossing: when each walker has each part of a crossing, and what a vehicle's
+plan must keep clear of.
 
-A walker at the kerb asks to cross; the ICA answers with the moment to start,
-the first at which the crossing is free of every confirmed vehicle for as long
-as a slow walker needs to get across (its length at :data:`WALK_MPS` and
-:data:`CLEAR_S` more), and holds the crossing for that time. A vehicle's plan
-holds a crossing from its front touching the strip to its rear clearing it
-(:func:`ica.core.crosswalk.span`, in time through its trajectory); a plan that
-would hold a crossing while a walker has it is delayed until the walker is
-across, as a conflict with another vehicle delays it.
+A walker at the kerb asks to cross; the ICA answers with the moment to start. From
+then on the walker is somewhere between a slow walk (:data:`WALK_MPS`, or a little
+under its own speed if that is slower) and a little over its own pace: over a
+stretch ``[u_lo, u_hi]`` of the crossing (metres along it) it may be from the
+moment its fast pace brings it there to the moment a slow walk begun
+:data:`LAG_S` late has taken it past, and :data:`CLEAR_S` more
+(:meth:`WalkSlot.over`). A vehicle's plan touches a crossing over one stretch, the
+one its lane runs through (:func:`ica.core.crosswalk.reach`), for as long as its
+body is on it (:func:`hold`); the two must not meet. So a walker holds the lane it
+is in, not the whole road: a car in the far lane passes while the walker is still
+in the near one, as on a real crossing.
 
-So a walker waits at most until the vehicles confirmed before it asked have
-cleared the crossing: no vehicle confirmed later can take its time. Walkers
-do not conflict with each other. Pure: plans and times in, times out.
+Walkers do not conflict with each other, so they cross in phases, all the
+junction's crossings together: a walker who asks while a phase has not begun,
+and whose walk from its start is clear of the vehicles, joins it. A new phase
+begins no sooner than :data:`PHASE_GAP_S` after the last walker of the phases
+before is off its way, which leaves every vehicle route a window with all its
+crossings free; and no sooner than the vehicles confirmed before the walker
+asked are clear of its way (no vehicle confirmed later can take its time). A
+vehicle's plan may hold a crossing until at most :data:`HOLD_AHEAD_S` ahead of
+the moment it is confirmed (:meth:`ica.core.dica.Dica.walk`), so a walker at the
+kerb waits at most :meth:`Walkways.wait_bound_s` (docs/architecture.md, "People
+crossing"). Pure: plans and times in, times out.
 """
 
 from __future__ import annotations
 
 import bisect
+import math
 from dataclasses import dataclass
 
-from dica.ica.core.crosswalk import Crosswalk
+from dica.ica.core.crosswalk import BODY_M, CORNER_M, Crosswalk
 from dica.ica.core.trajectory import Trajectory
 
 WALK_MPS = 1.0  # [m/s] a slow walker's speed (the 15th percentile is about 1.0-1.1 m/s)
-CLEAR_S = 2.0  # [s] beyond the walk itself: stepping off the kerb, and the last step out
+FAST_MPS = 2.5  # [m/s] the fastest a walker of no stated speed is taken to go
+PACE_UP = 1.1  # a walker of stated speed may go this much faster than it
+PACE_DOWN = 0.8  # and this much slower (a crowd, a pause to let someone by)
+LAG_S = 3.0  # [s] a walker may step off this late (those ahead of it at the kerb go first)
+CLEAR_S = 2.0  # [s] beyond the walk itself: the last step out
+KERB_M = 6.0  # [m] a walker at the kerb stands at most this far from the crossing's end
+PHASE_GAP_S = 15.0  # [s] the vehicles' window between the end of a walk phase and the next
+# [s] a vehicle's plan holds no crossing later than this after it is confirmed (unless the
+# vehicle has been refused for it for CLAIM_S: then it goes first, so it never starves)
+HOLD_AHEAD_S = 25.0
+CLAIM_S = 20.0
+
+Hold = tuple[float, float, float, float]  # a vehicle on a crossing: t_in, t_out, u_lo, u_hi
 
 
 @dataclass(frozen=True, slots=True)
 class WalkSlot:
-    """A crossing reserved for a walker from ``start_s`` to ``end_s``."""
+    """A walker's reservation of ``crossing``: it starts at ``start_s`` from ``near_m``
+    short of the crossing's end ``side`` (0: the first point of its centre line as the
+    net draws it, 1: the last), walks at ``v_lo`` to ``v_hi`` [m/s], and is off the
+    crossing and its corner by ``end_s``."""
 
     person: str
     crossing: str
     start_s: float
     end_s: float
+    side: int = 0
+    near_m: float = 0.0
+    v_lo: float = WALK_MPS
+    v_hi: float = FAST_MPS
+
+    def over(
+        self, u_lo: float, u_hi: float, length_m: float, clear_s: float
+    ) -> tuple[float, float]:
+        """When the walker may be on the stretch ``[u_lo, u_hi]`` of the crossing (metres
+        from its end 0): from its fastest arrival at the stretch, a body's reach
+        (:data:`BODY_M`) early, to its slowest departure (stepping off :data:`LAG_S`
+        late) a body's reach past it and ``clear_s`` more, within its slot."""
+        a, b = (u_lo, u_hi) if self.side == 0 else (length_m - u_hi, length_m - u_lo)
+        t_in = self.start_s + max(a + self.near_m - BODY_M, 0.0) / self.v_hi
+        t_out = self.start_s + LAG_S + max(b + self.near_m + BODY_M, 0.0) / self.v_lo + clear_s
+        return min(t_in, self.end_s), min(t_out, self.end_s)
 
 
 def hold(traj: Trajectory, s_from: float, s_to: float, exit_mps: float) -> tuple[float, float]:
@@ -69,49 +112,125 @@ class Walkways:
         self.clear_s = clear_s
         self.gap_s = gap_s  # [s] kept between a vehicle's hold and a walker's, either way
         self.slots: dict[str, list[WalkSlot]] = {c: [] for c in self.crosswalks}
+        self.phase_gap_s = PHASE_GAP_S
+        self.last_end = -math.inf  # when the last walker is off its way (kept when forgotten)
 
-    def walk_s(self, crossing: str) -> float:
-        """How long a walker holds ``crossing``."""
-        return self.crosswalks[crossing].length_m / self.walk_mps + self.clear_s
+    # -- one walker ------------------------------------------------------------------
+    def pace(self, speed_mps: float) -> tuple[float, float]:
+        """The slowest and fastest a walker of stated ``speed_mps`` (0: not stated) is
+        planned to go."""
+        if speed_mps > 0.0:
+            slow = min(self.walk_mps, speed_mps * PACE_DOWN)
+            return slow, max(speed_mps * PACE_UP, self.walk_mps)
+        return self.walk_mps, FAST_MPS
 
-    def earliest(self, crossing: str, ready_s: float, busy: list[tuple[float, float]]) -> float:
-        """The first start at or after ``ready_s`` at which a walker has ``crossing`` for
-        :meth:`walk_s` clear of every vehicle hold in ``busy`` (with :attr:`gap_s` each
+    def walk_s(self, crossing: str, walk_m: float = 0.0, speed_mps: float = 0.0) -> float:
+        """How long a walker holds ``crossing``: ``walk_m`` from where it stands until it
+        is off the walking area beyond (at least the crossing's length and
+        :data:`CORNER_M`), at its slow pace, stepping off :data:`LAG_S` late, and
+        :attr:`clear_s` more."""
+        far = max(walk_m, self.crosswalks[crossing].length_m + CORNER_M)
+        return LAG_S + far / self.pace(speed_mps)[0] + self.clear_s
+
+    def slot(
+        self,
+        person: str,
+        crossing: str,
+        start_s: float,
+        walk_m: float = 0.0,
+        speed_mps: float = 0.0,
+        side: int = 0,
+        near_m: float = 0.0,
+    ) -> WalkSlot:
+        """The slot of a walker that starts at ``start_s`` (not yet held)."""
+        v_lo, v_hi = self.pace(speed_mps)
+        end = start_s + self.walk_s(crossing, walk_m, speed_mps)
+        return WalkSlot(person, crossing, start_s, end, side, near_m, v_lo, v_hi)
+
+    def earliest(self, want: WalkSlot, ready_s: float, busy: list[Hold]) -> float:
+        """The first start at or after ``ready_s`` at which the walk ``want`` (its start
+        moved) meets none of the vehicle holds in ``busy`` (with :attr:`gap_s` each
         side)."""
-        need, gap = self.walk_s(crossing), self.gap_s
+        banned = sorted(self._banned(want, busy))
         t = ready_s
-        for a, b in sorted(busy):
-            if b + gap <= t:
+        for a, b in banned:
+            if b <= t:
                 continue
-            if t + need + gap <= a:
+            if a >= t:
                 break
-            t = max(t, b + gap)
+            t = b
         return t
 
+    def clear_at(self, want: WalkSlot, start_s: float, busy: list[Hold]) -> bool:
+        """Whether the walk ``want`` started at ``start_s`` meets none of ``busy``."""
+        return all(not (a < start_s < b) for a, b in self._banned(want, busy))
+
+    def _banned(self, want: WalkSlot, busy: list[Hold]) -> list[tuple[float, float]]:
+        """The open intervals of starts at which ``want`` meets a hold in ``busy``."""
+        length, gap = self.crosswalks[want.crossing].length_m, self.gap_s
+        rel = WalkSlot(want.person, want.crossing, 0.0, want.end_s - want.start_s,
+                       want.side, want.near_m, want.v_lo, want.v_hi)  # fmt: skip
+        out = []
+        for t_in, t_out, u_lo, u_hi in busy:
+            a, b = rel.over(u_lo, u_hi, length, self.clear_s)
+            if b > a:
+                out.append((t_in - gap - b, t_out + gap - a))
+        return out
+
+    # -- phases ----------------------------------------------------------------------
+    def wait_bound_s(self, longest_s: float) -> float:
+        """The longest a walker at the kerb waits for its start when no walk takes longer
+        than ``longest_s`` (:meth:`walk_s`): a phase that began just before it asked, the
+        vehicles' window after it; or the vehicles confirmed before it asked, whose holds
+        end within :data:`HOLD_AHEAD_S` (and the gap)."""
+        return max(longest_s + self.phase_gap_s, HOLD_AHEAD_S + self.gap_s)
+
+    def phase_s(self, crossing: str) -> float:
+        """How long a walk phase on ``crossing`` lasts at least: a slow walk from
+        :data:`KERB_M` short of it to its far end."""
+        return self.walk_s(crossing, self.crosswalks[crossing].length_m + KERB_M)
+
+    def joinable(self, want: WalkSlot, at_s: float, busy: list[Hold]) -> float | None:
+        """The start of a walk phase of the junction that has not begun by ``at_s`` and
+        from which the walk ``want`` meets none of ``busy``: a walker there now can go
+        with it (None: there is none)."""
+        starts = sorted({w.start_s for slots in self.slots.values() for w in slots})
+        for start in starts:
+            if start >= at_s - 1e-9 and self.clear_at(want, start, busy):
+                return start
+        return None
+
+    def next_phase_s(self) -> float:
+        """The first moment a new walk phase may begin: :data:`PHASE_GAP_S` after the
+        last walker of the phases so far is off its way (the vehicles' window)."""
+        return self.last_end + self.phase_gap_s
+
+    # -- the book ----------------------------------------------------------------------
     def slot_of(self, person: str, crossing: str) -> WalkSlot | None:
         """The slot ``person`` holds on ``crossing``, if any (a WALK asked twice gets it
         again, not a second one)."""
         return next((w for w in self.slots.get(crossing, ()) if w.person == person), None)
 
-    def reserve(self, person: str, crossing: str, start_s: float) -> WalkSlot:
-        """Hold ``crossing`` for ``person`` from ``start_s`` (the slot it holds already, if
-        it has one there)."""
-        held = self.slot_of(person, crossing)
+    def reserve(self, slot: WalkSlot) -> WalkSlot:
+        """Hold ``slot`` (the one its walker holds already on that crossing, if any)."""
+        held = self.slot_of(slot.person, slot.crossing)
         if held is not None:
             return held
-        slot = WalkSlot(person, crossing, start_s, start_s + self.walk_s(crossing))
-        bisect.insort(self.slots[crossing], slot, key=lambda x: x.start_s)
+        bisect.insort(self.slots[slot.crossing], slot, key=lambda x: x.start_s)
+        self.last_end = max(self.last_end, slot.end_s)
         return slot
 
-    def delay(self, crossing: str, t_in: float, t_out: float) -> float:
-        """How much later a vehicle holding ``crossing`` from ``t_in`` to ``t_out`` must
-        come to keep clear of every walker on it (0: it is clear)."""
+    def delay(self, crossing: str, t_in: float, t_out: float, u_lo: float, u_hi: float) -> float:
+        """How much later a vehicle on the stretch ``[u_lo, u_hi]`` of ``crossing`` from
+        ``t_in`` to ``t_out`` must come to keep clear of every walker on it (0: clear)."""
         gap, worst = self.gap_s, 0.0
+        length = self.crosswalks[crossing].length_m
         for w in self.slots.get(crossing, ()):
             if w.start_s - gap >= t_out:
                 break
-            if w.end_s + gap > t_in:
-                worst = max(worst, w.end_s + gap - t_in)
+            a, b = w.over(u_lo, u_hi, length, self.clear_s)
+            if b > a and a - gap < t_out and b + gap > t_in:
+                worst = max(worst, b + gap - t_in)
         return worst
 
     def advance(self, now_s: float) -> None:

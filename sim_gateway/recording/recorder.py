@@ -38,7 +38,7 @@ from dica.sim_gateway.conflict_points import ConflictPoints, dtot_of_tss, find_c
 from dica.sim_gateway.recording.batch import Plan, Step, StepBatch
 from dica.sim_gateway.recording.chart_frame import CHART_EVERY, ChartFrame
 from dica.sim_gateway.recording.conflict_chart import ConflictChart
-from dica.sim_gateway.recording.geometry import RouteProjector
+from dica.sim_gateway.recording.geometry import FLIP_Y, RouteProjector
 from dica.sim_gateway.recording.lane_charts import LaneCharts
 from dica.sim_gateway.recording.layout import Layout
 from dica.sim_gateway.recording.rows import RowBuffer
@@ -48,6 +48,9 @@ from dica.sim_gateway.recording.top_view import TopView, reserved_bands
 
 START_WAIT_S = 60.0  # [s] how long the recording waits for a first confirmation
 FLUSH_S = 20.0  # [s] of simulated time buffered before it is sent (saved file)
+PEOPLE_EVERY_S = 0.25  # [s] of simulated time between two drawings of the people
+PERSON_WAITING_RGB = (230, 160, 20)
+PERSON_WALKING_RGB = (40, 110, 220)
 LIVE_FLUSH_S = 1.0  # [s] the same when viewers watch live (and rows are sent then)
 
 
@@ -109,6 +112,10 @@ class SpaceTimeRecorder:
             sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=live_port))
         self.rec.set_sinks(*sinks, default_blueprint=self.blueprint())
         self._tables.series(self.rec)
+        self._people_t = -math.inf  # when people were last drawn
+        region = np.asarray(intersection.region, dtype=float).reshape(-1, 2)
+        self._people_at = region.mean(axis=0)  # people this near are drawn: the sidewalks too
+        self._people_reach = float(np.abs(region - self._people_at).max()) + 45.0
 
     def __enter__(self) -> SpaceTimeRecorder:
         return self
@@ -285,6 +292,26 @@ class SpaceTimeRecorder:
         t = float(t_s)
         self._steps.append(Step(t, list(vins), x, y, angle, length, width, ridx))
         self._maybe_flush(t)
+
+    def people(self, t_s: float, xy: np.ndarray, waiting: np.ndarray) -> None:
+        """People near the junction at one step, in SUMO's frame: a dot each in the top
+        view (amber: waiting at the kerb, blue: walking), every :data:`PEOPLE_EVERY_S`."""
+        t = float(t_s)
+        if t - self._people_t < PEOPLE_EVERY_S - 1e-9:
+            return
+        self._people_t = t
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        near = np.abs(xy - self._people_at).max(axis=1) <= self._people_reach
+        xy, wait = xy[near], np.asarray(waiting, dtype=bool)[near]
+        self._rows.add_many(
+            "junction/people",
+            rr.Points2D,
+            np.array([t]),
+            np.array([len(xy)]),
+            positions=(xy * FLIP_Y).astype(np.float32),
+            colors=np.where(wait[:, None], PERSON_WAITING_RGB, PERSON_WALKING_RGB).astype(np.uint8),
+            radii=np.full(len(xy), 0.35, dtype=np.float32),
+        )
 
     def _maybe_flush(self, t_s: float) -> None:
         if t_s - self._buf_t0 >= self.flush_s:

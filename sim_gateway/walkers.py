@@ -1,0 +1,361 @@
+"""People on foot: their demand, the roadside that holds them at the kerb until the
+ICA gives them the crossing, and what each one waited.
+
+A walker is one of SUMO's persons. Its plan under an ICA is three stages: walk
+up the sidewalk to the kerb (:data:`WAIT_BACK_M` short of the walking area),
+wait there, walk across and on. When it starts to wait, the roadside sees it,
+as a kerb-side detector or a push button would, and asks the junction's ICA to
+cross (:class:`WalkAsk`); the ICA's answer is the moment the crossing is the
+walker's, and at that moment the roadside ends the wait
+(``person.removeStage``). A waiting person is off SUMO's pedestrian model, so a
+crowd at the kerb never blocks the people coming across. The crossings have
+priority in SUMO, so nothing else would make a person wait: who waits, and for
+how long, is the ICA's doing. Under a light (``hold`` off) people walk one
+stage and obey the light's pedestrian signals; they are only measured.
+
+The demand (``--peds N``) is N persons an hour at every crossing, each starting
+:data:`WALK_IN_M` up a sidewalk at one end of the crossing and going as far down
+one at its other end; directions are even. Its draws come from a stream of their
+own, so adding people changes no vehicle's arrival.
+
+Each walker's wait is measured the same way under every control: from reaching
+the kerb to stepping onto the crossing, less the time the few steps between take
+at its own speed.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dica.ica.core.crosswalk import CORNER_GROW_M
+from dica.ica.core.intersection import Intersection
+
+WALK_IN_M = 40.0  # [m] walkers start and end this far along the sidewalks from the junction
+KERB_REACH_M = 8.0  # [m] a sidewalk's end this close to a crossing's end is at that kerb
+# [m] a walker waits this far up the sidewalk from its end, off the walking area (where the
+# people coming across walk on)
+WAIT_BACK_M = 1.0
+PATH_FACTOR = 1.5  # a walking area's path from a kerb to a crossing, to the straight line
+ASK_AGAIN_S = 1.0  # [s] a WALK unanswered (a lost link, a restarting ICA) is asked again
+KERB_WAIT_S = 1e6  # [s] a held walker's waiting stage: until the roadside ends it
+PED_STREAM = 0x9ED  # the demand's random stream, apart from the vehicles'
+
+
+@dataclass(frozen=True, slots=True)
+class WalkAsk:
+    """A walker at the kerb asks to cross (the roadside's WALK request)."""
+
+    person: str
+    crossing: str
+    junction: str
+    ready_s: float
+    walk_m: float  # [m] from where it stands until off the corner beyond the crossing
+    speed_mps: float  # its own walking speed, as the roadside reads it
+    side: int  # the crossing's end it starts from (0: its centre line's first point)
+    near_m: float  # [m] from where it stands to that end
+
+
+@dataclass(slots=True)
+class Walker:
+    """One person's passage over the crossings of the run's junctions."""
+
+    pid: str
+    depart_s: float
+    planned: str  # the crossing its walk was drawn for
+    from_edge: str = ""  # the sidewalk it comes along, and where on it the kerb is
+    kerb_at: tuple[float, bool] = (0.0, True)
+    kerb_near_m: float = 0.0  # [m] from its kerb to the crossing
+    far_m: float = 0.0  # [m] from the crossing to the sidewalk beyond (off the corner)
+    side: int = 0  # the crossing's end its kerb is at
+    kerb_s: float | None = None  # stepped onto the walking area before a crossing
+    near_m: float = 0.0  # [m] from there to the crossing
+    speed_mps: float = 0.0
+    asked_s: float | None = None
+    go_s: float | None = None  # the ICA's start (None: not given yet, or no ICA)
+    slot_end_s: float | None = None
+    on_s: float | None = None  # stepped onto the crossing
+    off_s: float | None = None  # left it
+    crossing: str | None = None  # the crossing it is at or on
+    arrived_s: float | None = None
+    overran: bool = False  # still on the crossing when its slot ended
+
+    @property
+    def wait_s(self) -> float | None:
+        """Kerb to crossing, less the free walk between."""
+        if self.kerb_s is None or self.on_s is None:
+            return None
+        free = self.near_m / self.speed_mps if self.speed_mps > 0 else 0.0
+        return max(self.on_s - self.kerb_s - free, 0.0)
+
+
+@dataclass(frozen=True, slots=True)
+class Leg:
+    """One drawn walk: at ``t_s`` from ``from_edge`` (at ``from_pos``) across ``crossing``
+    to ``to_edge`` (to ``to_pos``). On ``from_edge`` the kerb is at ``kerb_pos``, which
+    the walker reaches going up the edge (``forward``) or down it."""
+
+    t_s: float
+    crossing: str
+    from_edge: str
+    from_pos: float
+    to_edge: str
+    to_pos: float
+    kerb_pos: float = 0.0
+    forward: bool = True
+    near_m: float = 0.0  # [m] from the kerb to the crossing's near end
+    far_m: float = 0.0  # [m] from its far end to the sidewalk it goes on along
+    side: int = 0  # the crossing's end it starts from
+
+
+def _sidewalk(ls, edge: str) -> str | None:
+    """The edge's first lane people may walk on, or None."""
+    for i in range(ls.edge.getLaneNumber(edge)):
+        lane = f"{edge}_{i}"
+        if "pedestrian" in ls.lane.getAllowed(lane):
+            return lane
+    return None
+
+
+Side = list[tuple[str, float, float, bool, float]]
+
+
+def kerbs(ls, inter: Intersection) -> dict[str, tuple[Side, Side]]:
+    """Per crossing of ``inter``, the sidewalks at each of its two ends: ``(edge, pos,
+    kerb_pos, forward, near_m)``, ``pos`` being :data:`WALK_IN_M` from the junction along
+    the edge (or its far end), ``kerb_pos`` :data:`WAIT_BACK_M` from its junction end,
+    ``forward`` whether the edge runs towards the junction, ``near_m`` how far the kerb
+    is from the crossing's end."""
+    jid = inter.junction_id
+    near: list[tuple[str, np.ndarray, float, float, bool]] = []
+    for edge in ls.edge.getIDList():
+        if edge.startswith(":"):
+            continue
+        to_j, from_j = ls.edge.getToJunction(edge) == jid, ls.edge.getFromJunction(edge) == jid
+        if not (to_j or from_j):
+            continue
+        lane = _sidewalk(ls, edge)
+        if lane is None:
+            continue
+        shape = ls.lane.getShape(lane)
+        length = ls.lane.getLength(lane)
+        point = np.array(shape[-1] if to_j else shape[0])
+        pos = max(length - WALK_IN_M, 0.0) if to_j else min(WALK_IN_M, length)
+        kerb = max(length - WAIT_BACK_M, 0.0) if to_j else min(WAIT_BACK_M, length)
+        near.append((edge, point, pos, kerb, to_j))
+    out = {}
+    for c in inter.crosswalks:
+        ends = (c.shape[0], c.shape[-1])
+        sides: tuple[list, list] = ([], [])
+        for edge, point, pos, kerb, forward in near:
+            d = [float(np.linalg.norm(point - e)) for e in ends]
+            k = int(d[1] < d[0])
+            if d[k] <= KERB_REACH_M:
+                # round the corner, not straight across it
+                sides[k].append((edge, pos, kerb, forward, PATH_FACTOR * d[k] + WAIT_BACK_M))
+        out[c.id] = sides
+    return out
+
+
+def draw_legs(
+    ends: dict[str, tuple[Side, Side]],
+    per_hour: float,
+    duration_s: float,
+    seed: int,
+) -> list[Leg]:
+    """Poisson arrivals of ``per_hour`` walkers at every crossing that has a sidewalk at
+    both ends, over ``duration_s``, each from a sidewalk at one end to one at the other
+    (direction and sidewalks uniform); in time order."""
+    rng = np.random.default_rng([seed, PED_STREAM])
+    legs = []
+    for crossing in sorted(ends):
+        a, b = ends[crossing]
+        if not a or not b or per_hour <= 0.0:
+            continue
+        t = 0.0
+        while True:
+            t += float(rng.exponential(3600.0 / per_hour))
+            if t >= duration_s:
+                break
+            side = 0 if rng.random() < 0.5 else 1
+            src, dst = (a, b) if side == 0 else (b, a)
+            (fe, fp, kp, fw, nm), (te, tp, _, _, fm) = (
+                src[rng.integers(len(src))],
+                dst[rng.integers(len(dst))],
+            )
+            legs.append(
+                Leg(round(t, 2), crossing, fe, fp, te, tp, kp, fw, nm, fm - WAIT_BACK_M, side)
+            )
+    legs.sort(key=lambda x: (x.t_s, x.crossing))
+    return legs
+
+
+@dataclass
+class Walkers:
+    """The run's persons: put in as drawn, held at the kerb and let go (``hold``), and
+    measured."""
+
+    ls: object
+    inters: tuple[Intersection, ...]
+    legs: list[Leg]
+    hold: bool = True
+    people: dict[str, Walker] = field(default_factory=dict)
+    asks: list[WalkAsk] = field(default_factory=list)
+    _next: int = 0
+    _crossing_of: dict[str, tuple[str, np.ndarray, float]] = field(default_factory=dict)
+    _walking_areas: set[str] = field(default_factory=set)
+    _held: dict[str, Walker] = field(default_factory=dict)  # waiting for the ICA's go
+    _radius: dict[str, float] = field(default_factory=dict)  # [m] each person's body
+    # this step's persons as SUMO places them (for the person check)
+    present: list[str] = field(default_factory=list)
+    xy: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    radius_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self) -> None:
+        for inter in self.inters:
+            for c in inter.crosswalks:
+                self._crossing_of[c.id] = (inter.junction_id, c.shape, c.length_m)
+
+    @property
+    def ids(self) -> set[str]:
+        return set(self.people)
+
+    def step(self, t: float) -> list[WalkAsk]:
+        """After SUMO's step to ``t``: put in who is due, see who reached a kerb (held and
+        asking, with ``hold``), who stepped onto or off a crossing, and who arrived. The
+        asks are this step's; :meth:`answer` gives each its start."""
+        ls = self.ls
+        while self._next < len(self.legs) and self.legs[self._next].t_s <= t + 1e-9:
+            leg = self.legs[self._next]
+            pid = f"p{self._next:05d}"
+            ls.person.add(pid, leg.from_edge, leg.from_pos, t)
+            if self.hold:  # up to the kerb, wait there (off the sidewalk) for the go, cross
+                ls.person.appendWalkingStage(pid, [leg.from_edge], leg.kerb_pos)
+                ls.person.appendWaitingStage(pid, KERB_WAIT_S, "at the kerb")
+            ls.person.appendWalkingStage(pid, [leg.from_edge, leg.to_edge], leg.to_pos)
+            self.people[pid] = Walker(
+                pid, t, leg.crossing, leg.from_edge, (leg.kerb_pos, leg.forward), leg.near_m,
+                leg.far_m, leg.side,
+            )  # fmt: skip
+            self._next += 1
+        for pid in ls.simulation.getArrivedPersonIDList():
+            w = self.people.get(pid)
+            if w is not None and w.arrived_s is None:
+                w.arrived_s = t
+        asks = []
+        ids = ls.person.getIDList()
+        self.xy = np.array([ls.person.getPosition(p) for p in ids], dtype=float).reshape(-1, 2)
+        for pid in ids:
+            if pid not in self._radius:
+                self._radius[pid] = 0.5 * max(ls.person.getLength(pid), ls.person.getWidth(pid))
+        self.present = list(ids)
+        self.radius_m = np.array([self._radius[p] for p in ids], dtype=float)
+        for pid in ids:
+            w = self.people.get(pid)
+            if w is None:
+                continue
+            road = ls.person.getRoadID(pid)
+            if w.crossing is not None and w.on_s is not None and w.off_s is None:
+                if road != w.crossing:
+                    w.off_s = t
+                elif w.slot_end_s is not None and t > w.slot_end_s:
+                    w.overran = True
+                continue
+            if road in self._crossing_of:
+                if w.crossing == road and w.on_s is None:
+                    w.on_s = t
+                continue
+            if w.kerb_s is not None or road != w.from_edge:
+                continue
+            if self.hold:  # waiting at the kerb: its walk there is done
+                if ls.person.getRemainingStages(pid) > 2:
+                    continue
+            else:
+                pos = ls.person.getLanePosition(pid)
+                if not (pos >= w.kerb_at[0] if w.kerb_at[1] else pos <= w.kerb_at[0]):
+                    continue
+            nxt = w.planned
+            # at the kerb of a crossing of ours: a new passage
+            junction, _shape, length = self._crossing_of[nxt]
+            near = w.kerb_near_m
+            w.crossing, w.kerb_s, w.near_m = nxt, t, near
+            w.speed_mps = float(ls.person.getMaxSpeed(pid))
+            if self.hold:
+                w.asked_s = t
+                self._held[pid] = w
+                walk = near + length + w.far_m + CORNER_GROW_M  # until off the corner beyond
+                asks.append(WalkAsk(pid, nxt, junction, t, walk, w.speed_mps, w.side, near))
+        self.asks = asks
+        return asks
+
+    def again(self, t: float) -> list[WalkAsk]:
+        """The held walkers whose WALK has gone unanswered for :data:`ASK_AGAIN_S`: asked
+        again (the ICA answers a repeat with the same slot)."""
+        out = []
+        for pid, w in self._held.items():
+            if w.go_s is None and w.asked_s is not None and t - w.asked_s >= ASK_AGAIN_S - 1e-9:
+                w.asked_s = t
+                junction, _shape, length = self._crossing_of[w.crossing]
+                walk = w.near_m + length + w.far_m + CORNER_GROW_M
+                out.append(
+                    WalkAsk(
+                        pid, w.crossing, junction, w.kerb_s, walk, w.speed_mps, w.side, w.near_m
+                    )
+                )
+        return out
+
+    def waiting_mask(self) -> np.ndarray:
+        """Per person of this step (:attr:`present`): held at the kerb."""
+        return np.array([p in self._held for p in self.present], dtype=bool)
+
+    def answer(self, pid: str, start_s: float, end_s: float, t: float) -> None:
+        """The ICA's slot for ``pid``: let it go at ``start_s`` (now, if that has come)."""
+        w = self._held.get(pid)
+        if w is None:
+            return
+        w.go_s, w.slot_end_s = start_s, end_s
+        self.release(t)
+
+    def release(self, t: float) -> None:
+        """Let go every held walker whose start has come."""
+        for pid in [p for p, w in self._held.items() if w.go_s is not None and w.go_s <= t + 1e-9]:
+            del self._held[pid]
+            self.ls.person.removeStage(pid, 0)  # the wait at the kerb: it walks on
+
+    def summary(self, end_s: float) -> dict:
+        """Per-person figures: how many crossed, waited, are still out; waits."""
+        people = list(self.people.values())
+        waits = [w.wait_s for w in people if w.wait_s is not None]
+        crossed = [w for w in people if w.off_s is not None]
+        times = [w.off_s - w.on_s for w in crossed if w.on_s is not None]
+        at_kerb = [w for w in people if w.kerb_s is not None and w.on_s is None]
+        longest = [end_s - w.kerb_s for w in at_kerb]  # those still waiting count too
+        return {
+            "generated": len(people),
+            "crossed": len(crossed),
+            "at_kerb_at_end": len(at_kerb),
+            "on_crossing_at_end": sum(1 for w in people if w.on_s is not None and w.off_s is None),
+            "not_at_a_kerb_yet": sum(1 for w in people if w.kerb_s is None),
+            "mean_wait_s": float(np.mean(waits)) if waits else None,
+            "p95_wait_s": float(np.percentile(waits, 95)) if waits else None,
+            "max_wait_s": max([*waits, *longest], default=None),
+            "mean_crossing_s": float(np.mean(times)) if times else None,
+            "overran_slot": sum(1 for w in people if w.overran),
+        }
+
+    def rows(self) -> list[dict]:
+        """One row per passage for ``persons.csv``."""
+
+        def r(x: float | None) -> float | str:
+            return "" if x is None or not math.isfinite(x) else round(x, 2)
+
+        return [
+            {
+                "person": w.pid, "depart_s": r(w.depart_s), "crossing": w.crossing or w.planned,
+                "kerb_s": r(w.kerb_s), "go_s": r(w.go_s), "on_s": r(w.on_s), "off_s": r(w.off_s),
+                "wait_s": r(w.wait_s), "speed_mps": r(w.speed_mps),
+            }
+            for w in self.people.values()
+        ]  # fmt: skip

@@ -1,0 +1,113 @@
+"""People on foot at a signal-free junction, in real SUMO: held at the kerb until the
+ICA gives them the crossing, and checked against every vehicle's body."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+
+from dica.sim_gateway.safety import PersonCheck
+
+ROOT = Path(__file__).resolve().parents[1]
+DICA = [sys.executable, "-m", "dica.tools.cli"]
+
+
+def _run(out: Path, *args: str) -> dict:
+    p = subprocess.run(
+        [*DICA, "run", "--out", str(out), "--quiet", *args],
+        capture_output=True, text=True, cwd=ROOT, timeout=600,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    return json.loads((out / "metrics.json").read_text())
+
+
+def test_people_cross_and_no_vehicle_touches_one(tmp_path):
+    """Vehicles and people at the chapter 4-5 junction with sidewalks: every person is
+    accounted for, waited at the kerb for the ICA's go, and no vehicle came near a body
+    by the independent check or by SUMO's own."""
+    m = _run(tmp_path / "r", "--layout", "ch45-walk", "--volume", "150", "--peds", "200",
+             "--duration", "400", "--seed", "21", "--record")  # fmt: skip
+    w = m["walkers"]
+    assert w["generated"] > 60 and w["crossed"] > 40
+    parts = ("crossed", "at_kerb_at_end", "on_crossing_at_end", "not_at_a_kerb_yet")
+    assert sum(w[k] for k in parts) == w["generated"]  # every person accounted for
+    assert w["person_hits"] == 0 and w["sumo_person_collisions"] == 0
+    assert w["min_person_gap_m"] > 0.0
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["crossed"] > 80
+    rows = list(csv.DictReader((tmp_path / "r" / "persons.csv").open()))
+    assert len(rows) == w["generated"]
+    crossed = [r for r in rows if r["off_s"]]
+    for r in crossed:  # each stepped on only once its start had come
+        assert float(r["go_s"]) >= float(r["kerb_s"]) - 1e-6
+        assert float(r["on_s"]) >= float(r["go_s"]) - 1e-6
+    assert any(float(r["go_s"]) > float(r["kerb_s"]) + 1.0 for r in crossed)  # some waited
+    # the top view shows them: a row of dots every 0.25 s
+    rows = {}
+    for chunk in RrdReader(tmp_path / "r" / "spacetime.rrd").stream():
+        if chunk.entity_path == "/junction/people":
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    assert rows.get("/junction/people", 0) > 300
+
+
+def test_the_person_check_sees_what_a_light_lets_happen(tmp_path):
+    """The check is not blind: under SUMO's own actuated light, whose drivers yield to
+    walkers only by SUMO's model, turning cars brush walkers at the corners and the
+    check counts it (SUMO's own, which looks at crossings only, does not)."""
+    m = _run(tmp_path / "a", "--layout", "ch45-walk", "--algorithm", "actuated",
+             "--volume", "150", "--peds", "200", "--duration", "400", "--seed", "21")  # fmt: skip
+    assert m["walkers"]["person_hits"] > 0 and m["walkers"]["crossed"] > 40
+
+
+def test_a_body_touching_a_car_is_a_hit():
+    region = np.array([[-20.0, -20.0], [20.0, -20.0], [20.0, 20.0], [-20.0, 20.0]])
+    check = PersonCheck(region)
+    car = (["v"], np.array([[0.0, 0.0]]), np.array([0.0]), np.array([5.0]), np.array([2.0]))
+    # the car faces north, front bumper at the origin: x in [-1, 1], y in [-5, 0]
+    assert check.observe(0.0, *car, ["p"], np.array([[1.2, -2.0]]), np.array([0.25])) == 1
+    assert check.observe(0.1, *car, ["q"], np.array([[1.6, -2.0]]), np.array([0.25])) == 0
+    far = check.observe(0.2, *car, ["r"], np.array([[30.0, 30.0]]), np.array([0.25]))
+    assert far == 0  # beyond the junction: not watched
+    r = check.report()
+    assert r.hits == 1 and r.hit_pairs == [(0.0, "v", "p")] and r.min_gap_m == 0.0
+
+
+@pytest.mark.parametrize(
+    "args, says",
+    [
+        (["--layout", "ch45", "--peds", "100"], "has no pedestrian crossings"),
+        (["--layout", "ch45-walk", "--peds", "-1"], "--peds must be between 0"),
+    ],
+)
+def test_people_where_the_junction_cannot_have_them_is_one_clear_line(tmp_path, args, says):
+    p = subprocess.run(
+        [*DICA, "run", "--out", str(tmp_path / "x"), "--duration", "10", *args],
+        capture_output=True, text=True, cwd=ROOT, timeout=120,
+    )  # fmt: skip
+    assert p.returncode == 2, p.stdout + p.stderr
+    assert says in p.stderr and "Traceback" not in p.stderr
+
+
+def test_a_lockstep_cluster_with_people_makes_the_embedded_decisions(tmp_path):
+    """The gateway asks the ICA process for each walker over Zenoh (WALK -> GO) before the
+    step's clock: the vehicles and the people cross as in one process, byte for byte."""
+    from tests.test_cluster import _cluster
+
+    common = ["--layout", "ch45-walk", "--volume", "150", "--peds", "200", "--duration", "120",
+              "--seed", "21"]  # fmt: skip
+    p = _cluster(tmp_path / "cl", "--agents", "1", "--no-record", *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _run(tmp_path / "emb", *common)
+    for name in ("vehicles.csv", "persons.csv"):
+        assert (tmp_path / "cl" / name).read_bytes() == (tmp_path / "emb" / name).read_bytes()
+    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
+    assert m["walkers"]["crossed"] > 5 and m["walkers"]["person_hits"] == 0
+    assert m["walks_unanswered"] == 0
+    ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
+    assert ica["walks"] >= m["walkers"]["crossed"]
