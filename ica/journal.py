@@ -99,12 +99,16 @@ class Journal:
     def cancel(self, vin: str, seq: int) -> None:
         self._write({"k": "cancel", "vin": vin, "seq": seq})
 
+    def across(self, person: str, crossing: str, t_s: float) -> None:
+        """A walker's slot brought forward to ``t_s``: the roadside saw it across."""
+        self._write({"k": "across", "person": person, "crossing": crossing, "t": t_s})
+
     def walk(self, slot: WalkSlot) -> None:
         """A walker's slot, as the core holds it (:class:`ica.core.walk.WalkSlot`)."""
         self._write(
             {"k": "walk", "person": slot.person, "crossing": slot.crossing,
              "start": slot.start_s, "end": slot.end_s, "side": slot.side,
-             "near": slot.near_m, "v_lo": slot.v_lo, "v_hi": slot.v_hi}
+             "near": slot.near_m, "v_lo": slot.v_lo, "v_hi": slot.v_hi, "eta": slot.eta_s}
         )  # fmt: skip
 
 
@@ -171,10 +175,12 @@ def replay(path: Path, ica: Controller) -> Replayed:
                     WalkSlot(
                         str(rec["person"]), str(rec["crossing"]), float(rec["start"]),
                         float(rec["end"]), int(rec["side"]), float(rec["near"]),
-                        float(rec["v_lo"]), float(rec["v_hi"]),
+                        float(rec["v_lo"]), float(rec["v_hi"]), float(rec["eta"]),
                     )
                 )  # fmt: skip
                 out.walks += 1
+            elif kind == "across" and getattr(ica, "walks", None) is not None:
+                ica.walks.across(str(rec["person"]), str(rec["crossing"]), float(rec["t"]))
             else:
                 out.skipped += 1
         except (RequestError, KeyError, TypeError, ValueError):

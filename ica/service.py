@@ -62,6 +62,7 @@ from dica.schemas.messages import (
     REVOKED,
     TIME,
     Ack,
+    Across,
     Cancel,
     Clock,
     Detect,
@@ -488,9 +489,10 @@ class IcaService:
         reply(item.query, item.key, encode(Ack(msg.vin, msg.seq, Cancel.KIND, now_ns())))
 
     def _on_walk(self, item: Item) -> None:
-        """A walker at the kerb, asked for by the roadside: the slot, journalled before
-        it is answered (a restarted ICA never confirms a vehicle through it)."""
-        msg = self._asked(item, Walk)
+        """A walker at the kerb (WALK), or across (ACROSS), told by the roadside: the slot
+        journalled before it is answered (a restarted ICA never confirms a vehicle through
+        it), or its end brought forward."""
+        msg = self._asked(item, Walk, Across)
         if msg is None:
             return
         if keys.last(item.key) != "gateway":
@@ -500,6 +502,15 @@ class IcaService:
         walks = getattr(self.ica, "walks", None)
         if walks is None:
             self._reject(item.query, msg.person, -1, Reason.BAD_STATE, "no crossings served here")
+            return
+        if isinstance(msg, Across):
+            try:
+                if self.ica.walked(msg.person, msg.crossing, msg.t_s) and self.journal:
+                    self.journal.across(msg.person, msg.crossing, msg.t_s)
+            except RequestError as e:
+                self._reject(item.query, msg.person, -1, e.reason, e.detail)
+                return
+            reply(item.query, item.key, encode(Ack(msg.person, -1, Across.KIND, now_ns())))
             return
         again = walks.slot_of(msg.person, msg.crossing) is not None
         try:
@@ -520,11 +531,11 @@ class IcaService:
         reply(item.query, item.key, encode(go))
 
     # -- helpers -------------------------------------------------------------
-    def _asked(self, item: Item, kind: type):
-        """The query's message of ``kind``, or None: bytes that are not one are counted,
-        logged and answered with a REJECT ``bad_message``."""
+    def _asked(self, item: Item, *kinds: type):
+        """The query's message of one of ``kinds``, or None: bytes that are not one are
+        counted, logged and answered with a REJECT ``bad_message``."""
         try:
-            return decode(item.payload, kind)
+            return decode(item.payload, *kinds)
         except DecodeError as e:
             self._bad(item, e)
             self._reject(item.query, "?", -1, Reason.BAD_MESSAGE, f"{e.why.value}: {e.detail}")

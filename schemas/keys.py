@@ -38,7 +38,8 @@ def cancel(junction: str, agent: str = "*") -> str:
 
 
 def walk(junction: str, asker: str = "*") -> str:
-    """Queryable (ICA): a walker asks to cross, through ``asker`` (the roadside)."""
+    """Queryable (ICA): a walker asks to cross (WALK), or is across (ACROSS), through
+    ``asker`` (the roadside)."""
     return f"dica/{chunk(junction)}/walk/{_one(asker)}"
 
 

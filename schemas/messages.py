@@ -17,7 +17,8 @@ from typing import ClassVar
 
 import numpy as np
 
-# 8: a WALK carries the walker's ``walk_m``, ``speed_mps``, ``side`` and ``near_m``;
+# 8: a WALK carries the walker's ``walk_m``, ``speed_mps``, ``side`` and ``near_m``, and
+# ACROSS exists;
 # 7: a REQUEST and a vehicle state carry ``network_room_m`` (the network gate); 6: they
 # carry ``exit_room_m``; 5: a vehicle state carries ``intent_m``; 4: ``follows`` and
 # REORDER; 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev``
@@ -116,6 +117,18 @@ class Walk:
     speed_mps: float = lim(0.0, 10.0)
     side: int = lim(0, 1)
     near_m: float = lim(0.0, 1000.0)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class Across:
+    """The roadside saw walker ``person`` off ``crossing`` and its corners at sim time
+    ``t_s``: its slot ends there (the ICA answers with an ACK)."""
+
+    KIND: ClassVar[str] = "across"
+    person: str = lim(n=MAX_TEXT)
+    crossing: str = lim(n=MAX_TEXT)
+    t_s: float = lim(*TIME)
     sent_ns: int = lim(0, 2**63 - 1)
 
 
@@ -351,6 +364,7 @@ MESSAGES: tuple[type, ...] = (
     Response,
     Reject,
     Walk,
+    Across,
     Go,
     Ack,
     Revoke,

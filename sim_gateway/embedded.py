@@ -127,8 +127,11 @@ class LocalDrivers:
             self.link.window = []
 
     def walk(self, walkers: Walkers, t: float) -> None:
-        """The roadside's WALK requests of this step, each answered with its slot, and the
-        walkers whose start has come let go."""
+        """The walkers seen across this step (their slots end now), the roadside's WALK
+        requests of this step, each answered with its slot, and the walkers whose start
+        has come let go."""
+        for person, crossing, _junction in walkers.cleared:
+            self.ica.walked(person, crossing, t)
         for ask in walkers.asks:
             slot = self.ica.walk(ask.person, ask.crossing, ask.ready_s, t, ask.walk_m,
                                  ask.speed_mps, ask.side, ask.near_m)  # fmt: skip

@@ -56,6 +56,8 @@ from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode, encode, now_ns
 from dica.schemas.messages import BIG as WIRE_BIG
 from dica.schemas.messages import (
+    Ack,
+    Across,
     Clock,
     Command,
     Go,
@@ -260,22 +262,20 @@ class ZenohDrivers:
 
     # -- one step ----------------------------------------------------------------
     def walk(self, walkers: Walkers, t: float) -> None:
-        """The roadside's WALK requests of this step (and those left unanswered a second
-        ago), each asked of the ICA and answered before the step's CLOCK: the ICA decides
-        them on what it held after the last step, as the embedded runner does, before any
+        """The walkers seen across this step (ACROSS: their slots end now), and the
+        roadside's WALK requests of this step (and those left unanswered a second ago),
+        each asked of the ICA and answered before the step's CLOCK: the ICA decides them
+        on what it held after the last step, as the embedded runner does, before any
         vehicle's request of this step. Then the walkers whose start has come go."""
         key = keys.walk(self.junction, "gateway")
+        for person, crossing, _junction in walkers.cleared:
+            msg = Across(person, crossing, t, now_ns())
+            if self._ask_ica(key, msg, Ack) is None:
+                self.walks_unanswered += 1
         for ask in [*walkers.asks, *walkers.again(t)]:
             msg = Walk(ask.person, ask.crossing, ask.ready_s, ask.walk_m, ask.speed_mps,
                        ask.side, ask.near_m, now_ns())  # fmt: skip
-            got = None
-            for r in self.session.get(
-                key, payload=query_payload(encode(msg)), timeout=WALK_TIMEOUT_S, **every_answer()
-            ):
-                body = reply_body(r, key) if r.ok is not None else None
-                if got is None and body is not None:
-                    with contextlib.suppress(DecodeError):
-                        got = decode(body, Go, Reject)
+            got = self._ask_ica(key, msg, Go)
             if isinstance(got, Go):
                 walkers.answer(got.person, got.start_s, got.end_s, t)
             else:
@@ -283,6 +283,18 @@ class ZenohDrivers:
                 why = "no answer" if got is None else f"refused: {got.detail}"
                 self.log.warning("WALK for %s at %s: %s", ask.person, ask.crossing, why)
         walkers.release(t)
+
+    def _ask_ica(self, key: str, msg, kind: type):
+        """One query to the ICA, waited for: its answer of ``kind`` or a REJECT, or None."""
+        got = None
+        for r in self.session.get(
+            key, payload=query_payload(encode(msg)), timeout=WALK_TIMEOUT_S, **every_answer()
+        ):
+            body = reply_body(r, key) if r.ok is not None else None
+            if got is None and body is not None:
+                with contextlib.suppress(DecodeError):
+                    got = decode(body, kind, Reject)
+        return got
 
     def send(self, t: float, seen: list[Seen]) -> None:
         """Publish this step's CLOCK and STATEs; in lockstep, every wave but the

@@ -80,6 +80,7 @@ class Walker:
     off_s: float | None = None  # left it
     crossing: str | None = None  # the crossing it is at or on
     arrived_s: float | None = None
+    clear_s: float | None = None  # off the crossing and its corners (on a sidewalk again)
     overran: bool = False  # still on the crossing when its slot ended
 
     @property
@@ -203,6 +204,8 @@ class Walkers:
     hold: bool = True
     people: dict[str, Walker] = field(default_factory=dict)
     asks: list[WalkAsk] = field(default_factory=list)
+    # this step's walkers seen across, whose slot ends now: (person, crossing, junction)
+    cleared: list[tuple[str, str, str]] = field(default_factory=list)
     _next: int = 0
     _crossing_of: dict[str, tuple[str, np.ndarray, float]] = field(default_factory=dict)
     _walking_areas: set[str] = field(default_factory=set)
@@ -224,8 +227,9 @@ class Walkers:
 
     def step(self, t: float) -> list[WalkAsk]:
         """After SUMO's step to ``t``: put in who is due, see who reached a kerb (held and
-        asking, with ``hold``), who stepped onto or off a crossing, and who arrived. The
-        asks are this step's; :meth:`answer` gives each its start."""
+        asking, with ``hold``), who stepped onto or off a crossing or is across (off its
+        far corner: :attr:`cleared`), and who arrived. The asks are this step's;
+        :meth:`answer` gives each its start."""
         ls = self.ls
         while self._next < len(self.legs) and self.legs[self._next].t_s <= t + 1e-9:
             leg = self.legs[self._next]
@@ -245,6 +249,7 @@ class Walkers:
             if w is not None and w.arrived_s is None:
                 w.arrived_s = t
         asks = []
+        cleared: list[tuple[str, str, str]] = []
         ids = ls.person.getIDList()
         self.xy = np.array([ls.person.getPosition(p) for p in ids], dtype=float).reshape(-1, 2)
         for pid in ids:
@@ -257,6 +262,12 @@ class Walkers:
             if w is None:
                 continue
             road = ls.person.getRoadID(pid)
+            if w.off_s is not None and w.clear_s is None and not road.startswith(":"):
+                w.clear_s = t  # across: off the far corner too
+                if self.hold and w.go_s is not None:
+                    junction = self._crossing_of[w.crossing][0]
+                    cleared.append((pid, w.crossing, junction))
+                continue
             if w.crossing is not None and w.on_s is not None and w.off_s is None:
                 if road != w.crossing:
                     w.off_s = t
@@ -288,6 +299,7 @@ class Walkers:
                 walk = near + length + w.far_m + CORNER_GROW_M  # until off the corner beyond
                 asks.append(WalkAsk(pid, nxt, junction, t, walk, w.speed_mps, w.side, near))
         self.asks = asks
+        self.cleared = cleared
         return asks
 
     def again(self, t: float) -> list[WalkAsk]:

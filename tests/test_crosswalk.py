@@ -205,9 +205,16 @@ def test_a_walker_goes_once_the_confirmed_vehicles_are_past_its_way(walk_net):
     # a crossing no vehicle holds: with the junction's walk phase that has not begun
     bob = ica.walk("bob", ":B1_c0", 0.0, 0.0)
     assert bob.start_s == slot.start_s
-    # once it has begun, the next phase leaves the vehicles their window first
+    # once it has begun, the next phase leaves the vehicles their window first: after the
+    # walkers are expected across at their own pace (before the slow walk's end)
+    first_end = ica.walks.last_end
+    assert slot.start_s < first_end <= max(slot.end_s, bob.end_s)
     late = ica.walk("cyd", ":B1_c0", slot.start_s + 1.0, slot.start_s + 1.0)
-    assert late.start_s == pytest.approx(max(slot.end_s, bob.end_s) + ica.walks.phase_gap_s)
+    assert late.start_s == pytest.approx(first_end + ica.walks.phase_gap_s)
+    # seen across sooner, a walker's slot ends there: vehicles need not wait out its walk
+    assert ica.walked("bob", ":B1_c0", bob.start_s + 9.0)
+    assert ica.walks.slot_of("bob", ":B1_c0").end_s == pytest.approx(bob.start_s + 9.0)
+    assert not ica.walked("bob", ":B1_c0", bob.start_s + 12.0)  # never later again
 
 
 @pytest.mark.parametrize("compiled", [True, False])  # the compiled rounds, the Python loop
@@ -282,7 +289,7 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
     from dica.ica.core.proposal import propose
     from dica.schemas import keys
     from dica.schemas.codec import decode, encode, now_ns
-    from dica.schemas.messages import Ack, Clock, Detect, Go, Reject, Response, Walk
+    from dica.schemas.messages import Ack, Across, Clock, Detect, Go, Reject, Response, Walk
     from dica.tools.loopback import router_and_ica
 
     def ask(session, key, msg):
@@ -320,6 +327,8 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
             Walk("amy", ":B1_c1", 3.0, 0.0, 0.0, 0, 0.0, now_ns()),
         )
         assert again == Go("amy", ":B1_c1", go.start_s, go.end_s, again.sent_ns)  # the same
+        done = ask(session, keys.walk("B1", "gateway"), Across("zed", ":B1_c1", 1.0, now_ns()))
+        assert isinstance(done, Ack) and done.of == "across"  # a walker it never had: no harm
         (bad,) = [r for r in session.get(keys.walk("B1", "gateway"), payload=b"\x93\x01",
                                          timeout=5.0) if r.ok]  # fmt: skip
         assert decode(bad.ok.payload.to_bytes()).reason == "bad_message"

@@ -559,12 +559,26 @@ class Dica:
         want = walks.slot(person, crossing, at, walk_m, speed_mps, side, near_m)
         start = walks.joinable(want, at, busy)  # a phase that has not begun: go with it
         if start is None:
-            start = walks.earliest(want, max(at, walks.next_phase_s()), busy)
+            waiting = any(v not in self._confirmed for v in self._lane_of)
+            start = walks.earliest(want, max(at, walks.next_phase_s_for(waiting)), busy)
             # a new phase lasts long enough for anyone at the kerb to join it while it waits
             span = max(want.end_s - want.start_s, walks.phase_s(crossing))
             want = dataclasses.replace(want, end_s=want.start_s + span)
         shift = start - want.start_s
-        return walks.reserve(dataclasses.replace(want, start_s=start, end_s=want.end_s + shift))
+        moved = dataclasses.replace(
+            want, start_s=start, end_s=want.end_s + shift, eta_s=want.eta_s + shift
+        )
+        return walks.reserve(moved)
+
+    def walked(self, person: str, crossing: str, t_s: float) -> bool:
+        """The roadside saw ``person`` off ``crossing`` and its corners at ``t_s``: its
+        slot ends there, so the vehicles and the next walk phase need not wait out its
+        slow walk (True if that shortened it)."""
+        if self.walks is None or crossing not in self.walks.crosswalks:
+            raise RequestError(Reason.BAD_STATE, f"{crossing!r} is no crossing of this junction")
+        if not math.isfinite(t_s):
+            raise RequestError(Reason.NOT_FINITE, f"the time {person} was across is not finite")
+        return self.walks.across(person, crossing, t_s)
 
     def _check_walk_ahead(
         self, vin: str, route: Route, shape: Shape, found: Found, now_s: float

@@ -29,6 +29,7 @@ crossing"). Pure: plans and times in, times out.
 from __future__ import annotations
 
 import bisect
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -42,7 +43,10 @@ PACE_DOWN = 0.8  # and this much slower (a crowd, a pause to let someone by)
 LAG_S = 3.0  # [s] a walker may step off this late (those ahead of it at the kerb go first)
 CLEAR_S = 2.0  # [s] beyond the walk itself: the last step out
 KERB_M = 6.0  # [m] a walker at the kerb stands at most this far from the crossing's end
-PHASE_GAP_S = 15.0  # [s] the vehicles' window between the end of a walk phase and the next
+# [s] the vehicles' window between the end of a walk phase and the next: the short one when
+# no vehicle waits for a plan as the walker asks, the long one when some do
+PHASE_GAP_S = 8.0
+BUSY_GAP_S = 35.0
 # [s] a vehicle's plan holds no crossing later than this after it is confirmed (unless the
 # vehicle has been refused for it for CLAIM_S: then it goes first, so it never starves)
 HOLD_AHEAD_S = 25.0
@@ -66,6 +70,7 @@ class WalkSlot:
     near_m: float = 0.0
     v_lo: float = WALK_MPS
     v_hi: float = FAST_MPS
+    eta_s: float = math.inf  # when it is expected off its way at its own pace (<= end_s)
 
     def over(
         self, u_lo: float, u_hi: float, length_m: float, clear_s: float
@@ -113,7 +118,7 @@ class Walkways:
         self.gap_s = gap_s  # [s] kept between a vehicle's hold and a walker's, either way
         self.slots: dict[str, list[WalkSlot]] = {c: [] for c in self.crosswalks}
         self.phase_gap_s = PHASE_GAP_S
-        self.last_end = -math.inf  # when the last walker is off its way (kept when forgotten)
+        self._ended = -math.inf  # when the last of the forgotten walkers was off its way
 
     # -- one walker ------------------------------------------------------------------
     def pace(self, speed_mps: float) -> tuple[float, float]:
@@ -145,7 +150,10 @@ class Walkways:
         """The slot of a walker that starts at ``start_s`` (not yet held)."""
         v_lo, v_hi = self.pace(speed_mps)
         end = start_s + self.walk_s(crossing, walk_m, speed_mps)
-        return WalkSlot(person, crossing, start_s, end, side, near_m, v_lo, v_hi)
+        own = speed_mps if speed_mps > 0.0 else self.walk_mps
+        far = max(walk_m, self.crosswalks[crossing].length_m + CORNER_M)
+        eta = min(start_s + far / own + self.clear_s, end)
+        return WalkSlot(person, crossing, start_s, end, side, near_m, v_lo, v_hi, eta)
 
     def earliest(self, want: WalkSlot, ready_s: float, busy: list[Hold]) -> float:
         """The first start at or after ``ready_s`` at which the walk ``want`` (its start
@@ -168,8 +176,7 @@ class Walkways:
     def _banned(self, want: WalkSlot, busy: list[Hold]) -> list[tuple[float, float]]:
         """The open intervals of starts at which ``want`` meets a hold in ``busy``."""
         length, gap = self.crosswalks[want.crossing].length_m, self.gap_s
-        rel = WalkSlot(want.person, want.crossing, 0.0, want.end_s - want.start_s,
-                       want.side, want.near_m, want.v_lo, want.v_hi)  # fmt: skip
+        rel = dataclasses.replace(want, start_s=0.0, end_s=want.end_s - want.start_s)
         out = []
         for t_in, t_out, u_lo, u_hi in busy:
             a, b = rel.over(u_lo, u_hi, length, self.clear_s)
@@ -183,7 +190,7 @@ class Walkways:
         than ``longest_s`` (:meth:`walk_s`): a phase that began just before it asked, the
         vehicles' window after it; or the vehicles confirmed before it asked, whose holds
         end within :data:`HOLD_AHEAD_S` (and the gap)."""
-        return max(longest_s + self.phase_gap_s, HOLD_AHEAD_S + self.gap_s)
+        return max(longest_s + BUSY_GAP_S, HOLD_AHEAD_S + self.gap_s)
 
     def phase_s(self, crossing: str) -> float:
         """How long a walk phase on ``crossing`` lasts at least: a slow walk from
@@ -199,6 +206,34 @@ class Walkways:
             if start >= at_s - 1e-9 and self.clear_at(want, start, busy):
                 return start
         return None
+
+    @property
+    def last_end(self) -> float:
+        """When the last walker of the phases so far is expected off its way: at its own
+        pace, or when the roadside saw it across. (The window after it is for the
+        vehicles' progress; their safety rests on the slow walk, :meth:`WalkSlot.over`.)"""
+        ends = [min(w.eta_s, w.end_s) for slots in self.slots.values() for w in slots]
+        return max([self._ended, *ends])
+
+    def across(self, person: str, crossing: str, t_s: float) -> bool:
+        """The roadside saw ``person`` off ``crossing`` and its corners at ``t_s``: its slot
+        ends there (True), if it holds one that ended later."""
+        slots = self.slots.get(crossing, [])
+        for i, w in enumerate(slots):
+            if w.person == person:
+                end = max(t_s, w.start_s)
+                if end >= w.end_s:
+                    return False
+                slots[i] = WalkSlot(w.person, w.crossing, w.start_s, end, w.side, w.near_m,
+                                    w.v_lo, w.v_hi, min(w.eta_s, end))  # fmt: skip
+                return True
+        return False
+
+    def next_phase_s_for(self, vehicles_waiting: bool) -> float:
+        """:meth:`next_phase_s`, with the long window (:data:`BUSY_GAP_S`) when vehicles
+        wait for plans: the vehicles get the junction for as long as a light's green
+        would give them, the walkers the next phase after it."""
+        return self.last_end + (BUSY_GAP_S if vehicles_waiting else self.phase_gap_s)
 
     def next_phase_s(self) -> float:
         """The first moment a new walk phase may begin: :data:`PHASE_GAP_S` after the
@@ -217,7 +252,6 @@ class Walkways:
         if held is not None:
             return held
         bisect.insort(self.slots[slot.crossing], slot, key=lambda x: x.start_s)
-        self.last_end = max(self.last_end, slot.end_s)
         return slot
 
     def delay(self, crossing: str, t_in: float, t_out: float, u_lo: float, u_hi: float) -> float:
@@ -236,5 +270,7 @@ class Walkways:
     def advance(self, now_s: float) -> None:
         """Forget the walkers who are across."""
         for c, slots in self.slots.items():
-            if slots and slots[0].end_s < now_s:
+            gone = [min(w.eta_s, w.end_s) for w in slots if w.end_s < now_s]
+            if gone:
+                self._ended = max(self._ended, *gone)
                 self.slots[c] = [w for w in slots if w.end_s >= now_s]
