@@ -39,6 +39,12 @@ KERB_REACH_M = 8.0  # [m] a sidewalk's end this close to a crossing's end is at 
 # people coming across walk on)
 WAIT_BACK_M = 1.0
 PATH_FACTOR = 1.5  # a walking area's path from a kerb to a crossing, to the straight line
+# the type a walker crosses with once the ICA gave it the crossing: SUMO's own would wait
+# for a gap in the vehicles at a crossing without priority (most nets' guessed crossings),
+# and step off late, after its slot; the ICA has cleared its way, so it goes (and takes
+# SUMO's pedestrian type again once across)
+GO_TYPE = "dica_walker_go"
+WALK_TYPE = "DEFAULT_PEDTYPE"
 ASK_AGAIN_S = 1.0  # [s] a WALK unanswered (a lost link, a restarting ICA) is asked again
 KERB_WAIT_S = 1e6  # [s] a held walker's waiting stage: until the roadside ends it
 PED_STREAM = 0x9ED  # the demand's random stream, apart from the vehicles'
@@ -217,6 +223,10 @@ class Walkers:
     radius_m: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     def __post_init__(self) -> None:
+        if self.hold and GO_TYPE not in self.ls.vehicletype.getIDList():
+            self.ls.vehicletype.copy(WALK_TYPE, GO_TYPE)
+            self.ls.vehicletype.setParameter(GO_TYPE, "junctionModel.jmIgnoreFoeProb", "1")
+            self.ls.vehicletype.setParameter(GO_TYPE, "junctionModel.jmIgnoreFoeSpeed", "100")
         for inter in self.inters:
             for c in inter.crosswalks:
                 self._crossing_of[c.id] = (inter.junction_id, c.shape, c.length_m)
@@ -265,6 +275,7 @@ class Walkers:
             if w.off_s is not None and w.clear_s is None and not road.startswith(":"):
                 w.clear_s = t  # across: off the far corner too
                 if self.hold and w.go_s is not None:
+                    ls.person.setType(pid, WALK_TYPE)
                     junction = self._crossing_of[w.crossing][0]
                     cleared.append((pid, w.crossing, junction))
                 continue
@@ -334,6 +345,7 @@ class Walkers:
         """Let go every held walker whose start has come."""
         for pid in [p for p, w in self._held.items() if w.go_s is not None and w.go_s <= t + 1e-9]:
             del self._held[pid]
+            self.ls.person.setType(pid, GO_TYPE)
             self.ls.person.removeStage(pid, 0)  # the wait at the kerb: it walks on
 
     def summary(self, end_s: float) -> dict:

@@ -351,3 +351,32 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
     first, second = stats["incarnations"]
     assert first["walks"] == 1 and first["repeated"] == 1 and stats["walks"] == 1
     assert second["journal_replayed"]["walks"] == 1
+
+
+def test_a_plan_held_far_ahead_by_walkers_waits_its_turn_but_never_for_ever(walk_net):
+    """A plan that would hold a crossing more than HOLD_AHEAD_S ahead is refused (walkers
+    asking meanwhile would wait for it); the vehicle asking on for CLAIM_S is confirmed
+    anyway, so walkers cannot keep it out."""
+    from dica.ica.core.dica import Dica
+    from dica.ica.core.proposal import propose
+    from dica.ica.core.request import Confirmation, Reason, Rejection
+    from dica.ica.core.walk import CLAIM_S, HOLD_AHEAD_S
+
+    x = load_intersection(walk_net, "B1")
+    ica = Dica(x)
+    through = x.route("A1B1_1", "B1C1_1")
+    ica.walk("slow", ":B1_c1", 0.0, 0.0, speed_mps=0.1, side=0)  # 0.08 m/s: a long walk
+    ica.detect("car", through.in_lane, 0.0)
+
+    def ask(t: float, seq: int):
+        req = propose(through, vin="car", seq=seq, t0_s=t, dist_to_entry_m=0.5, speed_mps=0.0,
+                      config=ica.config)  # fmt: skip
+        return ica.handle(req, t)
+
+    first = ask(0.0, 0)
+    assert isinstance(first, Rejection) and first.reason is Reason.WALKERS
+    assert f"at most {HOLD_AHEAD_S:.0f} s ahead" in first.detail
+    assert isinstance(ask(CLAIM_S / 2, 1), Rejection)  # still its turn to wait
+    got = ask(CLAIM_S + 0.5, 2)
+    assert isinstance(got, Confirmation) and ica.walk_claims == 1
+    assert got.entry_time_s > CLAIM_S + HOLD_AHEAD_S - 10.0  # after the slow walker

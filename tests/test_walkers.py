@@ -56,6 +56,25 @@ def test_people_cross_and_no_vehicle_touches_one(tmp_path):
     assert rows.get("/junction/people", 0) > 300
 
 
+def test_people_on_a_net_of_guessed_crossings_go_when_given_the_crossing(tmp_path):
+    """A user's net: 40 km/h, two lanes, 100 m blocks, sidewalks and crossings guessed by
+    netgenerate, without priority, where SUMO's own persons would wait for a gap in the
+    traffic and step off after their slot. Given the crossing, they go: nobody is still
+    on it after its slot, and nobody is touched."""
+    from tests.user_nets import make, tool
+
+    net = tmp_path / "grid.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "100",
+          "--default.lanenumber", "2", "--default.speed", "11.11", "--sidewalks.guess", "true",
+          "--crossings.guess", "true", "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    m = _run(tmp_path / "r", "--net", str(net), "--junction", "B1", "--volume", "100",
+             "--peds", "200", "--duration", "400")  # fmt: skip
+    w = m["walkers"]
+    assert w["crossed"] > 60 and w["overran_slot"] == 0
+    assert w["person_hits"] == 0 and w["sumo_person_collisions"] == 0
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+
+
 def test_the_person_check_sees_what_a_light_lets_happen(tmp_path):
     """The check is not blind: under SUMO's own actuated light, whose drivers yield to
     walkers only by SUMO's model, turning cars brush walkers at the corners and the
