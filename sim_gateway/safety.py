@@ -23,6 +23,7 @@ import shapely
 # Histogram of pair gaps; pairs at >= the last edge are not counted.
 GAP_HIST_EDGES_M: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5, 2.0, 3.0, 5.0, 10.0)
 MAX_LISTED_OVERLAPS = 100
+PERSON_GAP_M = 3.0  # [m] vehicle-person gaps beyond this are not measured (min gap: None)
 # |sin|, |cos| below this are set to 0 so that axis-aligned poses (straight SUMO lanes
 # along the axes) give exact corners: a 6e-17 residue must not decide "touching".
 _AXIS_SNAP = 1e-12
@@ -455,6 +456,10 @@ class PersonCheck:
     def __init__(self, region: np.ndarray, reach_m: float = 5.0) -> None:
         self._area = shapely.buffer(_region_polygon(region), reach_m)
         shapely.prepare(self._area)
+        # a bounding circle of the area: most people are beyond it, found without GEOS
+        ring = np.asarray(self._area.exterior.coords)
+        self._centre = ring.mean(axis=0)
+        self._radius = float(np.linalg.norm(ring - self._centre, axis=1).max())
         self._steps = 0
         self._hits = 0
         self._pairs: list[tuple[float, str, str]] = []
@@ -478,10 +483,13 @@ class PersonCheck:
         if not len(vins) or not len(people):
             return 0
         pxy = np.asarray(people_xy, dtype=float).reshape(-1, 2)
-        inside = shapely.intersects(self._area, shapely.points(pxy))
+        near = np.flatnonzero(np.hypot(*(pxy - self._centre).T) <= self._radius)
+        if not len(near):
+            return 0
+        inside = shapely.contains_xy(self._area, pxy[near, 0], pxy[near, 1])
         if not inside.any():
             return 0
-        idx = np.flatnonzero(inside)
+        idx = near[inside]
         pxy, rad = pxy[idx], np.asarray(radius_m, dtype=float)[idx]
         names = [people[i] for i in idx]
         xy = np.asarray(front_xy, dtype=float).reshape(-1, 2)
@@ -491,8 +499,8 @@ class PersonCheck:
         length = np.asarray(length_m, dtype=float)[:, None]
         half_w = 0.5 * np.asarray(width_m, dtype=float)[:, None]
         centre = xy - head * length / 2.0
-        # pairs that may come within 10 m: centre distance less both radii
-        reach = np.hypot(length[:, 0] / 2.0, half_w[:, 0])[:, None] + rad[None, :] + 10.0
+        # pairs that may come within PERSON_GAP_M: centre distance less both radii
+        reach = np.hypot(length[:, 0] / 2.0, half_w[:, 0])[:, None] + rad[None, :] + PERSON_GAP_M
         dist = np.linalg.norm(centre[:, None, :] - pxy[None, :, :], axis=2)
         iv, ip = np.nonzero(dist <= reach)
         if not len(iv):

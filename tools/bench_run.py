@@ -5,6 +5,10 @@ process), the same seed under enhanced DICA and under the optimised
 fixed-cycle light, ``repeat`` times each, alternating, and reports the best
 wall time of each, the real-time factor (simulated / wall seconds) and the
 ratio of the two. Targets: at least 50x real time, at most 1.5x the light.
+
+With ``--peds N`` both run on the chapter 4-5 layout with sidewalks (``ch45-walk``)
+with N people an hour at every crossing, and enhanced DICA once more without them,
+for the cost of serving people (the ratio of the two enhanced runs).
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ from dica.tools import options
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def one(algorithm: str, volume: float, duration: float, seed: int) -> dict:
+def one(algorithm: str, volume: float, duration: float, seed: int, extra: tuple = ()) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         cmd = [
             sys.executable,
@@ -38,6 +42,7 @@ def one(algorithm: str, volume: float, duration: float, seed: int) -> dict:
             "--out",
             tmp,
             "--quiet",
+            *extra,
         ]
         p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
         if p.returncode not in (0, 1):
@@ -49,13 +54,21 @@ def main(argv: list[str] | None = None) -> int:
     p = options.Parser(prog="dica bench run", description=__doc__.splitlines()[0])
     options.add(p, "--volume", "--duration", "--seed", "--json", volume=options.VOLUME_500)
     p.add_argument("--repeat", type=int, default=3, help="runs of each controller (default 3)")
+    p.add_argument(
+        "--peds", type=float, default=0.0,
+        help="people an hour at every crossing, on ch45-walk (default 0: ch45)",
+    )  # fmt: skip
     args = options.parse(p, argv)
+    walk = ("--layout", "ch45-walk", "--peds", f"{args.peds:g}") if args.peds else ()
+    runs = {"enhanced": walk, "fixed": walk}
+    if args.peds:
+        runs["enhanced, no people"] = ("--layout", "ch45-walk")
     best: dict[str, dict] = {}
     for _ in range(args.repeat):
-        for alg in ("enhanced", "fixed"):
-            m = one(alg, args.volume, args.duration, args.seed)
-            if alg not in best or m["wall_s"] < best[alg]["wall_s"]:
-                best[alg] = m
+        for name, extra in runs.items():
+            m = one(name.split(",")[0], args.volume, args.duration, args.seed, extra)
+            if name not in best or m["wall_s"] < best[name]["wall_s"]:
+                best[name] = m
     e, f = best["enhanced"], best["fixed"]
     result = {
         "volume": args.volume,
@@ -70,6 +83,16 @@ def main(argv: list[str] | None = None) -> int:
         "wall_ratio_enhanced_to_fixed": e["wall_s"] / f["wall_s"],
         "collisions": e["collisions"] + f["collisions"],
     }
+    if args.peds:
+        alone = best["enhanced, no people"]
+        w = e["walkers"]
+        result.update(
+            peds=args.peds,
+            people=w["generated"],
+            person_hits=w["person_hits"] + w["sumo_person_collisions"],
+            enhanced_no_people_wall_s=alone["wall_s"],
+            wall_ratio_people_to_none=e["wall_s"] / alone["wall_s"],
+        )
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -81,6 +104,13 @@ def main(argv: list[str] | None = None) -> int:
             f"  fixed light:   {f['wall_s']:.1f} s wall, {f['real_time_factor']:.0f}x real time\n"
             f"  ratio enhanced / fixed: {result['wall_ratio_enhanced_to_fixed']:.2f}"
         )
+        if args.peds:
+            print(
+                f"  with {args.peds:g} people an hour a crossing ({result['people']} people, "
+                f"{result['person_hits']} touched): enhanced without them "
+                f"{result['enhanced_no_people_wall_s']:.1f} s wall; ratio with / without "
+                f"{result['wall_ratio_people_to_none']:.2f}"
+            )
     return 0
 
 
