@@ -266,7 +266,12 @@ class ZenohDrivers:
         roadside's WALK requests of this step (and those left unanswered a second ago),
         each asked of the ICA and answered before the step's CLOCK: the ICA decides them
         on what it held after the last step, as the embedded runner does, before any
-        vehicle's request of this step. Then the walkers whose start has come go."""
+        vehicle's request of this step. Then the walkers whose start has come go. While
+        the ICA is gone nothing is asked (the walkers wait; a query would stall the step)."""
+        if not self.ica_alive:  # no one to ask: the walkers wait, and are asked for again
+            self.walks_unanswered += len(walkers.asks)
+            walkers.release(t)
+            return
         key = keys.walk(self.junction, "gateway")
         for person, crossing, _junction in walkers.cleared:
             msg = Across(person, crossing, t, now_ns())
