@@ -76,7 +76,7 @@ class Walker:
     kerb_near_m: float = 0.0  # [m] from its kerb to the crossing
     far_m: float = 0.0  # [m] from the crossing to the sidewalk beyond (off the corner)
     side: int = 0  # the crossing's end its kerb is at
-    kerb_s: float | None = None  # stepped onto the walking area before a crossing
+    kerb_s: float | None = None  # at the kerb (began to wait there; under a light, passed it)
     near_m: float = 0.0  # [m] from there to the crossing
     speed_mps: float = 0.0
     asked_s: float | None = None
@@ -230,10 +230,6 @@ class Walkers:
         for inter in self.inters:
             for c in inter.crosswalks:
                 self._crossing_of[c.id] = (inter.junction_id, c.shape, c.length_m)
-
-    @property
-    def ids(self) -> set[str]:
-        return set(self.people)
 
     def step(self, t: float) -> list[WalkAsk]:
         """After SUMO's step to ``t``: put in who is due, see who reached a kerb (held and
