@@ -38,6 +38,7 @@ FILE_TIER = {
     "test_gridlock.py": "sumo",
     "test_network_runs.py": "sumo",
     "test_signals.py": "sumo",
+    "test_walkers.py": "sumo",
     "test_attack.py": "cluster",
     "test_cluster.py": "cluster",
     "test_handlers.py": "cluster",

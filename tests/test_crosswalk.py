@@ -281,6 +281,7 @@ def test_walkers_are_forgotten_once_across_and_bad_asks_refused(walk_net):
 
 
 # -- over Zenoh ------------------------------------------------------------------------
+@pytest.mark.cluster
 def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(walk_net, tmp_path):
     """WALK on dica/<j>/walk/gateway: a GO with the slot; anyone else refused; the slot
     journalled, so the restarted ICA still delays a vehicle through that crossing."""

@@ -113,6 +113,7 @@ def test_people_where_the_junction_cannot_have_them_is_one_clear_line(tmp_path, 
     assert says in p.stderr and "Traceback" not in p.stderr
 
 
+@pytest.mark.cluster
 def test_a_lockstep_cluster_with_people_makes_the_embedded_decisions(tmp_path):
     """The gateway asks the ICA process for each walker over Zenoh (WALK -> GO) before the
     step's clock: the vehicles and the people cross as in one process, byte for byte."""
