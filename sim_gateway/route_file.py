@@ -28,7 +28,9 @@ MAX_LENGTH_M = MAX_VEHICLE_LENGTH_M
 STOP_SLACK_M = 1.0  # [m] on top of the braking distance: a step's travel, and some
 DEFAULT_TYPE = "DEFAULT_VEHTYPE"
 _TRAFFIC = ("vehicle", "trip", "flow")
-_PEOPLE = ("person", "personFlow", "container", "containerFlow")
+_PEOPLE = ("person", "personFlow")
+_GOODS = ("container", "containerFlow")
+# what a person of a route file may do: walk (a walk-only personTrip is a walk too)
 HELD_KEYS = ("departLane", "departPos", "departSpeed", "arrivalLane", "arrivalPos", "color",
                "arrivalSpeed")  # fmt: skip
 
@@ -44,17 +46,21 @@ class RouteFile:
     # a vehicle keeps if its insertion is held back; see sim_gateway/insertion.py), or
     # None if it carries more than a route (stops, parameters), which a hold would lose
     departs: dict[str, dict[str, str] | None] = field(default_factory=dict)
+    people: int = 0  # persons and person flows (on foot only)
 
 
 def read_route_file(path: Path) -> RouteFile:
-    """The file's traffic and the types it uses; a file that cannot be read, holds no
-    traffic or holds people is refused in one line."""
+    """The file's traffic and the types it uses, and how many people on foot it has; a
+    file that cannot be read, holds no traffic, or holds containers or people who do
+    more than walk is refused in one line."""
     path = Path(path)
     if not path.is_file():
         raise RunError(f"route file not found: {path}")
     distributions: dict[str, set[str]] = {}
     used: set[str] = set()
     traffic = people = 0
+    riders: list[str] = []
+    goods = 0
     open_dist: list[str] = []
     departs: dict[str, dict[str, str] | None] = {}
     try:
@@ -79,22 +85,42 @@ def read_route_file(path: Path) -> RouteFile:
                 )
             elif tag in _PEOPLE:
                 people += 1
-            if tag in (*_TRAFFIC, *_PEOPLE, "route"):
+                if not _on_foot(el):
+                    riders.append(el.get("id", "?"))
+            elif tag in _GOODS:
+                goods += 1
+            if tag in (*_TRAFFIC, *_PEOPLE, *_GOODS, "route"):
                 el.clear()
     except (OSError, ET.ParseError) as exc:
         detail = " ".join(str(exc).split())
         raise RunError(f"cannot read route file {path}: {detail}") from None
-    if people:
+    if goods:
         raise RunError(
-            f"route file {path} has {people} persons or containers: people on foot are not "
-            "served at a signal-free junction yet; leave them out of the file"
+            f"route file {path} has {goods} containers: they are not served; leave them out"
+        )
+    if riders:
+        raise RunError(
+            f"route file {path} has {len(riders)} persons who do more than walk (first: "
+            f"{riders[0]}): people ride and stop at a signal-free junction not yet; give "
+            "them walks only"
         )
     if not traffic:
         raise RunError(f"route file {path} has no vehicle, trip or flow")
     types: set[str] = set()
     for t in used:
         types |= distributions.get(t, {t})
-    return RouteFile(path, frozenset(types), traffic, departs)
+    return RouteFile(path, frozenset(types), traffic, departs, people)
+
+
+def _on_foot(el: ET.Element) -> bool:
+    """Whether a person's plan is walks only (a personTrip without modes is a walk)."""
+    for child in el:
+        if child.tag in ("walk", "param"):
+            continue
+        if child.tag == "personTrip" and not child.get("modes", "").strip():
+            continue
+        return False
+    return True
 
 
 def check_approaches(inter: Intersection, kin: Kinematics) -> None:

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dica.ica.core.crosswalk import CORNER_GROW_M
+from dica.ica.core.crosswalk import CORNER_GROW_M, CORNER_M
 from dica.ica.core.intersection import Intersection
 
 WALK_IN_M = 40.0  # [m] walkers start and end this far along the sidewalks from the junction
@@ -88,6 +88,10 @@ class Walker:
     arrived_s: float | None = None
     clear_s: float | None = None  # off the crossing and its corners (on a sidewalk again)
     overran: bool = False  # still on the crossing when its slot ended
+    # a route file's person: seen on the walking area before a crossing of ours, held there
+    # (its own plan runs on), its own type taken again once across
+    stranger: bool = False
+    own_type: str = WALK_TYPE
 
     @property
     def wait_s(self) -> float | None:
@@ -265,13 +269,14 @@ class Walkers:
         self.radius_m = np.array([self._radius[p] for p in ids], dtype=float)
         for pid in ids:
             w = self.people.get(pid)
-            if w is None:
-                continue
+            if w is None:  # a route file's person
+                w = self.people[pid] = Walker(pid, t, "", stranger=True)
+                w.own_type = ls.person.getTypeID(pid)
             road = ls.person.getRoadID(pid)
             if w.off_s is not None and w.clear_s is None and not road.startswith(":"):
                 w.clear_s = t  # across: off the far corner too
                 if self.hold and w.go_s is not None:
-                    ls.person.setType(pid, WALK_TYPE)
+                    ls.person.setType(pid, w.own_type)
                     junction = self._crossing_of[w.crossing][0]
                     cleared.append((pid, w.crossing, junction))
                 continue
@@ -284,6 +289,11 @@ class Walkers:
             if road in self._crossing_of:
                 if w.crossing == road and w.on_s is None:
                     w.on_s = t
+                continue
+            if w.stranger:
+                ask = self._stranger_at_kerb(w, road, t)
+                if ask is not None:
+                    asks.append(ask)
                 continue
             if w.kerb_s is not None or road != w.from_edge:
                 continue
@@ -308,6 +318,29 @@ class Walkers:
         self.asks = asks
         self.cleared = cleared
         return asks
+
+    def _stranger_at_kerb(self, w: Walker, road: str, t: float) -> WalkAsk | None:
+        """A route file's person on the walking area before a crossing of ours it has not
+        asked for yet: a new passage, held where it stands (with ``hold``) and asked for."""
+        if not road.startswith(":") or road in self._crossing_of:
+            return None
+        nxt = self.ls.person.getNextEdge(w.pid)
+        if nxt not in self._crossing_of or (w.crossing == nxt and w.clear_s is None):
+            return None
+        junction, shape, length = self._crossing_of[nxt]
+        xy = np.asarray(self.ls.person.getPosition(w.pid))
+        d = [float(np.linalg.norm(xy - shape[0])), float(np.linalg.norm(xy - shape[-1]))]
+        w.side = int(d[1] < d[0])
+        w.crossing, w.kerb_s, w.near_m, w.far_m = nxt, t, d[w.side], CORNER_M
+        w.on_s = w.off_s = w.clear_s = w.go_s = w.slot_end_s = None
+        w.speed_mps = float(self.ls.person.getMaxSpeed(w.pid))
+        if not self.hold:
+            return None
+        self.ls.person.setSpeed(w.pid, 0.0)
+        w.asked_s = t
+        self._held[w.pid] = w
+        walk = w.near_m + length + w.far_m + CORNER_GROW_M
+        return WalkAsk(w.pid, nxt, junction, t, walk, w.speed_mps, w.side, w.near_m)
 
     def again(self, t: float) -> list[WalkAsk]:
         """The held walkers whose WALK has gone unanswered for :data:`ASK_AGAIN_S`: asked
@@ -340,9 +373,12 @@ class Walkers:
     def release(self, t: float) -> None:
         """Let go every held walker whose start has come."""
         for pid in [p for p, w in self._held.items() if w.go_s is not None and w.go_s <= t + 1e-9]:
-            del self._held[pid]
+            w = self._held.pop(pid)
             self.ls.person.setType(pid, GO_TYPE)
-            self.ls.person.removeStage(pid, 0)  # the wait at the kerb: it walks on
+            if w.stranger:  # held where it stood: its own speed again
+                self.ls.person.setSpeed(pid, -1)
+            else:
+                self.ls.person.removeStage(pid, 0)  # the wait at the kerb: it walks on
 
     def summary(self, end_s: float) -> dict:
         """Per-person figures: how many crossed, waited, are still out; waits."""
@@ -357,7 +393,9 @@ class Walkers:
             "crossed": len(crossed),
             "at_kerb_at_end": len(at_kerb),
             "on_crossing_at_end": sum(1 for w in people if w.on_s is not None and w.off_s is None),
-            "not_at_a_kerb_yet": sum(1 for w in people if w.kerb_s is None),
+            "not_at_a_kerb_yet": sum(1 for w in people if w.kerb_s is None and not w.stranger),
+            # a route file's people who never came to a crossing of the junction
+            "walked_elsewhere": sum(1 for w in people if w.kerb_s is None and w.stranger),
             "mean_wait_s": float(np.mean(waits)) if waits else None,
             "p95_wait_s": float(np.percentile(waits, 95)) if waits else None,
             "max_wait_s": max([*waits, *longest], default=None),

@@ -85,6 +85,7 @@ class World:
         # a route file's net of several junctions: how much queue its links may hold
         self.gate: NetworkGate | None = None
         self.gate_holds = 0  # steps a vehicle at a region's head waited for the gate's room
+        rf = None
         if cfg.routes_path:
             rf = read_route_file(Path(cfg.routes_path))
             check_types(ls, rf, ica_cfg.kinematics)
@@ -113,7 +114,13 @@ class World:
         # people on foot (--peds): put in, held at the kerb under an ICA, measured
         self.walkers: Walkers | None = None
         self.sumo_person_collisions = 0  # SUMO's vehicle-person reports
-        if cfg.peds_per_h > 0:
+        people = rf.people if rf is not None else 0
+        if people and len(self.junctions) > 1:
+            raise RunError(
+                f"route file {cfg.routes_path} has {people} people on foot: several junctions "
+                "serve walkers not yet; give one --junction, or leave them out"
+            )
+        if cfg.peds_per_h > 0 or people:
             self.walkers = self._walkers(signalised, schedule)
         # how far ahead [s] each vehicle that may ask is told where its own control law will
         # take it (Observation.intent_m): as far as its agents plan ahead (their lead)
@@ -122,14 +129,16 @@ class World:
     def _walkers(self, signalised: bool, schedule: list[Arrival]) -> Walkers:
         ends: dict = {}
         for j in self.junctions:
+            j.person_check = PersonCheck(j.inter.region)
+            if not self.cfg.peds_per_h:
+                continue  # a route file's people only: they walk their own ways
             if not j.inter.crosswalks:
                 raise RunError(
                     f"--peds: junction {j.inter.junction_id} has no pedestrian crossings (a "
                     "net with sidewalks and crossings has them, e.g. --layout ch45-walk)"
                 )
             ends.update(kerbs(self.ls, j.inter))
-            j.person_check = PersonCheck(j.inter.region)
-        if not any(a and b for a, b in ends.values()):
+        if self.cfg.peds_per_h and not any(a and b for a, b in ends.values()):
             raise RunError("--peds: no crossing has a sidewalk at both ends to walk from and to")
         until = self.horizon if math.isfinite(self.horizon) else max(self._arrivals, default=0.0)
         legs = draw_legs(ends, self.cfg.peds_per_h, until, self.cfg.seed)

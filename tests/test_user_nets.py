@@ -165,8 +165,10 @@ def test_a_route_file_can_start_later(nets, tmp_path):
          'end="9" number="2" from="A1B1" to="B1C1"/></routes>', "is a bicycle"),
         ('<routes><vType id="bus" vClass="passenger" length="15"/><trip id="t" type="bus" '
          'depart="0" from="A1B1" to="B1C1"/></routes>', "15 m long"),
-        ('<routes><person id="p" depart="0"><walk edges="A1B1"/></person>'
-         '<trip id="t" depart="0" from="A1B1" to="B1C1"/></routes>', "persons"),
+        ('<routes><person id="p" depart="0"><ride from="A1B1" to="B1C1" lines="ANY"/>'
+         '</person><trip id="t" depart="0" from="A1B1" to="B1C1"/></routes>', "more than walk"),
+        ('<routes><container id="c" depart="0"><transport from="A1B1" to="B1C1"/>'
+         '</container><trip id="t" depart="0" from="A1B1" to="B1C1"/></routes>', "containers"),
         ("<routes></routes>", "no vehicle, trip or flow"),
         ("<routes><trip id=", "cannot read route file"),
     ],

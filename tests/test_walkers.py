@@ -36,7 +36,8 @@ def test_people_cross_and_no_vehicle_touches_one(tmp_path):
              "--duration", "400", "--seed", "21", "--record")  # fmt: skip
     w = m["walkers"]
     assert w["generated"] > 60 and w["crossed"] > 40
-    parts = ("crossed", "at_kerb_at_end", "on_crossing_at_end", "not_at_a_kerb_yet")
+    parts = ("crossed", "at_kerb_at_end", "on_crossing_at_end", "not_at_a_kerb_yet",
+             "walked_elsewhere")  # fmt: skip
     assert sum(w[k] for k in parts) == w["generated"]  # every person accounted for
     assert w["person_hits"] == 0 and w["sumo_person_collisions"] == 0
     assert w["min_person_gap_m"] > 0.0
@@ -73,6 +74,48 @@ def test_people_on_a_net_of_guessed_crossings_go_when_given_the_crossing(tmp_pat
     assert w["crossed"] > 60 and w["overran_slot"] == 0
     assert w["person_hits"] == 0 and w["sumo_person_collisions"] == 0
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+
+
+ROUTES_WITH_PEOPLE = """<routes>
+    <flow id="we" begin="0" end="300" vehsPerHour="360" from="A1B1" to="B1C1"/>
+    <flow id="ns" begin="0" end="300" vehsPerHour="360" from="B2B1" to="B1B0"/>
+    <flow id="left" begin="0" end="300" vehsPerHour="120" from="C1B1" to="B1B0"/>
+    <personFlow id="pw" begin="0" end="300" period="12"><walk from="A1B1" to="B1A1"/></personFlow>
+    <personFlow id="pn" begin="3" end="300" period="17"><walk from="B2B1" to="B1C1"/></personFlow>
+    <personFlow id="pd" begin="5" end="300" period="23"><personTrip from="C1B1" to="B1A1"/>
+    </personFlow>
+</routes>
+"""
+
+
+def test_a_route_files_people_are_held_where_they_come_and_cross_untouched(tmp_path):
+    """A user's route file with vehicles and people on foot (walks and walk-only person
+    trips): each person coming to a crossing of the junction is held on the walking area
+    until the ICA gives it the crossing; both checks stay at zero. People who ride are
+    refused in one line."""
+    from tests.user_nets import make, tool
+
+    net = tmp_path / "grid.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "100",
+          "--default.lanenumber", "2", "--default.speed", "11.11", "--sidewalks.guess", "true",
+          "--crossings.guess", "true", "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    routes = tmp_path / "people.rou.xml"
+    routes.write_text(ROUTES_WITH_PEOPLE)
+    m = _run(tmp_path / "r", "--net", str(net), "--junction", "B1", "--routes", str(routes),
+             "--duration", "400")  # fmt: skip
+    w = m["walkers"]
+    assert w["crossed"] > 20 and w["overran_slot"] == 0 and w["mean_wait_s"] is not None
+    assert w["person_hits"] == 0 and w["sumo_person_collisions"] == 0
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["crossed"] > 60
+    riders = tmp_path / "riders.rou.xml"
+    riders.write_text(ROUTES_WITH_PEOPLE.replace(
+        '<walk from="A1B1" to="B1A1"/>', '<ride from="A1B1" to="B1A1" lines="ANY"/>'))  # fmt: skip
+    p = subprocess.run(
+        [*DICA, "run", "--net", str(net), "--junction", "B1", "--routes", str(riders),
+         "--duration", "10", "--out", str(tmp_path / "x")],
+        capture_output=True, text=True, cwd=ROOT, timeout=120,
+    )  # fmt: skip
+    assert p.returncode == 2 and "do more than walk" in p.stderr and "Traceback" not in p.stderr
 
 
 def test_the_person_check_sees_what_a_light_lets_happen(tmp_path):
