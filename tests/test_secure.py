@@ -452,13 +452,17 @@ def test_no_role_gets_past_its_rules(cast, role, action):
 
 @pytest.mark.parametrize("role, action", _cases(ATTACKERS, lambda r, a: True))
 def test_the_same_attempts_get_through_with_access_control_off(open_cast, role, action):
-    """Each attempt above can fail: without the rules, it gets through."""
+    """Each attempt above can fail: without the rules, it gets through. (One not through
+    yet is tried again, waiting longer: an attempt with no owner of its own is judged
+    once the others' owners got through, and a token may still be on its way then.)"""
     sessions, attackers = open_cast
-    attempts = _attempts(sessions, role, action)
-    refused = [
-        a.key for a, ok in zip(attempts, tried(attackers[role], attempts), strict=True) if not ok
-    ]
-    assert refused == []
+    left = _attempts(sessions, role, action)
+    for settle_s in (0.3, 1.0, 2.0):
+        got = tried(attackers[role], left, settle_s=settle_s)
+        left = [a for a, ok in zip(left, got, strict=True) if not ok]
+        if not left:
+            break
+    assert [a.key for a in left] == []
 
 
 def test_an_agent_cannot_steer_or_pose_as_another(cast):
