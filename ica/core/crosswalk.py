@@ -130,6 +130,43 @@ def _touching(
     return s, feet, touch
 
 
+def passage(
+    route: Route,
+    crosswalk: Crosswalk,
+    length_m: float,
+    width_m: float,
+    margin_m: float = 0.0,
+    ds_m: float = SPAN_DS_M,
+) -> tuple[float, float, float, float] | None:
+    """Where a vehicle of this size (grown by ``margin_m``) on ``route`` meets where
+    walkers on ``crosswalk`` may be (its strip, :data:`BODY_M` wider each side and
+    :data:`CORNER_M` longer each end, and the walking areas at its ends): the front
+    positions ``(s_from, s_to)`` over which it touches, and the stretch ``(u_lo, u_hi)``
+    of the crossing its body covers then (metres from the crossing's first end along the
+    line to its last, negative or past its length in the corners; a bent crossing is
+    covered whole). None if it never touches.
+
+    Sampled every ``ds_m`` over the whole route with footprints longer by ``ds_m``,
+    and the span widened by ``ds_m`` at each end, so that it holds every position where
+    the two touch, not only the sampled ones."""
+    got = _touching(route, crosswalk, length_m, width_m, margin_m, ds_m)
+    if got is None or not got[2].any():
+        return None
+    s, feet, touch = got
+    hit = s[touch]
+    ends = crosswalk.shape[[0, -1]]
+    chord = ends[1] - ends[0]
+    n = float(np.hypot(*chord))
+    length = crosswalk.length_m
+    if n < 1e-9 or n < length - 1e-6:  # not straight: the whole of it
+        lo, hi = -REACH_M, length + REACH_M
+    else:
+        u = (feet.take(touch).corners() - ends[0]) @ (chord / n)
+        lo = float(np.clip(u.min(), -REACH_M, length + REACH_M))
+        hi = float(np.clip(u.max(), -REACH_M, length + REACH_M))
+    return float(hit[0] - ds_m), float(hit[-1] + ds_m), lo, hi
+
+
 def span(
     route: Route,
     crosswalk: Crosswalk,
@@ -138,48 +175,9 @@ def span(
     margin_m: float = 0.0,
     ds_m: float = SPAN_DS_M,
 ) -> tuple[float, float] | None:
-    """The front positions ``(s_from, s_to)`` on ``route`` over which a vehicle of this
-    size (grown by ``margin_m``) touches where walkers on ``crosswalk`` may be (its strip,
-    :data:`BODY_M` wider each side and :data:`CORNER_M` longer each end, and the
-    walking areas at its ends); None if it never does.
-
-    Sampled every ``ds_m`` over the whole route with footprints longer by ``ds_m``,
-    and widened by ``ds_m`` at each end, so that the span holds every position where
-    the two touch, not only the sampled ones."""
-    got = _touching(route, crosswalk, length_m, width_m, margin_m, ds_m)
-    if got is None or not got[2].any():
-        return None
-    hit = got[0][got[2]]
-    return float(hit[0] - ds_m), float(hit[-1] + ds_m)
-
-
-def reach(
-    route: Route,
-    crosswalk: Crosswalk,
-    length_m: float,
-    width_m: float,
-    margin_m: float = 0.0,
-    ds_m: float = SPAN_DS_M,
-) -> tuple[float, float] | None:
-    """The stretch ``(u_lo, u_hi)`` of ``crosswalk`` (metres from its first end, along
-    the line to its last, negative or past its length in the corners) that the body of a
-    vehicle on ``route`` covers while it touches the crossing: where a walker and that
-    vehicle can meet. A bent crossing is covered whole. None if it never touches."""
-    got = _touching(route, crosswalk, length_m, width_m, margin_m, ds_m)
-    if got is None or not got[2].any():
-        return None
-    ends = crosswalk.shape[[0, -1]]
-    chord = ends[1] - ends[0]
-    n = float(np.hypot(*chord))
-    length = crosswalk.length_m
-    if n < 1e-9 or n < length - 1e-6:  # not straight: the whole of it
-        return -REACH_M, length + REACH_M
-    axis = chord / n
-    u = (got[1].take(got[2]).corners() - ends[0]) @ axis
-    return (
-        float(np.clip(u.min(), -REACH_M, length + REACH_M)),
-        float(np.clip(u.max(), -REACH_M, length + REACH_M)),
-    )
+    """The front positions of :func:`passage`: ``(s_from, s_to)``, or None."""
+    got = passage(route, crosswalk, length_m, width_m, margin_m, ds_m)
+    return None if got is None else got[:2]
 
 
 def spans(

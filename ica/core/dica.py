@@ -45,7 +45,7 @@ from dica.ica.core.conflict import (
     get_cv_batch,
     pack,
 )
-from dica.ica.core.crosswalk import reach, spans
+from dica.ica.core.crosswalk import passage
 from dica.ica.core.dtot import Dtot, build_dtot
 from dica.ica.core.gridlock import QUEUE_GAP_M
 from dica.ica.core.handover import Handover
@@ -142,8 +142,10 @@ class Dica:
         # people crossing: the walkers' reservations of the crossings (None: there are
         # none), and per route and shape the crossings it passes (ica.core.crosswalk)
         self.walks = Walkways(intersection.crosswalks) if intersection.crosswalks else None
-        self._walk_spans: dict[tuple[str, Shape], list[tuple[str, float, float]]] = {}
-        self._walk_reach: dict[tuple[str, Shape], dict[str, tuple[float, float]]] = {}
+        self._walk_geometry: dict[
+            tuple[str, Shape],
+            tuple[list[tuple[str, float, float]], dict[str, tuple[float, float]]],
+        ] = {}
         # vehicles refused for holding a crossing too far ahead, since when; and how many
         # went anyway after CLAIM_S
         self._walk_refused: dict[str, float] = {}
@@ -483,33 +485,33 @@ class Dica:
             )
 
     # -- people crossing --------------------------------------------------------------
+    def _crossing_geometry(
+        self, route: Route, shape: Shape
+    ) -> tuple[list[tuple[str, float, float]], dict[str, tuple[float, float]]]:
+        """:meth:`crossing_spans` and :meth:`crossing_reach`, from one
+        :func:`ica.core.crosswalk.passage` per crossing, worked out once."""
+        key = (route.id, shape)
+        got = self._walk_geometry.get(key)
+        if got is None:
+            found = []
+            for c in self.intersection.crosswalks:
+                p = passage(route, c, shape.length_m, shape.width_m, self.config.margin_m)
+                if p is not None:
+                    found.append((c.id, *p))
+            found.sort(key=lambda x: x[1])
+            got = ([x[:3] for x in found], {x[0]: x[3:] for x in found})
+            self._walk_geometry[key] = got
+        return got
+
     def crossing_spans(self, route: Route, shape: Shape) -> list[tuple[str, float, float]]:
         """The crossings ``route`` passes, with the front positions over which a vehicle
-        of ``shape`` (grown by the margin) holds each, worked out once."""
-        key = (route.id, shape)
-        got = self._walk_spans.get(key)
-        if got is None:
-            got = spans(
-                (route,), self.intersection.crosswalks, shape.length_m, shape.width_m,
-                self.config.margin_m,
-            )[route.id]  # fmt: skip
-            self._walk_spans[key] = got
-        return got
+        of ``shape`` (grown by the margin) holds each, in the order it meets them."""
+        return self._crossing_geometry(route, shape)[0]
 
     def crossing_reach(self, route: Route, shape: Shape) -> dict[str, tuple[float, float]]:
         """Per crossing ``route`` passes, the stretch of it a vehicle of ``shape`` (grown
-        by the margin) covers there (:func:`ica.core.crosswalk.reach`), worked out once."""
-        key = (route.id, shape)
-        got = self._walk_reach.get(key)
-        if got is None:
-            got = {}
-            for cid, _a, _b in self.crossing_spans(route, shape):
-                c = next(x for x in self.intersection.crosswalks if x.id == cid)
-                u = reach(route, c, shape.length_m, shape.width_m, self.config.margin_m)
-                if u is not None:
-                    got[cid] = u
-            self._walk_reach[key] = got
-        return got
+        by the margin) covers there (:func:`ica.core.crosswalk.passage`)."""
+        return self._crossing_geometry(route, shape)[1]
 
     def _holds(self, crossing: str) -> list[Hold]:
         """The confirmed vehicles' holds of ``crossing``: when, and over which stretch."""
