@@ -218,7 +218,6 @@ class Walkers:
     cleared: list[tuple[str, str, str]] = field(default_factory=list)
     _next: int = 0
     _crossing_of: dict[str, tuple[str, np.ndarray, float]] = field(default_factory=dict)
-    _walking_areas: set[str] = field(default_factory=set)
     _held: dict[str, Walker] = field(default_factory=dict)  # waiting for the ICA's go
     _radius: dict[str, float] = field(default_factory=dict)  # [m] each person's body
     # this step's persons as SUMO places them (for the person check)
@@ -304,20 +303,27 @@ class Walkers:
                 pos = ls.person.getLanePosition(pid)
                 if not (pos >= w.kerb_at[0] if w.kerb_at[1] else pos <= w.kerb_at[0]):
                     continue
-            nxt = w.planned
             # at the kerb of a crossing of ours: a new passage
-            junction, _shape, length = self._crossing_of[nxt]
-            near = w.kerb_near_m
-            w.crossing, w.kerb_s, w.near_m = nxt, t, near
+            w.crossing, w.kerb_s, w.near_m = w.planned, t, w.kerb_near_m
             w.speed_mps = float(ls.person.getMaxSpeed(pid))
             if self.hold:
-                w.asked_s = t
-                self._held[pid] = w
-                walk = near + length + w.far_m + CORNER_GROW_M  # until off the corner beyond
-                asks.append(WalkAsk(pid, nxt, junction, t, walk, w.speed_mps, w.side, near))
+                asks.append(self._hold(w, t))
         self.asks = asks
         self.cleared = cleared
         return asks
+
+    def _ask(self, w: Walker) -> WalkAsk:
+        """``w``'s WALK: from its kerb until off the corner beyond the crossing."""
+        junction, _shape, length = self._crossing_of[w.crossing]
+        walk = w.near_m + length + w.far_m + CORNER_GROW_M
+        return WalkAsk(w.pid, w.crossing, junction, w.kerb_s, walk, w.speed_mps, w.side,
+                       w.near_m)  # fmt: skip
+
+    def _hold(self, w: Walker, t: float) -> WalkAsk:
+        """``w`` held at the kerb from ``t`` and asked for."""
+        w.asked_s = t
+        self._held[w.pid] = w
+        return self._ask(w)
 
     def _stranger_at_kerb(self, w: Walker, road: str, t: float) -> WalkAsk | None:
         """A route file's person on the walking area before a crossing of ours it has not
@@ -327,7 +333,7 @@ class Walkers:
         nxt = self.ls.person.getNextEdge(w.pid)
         if nxt not in self._crossing_of or (w.crossing == nxt and w.clear_s is None):
             return None
-        junction, shape, length = self._crossing_of[nxt]
+        shape = self._crossing_of[nxt][1]
         xy = np.asarray(self.ls.person.getPosition(w.pid))
         d = [float(np.linalg.norm(xy - shape[0])), float(np.linalg.norm(xy - shape[-1]))]
         w.side = int(d[1] < d[0])
@@ -337,25 +343,16 @@ class Walkers:
         if not self.hold:
             return None
         self.ls.person.setSpeed(w.pid, 0.0)
-        w.asked_s = t
-        self._held[w.pid] = w
-        walk = w.near_m + length + w.far_m + CORNER_GROW_M
-        return WalkAsk(w.pid, nxt, junction, t, walk, w.speed_mps, w.side, w.near_m)
+        return self._hold(w, t)
 
     def again(self, t: float) -> list[WalkAsk]:
         """The held walkers whose WALK has gone unanswered for :data:`ASK_AGAIN_S`: asked
         again (the ICA answers a repeat with the same slot)."""
         out = []
-        for pid, w in self._held.items():
+        for w in self._held.values():
             if w.go_s is None and w.asked_s is not None and t - w.asked_s >= ASK_AGAIN_S - 1e-9:
                 w.asked_s = t
-                junction, _shape, length = self._crossing_of[w.crossing]
-                walk = w.near_m + length + w.far_m + CORNER_GROW_M
-                out.append(
-                    WalkAsk(
-                        pid, w.crossing, junction, w.kerb_s, walk, w.speed_mps, w.side, w.near_m
-                    )
-                )
+                out.append(self._ask(w))
         return out
 
     def waiting_mask(self) -> np.ndarray:
