@@ -381,3 +381,30 @@ def test_a_plan_held_far_ahead_by_walkers_waits_its_turn_but_never_for_ever(walk
     got = ask(CLAIM_S + 0.5, 2)
     assert isinstance(got, Confirmation) and ica.walk_claims == 1
     assert got.entry_time_s > CLAIM_S + HOLD_AHEAD_S - 10.0  # after the slow walker
+
+
+def test_a_restarted_ica_keeps_walkers_slots_and_what_was_seen_across(walk_net, tmp_path):
+    """The journal holds each slot whole (where the walker stands, its pace, its expected
+    end) and each ACROSS: replayed into a fresh core, the slots are the same, the one
+    seen across ends where it was seen, and a repeat of either changes nothing."""
+    from dica.ica.core.dica import Dica
+    from dica.ica.journal import Journal, replay
+
+    x = load_intersection(walk_net, "B1")
+    ica = Dica(x)
+    amy = ica.walk("amy", ":B1_c1", 0.0, 0.0, walk_m=20.0, speed_mps=1.3, side=1, near_m=2.5)
+    bob = ica.walk("bob", ":B1_c1", 0.5, 0.5)
+    assert ica.walked("amy", ":B1_c1", amy.start_s + 8.0)
+    journal = Journal(tmp_path / "ica.journal", sync=False)
+    journal.walk(amy)
+    journal.walk(bob)
+    journal.across("amy", ":B1_c1", amy.start_s + 8.0)
+    journal.walk(amy)  # written twice (a repeated WALK): still one slot
+    journal.across("amy", ":B1_c1", amy.start_s + 12.0)  # later than the end: no change
+    journal.close()
+    again = Dica(x)
+    got = replay(tmp_path / "ica.journal", again)
+    assert got.walks == 3
+    assert again.walks.slots[":B1_c1"] == ica.walks.slots[":B1_c1"]
+    assert again.walks.slot_of("amy", ":B1_c1").end_s == pytest.approx(amy.start_s + 8.0)
+    assert again.walks.slot_of("bob", ":B1_c1") == bob

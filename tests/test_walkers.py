@@ -145,6 +145,7 @@ def test_a_body_touching_a_car_is_a_hit():
     [
         (["--layout", "ch45", "--peds", "100"], "has no pedestrian crossings"),
         (["--layout", "ch45-walk", "--peds", "-1"], "--peds must be between 0"),
+        (["--layout", "ch45-walk", "--peds", "3601"], "and 3600 persons per hour"),
     ],
 )
 def test_people_where_the_junction_cannot_have_them_is_one_clear_line(tmp_path, args, says):
