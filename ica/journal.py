@@ -108,7 +108,8 @@ class Journal:
         self._write(
             {"k": "walk", "person": slot.person, "crossing": slot.crossing,
              "start": slot.start_s, "end": slot.end_s, "side": slot.side,
-             "near": slot.near_m, "v_lo": slot.v_lo, "v_hi": slot.v_hi, "eta": slot.eta_s}
+             "near": slot.near_m, "v_lo": slot.v_lo, "v_hi": slot.v_hi, "eta": slot.eta_s,
+             "near_lo": slot.near_lo_m}
         )  # fmt: skip
 
 
@@ -176,6 +177,7 @@ def replay(path: Path, ica: Controller) -> Replayed:
                         str(rec["person"]), str(rec["crossing"]), float(rec["start"]),
                         float(rec["end"]), int(rec["side"]), float(rec["near"]),
                         float(rec["v_lo"]), float(rec["v_hi"]), float(rec["eta"]),
+                        float(rec.get("near_lo", 0.0)),
                     )
                 )  # fmt: skip
                 out.walks += 1

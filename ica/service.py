@@ -516,7 +516,7 @@ class IcaService:
         try:
             slot = self.ica.walk(
                 msg.person, msg.crossing, msg.ready_s, self.now_s, msg.walk_m, msg.speed_mps,
-                msg.side, msg.near_m,
+                msg.side, msg.near_m, msg.near_lo_m,
             )  # fmt: skip
         except RequestError as e:
             self._reject(item.query, msg.person, -1, e.reason, e.detail)

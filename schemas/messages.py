@@ -17,6 +17,7 @@ from typing import ClassVar
 
 import numpy as np
 
+# 9: a WALK carries ``near_lo_m`` (the shortest way the walker may take to the crossing);
 # 8: a WALK carries the walker's ``walk_m``, ``speed_mps``, ``side`` and ``near_m``, and
 # ACROSS exists;
 # 7: a REQUEST and a vehicle state carry ``network_room_m`` (the network gate); 6: they
@@ -24,7 +25,7 @@ import numpy as np
 # REORDER; 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev``
 # and ``kept_seq``, a setpoint ``drop``, and REVOKE exists (2 had no revocations; 1 had
 # open-loop speed commands)
-VERSION = 8
+VERSION = 9
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
@@ -105,7 +106,9 @@ class Walk:
     """A walker at the kerb of ``crossing`` (SUMO's crossing edge id) since sim time
     ``ready_s`` asks to cross; the roadside asks for it (its detector or push button).
     As the roadside sees it: the walker stands ``near_m`` short of the crossing's end
-    ``side`` (0: the first point of its centre line in the net, 1: the last), has
+    ``side`` (0: the first point of its centre line in the net, 1: the last) by the way
+    round the corner, and ``near_lo_m`` as the crow flies to the crossing's end (the
+    ICA takes it as soon on the crossing as that allows), has
     ``walk_m`` to go until it is off the corner beyond, and walks at ``speed_mps`` (0:
     not known; the ICA plans a slow walk anyway)."""
 
@@ -117,6 +120,7 @@ class Walk:
     speed_mps: float = lim(0.0, 10.0)
     side: int = lim(0, 1)
     near_m: float = lim(0.0, 1000.0)
+    near_lo_m: float = lim(0.0, 1000.0)
     sent_ns: int = lim(0, 2**63 - 1)
 
 

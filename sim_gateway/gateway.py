@@ -279,7 +279,7 @@ class ZenohDrivers:
                 self.walks_unanswered += 1
         for ask in [*walkers.asks, *walkers.again(t)]:
             msg = Walk(ask.person, ask.crossing, ask.ready_s, ask.walk_m, ask.speed_mps,
-                       ask.side, ask.near_m, now_ns())  # fmt: skip
+                       ask.side, ask.near_m, ask.near_lo_m, now_ns())  # fmt: skip
             got = self._ask_ica(key, msg, Go)
             if isinstance(got, Go):
                 walkers.answer(got.person, got.start_s, got.end_s, t)

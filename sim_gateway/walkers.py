@@ -61,7 +61,8 @@ class WalkAsk:
     walk_m: float  # [m] from where it stands until off the corner beyond the crossing
     speed_mps: float  # its own walking speed, as the roadside reads it
     side: int  # the crossing's end it starts from (0: its centre line's first point)
-    near_m: float  # [m] from where it stands to that end
+    near_m: float  # [m] from where it stands to that end, round the corner
+    near_lo_m: float  # [m] the same as the crow flies, to the nearest of the end's edge
 
 
 @dataclass(slots=True)
@@ -78,6 +79,7 @@ class Walker:
     side: int = 0  # the crossing's end its kerb is at
     kerb_s: float | None = None  # at the kerb (began to wait there; under a light, passed it)
     near_m: float = 0.0  # [m] from there to the crossing
+    near_lo_m: float = 0.0  # [m] the same as the crow flies (the least it may walk)
     speed_mps: float = 0.0
     asked_s: float | None = None
     go_s: float | None = None  # the ICA's start (None: not given yet, or no ICA)
@@ -170,6 +172,21 @@ def kerbs(ls, inter: Intersection) -> dict[str, tuple[Side, Side]]:
     return out
 
 
+def to_end_edge(xy: np.ndarray, shape: np.ndarray, width_m: float, side: int) -> float:
+    """How far ``xy`` is, as the crow flies, from the edge of a crossing's end ``side``
+    (the line across its strip there, ``width_m`` long): no walker there reaches the
+    crossing sooner than that walk."""
+    end, nxt = (shape[0], shape[1]) if side == 0 else (shape[-1], shape[-2])
+    along = nxt - end
+    along = along / max(float(np.hypot(*along)), 1e-9)
+    if float(np.dot(xy - end, along)) > 0.0:  # past the end's edge: on the crossing already
+        return 0.0
+    half = np.array([-along[1], along[0]]) * width_m / 2.0
+    a, ab = end - half, 2.0 * half
+    k = float(np.clip(np.dot(xy - a, ab) / max(float(np.dot(ab, ab)), 1e-12), 0.0, 1.0))
+    return float(np.hypot(*(xy - (a + k * ab))))
+
+
 def draw_legs(
     ends: dict[str, tuple[Side, Side]],
     per_hour: float,
@@ -217,7 +234,8 @@ class Walkers:
     # this step's walkers seen across, whose slot ends now: (person, crossing, junction)
     cleared: list[tuple[str, str, str]] = field(default_factory=list)
     _next: int = 0
-    _crossing_of: dict[str, tuple[str, np.ndarray, float]] = field(default_factory=dict)
+    # per crossing id: its junction, centre line, length and width
+    _crossing_of: dict[str, tuple[str, np.ndarray, float, float]] = field(default_factory=dict)
     _held: dict[str, Walker] = field(default_factory=dict)  # waiting for the ICA's go
     _radius: dict[str, float] = field(default_factory=dict)  # [m] each person's body
     # this step's persons as SUMO places them (for the person check)
@@ -232,7 +250,7 @@ class Walkers:
             self.ls.vehicletype.setParameter(GO_TYPE, "junctionModel.jmIgnoreFoeSpeed", "100")
         for inter in self.inters:
             for c in inter.crosswalks:
-                self._crossing_of[c.id] = (inter.junction_id, c.shape, c.length_m)
+                self._crossing_of[c.id] = (inter.junction_id, c.shape, c.length_m, c.width_m)
 
     def step(self, t: float) -> list[WalkAsk]:
         """After SUMO's step to ``t``: put in who is due, see who reached a kerb (held and
@@ -314,14 +332,17 @@ class Walkers:
 
     def _ask(self, w: Walker) -> WalkAsk:
         """``w``'s WALK: from its kerb until off the corner beyond the crossing."""
-        junction, _shape, length = self._crossing_of[w.crossing]
+        junction, _shape, length, _width = self._crossing_of[w.crossing]
         walk = w.near_m + length + w.far_m + CORNER_GROW_M
         return WalkAsk(w.pid, w.crossing, junction, w.kerb_s, walk, w.speed_mps, w.side,
-                       w.near_m)  # fmt: skip
+                       w.near_m, w.near_lo_m)  # fmt: skip
 
     def _hold(self, w: Walker, t: float) -> WalkAsk:
         """``w`` held at the kerb from ``t`` and asked for."""
         w.asked_s = t
+        _junction, shape, _length, width = self._crossing_of[w.crossing]
+        xy = np.asarray(self.ls.person.getPosition(w.pid), dtype=float)
+        w.near_lo_m = min(to_end_edge(xy, shape, width, w.side), w.near_m)
         self._held[w.pid] = w
         return self._ask(w)
 

@@ -217,6 +217,37 @@ def test_a_walker_goes_once_the_confirmed_vehicles_are_past_its_way(walk_net):
     assert not ica.walked("bob", ":B1_c0", bob.start_s + 12.0)  # never later again
 
 
+def test_a_walker_may_be_on_the_crossing_as_soon_as_its_shortest_way_allows():
+    """A walker round a corner may cut across it: it may be on the crossing as soon as
+    the shortest way (``near_lo_m``) allows, and still on it as late as the longest
+    (``near_m``) does; the shortest is never taken longer than the longest."""
+    from dica.ica.core.crosswalk import BODY_M
+    from dica.ica.core.walk import LAG_S, WalkSlot
+
+    w = WalkSlot("amy", "c", 10.0, 60.0, side=0, near_m=9.0, v_lo=1.0, v_hi=2.0,
+                 near_lo_m=3.0)  # fmt: skip
+    t_in, t_out = w.over(4.0, 5.0, 16.0, 0.0)
+    assert t_in == pytest.approx(10.0 + (4.0 + 3.0 - BODY_M) / 2.0)
+    assert t_out == pytest.approx(10.0 + LAG_S + (5.0 + 9.0 + BODY_M) / 1.0)
+    # not told the shortest: at the crossing's end at once, at 2.5 m/s on from there
+    bob = WalkSlot("bob", "c", 10.0, 60.0, near_m=9.0)
+    assert bob.over(4.0, 5.0, 16.0, 0.0)[0] == pytest.approx(10.0 + (4.0 - BODY_M) / 2.5)
+    from dica.ica.core.walk import Walkways
+
+    ways = Walkways((Crosswalk("c", np.array([[0.0, 0.0], [16.0, 0.0]]), 4.0),))
+    assert ways.slot("cyd", "c", 0.0, near_m=2.0, near_lo_m=5.0).near_lo_m == 2.0
+
+
+def test_the_shortest_way_to_a_crossing_is_to_the_edge_of_its_end():
+    from dica.sim_gateway.walkers import to_end_edge
+
+    shape = np.array([[0.0, 0.0], [16.0, 0.0]])  # 4 m wide: its end 0 from y = -2 to 2
+    assert to_end_edge(np.array([-3.0, 1.0]), shape, 4.0, 0) == pytest.approx(3.0)
+    assert to_end_edge(np.array([-3.0, 6.0]), shape, 4.0, 0) == pytest.approx(5.0)
+    assert to_end_edge(np.array([19.0, 0.0]), shape, 4.0, 1) == pytest.approx(3.0)
+    assert to_end_edge(np.array([1.0, 0.0]), shape, 4.0, 0) == 0.0  # on it already
+
+
 @pytest.mark.parametrize("compiled", [True, False])  # the compiled rounds, the Python loop
 def test_a_vehicle_waits_for_the_walkers_on_its_way(walk_net, compiled, monkeypatch):
     from dica.ica.core.dica import Dica
@@ -306,26 +337,26 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
         go = ask(
             session,
             keys.walk("B1", "gateway"),
-            Walk("amy", ":B1_c1", 0.0, 0.0, 0.0, 0, 0.0, now_ns()),
+            Walk("amy", ":B1_c1", 0.0, 0.0, 0.0, 0, 0.0, 0.0, now_ns()),
         )
         assert isinstance(go, Go) and go.person == "amy" and go.start_s == 0.0
         assert go.end_s == pytest.approx(3.0 + 12.8 + 6.0 + 2.0)
         no = ask(
             session,
             keys.walk("B1", "agent-1"),
-            Walk("bob", ":B1_c1", 0.0, 0.0, 0.0, 0, 0.0, now_ns()),
+            Walk("bob", ":B1_c1", 0.0, 0.0, 0.0, 0, 0.0, 0.0, now_ns()),
         )
         assert isinstance(no, Reject) and "only the roadside" in no.detail
         no = ask(
             session,
             keys.walk("B1", "gateway"),
-            Walk("bob", ":Z_c9", 0.0, 0.0, 0.0, 0, 0.0, now_ns()),
+            Walk("bob", ":Z_c9", 0.0, 0.0, 0.0, 0, 0.0, 0.0, now_ns()),
         )
         assert isinstance(no, Reject) and no.reason == "bad_state"
         again = ask(
             session,
             keys.walk("B1", "gateway"),
-            Walk("amy", ":B1_c1", 3.0, 0.0, 0.0, 0, 0.0, now_ns()),
+            Walk("amy", ":B1_c1", 3.0, 0.0, 0.0, 0, 0.0, 0.0, now_ns()),
         )
         assert again == Go("amy", ":B1_c1", go.start_s, go.end_s, again.sent_ns)  # the same
         done = ask(session, keys.walk("B1", "gateway"), Across("zed", ":B1_c1", 1.0, now_ns()))

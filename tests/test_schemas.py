@@ -67,7 +67,7 @@ SAMPLES = {
     Reject: Reject("v00001", 3, "not_head", "v00000 is ahead", 1),
     Ack: Ack("v00001", 3, "response", 2),
     Cancel: Cancel("v00001", 3, 7),
-    Walk: Walk("p0001", ":C_c0", 12.5, 22.0, 1.3, 1, 2.0, 7),
+    Walk: Walk("p0001", ":C_c0", 12.5, 22.0, 1.3, 1, 2.0, 1.2, 7),
     Across: Across("p0001", ":C_c0", 40.25, 8),
     Go: Go("p0001", ":C_c0", 14.0, 28.8, 7),
     Detect: Detect("v00001", "W_in_0", 10.05, True, 12.5, 3),

@@ -536,9 +536,11 @@ class Dica:
         speed_mps: float = 0.0,
         side: int = 0,
         near_m: float = 0.0,
+        near_lo_m: float = 0.0,
     ) -> WalkSlot:
-        """A walker at the kerb of ``crossing`` from ``ready_s``, ``near_m`` short of its
-        end ``side`` and ``walk_m`` from being off the corner beyond, walking at
+        """A walker at the kerb of ``crossing`` from ``ready_s``, at most ``near_m`` and
+        at least ``near_lo_m`` short of its end ``side`` (its way round the corner, and
+        the shortest it may take), ``walk_m`` from being off the corner beyond, walking at
         ``speed_mps`` (0: not stated), asks to cross: the slot it is given, held from then
         on (asked again, the same slot). It goes with a walk phase that has not begun if
         its way is clear from then, else it starts a new phase, no sooner than the
@@ -550,7 +552,7 @@ class Dica:
             raise RequestError(Reason.NOT_FINITE, f"figures of {person}'s request are not finite")
         if walk_m < 0.0 or speed_mps < 0.0:
             raise RequestError(Reason.BAD_STATE, f"{person}'s walk or speed is negative")
-        if side not in (0, 1) or near_m < 0.0:
+        if side not in (0, 1) or near_m < 0.0 or not 0.0 <= near_lo_m < math.inf:
             raise RequestError(Reason.BAD_STATE, f"{person}'s side or distance is not one")
         held = self.walks.slot_of(person, crossing)
         if held is not None:
@@ -558,7 +560,7 @@ class Dica:
         walks = self.walks
         busy = self._holds(crossing)
         at = max(ready_s, now_s)
-        want = walks.slot(person, crossing, at, walk_m, speed_mps, side, near_m)
+        want = walks.slot(person, crossing, at, walk_m, speed_mps, side, near_m, near_lo_m)
         start = walks.joinable(want, at, busy)  # a phase that has not begun: go with it
         if start is None:
             waiting = any(v not in self._confirmed for v in self._lane_of)

@@ -57,10 +57,13 @@ Hold = tuple[float, float, float, float]  # a vehicle on a crossing: t_in, t_out
 
 @dataclass(frozen=True, slots=True)
 class WalkSlot:
-    """A walker's reservation of ``crossing``: it starts at ``start_s`` from ``near_m``
-    short of the crossing's end ``side`` (0: the first point of its centre line as the
-    net draws it, 1: the last), walks at ``v_lo`` to ``v_hi`` [m/s], and is off the
-    crossing and its corner by ``end_s``."""
+    """A walker's reservation of ``crossing``: it starts at ``start_s`` at most
+    ``near_m`` and at least ``near_lo_m`` short of the crossing's end ``side`` (0: the
+    first point of its centre line as the net draws it, 1: the last), walks at ``v_lo``
+    to ``v_hi`` [m/s], and is off the crossing and its corner by ``end_s``. The two
+    distances differ because a walker may go round a corner or cut across it: the far
+    one says when it may still be on a stretch, the near one when it may be there
+    already (0, as the crow flies through anything, if unknown)."""
 
     person: str
     crossing: str
@@ -71,6 +74,7 @@ class WalkSlot:
     v_lo: float = WALK_MPS
     v_hi: float = FAST_MPS
     eta_s: float = math.inf  # when it is expected off its way at its own pace (<= end_s)
+    near_lo_m: float = 0.0  # [m] the shortest way it may take to the crossing's end
 
     def over(
         self, u_lo: float, u_hi: float, length_m: float, clear_s: float
@@ -80,7 +84,7 @@ class WalkSlot:
         (:data:`BODY_M`) early, to its slowest departure (stepping off :data:`LAG_S`
         late) a body's reach past it and ``clear_s`` more, within its slot."""
         a, b = (u_lo, u_hi) if self.side == 0 else (length_m - u_hi, length_m - u_lo)
-        t_in = self.start_s + max(a + self.near_m - BODY_M, 0.0) / self.v_hi
+        t_in = self.start_s + max(a + self.near_lo_m - BODY_M, 0.0) / self.v_hi
         t_out = self.start_s + LAG_S + max(b + self.near_m + BODY_M, 0.0) / self.v_lo + clear_s
         return min(t_in, self.end_s), min(t_out, self.end_s)
 
@@ -146,14 +150,17 @@ class Walkways:
         speed_mps: float = 0.0,
         side: int = 0,
         near_m: float = 0.0,
+        near_lo_m: float = 0.0,
     ) -> WalkSlot:
-        """The slot of a walker that starts at ``start_s`` (not yet held)."""
+        """The slot of a walker that starts at ``start_s`` (not yet held), at most
+        ``near_m`` and at least ``near_lo_m`` from the crossing's end."""
         v_lo, v_hi = self.pace(speed_mps)
         end = start_s + self.walk_s(crossing, walk_m, speed_mps)
         own = speed_mps if speed_mps > 0.0 else self.walk_mps
         far = max(walk_m, self.crosswalks[crossing].length_m + CORNER_M)
         eta = min(start_s + far / own + self.clear_s, end)
-        return WalkSlot(person, crossing, start_s, end, side, near_m, v_lo, v_hi, eta)
+        near_lo = min(near_lo_m, near_m)
+        return WalkSlot(person, crossing, start_s, end, side, near_m, v_lo, v_hi, eta, near_lo)
 
     def earliest(self, want: WalkSlot, ready_s: float, busy: list[Hold]) -> float:
         """The first start at or after ``ready_s`` at which the walk ``want`` (its start
@@ -224,8 +231,7 @@ class Walkways:
                 end = max(t_s, w.start_s)
                 if end >= w.end_s:
                     return False
-                slots[i] = WalkSlot(w.person, w.crossing, w.start_s, end, w.side, w.near_m,
-                                    w.v_lo, w.v_hi, min(w.eta_s, end))  # fmt: skip
+                slots[i] = dataclasses.replace(w, end_s=end, eta_s=min(w.eta_s, end))
                 return True
         return False
 
