@@ -22,6 +22,7 @@ from dica.ica.core.controller import Controller, build_controller
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from dica.ica.core.revocation import DROPPED, KEPT, Reorder
+from dica.ica.core.walk import WalkSlot
 from dica.ica.core.window import WindowOrder
 from dica.sim_gateway.demand import Arrival, schedule_for
 from dica.sim_gateway.junction import Seen
@@ -119,6 +120,7 @@ class LocalDrivers:
         self.recorded: set[str] = set()  # VINs whose confirmation is in the recording
         self.revocations: list[tuple[float, str, str]] = []  # (t, vin, what), to record
         self.kept: list[tuple[float, str, str]] = []  # revoked plans that stand: (t, vin, why)
+        self.walks: list[tuple[float, WalkSlot]] | None = None  # slots given, to record
         self.delivered: set[tuple[str, int]] = set()  # revocations handed to their vehicles
         self.order = WindowOrder(ica) if cfg.window_s else None
         self.close_s = cfg.window_s  # when the current window closes
@@ -134,8 +136,11 @@ class LocalDrivers:
             self.ica.walked(person, crossing, t)
         for ask in walkers.asks:
             slot = self.ica.walk(ask.person, ask.crossing, ask.ready_s, t, ask.walk_m,
-                                 ask.speed_mps, ask.side, ask.near_m)  # fmt: skip
+                                 ask.speed_mps, ask.side, ask.near_m,
+                                 ask.near_lo_m)  # fmt: skip
             walkers.answer(ask.person, slot.start_s, slot.end_s, t)
+            if self.walks is not None:
+                self.walks.append((t, slot))
         walkers.release(t)
 
     def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
@@ -335,6 +340,8 @@ def _run(
             want_xy=bool(recorder), predict_s=cfg.plan_lead_s,
         )  # fmt: skip
         drivers = LocalDrivers(ica, cfg)
+        if recorder is not None:
+            drivers.walks = []
         try:
             while True:
                 seen = world.step()
@@ -348,7 +355,10 @@ def _run(
                     record_step(recorder, drivers, seen, cfg, world.t)
                     if world.walkers is not None:
                         w = world.walkers
+                        for t_walk, slot in drivers.walks or ():
+                            recorder.rec.walk(t_walk, slot)
                         recorder.rec.people(world.t, w.xy, w.waiting_mask())
+                    drivers.walks = []
                 world.end_step(progress)
                 if world.done():
                     break

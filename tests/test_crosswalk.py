@@ -146,6 +146,49 @@ def test_the_recording_draws_the_crossings(walk_net, tmp_path):
     assert len(strips) == 4 + 3  # A1, on the grid's edge, has three arms
 
 
+def test_the_recording_bands_hold_vehicles_walkers_and_people_on_a_crossing(walk_net, tmp_path):
+    """A crossing's band in the conflict-point chart: a box for a confirmed vehicle's hold
+    over the stretch its body covers, boxes for a walker's reservation, and a dot for a
+    person on the strip, red only outside every walker's reservation there."""
+    from dica.ica.core.dica import Dica
+    from dica.sim_gateway.recording import SpaceTimeRecorder
+    from dica.sim_gateway.recording.crossing_chart import front_positions
+    from dica.sim_gateway.recording.style import rgba
+    from tests.test_recording import _read, _rows
+
+    x = load_intersection(walk_net, "B1")
+    ica = Dica(x)
+    through = x.route("A1B1_1", "B1C1_1")
+    conf = _car(ica, through, "car", 0.0)
+    tss = conf.tss
+    s = front_positions(through, tss.x_m, tss.y_m)  # from 30 m before its entry line
+    assert s[0] == pytest.approx(-30.0, abs=0.05) and np.all(np.diff(s) >= -1e-9)
+    slot = ica.walk("amy", ":B1_c1", 0.0, 0.0, side=0, near_m=3.0, near_lo_m=2.0)
+    c1 = next(c for c in x.crosswalks if c.id == ":B1_c1")
+    rec = SpaceTimeRecorder(x, tmp_path / "b1.rrd")
+    rec.geometry()
+    rec.confirmed("car", through.id, tss.t_s, tss.x_m, tss.y_m, tss.heading_rad, 5.0, 1.8,
+                  conf.entry_time_s, conf.exit_time_s, now_s=0.0)  # fmt: skip
+    rec.walk(0.0, slot)
+    mid = c1.shape[0] + (c1.shape[-1] - c1.shape[0]) * 0.5  # half-way across
+    t_mid = slot.over(c1.length_m / 2, c1.length_m / 2, c1.length_m, 0.0)[0] + 0.1
+    rec.people(t_mid, np.array([mid]), np.array([False]))
+    rec.people(slot.end_s + 5.0, np.array([mid]), np.array([False]))  # on it, out of time
+    rec.close()
+    data = _read(tmp_path / "b1.rrd")
+    holds = [v for _, v in _rows(data["/charts/data/zones/crossing_holds"], "Boxes2D:labels")]
+    shape = ica.confirmed["car"].dtot.shape  # the crossings the ICA holds for it
+    assert sorted(label.split()[2] for label in holds[0]) == sorted(
+        cid for cid, _, _ in ica.crossing_spans(through, shape)
+    )
+    assert {":B1_c1", ":B1_c3"} <= {label.split()[2] for label in holds[0]}
+    walks = [v for _, v in _rows(data["/charts/data/zones/walks"], "Boxes2D:labels")]
+    assert len(walks[0]) >= 4 and all(label.startswith("amy walks :B1_c1") for label in walks[0])
+    dots = [v for _, v in _rows(data["/charts/data/zones/people"], "Points2D:colors")]
+    red = rgba((220, 30, 30))
+    assert [[c == red for c in row] for row in dots] == [[False], [True]]
+
+
 # -- walkers and vehicles ------------------------------------------------------------
 def _car(ica, route, vin: str, t0: float, d: float = 30.0, speed: float = 10.0):
     from dica.ica.core.proposal import propose

@@ -33,11 +33,13 @@ import rerun.blueprint as rrb
 
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.route import Route
+from dica.ica.core.walk import WalkSlot
 from dica.ica.core.zones import ConflictTables, Shape
 from dica.sim_gateway.conflict_points import ConflictPoints, dtot_of_tss, find_conflict_points
 from dica.sim_gateway.recording.batch import Plan, Step, StepBatch
 from dica.sim_gateway.recording.chart_frame import CHART_EVERY, ChartFrame
 from dica.sim_gateway.recording.conflict_chart import ConflictChart
+from dica.sim_gateway.recording.crossing_chart import CrossingChart
 from dica.sim_gateway.recording.geometry import FLIP_Y, RouteProjector
 from dica.sim_gateway.recording.lane_charts import LaneCharts
 from dica.sim_gateway.recording.layout import Layout
@@ -97,11 +99,15 @@ class SpaceTimeRecorder:
         self._buf_t0 = 0.0
         self._start_s: float | None = None  # the timeline starts at the first confirmation
         self._rows = RowBuffer(row_styles(self.lanes, margin_m))
-        self._layout = Layout(intersection, top_m, len(self.points))
+        self._crossings = CrossingChart(
+            intersection.crosswalks, len(self.points), self._rows, self._colours
+        )
+        n_rows = len(self.points) + self._crossings.n_rows
+        self._layout = Layout(intersection, top_m, n_rows)
         self._top = TopView(intersection, self._rows, margin_m)
         self._lane_charts = LaneCharts(intersection, self._rows, self._colours, top_m)
         self._conflicts = ConflictChart(self.points, self._rows, self._colours)
-        self._frame = ChartFrame(self._rows, top_m, len(self.points))
+        self._frame = ChartFrame(self._rows, top_m, n_rows)
         self._tables = Tables(self._rows)
 
         self.rec = rr.RecordingStream(application_id, recording_id=recording_id)
@@ -144,6 +150,7 @@ class SpaceTimeRecorder:
         self._frame.now_line(self.rec, self.intersection.comm_length_m)
         self._lane_charts.frames(self.rec)
         self._conflicts.frames(self.rec)
+        self._crossings.frames(self.rec)
 
     # -- confirmations and rejections ----------------------------------------
     def confirmed(
@@ -195,6 +202,9 @@ class SpaceTimeRecorder:
         )
         self._lane_charts.plan(now, vin, route, t, x_m, y_m)
         self._conflicts.reserved(now, vin, hold)
+        self._crossings.reserved(
+            now, vin, route, t, x_m, y_m, length_m, width_m, margin, 2.0 * time_pad_s
+        )
         self._tables.confirmed(now, vin, route_id, entry_time_s, exit_time_s, delay_s, rounds)
         self._maybe_flush(now)
 
@@ -293,6 +303,11 @@ class SpaceTimeRecorder:
         self._steps.append(Step(t, list(vins), x, y, angle, length, width, ridx))
         self._maybe_flush(t)
 
+    def walk(self, now_s: float, slot: WalkSlot) -> None:
+        """A walker given a crossing: its reservation in the crossing's band of the
+        conflict-point chart (:mod:`.crossing_chart`)."""
+        self._crossings.walk(float(now_s), slot)
+
     def people(self, t_s: float, xy: np.ndarray, waiting: np.ndarray) -> None:
         """People near the junction at one step, in SUMO's frame: a dot each in the top
         view (amber: waiting at the kerb, blue: walking), every :data:`PEOPLE_EVERY_S`."""
@@ -301,6 +316,7 @@ class SpaceTimeRecorder:
             return
         self._people_t = t
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        self._crossings.people(t, xy)
         near = np.abs(xy - self._people_at).max(axis=1) <= self._people_reach
         xy, wait = xy[near], np.asarray(waiting, dtype=bool)[near]
         self._rows.add_many(
