@@ -417,6 +417,15 @@ class Walkers:
             "mean_wait_s": float(np.mean(waits)) if waits else None,
             "p95_wait_s": float(np.percentile(waits, 95)) if waits else None,
             "max_wait_s": max([*waits, *longest], default=None),
+            # the ICA's part: from its ask to the start it was given (bound: WAIT_BOUND_S)
+            "max_ask_to_go_s": max(
+                (
+                    w.go_s - w.asked_s
+                    for w in people
+                    if w.go_s is not None and w.asked_s is not None
+                ),
+                default=None,
+            ),
             "mean_crossing_s": float(np.mean(times)) if times else None,
             "overran_slot": sum(1 for w in people if w.overran),
         }

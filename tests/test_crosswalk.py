@@ -457,6 +457,97 @@ def test_a_plan_held_far_ahead_by_walkers_waits_its_turn_but_never_for_ever(walk
     assert got.entry_time_s > CLAIM_S + HOLD_AHEAD_S - 10.0  # after the slow walker
 
 
+def test_no_walker_waits_past_the_bound_and_no_claim_holds_a_crossing_beyond_it(walk_net):
+    """A walker who cannot join the phase that has begun starts a new one at most
+    WAIT_BOUND_S after it asked, even when the window after that phase would end later;
+    a vehicle that claims its turn may not hold a crossing further ahead than that."""
+    from dica.ica.core.dica import Dica
+    from dica.ica.core.proposal import propose
+    from dica.ica.core.request import Confirmation, Reason, Rejection
+    from dica.ica.core.walk import CLAIM_S, WAIT_BOUND_S
+
+    x = load_intersection(walk_net, "B1")
+    ica = Dica(x)
+    through = x.route("A1B1_1", "B1C1_1")
+    slow = ica.walk("slow", ":B1_c1", 0.0, 0.0, speed_mps=0.1, side=1)  # 0.08 m/s
+    assert slow.start_s == 0.0 and slow.eta_s > 150.0  # the phase: one very long walk
+    ica.detect("car", through.in_lane, 0.0)  # a vehicle waits for a plan
+
+    def ask(t: float, seq: int):
+        req = propose(through, vin="car", seq=seq, t0_s=t, dist_to_entry_m=0.5, speed_mps=0.0,
+                      config=ica.config)  # fmt: skip
+        return ica.handle(req, t)
+
+    # the window after the phase would start the next one after 185 s: the bound cuts it
+    assert ica.walks.next_phase_s_for(True) > 1.0 + WAIT_BOUND_S
+    amy = ica.walk("amy", ":B1_c0", 1.0, 1.0)
+    assert amy.start_s == pytest.approx(1.0 + WAIT_BOUND_S)
+    # the car, past the slow walker only well over 90 s ahead, is refused even as it claims
+    for k, t in enumerate((10.0, 10.0 + CLAIM_S + 0.5, 10.0 + 2.0 * CLAIM_S)):
+        got = ask(t, k)
+        assert isinstance(got, Rejection) and got.reason is Reason.WALKERS
+    assert f"at most {WAIT_BOUND_S:.0f} s ahead" in got.detail and ica.walk_claims == 0
+    # once the walker is seen across, the car goes
+    assert ica.walked("slow", ":B1_c1", 50.0)
+    got = ask(50.0, 3)
+    assert isinstance(got, Confirmation), got
+
+
+def test_walkers_start_within_the_bound_among_vehicles_at_random(walk_net):
+    """Walkers (some very slow) and vehicles past saturation asking at random on every
+    crossing and route for ten minutes: every walker's start is within WAIT_BOUND_S of its
+    ask, and no confirmed plan meets a walker's slot."""
+    import random
+
+    from dica.ica.core.dica import Dica
+    from dica.ica.core.proposal import propose
+    from dica.ica.core.request import Confirmation
+    from dica.ica.core.walk import WAIT_BOUND_S
+
+    x = load_intersection(walk_net, "B1")
+    ica = Dica(x)
+    rng = random.Random(21)
+    crossings = [c.id for c in x.crosswalks]
+    routes = list(x.routes)
+    waiting: dict[str, tuple] = {}  # vin: (route, asks so far)
+    slots, waits, n = [], [], 0
+    t = 0.0
+    while t < 600.0:
+        if rng.random() < 0.2:  # some 1,400 walkers an hour over the junction, some slow
+            c = rng.choice(crossings)
+            slot = ica.walk(f"p{len(slots)}", c, t, t, speed_mps=rng.uniform(0.3, 1.6),
+                            side=rng.randrange(2), near_m=rng.uniform(0.0, 6.0))  # fmt: skip
+            assert slot.start_s <= t + WAIT_BOUND_S + 1e-9
+            waits.append(slot.start_s - t)
+            assert not any(_clash(ica, vin, slot) for vin in ica.confirmed)
+            slots.append(slot)
+        if rng.random() < 0.3:
+            vin = f"v{n}"
+            n += 1
+            ica.detect(vin, (r := rng.choice(routes)).in_lane, t)
+            waiting[vin] = (r, 0)
+        for vin, (r, k) in list(waiting.items()):
+            got = ica.handle(propose(r, vin=vin, seq=k, t0_s=t, dist_to_entry_m=30.0,
+                                     speed_mps=10.0, config=ica.config), t)  # fmt: skip
+            if isinstance(got, Confirmation):
+                del waiting[vin]
+                assert not any(_clash(ica, vin, s) for s in slots)
+            else:
+                waiting[vin] = (r, k + 1)
+        ica.walks.advance(t - 300.0)  # keep the slots of the last minutes in the book
+        t += 0.5
+    assert len(slots) > 200 and n - len(waiting) > 200, (len(slots), n, len(waiting))
+    # the slow walkers and the claims stack up the phases: the bound is what stops them
+    assert max(waits) > 0.9 * WAIT_BOUND_S and ica.walk_claims > 10
+
+
+def _clash(ica, vin: str, slot) -> bool:
+    """:func:`_meets`, for a vehicle whose route may not pass ``slot``'s crossing."""
+    c = ica.confirmed[vin]
+    passes = {cid for cid, _a, _b in ica.crossing_spans(c.dtot.route, c.dtot.shape)}
+    return slot.crossing in passes and _meets(ica, vin, slot)
+
+
 def test_a_restarted_ica_keeps_walkers_slots_and_what_was_seen_across(walk_net, tmp_path):
     """The journal holds each slot whole (where the walker stands, its pace, its expected
     end) and each ACROSS: replayed into a fresh core, the slots are the same, the one

@@ -11,9 +11,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from rerun.chunk import RrdReader
 
+from dica.ica.core.walk import WAIT_BOUND_S
+from dica.sim_gateway.recording.style import rgba
 from dica.sim_gateway.safety import PersonCheck
+from tests.test_recording import _read, _rows
 
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "dica.tools.cli"]
@@ -49,12 +51,17 @@ def test_people_cross_and_no_vehicle_touches_one(tmp_path):
         assert float(r["go_s"]) >= float(r["kerb_s"]) - 1e-6
         assert float(r["on_s"]) >= float(r["go_s"]) - 1e-6
     assert any(float(r["go_s"]) > float(r["kerb_s"]) + 1.0 for r in crossed)  # some waited
-    # the top view shows them: a row of dots every 0.25 s
-    rows = {}
-    for chunk in RrdReader(tmp_path / "r" / "spacetime.rrd").stream():
-        if chunk.entity_path == "/junction/people":
-            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
-    assert rows.get("/junction/people", 0) > 300
+    assert 1.0 < w["max_ask_to_go_s"] <= WAIT_BOUND_S + 1e-6
+    # the top view shows them: a row of dots every 0.25 s; the crossing bands hold the
+    # vehicles' and the walkers' reservations, and every person on a crossing was there
+    # within its walker's (no red dot)
+    data = _read(tmp_path / "r" / "spacetime.rrd")
+    assert sum(b.num_rows for b in data["/junction/people"]) > 300
+    assert _rows(data["/charts/data/zones/crossing_holds"], "Boxes2D:labels")
+    assert len(_rows(data["/charts/data/zones/walks"], "Boxes2D:labels")) > 20
+    dots = [c for _, row in _rows(data["/charts/data/zones/people"], "Points2D:colors")
+            for c in row]  # fmt: skip
+    assert len(dots) > 100 and rgba((220, 30, 30)) not in dots
 
 
 def test_people_on_a_net_of_guessed_crossings_go_when_given_the_crossing(tmp_path):

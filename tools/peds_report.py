@@ -52,6 +52,11 @@ def rows(runs: dict[tuple[str, int, int], list[dict]]) -> list[dict]:
                 "generated": sum(m["generated"] for m in ms),
                 "wait_s": _mean([w["mean_wait_s"] for w in walkers]),
                 "max_wait_s": max((w["max_wait_s"] or 0.0 for w in walkers), default=None),
+                # the ICA's part of it: its ask to the start it gave (none under a light)
+                "max_go_s": max(
+                    (w["max_ask_to_go_s"] for w in walkers if w.get("max_ask_to_go_s") is not None),
+                    default=None,
+                ),
                 "people": sum(w["generated"] for w in walkers),
                 "people_crossed": sum(w["crossed"] for w in walkers),
                 "vehicle_hits": sum(m["collisions"] + m["sumo_collisions"] for m in ms),
@@ -62,16 +67,22 @@ def rows(runs: dict[tuple[str, int, int], list[dict]]) -> list[dict]:
     return table
 
 
+def _longest(r: dict) -> str:
+    """The longest wait at the kerb, and in brackets the ICA's part of it (its bound)."""
+    go = r.get("max_go_s")
+    return _f(r["max_wait_s"]) + ("" if go is None else f" ({go:.1f})")
+
+
 def markdown(table: list[dict]) -> str:
     head = (
         "| control | veh/10 min | people/h a crossing | seeds | vehicle delay [s] | "
-        "vehicles crossed | people wait [s] | longest wait [s] | people crossed | "
+        "vehicles crossed | people wait [s] | longest wait (ask to go) [s] | people crossed | "
         "vehicle-vehicle | vehicle-person (check / SUMO) |\n"
         "|---|---|---|---|---|---|---|---|---|---|---|\n"
     )
     lines = [
         f"| {r['control']} | {r['volume']} | {r['peds']} | {r['seeds']} | {_f(r['delay_s'])} | "
-        f"{r['crossed']}/{r['generated']} | {_f(r['wait_s'])} | {_f(r['max_wait_s'])} | "
+        f"{r['crossed']}/{r['generated']} | {_f(r['wait_s'])} | {_longest(r)} | "
         f"{r['people_crossed']}/{r['people']} | {r['vehicle_hits']} | "
         f"{r['person_hits']} / {r['sumo_person']} |"
         for r in table

@@ -57,7 +57,15 @@ from dica.ica.core.route import Route
 from dica.ica.core.search import Found, Search, plan_entry
 from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.validate import check_request
-from dica.ica.core.walk import CLAIM_S, HOLD_AHEAD_S, Hold, WalkSlot, Walkways, hold
+from dica.ica.core.walk import (
+    CLAIM_S,
+    HOLD_AHEAD_S,
+    WAIT_BOUND_S,
+    Hold,
+    WalkSlot,
+    Walkways,
+    hold,
+)
 from dica.ica.core.zones import ConflictTables, Shape
 
 LEFT_MEMORY_S = 20.0  # [s] how long exit spacing remembers a vehicle that has left
@@ -564,7 +572,10 @@ class Dica:
         start = walks.joinable(want, at, busy)  # a phase that has not begun: go with it
         if start is None:
             waiting = any(v not in self._confirmed for v in self._lane_of)
-            start = walks.earliest(want, max(at, walks.next_phase_s_for(waiting)), busy)
+            # the window after the phases so far, cut short at the bound on its wait: the
+            # vehicles confirmed before it hold its way no later (_check_walk_ahead)
+            due = min(walks.next_phase_s_for(waiting), at + WAIT_BOUND_S)
+            start = walks.earliest(want, max(at, due), busy)
             # a new phase lasts long enough for anyone at the kerb to join it while it waits
             span = max(want.end_s - want.start_s, walks.phase_s(crossing))
             want = dataclasses.replace(want, end_s=want.start_s + span)
@@ -587,24 +598,28 @@ class Dica:
     def _check_walk_ahead(
         self, vin: str, route: Route, shape: Shape, found: Found, now_s: float
     ) -> None:
-        """Refuse a plan that holds a crossing later than :data:`HOLD_AHEAD_S` from now
-        (walkers asking meanwhile would wait for it), unless ``vin`` was first refused for
-        that :data:`CLAIM_S` ago or more: then it goes, so no vehicle starves."""
+        """Refuse a plan that holds a crossing (padded, and the walkers' gap) later than
+        :data:`HOLD_AHEAD_S` from now (walkers asking meanwhile would wait for it), unless
+        ``vin`` was first refused for that :data:`CLAIM_S` ago or more: then it may hold
+        one up to :data:`WAIT_BOUND_S` ahead, so no vehicle starves and no walker waits
+        longer than that bound."""
         late = 0.0
+        pad = 2.0 * self.config.time_pad_s + (self.walks.gap_s if self.walks else 0.0)
         for _cid, a, b in self.crossing_spans(route, shape):
-            late = max(late, hold(found.traj, a, b, found.out_mps)[1] - now_s)
+            late = max(late, hold(found.traj, a, b, found.out_mps)[1] + pad - now_s)
         if late <= HOLD_AHEAD_S:
             self._walk_refused.pop(vin, None)
             return
         since = self._walk_refused.setdefault(vin, now_s)
-        if now_s - since >= CLAIM_S:
+        if now_s - since >= CLAIM_S and late <= WAIT_BOUND_S:
             del self._walk_refused[vin]
             self.walk_claims += 1
             return
+        most = HOLD_AHEAD_S if now_s - since < CLAIM_S else WAIT_BOUND_S
         raise RequestError(
             Reason.WALKERS,
             f"its plan holds a crossing {late:.1f} s ahead; walkers may be given it first "
-            f"(at most {HOLD_AHEAD_S:.0f} s ahead)",
+            f"(at most {most:.0f} s ahead)",
         )
 
     def walk_conflict(

@@ -20,9 +20,10 @@ begins no sooner than :data:`PHASE_GAP_S` after the last walker of the phases
 before is off its way, which leaves every vehicle route a window with all its
 crossings free; and no sooner than the vehicles confirmed before the walker
 asked are clear of its way (no vehicle confirmed later can take its time). A
-vehicle's plan may hold a crossing until at most :data:`HOLD_AHEAD_S` ahead of
-the moment it is confirmed (:meth:`ica.core.dica.Dica.walk`), so a walker at the
-kerb waits at most :meth:`Walkways.wait_bound_s` (docs/architecture.md, "People
+new phase begins no later than :data:`WAIT_BOUND_S` after the walker asked, and a
+vehicle's plan may hold a crossing at most :data:`HOLD_AHEAD_S` ahead of the moment
+it is confirmed (that bound, if it claims its turn), so a walker at the kerb waits
+at most :data:`WAIT_BOUND_S` for its start (docs/architecture.md, "People
 crossing"). Pure: plans and times in, times out.
 """
 
@@ -47,10 +48,14 @@ KERB_M = 6.0  # [m] a walker at the kerb stands at most this far from the crossi
 # no vehicle waits for a plan as the walker asks, the long one when some do
 PHASE_GAP_S = 8.0
 BUSY_GAP_S = 35.0
-# [s] a vehicle's plan holds no crossing later than this after it is confirmed (unless the
-# vehicle has been refused for it for CLAIM_S: then it goes first, so it never starves)
+# [s] a vehicle's plan holds no crossing (padded, and the walkers' gap) later than this after
+# it is confirmed (unless the vehicle has been refused for it for CLAIM_S: then it may hold
+# one up to WAIT_BOUND_S ahead, so it does not starve)
 HOLD_AHEAD_S = 25.0
 CLAIM_S = 20.0
+# [s] a walker is given a start at most this long after the ICA hears it ask: a new walk
+# phase begins no later, and no vehicle confirmed before the ask holds its way longer
+WAIT_BOUND_S = 90.0
 
 Hold = tuple[float, float, float, float]  # a vehicle on a crossing: t_in, t_out, u_lo, u_hi
 
@@ -192,13 +197,6 @@ class Walkways:
         return out
 
     # -- phases ----------------------------------------------------------------------
-    def wait_bound_s(self, longest_s: float) -> float:
-        """The longest a walker at the kerb waits for its start when no walk takes longer
-        than ``longest_s`` (:meth:`walk_s`): a phase that began just before it asked, the
-        vehicles' window after it; or the vehicles confirmed before it asked, whose holds
-        end within :data:`HOLD_AHEAD_S` (and the gap)."""
-        return max(longest_s + BUSY_GAP_S, HOLD_AHEAD_S + self.gap_s)
-
     def phase_s(self, crossing: str) -> float:
         """How long a walk phase on ``crossing`` lasts at least: a slow walk from
         :data:`KERB_M` short of it to its far end."""
