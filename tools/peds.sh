@@ -7,6 +7,7 @@
 # skipped. Two runs at a time.
 #   bash tools/peds.sh [OUT] [DURATION]        (default runs/peds 3600)
 #   VOLUMES="100 300 500" PEDS="0 200 600" SEEDS="12 21 66" bash tools/peds.sh
+#   CONTROLS="enhanced" bash tools/peds.sh     (only these controls; default all three)
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
@@ -19,7 +20,7 @@ jobs="$out/jobs.txt"
 for seed in ${SEEDS:-12 21 66}; do
   for peds in ${PEDS:-0 200 600}; do
     for v in ${VOLUMES:-100 300 500}; do
-      for control in enhanced actuated fixed; do
+      for control in ${CONTROLS:-enhanced actuated fixed}; do
         echo "$control-v$v-p$peds-s$seed --algorithm $control --volume $v --peds $peds --seed $seed" >> "$jobs"
       done
     done
