@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 from dica.ica.core import request as core
+from dica.ica.core.walk import WalkSlot
 from dica.schemas import messages as m
 from dica.schemas.codec import now_ns
 
@@ -90,3 +91,21 @@ def reject_to_core(msg: m.Reject) -> core.Rejection:
     except ValueError:
         reason = core.Reason.BAD_STATE
     return core.Rejection(msg.vin, msg.seq, reason, msg.detail)
+
+
+def go_from_slot(slot: WalkSlot, given_s: float) -> m.Go:
+    """A walker's slot as its GO, whole (the gateway reads the start and end; an
+    observer draws the rest)."""
+    eta = slot.eta_s if math.isfinite(slot.eta_s) else slot.end_s
+    return m.Go(
+        slot.person, slot.crossing, float(slot.start_s), float(slot.end_s), now_ns(),
+        float(given_s), int(slot.side), float(slot.near_m), float(slot.near_lo_m),
+        float(slot.v_lo), float(slot.v_hi), float(eta),
+    )  # fmt: skip
+
+
+def slot_from_go(msg: m.Go) -> WalkSlot:
+    return WalkSlot(
+        msg.person, msg.crossing, msg.start_s, msg.end_s, msg.side, msg.near_m, msg.v_lo,
+        msg.v_hi, msg.eta_s, msg.near_lo_m,
+    )  # fmt: skip

@@ -47,7 +47,12 @@ from pathlib import Path
 import numpy as np
 
 from dica.deploy.transport import Inbox, Item, note_refused, put, refused, reply
-from dica.ica.convert import reject_from_core, request_to_core, response_from_core
+from dica.ica.convert import (
+    go_from_slot,
+    reject_from_core,
+    request_to_core,
+    response_from_core,
+)
 from dica.ica.core import reactive
 from dica.ica.core.controller import Controller
 from dica.ica.core.request import Confirmation, Reason, Rejection, RequestError
@@ -66,7 +71,6 @@ from dica.schemas.messages import (
     Cancel,
     Clock,
     Detect,
-    Go,
     Place,
     Reject,
     Reorder,
@@ -521,14 +525,15 @@ class IcaService:
         except RequestError as e:
             self._reject(item.query, msg.person, -1, e.reason, e.detail)
             return
+        payload = encode(go_from_slot(slot, self.now_s))
         if again:
             self.stats.repeated += 1  # the same slot again, journalled already
         else:
             if self.journal is not None:
                 self.journal.walk(slot)
             self.stats.walks += 1
-        go = Go(slot.person, slot.crossing, slot.start_s, slot.end_s, now_ns())
-        reply(item.query, item.key, encode(go))
+            put(self.session, keys.walks(self.junction, keys.chunk(slot.person)), payload)
+        reply(item.query, item.key, payload)
 
     # -- helpers -------------------------------------------------------------
     def _asked(self, item: Item, *kinds: type):

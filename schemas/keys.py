@@ -43,6 +43,11 @@ def walk(junction: str, asker: str = "*") -> str:
     return f"dica/{chunk(junction)}/walk/{_one(asker)}"
 
 
+def walks(junction: str, person: str = "*") -> str:
+    """The ICA publishes each slot it gives a walker (GO), for observers."""
+    return f"dica/{chunk(junction)}/walks/{_one(person)}"
+
+
 def ack(junction: str, agent: str = "*") -> str:
     """Publication (agent): ACK of a RESPONSE received."""
     return f"dica/{chunk(junction)}/ack/{_one(agent)}"
@@ -81,6 +86,10 @@ def state(junction: str, agent: str = "*") -> str:
 
 def vehicles(junction: str) -> str:
     return f"sim/{chunk(junction)}/vehicles"  # every vehicle in the region (ICA, observers)
+
+
+def people(junction: str) -> str:
+    return f"sim/{chunk(junction)}/people"  # the people near the junction (observers)
 
 
 def command(junction: str, agent: str = "*") -> str:
@@ -127,7 +136,7 @@ def writer_of(key: str, action: str) -> str | None:
     space, _junction, kind, *rest = parts
     name = rest[0] if rest else None
     if space == "sim":
-        if (kind in ("clock", "vehicles") and name is None) or (kind == "state" and name):
+        if (kind in ("clock", "vehicles", "people") and name is None) or (kind == "state" and name):
             return "gateway" if action == "put" else None
         if kind == "command" and name:
             return name if action == "put" else None
@@ -138,7 +147,7 @@ def writer_of(key: str, action: str) -> str | None:
             return {"query": name, "reply": "ica"}.get(action)
         if kind == "ack" and name:
             return name if action == "put" else None
-        if kind in ("confirmed", "revoke") and name:
+        if kind in ("confirmed", "revoke", "walks") and name:
             return "ica" if action == "put" else None
         if kind == "stats" and name is None:
             return {"query": "gateway", "reply": "ica"}.get(action)

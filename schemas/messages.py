@@ -17,7 +17,8 @@ from typing import ClassVar
 
 import numpy as np
 
-# 9: a WALK carries ``near_lo_m`` (the shortest way the walker may take to the crossing);
+# 9: a WALK carries ``near_lo_m`` (the shortest way the walker may take to the crossing),
+# a GO the whole slot (the ICA also publishes it for observers), and PEOPLE exists;
 # 8: a WALK carries the walker's ``walk_m``, ``speed_mps``, ``side`` and ``near_m``, and
 # ACROSS exists;
 # 7: a REQUEST and a vehicle state carry ``network_room_m`` (the network gate); 6: they
@@ -139,7 +140,9 @@ class Across:
 @dataclass(frozen=True, slots=True)
 class Go:
     """The ICA's answer to a WALK: ``crossing`` is the walker's from ``start_s`` to
-    ``end_s`` (sim time); no vehicle is confirmed through it meanwhile."""
+    ``end_s`` (sim time); no vehicle is confirmed through it meanwhile. The rest is the
+    slot whole (``ica.core.walk.WalkSlot``: where the walker starts, how fast it may go),
+    given at the ICA's ``given_s``, for an observer to draw what the walker holds."""
 
     KIND: ClassVar[str] = "go"
     person: str = lim(n=MAX_TEXT)
@@ -147,6 +150,13 @@ class Go:
     start_s: float = lim(*TIME)
     end_s: float = lim(*TIME)
     sent_ns: int = lim(0, 2**63 - 1)
+    given_s: float = lim(*TIME, default=0.0)
+    side: int = lim(0, 1, default=0)
+    near_m: float = lim(0.0, 1000.0, default=0.0)
+    near_lo_m: float = lim(0.0, 1000.0, default=0.0)
+    v_lo: float = lim(0.0, 20.0, default=1.0)
+    v_hi: float = lim(0.0, 20.0, default=2.5)
+    eta_s: float = lim(*TIME, default=0.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -308,6 +318,28 @@ class State:
     sent_ns: int = lim(0, 2**63 - 1)
 
 
+@dataclass(frozen=True, slots=True)
+class PersonPlace:
+    """One person near the junction as SUMO places it (its centre), and whether it is
+    held at the kerb waiting for the ICA's go."""
+
+    x_m: float = lim(-BIG, BIG)
+    y_m: float = lim(-BIG, BIG)
+    waiting: bool = lim()
+
+
+@dataclass(frozen=True, slots=True)
+class People:
+    """This step's people of the junction (gateway -> observers): what a roadside camera
+    would see, for the recording's top view and crossing bands."""
+
+    KIND: ClassVar[str] = "people"
+    step: int = lim(0, 2**62)
+    t_s: float = lim(*TIME)
+    people: tuple[PersonPlace, ...] = lim(n=MAX_VEHICLES)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
 @dataclass(frozen=True, slots=True, eq=False)
 class Setpoint:
     """A plan for one vehicle's actuator: route positions, one per step from ``t0_s``.
@@ -379,4 +411,5 @@ MESSAGES: tuple[type, ...] = (
     Command,
     Clock,
     Stats,
+    People,
 )

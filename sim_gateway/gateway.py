@@ -56,11 +56,14 @@ from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode, encode, now_ns
 from dica.schemas.messages import BIG as WIRE_BIG
 from dica.schemas.messages import (
+    MAX_VEHICLES,
     Ack,
     Across,
     Clock,
     Command,
     Go,
+    People,
+    PersonPlace,
     Reject,
     Revoke,
     State,
@@ -168,6 +171,7 @@ class ZenohDrivers:
         j = junction
         self._clock_pub = publisher(session, keys.clock(j))
         self._vehicles_pub = publisher(session, keys.vehicles(j))
+        self._people_pub = publisher(session, keys.people(j))
         self._state_pubs: dict[str, object] = {}
         lv = session.liveliness()
         self._decls = [
@@ -227,6 +231,7 @@ class ZenohDrivers:
     def close(self) -> None:
         self._clock_pub.undeclare()
         self._vehicles_pub.undeclare()
+        self._people_pub.undeclare()
         for p in self._state_pubs.values():
             p.undeclare()
         for d in self._decls:
@@ -288,6 +293,18 @@ class ZenohDrivers:
                 why = "no answer" if got is None else f"refused: {got.detail}"
                 self.log.warning("WALK for %s at %s: %s", ask.person, ask.crossing, why)
         walkers.release(t)
+
+    def people(self, walkers: Walkers, t: float) -> None:
+        """This step's people, for the observers' recording (PEOPLE; nothing when no
+        observer listens)."""
+        if not self.observers or not self._people_pub.matching_status.matching:
+            return
+        waiting = walkers.waiting_mask()
+        places = tuple(
+            PersonPlace(float(x), float(y), bool(w))
+            for (x, y), w in zip(walkers.xy[:MAX_VEHICLES], waiting, strict=False)
+        )
+        self._people_pub.put(encode(People(self._k, t, places, now_ns())))
 
     def _ask_ica(self, key: str, msg, kind: type):
         """One query to the ICA, waited for: its answer of ``kind`` or a REJECT, or None."""
@@ -758,6 +775,7 @@ def run_gateway(
                 seen = world.step()
                 if world.walkers is not None:
                     drivers.walk(world.walkers, world.t)  # the roadside asks first
+                    drivers.people(world.walkers, world.t)
                 drivers.send(world.t, seen)
                 world.end_step(progress)  # while the agents decide
                 world.apply(drivers.collect(world.t))

@@ -2,7 +2,8 @@
 
 It only listens: the STATE of every vehicle in the region (``sim/<j>/vehicles``), the
 confirmations the ICA publishes (``dica/<j>/confirmed/*``), reactive DICA's
-reorderings (``dica/<j>/reorder``) and the CLOCK. It is not a lockstep
+reorderings (``dica/<j>/reorder``), the walkers' slots (``dica/<j>/walks/*``), the
+people near the junction (``sim/<j>/people``) and the CLOCK. It is not a lockstep
 participant, so recording never slows the run; at the run's end on the clock
 it drains what is queued, closes the ``.rrd`` and exits. All Rerun calls go
 through :class:`sim_gateway.recording.SpaceTimeRecorder`. With ``live_port`` it
@@ -30,6 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dica.deploy.transport import Inbox, Item
+from dica.ica.convert import slot_from_go
 from dica.ica.core.intersection import Intersection
 from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode
@@ -38,6 +40,8 @@ from dica.schemas.messages import (
     EXPIRED,
     KEPT,
     Clock,
+    Go,
+    People,
     Place,
     Reorder,
     Response,
@@ -103,6 +107,7 @@ class Observer:
         self.recorder.geometry()
         self.sizes: dict[str, tuple[float, float]] = {}
         self.confirmations = 0
+        self.walks = 0  # walkers' slots drawn
         self.reorders = 0
         self.withdrawn = 0
         self.steps = 0
@@ -120,6 +125,8 @@ class Observer:
             session.declare_subscriber(keys.confirmed(j), self.inbox.sample_cb("confirmed")),
             session.declare_subscriber(keys.reorder(j), self.inbox.sample_cb("reorder")),
             session.declare_subscriber(keys.clock(j), self.inbox.sample_cb("clock")),
+            session.declare_subscriber(keys.walks(j), self.inbox.sample_cb("walk")),
+            session.declare_subscriber(keys.people(j), self.inbox.sample_cb("people")),
         ]
         # declared last: a gateway waiting for observers starts once all of the above are up
         self._token = session.liveliness().declare_token(keys.observer_alive(j, name))
@@ -176,6 +183,15 @@ class Observer:
             self._seq[r.vin] = max(r.seq, self._seq.get(r.vin, -1))
         elif item.what == "reorder":
             self._on_reorder(decode(item.payload, Reorder))
+        elif item.what == "walk":
+            go = decode(item.payload, Go)
+            self.recorder.walk(go.given_s, slot_from_go(go))
+            self.walks += 1
+        elif item.what == "people":
+            seen = decode(item.payload, People)
+            xy = np.array([(p.x_m, p.y_m) for p in seen.people], dtype=float).reshape(-1, 2)
+            waiting = np.array([p.waiting for p in seen.people], dtype=bool)
+            self.recorder.people(seen.t_s, xy, waiting)
         elif item.what == "clock":
             c = decode(item.payload, Clock)
             if c.end:

@@ -377,6 +377,8 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
 
     args = ("--net", str(walk_net), "--junction", "B1", "--out", str(tmp_path))
     with router_and_ica("B1", args) as (session, ica):
+        heard = []  # the slots the ICA publishes for observers
+        sub = session.declare_subscriber(keys.walks("B1"), lambda s: heard.append(s))
         go = ask(
             session,
             keys.walk("B1", "gateway"),
@@ -401,7 +403,13 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
             keys.walk("B1", "gateway"),
             Walk("amy", ":B1_c1", 3.0, 0.0, 0.0, 0, 0.0, 0.0, now_ns()),
         )
-        assert again == Go("amy", ":B1_c1", go.start_s, go.end_s, again.sent_ns)  # the same
+        same = ("person", "crossing", "start_s", "end_s", "side", "near_m", "v_lo", "v_hi")
+        assert [getattr(again, f) for f in same] == [getattr(go, f) for f in same]
+        # published once, whole: an observer draws the walker's reservation from it
+        (pub,) = [decode(s.payload.to_bytes(), Go) for s in heard]
+        assert str(heard[0].key_expr) == keys.walks("B1", "amy") and pub == go
+        assert (pub.v_lo, pub.v_hi) == (1.0, 2.5) and go.start_s < pub.eta_s <= go.end_s
+        sub.undeclare()
         done = ask(session, keys.walk("B1", "gateway"), Across("zed", ":B1_c1", 1.0, now_ns()))
         assert isinstance(done, Ack) and done.of == "across"  # a walker it never had: no harm
         (bad,) = [r for r in session.get(keys.walk("B1", "gateway"), payload=b"\x93\x01",

@@ -24,6 +24,8 @@ from dica.schemas.messages import (
     Command,
     Detect,
     Go,
+    People,
+    PersonPlace,
     Place,
     Reject,
     Reorder,
@@ -69,7 +71,8 @@ SAMPLES = {
     Cancel: Cancel("v00001", 3, 7),
     Walk: Walk("p0001", ":C_c0", 12.5, 22.0, 1.3, 1, 2.0, 1.2, 7),
     Across: Across("p0001", ":C_c0", 40.25, 8),
-    Go: Go("p0001", ":C_c0", 14.0, 28.8, 7),
+    Go: Go("p0001", ":C_c0", 14.0, 28.8, 7, 12.5, 1, 3.5, 2.25, 0.8, 1.4, 26.0),
+    People: People(247, 12.35, (PersonPlace(1.5, -2.0, True), PersonPlace(3.0, 4.0, False)), 8),
     Detect: Detect("v00001", "W_in_0", 10.05, True, 12.5, 3),
     Revoke: Revoke("v00001", 3, 12.4, 9),
     Reorder: Reorder(

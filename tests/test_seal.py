@@ -58,6 +58,7 @@ def test_each_key_has_one_writer_and_wildcards_none():
     assert w("dica/C/request/agent-1", "reply") == "ica"
     assert w("dica/C/confirmed/v7", "put") == "ica"
     assert w("dica/C/reorder", "put") == "ica"
+    assert w("dica/C/walks/p7", "put") == "ica" and w("sim/C/people", "put") == "gateway"
     assert w("sim/C/stats/agent-1", "reply") == "agent-1"
     assert w("dica/C/stats", "query") == "gateway"
     for key in ("*/C/clock", "sim/C/cl$*", "**", "sim/C/command/*", "dica/C/request/*",

@@ -167,12 +167,14 @@ def test_people_where_the_junction_cannot_have_them_is_one_clear_line(tmp_path, 
 @pytest.mark.cluster
 def test_a_lockstep_cluster_with_people_makes_the_embedded_decisions(tmp_path):
     """The gateway asks the ICA process for each walker over Zenoh (WALK -> GO) before the
-    step's clock: the vehicles and the people cross as in one process, byte for byte."""
+    step's clock: the vehicles and the people cross as in one process, byte for byte. The
+    observer draws what the embedded recording does: the walkers' slots the ICA publishes
+    and the people the gateway sees."""
     from tests.test_cluster import _cluster
 
     common = ["--layout", "ch45-walk", "--volume", "150", "--peds", "200", "--duration", "120",
               "--seed", "21"]  # fmt: skip
-    p = _cluster(tmp_path / "cl", "--agents", "1", "--no-record", *common)
+    p = _cluster(tmp_path / "cl", "--agents", "1", *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _run(tmp_path / "emb", *common)
     for name in ("vehicles.csv", "persons.csv"):
@@ -182,3 +184,15 @@ def test_a_lockstep_cluster_with_people_makes_the_embedded_decisions(tmp_path):
     assert m["walks_unanswered"] == 0
     ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
     assert ica["walks"] >= m["walkers"]["crossed"]
+    _run(tmp_path / "rec", *common, "--record")
+    drawn = {}
+    for run in ("cl", "rec"):
+        data = _read(tmp_path / run / "spacetime.rrd")
+        walks = _rows(data["/charts/data/zones/walks"], "Boxes2D:labels")
+        drawn[run] = {
+            "walks": sorted(tuple(labels) for _, labels in walks),
+            "people": _rows(data["/charts/data/zones/people"], "Points2D:positions"),
+            "top": sum(b.num_rows for b in data["/junction/people"]),
+        }
+    assert len(drawn["cl"]["walks"]) >= ica["walks"] and drawn["cl"]["top"] > 100
+    assert drawn["cl"] == drawn["rec"]

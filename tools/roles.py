@@ -398,8 +398,9 @@ def cmd_observer(args: argparse.Namespace) -> int:
         _cannot_record(session, args, live, e)
     _record(obs, session, log, live, f"recording junction {inter.junction_id} into {args.rrd}")
     log.info(
-        "wrote %s: %d steps, %d confirmations, %d reorderings, %d plans withdrawn",
-        args.rrd, obs.steps, obs.confirmations, obs.reorders, obs.withdrawn,
+        "wrote %s: %d steps, %d confirmations, %d reorderings, %d plans withdrawn, "
+        "%d walkers' slots",
+        args.rrd, obs.steps, obs.confirmations, obs.reorders, obs.withdrawn, obs.walks,
     )  # fmt: skip
     return 0
 
