@@ -102,10 +102,3 @@ def go_from_slot(slot: WalkSlot, given_s: float) -> m.Go:
         float(given_s), int(slot.side), float(slot.near_m), float(slot.near_lo_m),
         float(slot.v_lo), float(slot.v_hi), float(eta),
     )  # fmt: skip
-
-
-def slot_from_go(msg: m.Go) -> WalkSlot:
-    return WalkSlot(
-        msg.person, msg.crossing, msg.start_s, msg.end_s, msg.side, msg.near_m, msg.v_lo,
-        msg.v_hi, msg.eta_s, msg.near_lo_m,
-    )  # fmt: skip

@@ -31,8 +31,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dica.deploy.transport import Inbox, Item
-from dica.ica.convert import slot_from_go
 from dica.ica.core.intersection import Intersection
+from dica.ica.core.walk import WalkSlot
 from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode
 from dica.schemas.messages import (
@@ -185,7 +185,9 @@ class Observer:
             self._on_reorder(decode(item.payload, Reorder))
         elif item.what == "walk":
             go = decode(item.payload, Go)
-            self.recorder.walk(go.given_s, slot_from_go(go))
+            slot = WalkSlot(go.person, go.crossing, go.start_s, go.end_s, go.side, go.near_m,
+                            go.v_lo, go.v_hi, go.eta_s, go.near_lo_m)  # fmt: skip
+            self.recorder.walk(go.given_s, slot)
             self.walks += 1
         elif item.what == "people":
             seen = decode(item.payload, People)
