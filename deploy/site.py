@@ -10,7 +10,10 @@ only its owner can read:
 * ``users.txt``: one ``user:password`` line per role and per agent, random
   passwords;
 * ``router.json5``: that router, with its TLS key and certificate inside,
-  pointed at ``users.txt``, with one copy of the agent rules per agent;
+  pointed at ``users.txt``, with one copy of the agent rules per agent; on a
+  site of several roadside units (``rsus``), ``router-2.json5`` and so on: one
+  router each, with a certificate of its own (common name ``rsu-<k>``), in a
+  mesh (see :func:`_peer_rules`);
 * ``ica.json5``, ``gateway.json5``, ``observer.json5`` and ``<agent>.json5``
   for each agent: the client config of each (``deploy/zenoh/client.json5``)
   with its credentials and the site's CA certificate inside, for
@@ -64,6 +67,12 @@ JUNCTION = "@j"
 DEFAULT_HOSTS = ("127.0.0.1", "localhost")
 DEFAULT_JUNCTIONS = ("C",)  # the built-in layouts' junction (sim_gateway.scenario)
 PORT = 7447
+MAX_RSUS = 64
+# every kind of message a router passes on to another router of the mesh
+PEER_MESSAGES = (
+    "put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
+    "liveliness_token", "declare_liveliness_subscriber", "liveliness_query",
+)  # fmt: skip
 # a key chunk (schemas/keys.py) without ':' (users.txt's separator), starting
 # with a letter or digit so that it is a plain file name too
 _AGENT_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.+\-]{0,63}$")
@@ -89,7 +98,18 @@ def site_roles(junctions: Sequence[str], own_icas: bool = False) -> tuple[str, .
 
 
 def _is_role(user: str) -> bool:
-    return user in ROLES or user.startswith("ica-")
+    return user in ROLES or user.startswith(("ica-", "rsu-"))
+
+
+def rsu_name(k: int) -> str:
+    """Roadside unit ``k``'s router: its log-in to the routers before it, and its
+    certificate's common name."""
+    return f"rsu-{k}"
+
+
+def router_file(k: int) -> str:
+    """Roadside unit ``k``'s router config (1: ``router.json5``, as on a site of one)."""
+    return "router.json5" if k == 1 else f"router-{k}.json5"
 
 
 def agent_names(agents: int | str | Sequence[str]) -> tuple[str, ...]:
@@ -108,7 +128,7 @@ def agent_names(agents: int | str | Sequence[str]) -> tuple[str, ...]:
             raise SecureConfigError(
                 f"agent name {name!r}: use 1-64 letters, digits and _.+- (a letter or digit first)"
             )
-        if name in _RESERVED or name.startswith("ica-"):
+        if name in _RESERVED or name.startswith(("ica-", "rsu-")):
             raise SecureConfigError(f"agent name {name!r} is taken by the site's own files")
     dup = sorted({n for n in chosen if chosen.count(n) > 1})
     if dup:
@@ -146,11 +166,13 @@ def write_secure_configs(
     agents: int | str | Sequence[str] = 1,
     junctions: str | Sequence[str] = DEFAULT_JUNCTIONS,
     own_icas: bool = False,
+    rsus: int = 1,
 ) -> dict[str, Path]:
     """Write a new site into ``out``: the router's config, every role's and one
     per agent (``agents``: see :func:`agent_names`); the paths by file name.
     The rules name ``junctions`` (the roles' ``--junction``), and no other. With
     ``own_icas`` each junction's ICA has an identity of its own (:func:`ica_users`).
+    ``rsus`` routers (roadside units) make a mesh: each logs in to the ones before it.
 
     ``hosts`` are the names and addresses clients reach the router by (its
     certificate is valid for these only; the first is the clients' default
@@ -164,25 +186,34 @@ def write_secure_configs(
         raise SecureConfigError("the router needs at least one --host")
     if days < 1:
         raise SecureConfigError(f"--days must be at least 1, got {days}")
+    if not 1 <= rsus <= MAX_RSUS:
+        raise SecureConfigError(f"--rsus must be 1 to {MAX_RSUS}, got {rsus}")
     out = out.resolve()
     icas = ica_users(junctions, own_icas)
     earlier = _users(out / "users.txt") if (out / "users.txt").is_file() else {}
     stale = [f"{u}.json5" for u in earlier if u not in ROLES]
-    mine = (*FILES, *stale, *(f"{x}.{e}" for x in (*icas, *agents) for e in ("json5", "seal")))
+    mine = (*FILES, *stale, *(f"{x}.{e}" for x in (*icas, *agents) for e in ("json5", "seal")),
+            *(router_file(k) for k in range(2, rsus + 1)))  # fmt: skip
     clash = [f for f in mine if (out / f).exists()]
     if clash and not force:
         raise SecureConfigError(f"{out} already holds {', '.join(clash)} (--force replaces them)")
-    ca_pem, key_pem, cert_pem = _certificates(hosts, days)
-    tls = {"listen_private_key_base64": _b64(key_pem), "listen_certificate_base64": _b64(cert_pem)}
-    passwords = {user: _password() for user in (*site_roles(junctions, own_icas), *agents)}
+    names = [hosts[0]] if rsus == 1 else [rsu_name(k) for k in range(1, rsus + 1)]
+    ca_pem, keys = _certificates(hosts, days, names)
+    tls = [
+        {"listen_private_key_base64": _b64(key_pem), "listen_certificate_base64": _b64(cert_pem)}
+        for key_pem, cert_pem in keys
+    ]
+    routers = [rsu_name(k) for k in range(2, rsus + 1)]  # log in to the routers before them
+    passwords = {u: _password() for u in (*site_roles(junctions, own_icas), *routers, *agents)}
     endpoint = f"tls/{_endpoint_host(hosts[0])}:{PORT}"
     texts = {
         "ca.pem": ca_pem.decode(),
-        "site.json": json.dumps({"junctions": list(junctions)}) + "\n",
-        **_site_texts(out, passwords, tls, hosts, junctions),
+        "site.json": json.dumps({"junctions": list(junctions), "rsus": rsus}) + "\n",
+        **_site_texts(out, passwords, tls, hosts, junctions, ca_pem),
     }
     for user in passwords:
-        texts[f"{user}.json5"] = _client_text(user, passwords[user], endpoint, ca_pem, hosts)
+        if user not in routers:
+            texts[f"{user}.json5"] = _client_text(user, passwords[user], endpoint, ca_pem, hosts)
     texts.update(_seals((*icas, "gateway", *agents), {}))
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -214,7 +245,7 @@ def add_agents(out: Path, agents: str | Sequence[str], force: bool = False) -> d
     for name in new:
         passwords[name] = _password()
     texts = {f"{a}.json5": _client_text(a, passwords[a], endpoint, ca_pem, hosts) for a in new}
-    texts.update(_site_texts(out, passwords, tls, hosts, junctions))
+    texts.update(_site_texts(out, passwords, tls, hosts, junctions, ca_pem))
     texts.update(_seals(new, _keyring(out)))
     _write(out, texts)
     return {a: out / f"{a}.json5" for a in new}
@@ -227,14 +258,14 @@ def revoke_agents(out: Path, agents: str | Sequence[str]) -> tuple[str, ...]:
     its log-ins go on."""
     gone = names(agents)
     out = out.resolve()
-    passwords, tls, hosts, _, _, junctions = _site(out)
+    passwords, tls, hosts, _, ca_pem, junctions = _site(out)
     unknown = [a for a in gone if a not in passwords]
     if unknown:
         raise SecureConfigError(f"the site in {out} has no agent {', '.join(unknown)}")
     for name in gone:
         del passwords[name]
     keyring = {k: v for k, v in _keyring(out).items() if k not in gone}
-    texts = _site_texts(out, passwords, tls, hosts, junctions)
+    texts = _site_texts(out, passwords, tls, hosts, junctions, ca_pem)
     texts[KEYRING] = json.dumps(keyring, indent=2) + "\n"
     _write(out, texts)
     for name in gone:
@@ -310,25 +341,62 @@ def _own_copies(acl: dict, role: str, users: dict[str, dict[str, str]]) -> None:
 def _site_texts(
     out: Path,
     passwords: dict[str, str],
-    tls: dict[str, str],
+    tls: Sequence[dict[str, str]],
     hosts: Sequence[str],
     junctions: Sequence[str],
+    ca_pem: bytes,
 ) -> dict[str, str]:
-    """``users.txt`` and ``router.json5`` for these users (roles first, then agents)."""
+    """``users.txt`` and a router config per roadside unit (``tls``: each one's key
+    and certificate) for these users (roles first, then agents)."""
     agents = [u for u in passwords if not _is_role(u)]
-    router = router_config(agents, junctions, own_icas="ica" not in passwords)
-    router["transport"]["auth"]["usrpwd"]["dictionary_file"] = str(out / "users.txt")
-    router["transport"]["link"].setdefault("tls", {}).update(tls)
-    head = (
-        f"// The site's router, by dica secure-config on {dt.date.today()}, for "
-        f"{', '.join(hosts)}; junctions: {', '.join(junctions)}; "
-        f"agents: {', '.join(agents) or '(none)'}.\n"
-        "// Holds its TLS key: keep it private. Read once, when the router starts.\n"
-    )
-    return {
-        "users.txt": "".join(f"{u}:{pw}\n" for u, pw in passwords.items()),
-        "router.json5": head + json.dumps(router, indent=1),
-    }
+    rsus = len(tls)
+    texts = {"users.txt": "".join(f"{u}:{pw}\n" for u, pw in passwords.items())}
+    for k in range(1, rsus + 1):
+        router = router_config(agents, junctions, own_icas="ica" not in passwords)
+        usrpwd = router["transport"]["auth"]["usrpwd"]
+        usrpwd["dictionary_file"] = str(out / "users.txt")
+        router["transport"]["link"].setdefault("tls", {}).update(tls[k - 1])
+        unit = ""
+        if rsus > 1:
+            unit = f" (roadside unit {k} of {rsus}, {rsu_name(k)})"
+            _peer_rules(router["access_control"], k, rsus, junctions)
+        if k > 1:  # it opens the links to the routers before it: its log-in, and the CA
+            usrpwd.update(user=rsu_name(k), password=passwords[rsu_name(k)])
+            router["transport"]["link"]["tls"]["root_ca_certificate_base64"] = _b64(ca_pem)
+        head = (
+            f"// The site's router{unit}, by dica secure-config on {dt.date.today()}, for "
+            f"{', '.join(hosts)}; junctions: {', '.join(junctions)}; "
+            f"agents: {', '.join(agents) or '(none)'}.\n"
+            "// Holds its TLS key: keep it private. Read once, when the router starts.\n"
+        )
+        texts[router_file(k)] = head + json.dumps(router, indent=1)
+    return texts
+
+
+def _peer_rules(acl: dict, k: int, rsus: int, junctions: Sequence[str]) -> None:
+    """Roadside unit ``k``'s router may pass anything on the site's keys to and from
+    the other routers of the mesh. Zenoh judges a message that comes over a link
+    between routers by that link's identity, not by the client that sent it, so each
+    router keeps its own clients to their rules and trusts its peers to do the same
+    (and every role still checks the writer's seal). A router that logs in here
+    (those after ``k``) is known by its user name; one this router logged in to
+    (those before ``k``) by its certificate's common name, which only the site's CA
+    could have signed."""
+    later = [rsu_name(j) for j in range(k + 1, rsus + 1)]
+    earlier = [rsu_name(j) for j in range(1, k)]
+    subjects = []
+    if later:
+        acl["subjects"].append({"id": "routers-in", "usernames": later})
+        subjects.append("routers-in")
+    if earlier:
+        acl["subjects"].append({"id": "routers-out", "cert_common_names": earlier})
+        subjects.append("routers-out")
+    keys = [f"{space}/{j}/**" for j in junctions for space in ("dica", "sim")]
+    acl["rules"].append(
+        {"id": "router-peers", "permission": "allow", "flows": ["ingress", "egress"],
+         "messages": list(PEER_MESSAGES), "key_exprs": keys}
+    )  # fmt: skip
+    acl["policies"].append({"id": "router-peers", "subjects": subjects, "rules": ["router-peers"]})
 
 
 def _client_text(user: str, password: str, endpoint: str, ca_pem: bytes, hosts) -> str:
@@ -352,24 +420,27 @@ def _client_text(user: str, password: str, endpoint: str, ca_pem: bytes, hosts) 
 
 
 def _site(out: Path):
-    """What a site written before holds: its passwords, the router's TLS
-    material, its hosts, the clients' endpoint, the CA certificate and the
-    junctions."""
+    """What a site written before holds: its passwords, the routers' TLS
+    material (one per roadside unit), its hosts, the clients' endpoint, the CA
+    certificate and the junctions."""
     missing = [f for f in FILES if not (out / f).is_file()]
     if missing:
         raise SecureConfigError(
             f"{out} holds no site written by dica secure-config (no {', '.join(missing)})"
         )
     try:
-        router, client = _written(out / "router.json5"), _written(out / "gateway.json5")
-        tls = router["transport"]["link"]["tls"]
-        tls = {k: tls[k] for k in ("listen_private_key_base64", "listen_certificate_base64")}
-        endpoint = client["connect"]["endpoints"][0]
+        written = json.loads((out / "site.json").read_text())
+        junctions = junction_names(written["junctions"])
+        tls = []
+        for k in range(1, int(written.get("rsus", 1)) + 1):
+            link = _written(out / router_file(k))["transport"]["link"]["tls"]
+            tls.append({n: link[n] for n in ("listen_private_key_base64",
+                                              "listen_certificate_base64")})  # fmt: skip
+        endpoint = _written(out / "gateway.json5")["connect"]["endpoints"][0]
         ca_pem = (out / "ca.pem").read_bytes()
-        junctions = junction_names(json.loads((out / "site.json").read_text())["junctions"])
-    except (KeyError, IndexError, TypeError, ValueError) as e:
+    except (KeyError, IndexError, TypeError, ValueError, OSError) as e:
         raise SecureConfigError(f"{out}: cannot read the site's configs ({e})") from None
-    hosts = _hosts(base64.b64decode(tls["listen_certificate_base64"]))
+    hosts = _hosts(base64.b64decode(tls[0]["listen_certificate_base64"]))
     return _users(out / "users.txt"), tls, hosts, endpoint, ca_pem, junctions
 
 
@@ -399,8 +470,11 @@ def _hosts(cert_pem: bytes) -> tuple[str, ...]:
     return tuple(str(n.value) for n in names)
 
 
-def _certificates(hosts: tuple[str, ...], days: int) -> tuple[bytes, bytes, bytes]:
-    """A fresh CA, and the router's key and certificate signed by it (PEM)."""
+def _certificates(
+    hosts: tuple[str, ...], days: int, names: Sequence[str]
+) -> tuple[bytes, list[tuple[bytes, bytes]]]:
+    """A fresh CA, and per router a key and a certificate signed by it (PEM), valid for
+    ``hosts`` and with the router's name in ``names`` as its common name."""
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes, serialization
     from cryptography.hazmat.primitives.asymmetric import ec
@@ -422,27 +496,30 @@ def _certificates(hosts: tuple[str, ...], days: int) -> tuple[bytes, bytes, byte
         .add_extension(_usage(cert_sign=True), critical=True)
         .sign(ca_key, hashes.SHA256())
     )
-    key = ec.generate_private_key(ec.SECP256R1())
-    names = [_san(h) for h in hosts]
-    cert = (
-        x509.CertificateBuilder()
-        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, hosts[0])]))
-        .issuer_name(ca_name)
-        .public_key(key.public_key())
-        .serial_number(x509.random_serial_number())
-        .not_valid_before(now - dt.timedelta(minutes=5))
-        .not_valid_after(until)
-        .add_extension(x509.SubjectAlternativeName(names), critical=False)
-        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
-        .add_extension(_usage(cert_sign=False), critical=True)
-        .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
-        .sign(ca_key, hashes.SHA256())
-    )
+    sans = [_san(h) for h in hosts]
     pem = serialization.Encoding.PEM
-    key_pem = key.private_bytes(
-        pem, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
-    )
-    return ca.public_bytes(pem), key_pem, cert.public_bytes(pem)
+    out = []
+    for name in names:
+        key = ec.generate_private_key(ec.SECP256R1())
+        cert = (
+            x509.CertificateBuilder()
+            .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)]))
+            .issuer_name(ca_name)
+            .public_key(key.public_key())
+            .serial_number(x509.random_serial_number())
+            .not_valid_before(now - dt.timedelta(minutes=5))
+            .not_valid_after(until)
+            .add_extension(x509.SubjectAlternativeName(sans), critical=False)
+            .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+            .add_extension(_usage(cert_sign=False), critical=True)
+            .add_extension(x509.ExtendedKeyUsage([ExtendedKeyUsageOID.SERVER_AUTH]), critical=False)
+            .sign(ca_key, hashes.SHA256())
+        )
+        key_pem = key.private_bytes(
+            pem, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+        )
+        out.append((key_pem, cert.public_bytes(pem)))
+    return ca.public_bytes(pem), out
 
 
 def _usage(cert_sign: bool):

@@ -143,6 +143,71 @@ def test_each_junctions_ica_has_its_own_identity(tmp_path):
     assert users[:2] == ["ica-J00", "ica-J10"]
 
 
+def test_the_routers_of_a_secured_mesh_log_in_to_each_other(tmp_path):
+    """Roadside unit 2's router logs in to unit 1's with its own password and trusts
+    unit 1 by its certificate: an agent behind unit 2 reaches the ICA behind unit 1,
+    and still only on its own keys (unit 2 keeps it to them). A router with a wrong
+    password never joins the mesh."""
+    from dica.deploy.site import _written, write_secure_configs
+    from dica.tools.loopback import client, router
+
+    site = tmp_path / "site"
+    write_secure_configs(site, agents=2, junctions=("J00", "J10"), own_icas=True, rsus=2)
+    conf = _written(site / "router-2.json5")
+    assert conf["transport"]["auth"]["usrpwd"]["user"] == "rsu-2"
+    conf["transport"]["auth"]["usrpwd"]["password"] = "not-its-password"
+    (tmp_path / "wrong.json5").write_text(json.dumps(conf))
+
+    def answered(session, key: str, within_s: float) -> bool:
+        deadline = time.monotonic() + within_s
+        while time.monotonic() < deadline:
+            if any(r.ok is not None for r in session.get(key, timeout=1.0)):
+                return True
+            time.sleep(0.2)
+        return False
+
+    with router(site / "router.json5", "tls") as first:
+        ica = client(site / "ica-J00.json5", first)
+        serve = ica.declare_queryable(
+            "dica/J00/request/*", lambda q: (q.reply(q.key_expr, b"ok"), q.drop())
+        )
+        try:
+            with router(tmp_path / "wrong.json5", "tls", connect=first) as second:
+                agent = client(site / "agent-1.json5", second)
+                assert not answered(agent, "dica/J00/request/agent-1", 4.0)
+                agent.close()
+            with router(site / "router-2.json5", "tls", connect=first) as second:
+                agent = client(site / "agent-1.json5", second)
+                assert answered(agent, "dica/J00/request/agent-1", 15.0)
+                assert not answered(agent, "dica/J00/request/agent-2", 3.0)  # not its key
+                agent.close()
+        finally:
+            serve.undeclare()
+            ica.close()
+
+
+def test_a_site_of_several_roadside_units_keeps_their_log_ins_apart(tmp_path):
+    from dica.deploy.site import SecureConfigError, _written, add_agents, write_secure_configs
+
+    paths = write_secure_configs(tmp_path, agents=1, junctions=("J00", "J10"), rsus=2)
+    assert {"router.json5", "router-2.json5"} <= set(paths) and "rsu-2.json5" not in paths
+    first, second = _written(tmp_path / "router.json5"), _written(tmp_path / "router-2.json5")
+    assert first["transport"]["auth"]["usrpwd"].get("user") is None  # it opens no link
+    subjects = {s["id"]: s for s in second["access_control"]["subjects"]}
+    assert subjects["routers-out"]["cert_common_names"] == ["rsu-1"]
+    assert {s["id"]: s for s in first["access_control"]["subjects"]}["routers-in"]["usernames"] == [
+        "rsu-2"
+    ]
+    key1 = first["transport"]["link"]["tls"]["listen_certificate_base64"]
+    assert key1 != second["transport"]["link"]["tls"]["listen_certificate_base64"]
+    with pytest.raises(SecureConfigError, match="taken"):
+        add_agents(tmp_path, "rsu-3")  # an agent may not pose as a router
+    add_agents(tmp_path, "car-9")  # issuing an agent keeps both routers' own material
+    again = _written(tmp_path / "router-2.json5")
+    assert again["transport"]["link"]["tls"] == second["transport"]["link"]["tls"]
+    assert any(r["id"] == "agent-ask/car-9" for r in again["access_control"]["rules"])
+
+
 def test_the_router_keeps_a_stolen_ica_login_to_its_own_junction(tmp_path, corridor):
     out = tmp_path / "on"
     _, thief = _run_under_attack(out, corridor, router_rules=True)

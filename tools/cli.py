@@ -233,6 +233,10 @@ SECURE_CONFIG_DESCRIPTION = """\
 Writes a secured site into --out, readable by its owner only:
   router.json5      the router of deploy/zenoh/secure/router.json5: TLS only, log-in
                     required, and each user allowed exactly its own keys, nothing else
+  router-2.json5 .. with --rsus N: the router of each further roadside unit, with a
+                    certificate of its own (rsu-<k>), logging in to the routers before
+                    it; routers pass the site's keys to one another and keep their own
+                    clients to their rules
   users.txt         one random password per role and per agent
   ica.json5, gateway.json5, observer.json5, <agent>.json5
                     each one's client config (--zenoh-config), with its password and
@@ -243,6 +247,7 @@ Writes a secured site into --out, readable by its owner only:
   dica secure-config --out site/ --agents car-17,car-18 --host 10.0.0.1 --junction C
   dica secure-config --out site/ --add-agent car-19      # one more vehicle
   dica secure-config --out site/ --revoke-agent car-17   # a stolen or retired one
+  dica secure-config --out site/ --junction J1 --junction J2 --ica-per-junction --rsus 2
 
 The router reads users.txt and its rules only when it starts: restart it after
 --add-agent or --revoke-agent. A revoked agent is refused from then on; until then
@@ -255,10 +260,13 @@ def cmd_secure_config(args: argparse.Namespace) -> int:
 
     run = f"dica router --config {args.out.resolve() / 'router.json5'}"
     try:
-        new_site_only = (args.host, args.days, args.junction, args.ica_per_junction or None)
+        new_site_only = (
+            args.host, args.days, args.junction, args.ica_per_junction or None, args.rsus
+        )  # fmt: skip
         if (args.add_agent or args.revoke_agent) and any(x is not None for x in new_site_only):
             raise UsageError(
-                "--host, --days, --junction and --ica-per-junction make a new site (--agents)"
+                "--host, --days, --junction, --ica-per-junction and --rsus make a new site "
+                "(--agents)"
             )
         if args.add_agent:
             added = site.add_agents(args.out, args.add_agent, args.force)
@@ -275,12 +283,17 @@ def cmd_secure_config(args: argparse.Namespace) -> int:
         hosts = tuple(args.host) if args.host else site.DEFAULT_HOSTS
         days = 365 if args.days is None else args.days
         junctions = args.junction or site.DEFAULT_JUNCTIONS
+        rsus = 1 if args.rsus is None else args.rsus
         paths = site.write_secure_configs(
-            args.out, args.force, hosts, days, args.agents, junctions, args.ica_per_junction
-        )
+            args.out, args.force, hosts, days, args.agents, junctions, args.ica_per_junction,
+            rsus,
+        )  # fmt: skip
     except site.SecureConfigError as e:
         raise UsageError(str(e)) from None
     print(f"router:   {run}")
+    for k in range(2, rsus + 1):
+        before = "router 1's endpoint" if k == 2 else f"the endpoints of routers 1 to {k - 1}"
+        print(f"router {k}: dica router --config {paths[site.router_file(k)]} --connect <{before}>")
     for user in site.site_roles(site.junction_names(junctions), args.ica_per_junction):
         role, _, j = user.partition("-")  # ica-<J>: the ICA of junction J
         more = f" --seal {paths[user + '.seal']} --junction {j}" if j else ""
@@ -395,7 +408,9 @@ def parser() -> argparse.ArgumentParser:
         description=SECURE_CONFIG_DESCRIPTION,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    options.add(sc, "site", "--host", "--days", "site-junction", "--ica-per-junction", "--force")
+    options.add(
+        sc, "site", "--host", "--days", "site-junction", "--ica-per-junction", "--rsus", "--force"
+    )
     options.add(sc.add_mutually_exclusive_group(), "site-agents", "--add-agent", "--revoke-agent")
     sc.set_defaults(func=cmd_secure_config)
 

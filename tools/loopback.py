@@ -36,9 +36,13 @@ def _stop(procs: list[subprocess.Popen]) -> None:
                 os.killpg(p.pid, signal.SIGKILL)
 
 
-def _start_router(endpoint: str, config: Path | None = None) -> subprocess.Popen:
-    """A `dica router` process listening on ``endpoint``, once it says it is ready."""
+def _start_router(
+    endpoint: str, config: Path | None = None, connect: str | None = None
+) -> subprocess.Popen:
+    """A `dica router` process listening on ``endpoint`` (and connected to the router
+    at ``connect``, a mesh), once it says it is ready."""
     extra = ["--config", str(config)] if config is not None else []
+    extra += ["--connect", connect] if connect else []
     router = subprocess.Popen(
         [*DICA, "router", *extra, "--listen", endpoint],
         stdout=subprocess.PIPE,
@@ -55,13 +59,16 @@ def _start_router(endpoint: str, config: Path | None = None) -> subprocess.Popen
 
 @contextlib.contextmanager
 def router(
-    config: Path | None = None, scheme: str = "tcp", endpoint: str | None = None
+    config: Path | None = None,
+    scheme: str = "tcp",
+    endpoint: str | None = None,
+    connect: str | None = None,
 ) -> Iterator[str]:
     """A fresh router (``config``: its JSON5) on ``endpoint``, by default a free
-    loopback port; yields its endpoint. Give the endpoint to restart a router
-    where its clients wait for it."""
+    loopback port, connected to the router at ``connect`` if given; yields its
+    endpoint. Give the endpoint to restart a router where its clients wait for it."""
     endpoint = endpoint or f"{scheme}/127.0.0.1:{free_port()}"
-    proc = _start_router(endpoint, config)
+    proc = _start_router(endpoint, config, connect)
     try:
         yield endpoint
     finally:

@@ -496,6 +496,14 @@ OPTIONS: dict[str, Option] = {
             action="store_true",
         ),
         Option(
+            "--rsus",
+            "a new site of several roadside units: one router each (router.json5, "
+            "router-2.json5, ...), each with a certificate of its own, logging in to the "
+            "routers before it to make a mesh (default 1)",
+            int,
+            limit=Limit("--rsus", 1, 64),
+        ),
+        Option(
             "--force",
             "replace a site written before; with --add-agent, a new password for an agent the "
             "site has",

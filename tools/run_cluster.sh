@@ -32,7 +32,7 @@ scenario and roles:
                         the vehicles from the route file, every agent serving every junction
   --rsus N              with --junctions: the roadside units, each with its own Zenoh router
                         serving a run of consecutive junctions (default: one per junction;
-                        with --secure one for all);
+                        with --secure each router has its own certificate and log-in);
                         each router connects to the ones before it (a mesh); the gateway
                         and agent i connect to roadside unit 1 and i (round robin)
   --netns               each roadside unit a host of its own: a Linux network namespace
@@ -75,7 +75,7 @@ scenario and roles:
   --live                the observer also serves the recording on 127.0.0.1:9876
                         as it is made (a network: its view from above); watch with:
                         .venv/bin/dica view --live [--web]
-  --secure              TLS, log-ins and per-role access rules on the router, and every
+  --secure              TLS, log-ins and per-role access rules on the routers, and every
                         message sealed by its writer, with fresh secrets in RUN_DIR/zenoh/
                         (see dica secure-config --help)
   --no-router-rules     with --secure: the router lets every logged-in client do anything,
@@ -257,11 +257,9 @@ try:
 except (UsageError, NetworkError) as e:
     sys.exit(f'run_cluster: {e}')
 print(' '.join(ids))" "$net" "$junctions") || exit 2
-  if [ -z "$rsus" ]; then rsus=${#ids[@]}; [ "$secure" = 1 ] && rsus=1; fi
+  [ -n "$rsus" ] || rsus=${#ids[@]}
   [[ "$rsus" =~ ^[0-9]+$ ]] && [ "$rsus" -ge 1 ] && [ "$rsus" -le "${#ids[@]}" ] ||
     die "--rsus wants 1 to ${#ids[@]} (the junctions), got '$rsus'"
-  [ "$secure" = 0 ] || [ "$rsus" = 1 ] ||
-    die "--secure: the routers of a mesh do not log in to each other yet; use --rsus 1"
   scen=(--net "$net" --junctions "$(IFS=,; echo "${ids[*]}")")
 else
   [ -z "$rsus" ] || die "--rsus goes with --junctions"
@@ -322,10 +320,12 @@ if [ "$secure" = 1 ]; then
   site_junctions=()
   for j in "${ids[@]:-$junction}"; do site_junctions+=(--junction "$j"); done
   [ "${#ids[@]}" -gt 1 ] && site_junctions+=(--ica-per-junction)  # each ICA its own log-in
-  "$dica" secure-config --force --out "$out/zenoh" --agents "$agents" "${site_junctions[@]}" >/dev/null
+  "$dica" secure-config --force --out "$out/zenoh" --agents "$agents" "${site_junctions[@]}" \
+    --rsus "$n_rsu" >/dev/null
   router_conf=(--config "$out/zenoh/router.json5" --log-refused)
-  if [ "$router_rules" = 0 ]; then
-    "$py" - "$out/zenoh/router.json5" <<'PY'
+  [ "$router_rules" = 1 ] || for k in $(seq "$n_rsu"); do
+    conf="$out/zenoh/router.json5"; [ "$k" = 1 ] || conf="$out/zenoh/router-$k.json5"
+    "$py" - "$conf" <<'PY'
 import json, os, sys
 path = sys.argv[1]
 text = open(path).read()
@@ -338,7 +338,7 @@ with open(path + ".tmp", "w") as f:
 os.chmod(path + ".tmp", 0o600)
 os.replace(path + ".tmp", path)
 PY
-  fi
+  done
   scheme=tls
 fi
 
@@ -438,6 +438,8 @@ if [ "${#ids[@]}" -gt 0 ]; then  # a router per roadside unit, each connected to
   for k in $(seq "$n_rsu"); do
     peers=(); [ "${#mesh[@]}" -gt 0 ] && peers=(--connect "$(IFS=,; echo "${mesh[*]}")")
     in_ns_of "$(host_ns "$k")"
+    # secured: each roadside unit's router its own config (certificate, log-in to the others)
+    [ "$secure" = 1 ] && [ "$k" -gt 1 ] && router_conf=(--config "$out/zenoh/router-$k.json5" --log-refused)
     start "router-$k" "${in_ns[@]}" "$dica" router "${router_conf[@]}" \
       --listen "$scheme/${rsu_addr[$k]}:${rsu_port[$k]}" "${peers[@]}"
     wait_ready "router-$k"
