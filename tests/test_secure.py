@@ -504,13 +504,18 @@ def test_the_gateway_hears_an_agent_s_token_go(cast):
     )
     token = attackers[A].liveliness().declare_token(f"sim/{J}/alive/{A}")
     try:
+        # an earlier test's token of the same agent may still be going as this one comes
+        # (under load its end arrives late): what counts is the last word
         deadline = time.monotonic() + 10
-        while seen != ["+"]:
+        while not seen or seen[-1] != "+":
             assert time.monotonic() < deadline, f"the token never came: {seen}"
             time.sleep(0.02)
+        time.sleep(0.2)
+        assert seen[-1] == "+", seen
+        came = len(seen)
         token.undeclare()
         token = None
-        while seen != ["+", "-"]:
+        while seen[came:] != ["-"]:
             assert time.monotonic() < deadline, f"the token never went: {seen}"
             time.sleep(0.02)
     finally:

@@ -194,7 +194,6 @@ for r in "${parts[@]}"; do
   esac
 done
 if [ "$netns" = 1 ]; then
-  [ "$secure" = 0 ] || die "--secure with --netns: not yet (the site's certificate names loopback)"
   [ "${#live[@]}" = 0 ] || die "--live serves on the gateway's host; not with --netns"
   if [ "$faulty" = all ]; then faulty_roles=(agents gateway); fi
   for r in "${faulty_roles[@]}"; do
@@ -320,8 +319,10 @@ if [ "$secure" = 1 ]; then
   site_junctions=()
   for j in "${ids[@]:-$junction}"; do site_junctions+=(--junction "$j"); done
   [ "${#ids[@]}" -gt 1 ] && site_junctions+=(--ica-per-junction)  # each ICA its own log-in
+  site_hosts=(--host 127.0.0.1)  # the certificates name every address a router is reached at
+  for k in $(seq "$n_rsu"); do [ "${rsu_addr[$k]}" = 127.0.0.1 ] || site_hosts+=(--host "${rsu_addr[$k]}"); done
   "$dica" secure-config --force --out "$out/zenoh" --agents "$agents" "${site_junctions[@]}" \
-    --rsus "$n_rsu" >/dev/null
+    --rsus "$n_rsu" "${site_hosts[@]}" >/dev/null
   router_conf=(--config "$out/zenoh/router.json5" --log-refused)
   [ "$router_rules" = 1 ] || for k in $(seq "$n_rsu"); do
     conf="$out/zenoh/router.json5"; [ "$k" = 1 ] || conf="$out/zenoh/router-$k.json5"
