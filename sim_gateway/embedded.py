@@ -128,13 +128,16 @@ class LocalDrivers:
             self.order.separations.precompute()  # none measured while a window waits
             self.link.window = []
 
-    def walk(self, walkers: Walkers, t: float) -> None:
+    def walk(self, walkers: Walkers, t: float, junction: str | None = None) -> None:
         """The walkers seen across this step (their slots end now), the roadside's WALK
         requests of this step, each answered with its slot, and the walkers whose start
-        has come let go."""
-        for person, crossing, _junction in walkers.cleared:
-            self.ica.walked(person, crossing, t)
+        has come let go; in a network, only those of ``junction`` (this ICA's)."""
+        for person, crossing, at in walkers.cleared:
+            if junction is None or at == junction:
+                self.ica.walked(person, crossing, t)
         for ask in walkers.asks:
+            if junction is not None and ask.junction != junction:
+                continue
             slot = self.ica.walk(ask.person, ask.crossing, ask.ready_s, t, ask.walk_m,
                                  ask.speed_mps, ask.side, ask.near_m,
                                  ask.near_lo_m)  # fmt: skip

@@ -132,6 +132,13 @@ def run_network(
                 file=sys.stderr,
             )
         drivers = [LocalDrivers(ica, cfg) for ica in icas]
+        if world.walkers is not None and (cluster is not None or light):
+            raise RunError(
+                "--peds in a network runs embedded and signal-free for now (dica run "
+                "--junctions ...), not over a cluster or under lights"
+            )
+        for d in drivers[: len(recorders)]:
+            d.walks = []  # the walkers' slots, for each junction's recording
         pressure = None
         if lights == "max-pressure":
             ids = dict.fromkeys(light_of(ls, x) for x in inters)
@@ -143,12 +150,21 @@ def run_network(
                 each = world.step_each()
                 if cluster is not None:
                     cluster.decide(world, each)
+                if world.walkers is not None:  # the roadside asks first, each its own ICA
+                    for j, d in zip(world.junctions, drivers, strict=True):
+                        d.walk(world.walkers, world.t, j.inter.junction_id)
                 for j, d, seen in zip(world.junctions, drivers, each, strict=False):
                     world.refresh_network_room(j, seen)
                     world.apply(d.step(world.t, seen), j)
                     world.counted_confirmed(j)
                 for rec, d, seen in zip(recorders, drivers, each, strict=False):
                     record_step(rec, d, seen, cfg, world.t)
+                    if world.walkers is not None:
+                        for t_walk, slot in d.walks or ():
+                            rec.rec.walk(t_walk, slot)
+                        d.walks = []
+                        w = world.walkers
+                        rec.rec.people(world.t, w.xy, w.waiting_mask())
                 if top is not None:
                     top.step(world.t, world.junctions, drivers)
                 world.end_step(progress)

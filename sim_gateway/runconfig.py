@@ -175,9 +175,6 @@ class RunConfig:
             if self.algorithm in LIGHTS:
                 raise RunError(f"--junctions runs the signal-free algorithms; {self.algorithm} "
                                "is a light's baseline for one --junction")  # fmt: skip
-            if self.peds_per_h:
-                raise RunError("--peds serves one --junction for now; a network's walkers "
-                               "are not asked for yet")  # fmt: skip
             if len(set(self.junction_ids)) < len(self.junction_ids):
                 raise RunError(f"--junctions names a junction twice: {','.join(self.junction_ids)}")
         if self.solver not in SOLVERS:

@@ -83,6 +83,40 @@ def test_people_on_a_net_of_guessed_crossings_go_when_given_the_crossing(tmp_pat
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0
 
 
+def test_people_cross_a_network_of_signal_free_junctions(tmp_path):
+    """A 2x2 grid of a user's net with sidewalks and crossings guessed, every junction
+    under its own ICA, people at every crossing: each junction's ICA gives its own
+    crossings, every person is accounted for, and nobody is touched by either check."""
+    import csv
+    import xml.etree.ElementTree as ET
+
+    from dica.sim_gateway.od_demand import OdDemand, write_od_routes
+    from tests.user_nets import make, tool
+
+    net = tmp_path / "grid.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "2", "--grid.length", "120",
+          "--grid.attach-length", "80", "--default.lanenumber", "2", "--sidewalks.guess",
+          "true", "--crossings.guess", "true", "--no-turnarounds", "true",
+          "-o", str(net)])  # fmt: skip
+    inner = [j.get("id") for j in ET.parse(net).getroot().iter("junction")
+             if j.get("type") not in ("internal", "dead_end")]  # fmt: skip
+    assert len(inner) == 4
+    routes = tmp_path / "od.rou.xml"
+    write_od_routes(net, inner, OdDemand(300, 150, 12), routes)
+    m = _run(tmp_path / "r", "--net", str(net), "--routes", str(routes), "--junctions", "all",
+             "--peds", "300", "--duration", "200", "--seed", "21")  # fmt: skip
+    w = m["walkers"]
+    parts = ("crossed", "at_kerb_at_end", "on_crossing_at_end", "not_at_a_kerb_yet",
+             "walked_elsewhere")  # fmt: skip
+    assert sum(w[k] for k in parts) == w["generated"] > 100  # every person accounted for
+    assert w["person_hits"] == 0 and w["sumo_person_collisions"] == 0 and w["overran_slot"] == 0
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["crossed"] > 100
+    assert 0.0 < w["max_ask_to_go_s"] <= WAIT_BOUND_S + 1e-6
+    rows = list(csv.DictReader((tmp_path / "r" / "persons.csv").open()))
+    crossed_at = {r["crossing"].split("_")[0].lstrip(":") for r in rows if r["off_s"]}
+    assert crossed_at == set(inner)  # every junction's ICA gave its crossings
+
+
 ROUTES_WITH_PEOPLE = """<routes>
     <flow id="we" begin="0" end="300" vehsPerHour="360" from="A1B1" to="B1C1"/>
     <flow id="ns" begin="0" end="300" vehsPerHour="360" from="B2B1" to="B1B0"/>
