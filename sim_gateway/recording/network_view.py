@@ -103,7 +103,9 @@ class TopDrawing:
             front = np.asarray(front, dtype=float).reshape(-1, 2)
             cx, cy = front[:, 0] - c * length / 2.0, front[:, 1] - s * length / 2.0
             boxes = outlines(cx, cy, c, s, length / 2.0, width / 2.0)
-            self.rec.log("network/vehicles", rr.LineStrips2D(boxes, colors=colours, radii=0.2))
+            # packed 0xRRGGBBAA as uint32: a plain list of four reads as one RGBA colour
+            packed = np.asarray(colours, dtype=np.uint32)
+            self.rec.log("network/vehicles", rr.LineStrips2D(boxes, colors=packed, radii=0.2))
         else:
             self.rec.log("network/vehicles", rr.Clear(recursive=False))
         if paths:
