@@ -276,6 +276,7 @@ def _namespaces() -> list[str]:
         (["--junctions", "all", "--junction", "J00"], "--junction names one junction"),
         (["--junction", "J00", "--rsus", "2"], "--rsus goes with --junctions"),
         (["--junctions", "all", "--netns", "--faulty", "ica", "--delay", "5"], "--faulty agents"),
+        (["--junctions", "all", "--peds", "100"], "--peds in a network runs embedded"),
     ],
 )
 def test_a_network_the_cluster_cannot_run_is_one_clear_line(tmp_path, corridor, args, says):

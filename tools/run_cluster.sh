@@ -142,7 +142,7 @@ while [ $# -gt 0 ]; do
     --seed) seed="$2"; shift 2 ;;
     --routes) demand+=(--routes "$(from_caller "$2")"); shift 2 ;;
     --begin) demand+=(--begin "$2"); shift 2 ;;
-    --peds) demand+=(--peds "$2"); shift 2 ;;
+    --peds) demand+=(--peds "$2"); peds="$2"; shift 2 ;;
     --agents) agents="$2"; shift 2 ;;
     --per-agent) per_agent="$2"; shift 2 ;;
     --clock) clock="$2"; shift 2 ;;
@@ -259,6 +259,8 @@ print(' '.join(ids))" "$net" "$junctions") || exit 2
   [ -n "$rsus" ] || rsus=${#ids[@]}
   [[ "$rsus" =~ ^[0-9]+$ ]] && [ "$rsus" -ge 1 ] && [ "$rsus" -le "${#ids[@]}" ] ||
     die "--rsus wants 1 to ${#ids[@]} (the junctions), got '$rsus'"
+  [[ "${peds:-0}" =~ ^0*(\.0*)?$ ]] ||
+    die "--peds in a network runs embedded for now (dica run --junctions ... --peds N), not as a cluster"
   scen=(--net "$net" --junctions "$(IFS=,; echo "${ids[*]}")")
 else
   [ -z "$rsus" ] || die "--rsus goes with --junctions"
