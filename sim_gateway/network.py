@@ -166,7 +166,7 @@ def run_network(
                         w = world.walkers
                         rec.rec.people(world.t, w.xy, w.waiting_mask())
                 if top is not None:
-                    top.step(world.t, world.junctions, drivers)
+                    top.step(world.t, world.junctions, drivers, world.walkers)
                 world.end_step(progress)
                 if world.done() or world.emptied(until_empty_after_s):
                     break

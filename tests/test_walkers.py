@@ -104,7 +104,7 @@ def test_people_cross_a_network_of_signal_free_junctions(tmp_path):
     routes = tmp_path / "od.rou.xml"
     write_od_routes(net, inner, OdDemand(300, 150, 12), routes)
     m = _run(tmp_path / "r", "--net", str(net), "--routes", str(routes), "--junctions", "all",
-             "--peds", "300", "--duration", "200", "--seed", "21")  # fmt: skip
+             "--peds", "300", "--duration", "200", "--seed", "21", "--record")  # fmt: skip
     w = m["walkers"]
     parts = ("crossed", "at_kerb_at_end", "on_crossing_at_end", "not_at_a_kerb_yet",
              "walked_elsewhere")  # fmt: skip
@@ -115,6 +115,12 @@ def test_people_cross_a_network_of_signal_free_junctions(tmp_path):
     rows = list(csv.DictReader((tmp_path / "r" / "persons.csv").open()))
     crossed_at = {r["crossing"].split("_")[0].lstrip(":") for r in rows if r["off_s"]}
     assert crossed_at == set(inner)  # every junction's ICA gave its crossings
+    # the view from above shows the people; each junction's recording its walkers' slots
+    top = _read(tmp_path / "r" / "network.rrd")
+    assert sum(b.num_rows for b in top["/network/people"]) > 100
+    for k, j in enumerate(sorted(inner)):
+        rrd = tmp_path / "r" / ("spacetime.rrd" if k == 0 else f"spacetime-{j}.rrd")
+        assert _rows(_read(rrd)["/charts/data/zones/walks"], "Boxes2D:labels"), j
 
 
 ROUTES_WITH_PEOPLE = """<routes>

@@ -32,6 +32,8 @@ from dica.sim_gateway.recording.geometry import (
 from dica.sim_gateway.recording.style import (
     CROSSING_RGB,
     LANE_EDGE_RGB,
+    PERSON_WAITING_RGB,
+    PERSON_WALKING_RGB,
     REGION_RGB,
     STATUS_RGBA,
     Status,
@@ -119,6 +121,22 @@ class TopDrawing:
         else:
             self.rec.log("network/plans", rr.Clear(recursive=False))
 
+    def people(self, xy: np.ndarray, waiting: np.ndarray) -> None:
+        """The people in the net at this moment (SUMO's frame): amber waiting at a kerb
+        for its ICA's go, blue walking."""
+        xy = np.asarray(xy, dtype=float).reshape(-1, 2)
+        wait = np.asarray(waiting, dtype=bool).reshape(-1)
+        self.rec.log(
+            "network/people",
+            rr.Points2D(
+                (xy * FLIP_Y).astype(np.float32),
+                colors=np.where(wait[:, None], PERSON_WAITING_RGB, PERSON_WALKING_RGB).astype(
+                    np.uint8
+                ),
+                radii=0.6,
+            ),
+        )
+
     def close(self) -> None:
         self.rec.flush()
         self.rec.disconnect()
@@ -145,8 +163,9 @@ class NetworkView:
         lanes = route_lanes(self.draw.inters)
         self.draw.geometry([self.ls.lane.getShape(lane) for lane in lanes])
 
-    def step(self, t_s: float, junctions: Iterable, drivers: Iterable) -> None:
-        """This moment, if one is due: every vehicle in the net, and the plans held."""
+    def step(self, t_s: float, junctions: Iterable, drivers: Iterable, walkers=None) -> None:
+        """This moment, if one is due: every vehicle in the net, the plans held, and the
+        people (``walkers``: :class:`sim_gateway.walkers.Walkers`, if any)."""
         if t_s + 1e-9 < self._next_s:
             return
         self._next_s = t_s + EVERY_S
@@ -181,6 +200,8 @@ class NetworkView:
             paths,
             names,
         )
+        if walkers is not None:
+            self.draw.people(walkers.xy, walkers.waiting_mask())
 
     def close(self) -> None:
         self.draw.close()

@@ -44,15 +44,18 @@ from dica.sim_gateway.recording.geometry import FLIP_Y, RouteProjector
 from dica.sim_gateway.recording.lane_charts import LaneCharts
 from dica.sim_gateway.recording.layout import Layout
 from dica.sim_gateway.recording.rows import RowBuffer
-from dica.sim_gateway.recording.style import VehicleColours, row_styles
+from dica.sim_gateway.recording.style import (
+    PERSON_WAITING_RGB,
+    PERSON_WALKING_RGB,
+    VehicleColours,
+    row_styles,
+)
 from dica.sim_gateway.recording.tables import Tables
 from dica.sim_gateway.recording.top_view import TopView, reserved_bands
 
 START_WAIT_S = 60.0  # [s] how long the recording waits for a first confirmation
 FLUSH_S = 20.0  # [s] of simulated time buffered before it is sent (saved file)
 PEOPLE_EVERY_S = 0.25  # [s] of simulated time between two drawings of the people
-PERSON_WAITING_RGB = (230, 160, 20)
-PERSON_WALKING_RGB = (40, 110, 220)
 LIVE_FLUSH_S = 1.0  # [s] the same when viewers watch live (and rows are sent then)
 
 

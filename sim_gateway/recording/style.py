@@ -173,3 +173,7 @@ def row_styles(lanes: Sequence[str], margin_m: float) -> dict[str, dict[str, Any
     }
     styles["charts/data/zones/held"] = {"radii": 0.45, "draw_order": 20.0, "show_labels": False}
     return styles
+
+
+PERSON_WAITING_RGB = (230, 160, 20)  # a person held at the kerb for the ICA's go
+PERSON_WALKING_RGB = (40, 110, 220)  # a person walking
