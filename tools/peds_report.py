@@ -22,6 +22,8 @@ def _runs(root: Path) -> dict[tuple[str, int, int], list[dict]]:
     """Per (control, vehicles per 10 min, people an hour), the metrics of each seed."""
     out: dict[tuple[str, int, int], list[dict]] = defaultdict(list)
     for path in sorted(root.glob("*-v*-p*-s*/metrics.json")):
+        if path.parent.name.endswith(".tmp"):  # not finished (peds.sh renames it when done)
+            continue
         control, v, p, _s = path.parent.name.rsplit("-", 3)
         out[(control, int(v[1:]), int(p[1:]))].append(json.loads(path.read_text()))
     return out
