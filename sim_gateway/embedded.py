@@ -355,13 +355,7 @@ def _run(
                 elif preempt is not None:
                     preempt.step(world.t, seen)
                 if recorder is not None:
-                    record_step(recorder, drivers, seen, cfg, world.t)
-                    if world.walkers is not None:
-                        w = world.walkers
-                        for t_walk, slot in drivers.walks or ():
-                            recorder.rec.walk(t_walk, slot)
-                        recorder.rec.people(world.t, w.xy, w.waiting_mask())
-                    drivers.walks = []
+                    record_step(recorder, drivers, seen, cfg, world.t, world.walkers)
                 world.end_step(progress)
                 if world.done():
                     break
@@ -407,9 +401,15 @@ class _Recording:
 
 
 def record_step(
-    r: _Recording, drivers: LocalDrivers, seen: list[Seen], cfg: RunConfig, t: float
+    r: _Recording,
+    drivers: LocalDrivers,
+    seen: list[Seen],
+    cfg: RunConfig,
+    t: float,
+    walkers: Walkers | None = None,
 ) -> None:
-    """This step's new confirmations and rejections, and every observed vehicle's footprint."""
+    """This step's new confirmations and rejections, every observed vehicle's footprint,
+    and with ``walkers`` the slots given this step and the people."""
     rec = r.rec
     for s in seen:  # before any confirmation: an EV's plan is drawn in its colour
         if s.car.ev and s.car.vin not in r.emergency:
@@ -472,3 +472,9 @@ def record_step(
         np.array([s.car.width_m for s in seen]),
         route_ids=[s.car.route.id for s in seen],
     )
+    if walkers is not None:
+        for t_walk, slot in drivers.walks or ():
+            rec.walk(t_walk, slot)
+        rec.people(t, walkers.xy, walkers.waiting_mask())
+    if drivers.walks:
+        drivers.walks.clear()

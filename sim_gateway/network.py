@@ -158,13 +158,7 @@ def run_network(
                     world.apply(d.step(world.t, seen), j)
                     world.counted_confirmed(j)
                 for rec, d, seen in zip(recorders, drivers, each, strict=False):
-                    record_step(rec, d, seen, cfg, world.t)
-                    if world.walkers is not None:
-                        for t_walk, slot in d.walks or ():
-                            rec.rec.walk(t_walk, slot)
-                        d.walks = []
-                        w = world.walkers
-                        rec.rec.people(world.t, w.xy, w.waiting_mask())
+                    record_step(rec, d, seen, cfg, world.t, world.walkers)
                 if top is not None:
                     top.step(world.t, world.junctions, drivers, world.walkers)
                 world.end_step(progress)
