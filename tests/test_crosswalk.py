@@ -352,6 +352,12 @@ def test_walkers_are_forgotten_once_across_and_bad_asks_refused(walk_net):
         ica.walk("amy", ":A0_c0", 0.0, 0.0)
     with pytest.raises(RequestError, match="not finite"):
         ica.walk("amy", ":B1_c1", math.nan, 0.0)
+    # the shortest way to the crossing: 0 and up, finite; never past the longest way
+    for bad in (-1e-9, math.inf, math.nan):
+        with pytest.raises(RequestError, match="distance is not one"):
+            ica.walk("bob", ":B1_c1", 0.0, 0.0, near_m=3.0, near_lo_m=bad)
+    assert ica.walk("cyd", ":B1_c1", 0.0, 0.0, near_m=3.0, near_lo_m=0.0).near_lo_m == 0.0
+    assert ica.walk("dee", ":B1_c1", 0.0, 0.0, near_m=3.0, near_lo_m=5.0).near_lo_m == 3.0
 
 
 # -- over Zenoh ------------------------------------------------------------------------

@@ -191,6 +191,21 @@ def test_wrong_types_and_ranges() -> None:
     assert _why(_pack(reorder)) is Why.OUT_OF_RANGE
     reorder["order"][0] = {"vin": "w1", "seq": 40, "plan": "x" * 17, "t_s": 1.0}
     assert _why(_pack(reorder)) is Why.TOO_LARGE
+    # a walker's shortest way, and the people's places and flags: at their limits and
+    # one past them
+    walk = _raw(SAMPLES[Walk])
+    assert decode(_pack({**walk, "near_lo_m": 0.0})).near_lo_m == 0.0
+    assert decode(_pack({**walk, "near_lo_m": 1000.0})).near_lo_m == 1000.0
+    for bad in (-1e-9, 1000.0001, math.inf):
+        assert _why(_pack({**walk, "near_lo_m": bad})) is Why.OUT_OF_RANGE
+    people = _raw(SAMPLES[People])
+    people["people"][0]["waiting"] = 1
+    assert _why(_pack(people)) is Why.BAD_TYPE
+    people["people"] = [{"x_m": 0.0, "y_m": 0.0, "waiting": False}] * 2049
+    assert _why(_pack(people)) is Why.NOT_MSGPACK  # over MAX_VEHICLES: the unpacker stops
+    go = _raw(SAMPLES[Go])
+    assert _why(_pack({**go, "side": 2})) is Why.OUT_OF_RANGE
+    assert _why(_pack({key: v for key, v in go.items() if key != "given_s"})) is Why.MISSING_FIELD
 
 
 def test_oversize_arrays_are_refused() -> None:
