@@ -126,7 +126,7 @@ class Actuator:
             self.drop(c, seq, t)
         ahead = self.obstacles(j)
         for c in j.active:
-            if c.sumo not in j.present or c.released or math.isnan(c.detected_s):
+            if c.sumo not in j.present or c.released or math.isnan(c.detected_s) or c.human:
                 continue
             if c.plan_s is not None and t >= c.plan_t0_s - 1e-6:
                 self._fly(c, t, ahead.get(c.vin, math.inf))
@@ -236,6 +236,8 @@ class Actuator:
         one, flown already or still to start): it moves by its stop law alone and never
         speeds up, so where it will be when its plan starts is predictable
         (:meth:`intents`)."""
+        if c.human:  # SUMO's driver: its own car-following, never a plan
+            return False
         return c.head or (
             self.ica_cfg.platoon and c.ahead is not None and c.ahead.plan_s is not None
         )

@@ -16,6 +16,7 @@ EV at a time"), which depends on how fast the previous one got through.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import sys
 from dataclasses import dataclass
@@ -63,6 +64,7 @@ class Arrival:
     length_m: float
     width_m: float
     ev: bool = False  # an emergency-vehicle candidate (see the module's note)
+    human: bool = False  # driven by SUMO's own driver, not connected (--cav-share)
 
 
 def entry_limit(route: Route) -> float:
@@ -224,4 +226,17 @@ def schedule_for(cfg: RunConfig, inter: Intersection, step_s: float):
     except ValueError as e:
         raise RunError(str(e)) from None
     horizon = math.inf if cfg.until_left else cfg.duration_s
+    if cfg.cav_share < 1.0:
+        schedule = with_humans(schedule, cfg.cav_share, cfg.seed)
     return [v for v in schedule if v.arrival_s <= horizon], spec, horizon
+
+
+def with_humans(schedule: list[Arrival], cav_share: float, seed: int) -> list[Arrival]:
+    """Each arrival but an emergency-vehicle candidate driven by a human with probability
+    ``1 - cav_share``, from a stream of its own: the demand itself is the same at every
+    share, and a share of 1 leaves it as it was."""
+    draws = np.random.default_rng([seed, 27]).random(len(schedule))
+    return [
+        dataclasses.replace(v, human=True) if not v.ev and u >= cav_share else v
+        for v, u in zip(schedule, draws, strict=True)
+    ]

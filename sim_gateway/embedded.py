@@ -19,12 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from dica.ica.core.controller import Controller, build_controller
+from dica.ica.core.dica import Green
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from dica.ica.core.revocation import DROPPED, KEPT, Reorder
 from dica.ica.core.walk import WalkSlot
 from dica.ica.core.window import WindowOrder
 from dica.sim_gateway.demand import Arrival, schedule_for
+from dica.sim_gateway.humans import SignalHeads
 from dica.sim_gateway.junction import Seen
 from dica.sim_gateway.light_control import ReactiveLight, setup_signal
 from dica.sim_gateway.runconfig import (
@@ -33,7 +35,7 @@ from dica.sim_gateway.runconfig import (
     RunError,
     RunResult,
 )
-from dica.sim_gateway.scenario import ScenarioError, light_net
+from dica.sim_gateway.scenario import ScenarioError, light_net, stop_net
 from dica.sim_gateway.signals import Phase as SignalPhase
 from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
 from dica.sim_gateway.walkers import Walkers
@@ -56,6 +58,7 @@ class LocalLink:
         self.revised: dict[str, Confirmation] = {}
         self.reorders: list[Reorder] = []  # reactive DICA's decisions, to record
         self.window: list[Request] | None = None  # a window's requests, when windowed
+        self.green_s: list[float] = []  # the ICA's time per human driver's green asked
 
     def detect(self, vin: str, lane: str, t_s: float) -> Rejection | None:
         try:
@@ -121,6 +124,8 @@ class LocalDrivers:
         self.revocations: list[tuple[float, str, str]] = []  # (t, vin, what), to record
         self.kept: list[tuple[float, str, str]] = []  # revoked plans that stand: (t, vin, why)
         self.walks: list[tuple[float, WalkSlot]] | None = None  # slots given, to record
+        self.greens: list[tuple[float, Green]] | None = None  # human drivers' greens, to record
+        self.green_refused: dict[str, int] = {}  # greens asked for too soon, by reason
         self.delivered: set[tuple[str, int]] = set()  # revocations handed to their vehicles
         self.order = WindowOrder(ica) if cfg.window_s else None
         self.close_s = cfg.window_s  # when the current window closes
@@ -145,6 +150,33 @@ class LocalDrivers:
             if self.walks is not None:
                 self.walks.append((t, slot))
         walkers.release(t)
+
+    def humans(self, heads: SignalHeads, seen: list[Seen], t: float) -> None:
+        """The human drivers of this step: the ICA hears of those new in the region (from
+        the roadside's detector, as of any vehicle); those standing at the head of their
+        lane ask for their green (its signal head, for them); and whose green has come
+        are let go."""
+        self.ica.advance(t)
+        for s in seen:
+            d = heads.drivers.get(s.car.vin)
+            if d is not None and not d.told:
+                d.told = True
+                self.link.detect(s.car.vin, s.car.route.in_lane, s.car.detected_s)
+        for d in heads.asking(seen, t):
+            c = d.car
+            t_c = time.perf_counter()
+            try:
+                g = self.ica.green(c.vin, t, c.length_m, c.width_m, heads.limits, -c.s_m)
+            except RequestError as e:  # not yet (one ahead has not begun to enter): again
+                why = str(e.reason)
+                self.green_refused[why] = self.green_refused.get(why, 0) + 1
+                continue
+            finally:
+                self.link.green_s.append(time.perf_counter() - t_c)
+            heads.lit(c.vin, g.green_s, g.routes, -c.s_m)
+            if self.greens is not None:
+                self.greens.append((t, g))
+        heads.release(t)
 
     def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
         self.ica.advance(t)
@@ -248,16 +280,26 @@ class LocalDrivers:
         return out
 
     def requests(self) -> dict:
-        return request_figures(self.link.compute_s, self.rejections) | (
-            {}
-            if self.order is None
-            else {
-                "windows_ordered": self.order.windows,
-                "windows_reordered": self.order.reordered,
-                # the ordering's own cost per window of two requests or more
-                "window_order_ms_median": _ms(np.median, self.order.order_s),
-                "window_order_ms_max": _ms(np.max, self.order.order_s),
-            }
+        greens = (
+            {"greens_asked": len(self.link.green_s), "greens_refused": dict(self.green_refused),
+             "green_p99_ms": _ms(lambda x: np.percentile(x, 99), self.link.green_s)}
+            if self.link.green_s
+            else {}
+        )  # fmt: skip
+        return (
+            request_figures(self.link.compute_s, self.rejections)
+            | greens
+            | (
+                {}
+                if self.order is None
+                else {
+                    "windows_ordered": self.order.windows,
+                    "windows_reordered": self.order.reordered,
+                    # the ordering's own cost per window of two requests or more
+                    "window_order_ms_median": _ms(np.median, self.order.order_s),
+                    "window_order_ms_max": _ms(np.max, self.order.order_s),
+                }
+            )
         )
 
 
@@ -314,7 +356,14 @@ def _run(
     if given is not None:
         schedule = sorted(given, key=lambda a: a.arrival_s)
     built = None
-    if light:
+    if cfg.algorithm == "allway-stop":
+        try:
+            net, built = stop_net(Path(cfg.net_path), inter.junction_id, run_dir)
+        except ScenarioError as e:
+            raise RunError(str(e)) from None
+        print(built, file=sys.stderr)
+        cmd = start_sumo(ls, dataclasses.replace(cfg, net_path=str(net)), ica_cfg.step_s)
+    elif light:
         try:
             net, built = light_net(
                 Path(cfg.net_path),
@@ -330,7 +379,10 @@ def _run(
     else:
         cmd = start_sumo(ls, cfg, ica_cfg.step_s)
     try:
-        signal = setup_signal(ls, cfg, inter, spec) if light else None
+        if cfg.algorithm == "allway-stop":
+            signal = {"type": cfg.algorithm}
+        else:
+            signal = setup_signal(ls, cfg, inter, spec) if light else None
         if signal is not None and built is not None:
             signal["built"] = built
         preempt = None
@@ -350,6 +402,8 @@ def _run(
                 seen = world.step()
                 if world.walkers is not None and not light:
                     drivers.walk(world.walkers, world.t)  # the roadside asks first
+                if world.heads is not None and not light:
+                    drivers.humans(world.heads, world.human_seen, world.t)
                 if not light:
                     world.apply(drivers.step(world.t, seen))
                 elif preempt is not None:

@@ -751,6 +751,9 @@ def run_gateway(
     """
     from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
 
+    if cfg.cav_share < 1.0:
+        raise RunError("--cav-share (human drivers) runs embedded for now (dica run), not as a "
+                       "cluster")  # fmt: skip
     ls = import_libsumo()
     ica_cfg = cfg.controller_spec().config
     schedule, _spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)

@@ -66,6 +66,7 @@ class Car:
     sumo: str = ""
     # its braking as SUMO knows it, kept while it flies a plan (Actuator._set_mode)
     decel_mps2: float = math.nan
+    human: bool = False  # SUMO's own driver drives it: no plan, a signal head of its own
 
     def __post_init__(self) -> None:
         if not self.sumo:
@@ -75,7 +76,8 @@ class Car:
     def of(cls, v: Arrival) -> Car:
         """One of the demand's vehicles, to be inserted at the region's entry line."""
         lane = lane_index(v.route.in_lane)
-        return cls(v.vin, v.route, lane, v.speed_mps, length_m=v.length_m, width_m=v.width_m)
+        return cls(v.vin, v.route, lane, v.speed_mps, length_m=v.length_m, width_m=v.width_m,
+                   human=v.human)  # fmt: skip
 
     def locate(self, lane: str, lane_pos_m: float, lane_len_m: float, odo_m: float) -> None:
         """Where the front is along the route: from the lane position while on the

@@ -65,6 +65,7 @@ class Trip:
         return None if st is None or ff is None else st - ff
 
     ev: bool = False  # an emergency vehicle
+    human: bool = False  # driven by SUMO's own driver (--cav-share below 1)
 
 
 @dataclass(slots=True)
@@ -178,10 +179,23 @@ def summarize_ev(log: TripLog, end_s: float) -> dict[str, dict[str, float | int 
     """Emergency vehicles and the others apart: count, trip time (mean, std, max), delay
     and stopped rate of each group, with the clock of :func:`summarize`; and the mean
     trip time counted from the scheduled arrival instead."""
+    return _groups(log, end_s, lambda tr: "ev" if tr.ev else "normal", ("ev", "normal"))
+
+
+def summarize_mixed(log: TripLog, end_s: float) -> dict[str, dict[str, float | int | None]]:
+    """Human drivers and connected vehicles apart, as :func:`summarize_ev` does, with
+    each group's mean delay from the scheduled arrival."""
+    groups = ("human", "connected")
+    return {"by_driver": _groups(log, end_s, lambda tr: groups[not tr.human], groups)}
+
+
+def _groups(log: TripLog, end_s: float, group_of, names) -> dict[str, dict]:
+    """Per group (``group_of(trip)`` one of ``names``): the trips' figures."""
     out: dict[str, dict[str, float | int | None]] = {}
-    for name, want in (("ev", True), ("normal", False)):
-        gen = [tr for tr in log.trips.values() if tr.depart_s <= end_s and tr.ev == want]
+    for name in names:
+        gen = [tr for tr in log.trips.values() if tr.depart_s <= end_s and group_of(tr) == name]
         crossed, tau, delay = _trips(gen)
+        system_delay = [tr.system_delay_s for tr in crossed if tr.system_delay_s is not None]
         # the same trips on a clock that starts at the scheduled arrival at the region's
         # entry line: it also counts a wait to get in when the lane is backed up beyond it
         from_arrival = np.array([tr.exited_s - tr.depart_s for tr in crossed], dtype=float)
@@ -196,6 +210,7 @@ def summarize_ev(log: TripLog, end_s: float) -> dict[str, dict[str, float | int 
             "max_trip_time_s": float(tau.max()) if len(tau) else None,
             "mean_delay_s": float(delay.mean()) if len(delay) else None,
             "stopped_rate": (sum(tr.stopped for tr in crossed) / len(crossed)) if crossed else None,
+            "mean_system_delay_s": float(np.mean(system_delay)) if system_delay else None,
         }
         out[name] = group
     return out

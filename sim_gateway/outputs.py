@@ -17,7 +17,7 @@ import json
 import os
 from pathlib import Path
 
-from dica.sim_gateway.metrics import summarize_ev
+from dica.sim_gateway.metrics import summarize_ev, summarize_mixed
 from dica.sim_gateway.runconfig import RunConfig, RunResult
 
 PERSON_COLUMNS = ("person", "depart_s", "crossing", "kerb_s", "go_s", "on_s", "off_s", "wait_s",
@@ -55,6 +55,9 @@ def write_outputs(
     if cfg.ev_prob > 0:  # emergency vehicles and the others apart
         end = result.sim_time_s if cfg.until_left else cfg.duration_s
         metrics.update(summarize_ev(result.trips, end))
+    if cfg.cav_share < 1.0:  # human drivers and connected vehicles apart
+        end = result.sim_time_s if cfg.until_left else cfg.duration_s
+        metrics.update(summarize_mixed(result.trips, end))
     _atomic(out / "metrics.json", json.dumps(metrics, indent=2))
     config = {
         "mode": mode,
@@ -65,6 +68,7 @@ def write_outputs(
     _atomic(out / "config.json", json.dumps(config, indent=2, default=list))
     # runs without emergency vehicles keep the file exactly as it was (no "ev" column)
     with_ev = cfg.ev_prob > 0
+    mixed = cfg.cav_share < 1.0  # and those without human drivers keep it without "human"
     with _Replacing(out / "vehicles.csv") as fh:
         w = csv.writer(fh)
         w.writerow(
@@ -84,6 +88,7 @@ def write_outputs(
                 "stopped",
             ]
             + (["ev"] if with_ev else [])
+            + (["human"] if mixed else [])
         )
         for tr in result.trips.trips.values():
             tau = tr.exited_s - tr.entered_s if tr.exited_s and tr.entered_s is not None else None
@@ -104,6 +109,7 @@ def write_outputs(
                     int(tr.stopped),
                 ]
                 + ([int(tr.ev)] if with_ev else [])
+                + ([int(tr.human)] if mixed else [])
             )
     if result.persons is not None:
         with _Replacing(out / "persons.csv") as fh:

@@ -11,7 +11,8 @@ from dica.sim_gateway.metrics import TripLog
 if TYPE_CHECKING:
     from dica.ica.core.controller import ControllerSpec
 
-LIGHTS = ("fixed", "actuated", "reactive-light")  # SUMO drives; the junction is signalised
+# SUMO drives; the junction is signalised (or, the all-way stop, signed)
+LIGHTS = ("fixed", "actuated", "reactive-light", "allway-stop")
 REVOCATIONS = ("replan", "drop")  # how rdica's revoked vehicles get their next plan
 GATE_RULES = ("route", "cycle")  # the network gate's (sim_gateway.network_gate)
 
@@ -68,6 +69,7 @@ LIMITS = {
     "ev_prob": Limit("--ev-prob", 0.0, 1.0),
     "begin_s": Limit("--begin", 0.0, 1e7, "s"),
     "peds_per_h": Limit("--peds", 0.0, 3600.0, "persons per hour per crossing"),
+    "cav_share": Limit("--cav-share", 0.0, 1.0),
 }
 
 
@@ -125,6 +127,9 @@ class RunConfig:
     network_gate_rule: str = "route"  # one of GATE_RULES
     # [persons/h] people crossing at every crossing of the junctions (sim_gateway/walkers.py)
     peds_per_h: float = 0.0
+    # the share of connected automated vehicles in the random demand; the others are driven
+    # by SUMO's own driver, each held at a signal head of its own (sim_gateway/humans.py)
+    cav_share: float = 1.0
 
     def controller_spec(self) -> ControllerSpec:
         """The controller this run drives (a light runs FIFO underneath, never asked)."""
@@ -135,6 +140,11 @@ class RunConfig:
             self.margin_m, self.time_pad_s, self.platoon, self.headway_s, self.run_up,
             self.exit_spacing, self.tile_m, self.solver, self.seed, self.revocation == "replan",
         )  # fmt: skip
+
+    def _check_mixed(self) -> None:
+        why = _mixed_refusal(self)
+        if why is not None:
+            raise RunError(why)
 
     @property
     def plan_lead_s(self) -> float:
@@ -177,8 +187,28 @@ class RunConfig:
                                "is a light's baseline for one --junction")  # fmt: skip
             if len(set(self.junction_ids)) < len(self.junction_ids):
                 raise RunError(f"--junctions names a junction twice: {','.join(self.junction_ids)}")
+        if self.cav_share < 1.0:
+            self._check_mixed()
         if self.solver not in SOLVERS:
             raise RunError(f"unknown solver {self.solver!r}: use {', '.join(SOLVERS)}")
+
+
+MIXED_ALGORITHMS = ("basic", "enhanced")  # those that serve human drivers, with the lights
+
+
+def _mixed_refusal(cfg: RunConfig) -> str | None:
+    """Why human drivers cannot be served in ``cfg``'s run (None: they can)."""
+    alg = cfg.algorithm
+    if alg not in MIXED_ALGORITHMS + LIGHTS and not alg.startswith("t"):
+        return (f"--cav-share below 1 runs DICA ({', '.join(MIXED_ALGORITHMS)}, t1..t4) or a "
+                f"light; {alg} does not serve human drivers yet")  # fmt: skip
+    if cfg.routes_path or cfg.junction_ids:
+        return "--cav-share draws the random demand's human drivers at one --junction"
+    if cfg.peds_per_h:
+        return "--cav-share with --peds is not served yet: give one of them"
+    if cfg.window_s:
+        return "--cav-share with --window is not served yet"
+    return None
 
 
 @dataclass(slots=True)

@@ -250,6 +250,29 @@ def light_net(net_path: Path, junction_id: str, tls: str, out_dir: Path) -> tupl
     return Path(net_path), None
 
 
+def stop_net(net_path: Path, junction_id: str, out_dir: Path) -> tuple[Path, str]:
+    """A copy of the net with ``junction_id`` an all-way stop (SUMO's ``allway_stop``:
+    every vehicle stops at the line, then goes in the order they came), by netconvert,
+    and a line saying so."""
+    kind = junction_type(Path(net_path), junction_id)
+    if kind is None:
+        raise ScenarioError(f"junction {junction_id!r} not in {net_path}")
+    if kind.startswith("traffic_light"):
+        raise ScenarioError(f"junction {junction_id} has a traffic light; the all-way stop "
+                            "baseline takes a net whose junction has none")  # fmt: skip
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    stem = Path(net_path).name.removesuffix(".net.xml")
+    patch = out_dir / f"{stem}-allway-stop.nod.xml"
+    node = f'<node id={quoteattr(junction_id)} type="allway_stop"/>'
+    patch.write_text(f"<nodes>\n    {node}\n</nodes>\n")
+    out_net = out_dir / f"{stem}-allway-stop.net.xml"
+    cmd = [netconvert_binary(), "--sumo-net-file", str(net_path), "--node-files", str(patch),
+           *NETCONVERT_FLAGS, "--output-file", str(out_net)]  # fmt: skip
+    _netconvert(cmd, out_net)
+    return out_net, f"junction {junction_id} made an all-way stop by netconvert in {out_net}"
+
+
 def rebuilt_actuated(
     net_path: Path, out_dir: Path, suffix: str, flags: tuple[str, ...] = NETCONVERT_FLAGS
 ) -> Path:

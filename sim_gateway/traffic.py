@@ -26,6 +26,7 @@ from dica.sim_gateway.metrics import CRAWL_MPS, Trip, TripLog
 from dica.sim_gateway.sumo_io import Reads
 
 VTYPE = "cav"
+HUMAN_VTYPE = "human"  # a human driver's (sim_gateway.humans defines it)
 EV_VTYPE = "cav_emergency"  # same size and limits, SUMO vClass emergency
 EV_COLOR = (230, 30, 30, 255)  # red, as in the dissertation's screenshots
 HEADWAY_S = 1.0  # [s] SUMO's desired time headway (Krauss tau), kept behind a queue's tail
@@ -96,6 +97,7 @@ class Traffic:
                 v.route.turn.value,
                 v.arrival_s,
                 free_flow_scheduled_s=self.free_flow_s(v.route, comm, v.speed_mps, v.length_m),
+                human=v.human,
             )
 
     # -- insertion -------------------------------------------------------------
@@ -131,6 +133,9 @@ class Traffic:
             if self.ls.vehicle.getSpeedFactor(vin) > 1.0:
                 self.ls.vehicle.setSpeedFactor(vin, 1.0)
             return False
+        if j.cars[vin].human:  # SUMO's driver drives it (sim_gateway.humans)
+            self.log.trips[vin].inserted_s = t
+            return True
         self.ls.vehicle.setLaneChangeMode(vin, 0)
         # until the region, SUMO's driver keeps the scheduled speed (the speed the
         # vehicle keeps when free), or less behind a slower vehicle
@@ -219,7 +224,7 @@ class Traffic:
         self.ls.vehicle.add(
             c.vin,
             j.edge_routes[route_edges(c.route)],
-            typeID=EV_VTYPE if c.ev else VTYPE,
+            typeID=EV_VTYPE if c.ev else HUMAN_VTYPE if c.human else VTYPE,
             depart="now",
             departLane=str(c.lane_index),
             departPos=str(pos_m),

@@ -31,9 +31,11 @@ from dataclasses import replace
 from pathlib import Path
 
 from dica.ica.core.config import IcaConfig
+from dica.ica.core.envelope import DriverLimits
 from dica.ica.core.intersection import Intersection
 from dica.sim_gateway.actuator import Actuator
 from dica.sim_gateway.demand import Arrival
+from dica.sim_gateway.humans import SignalHeads, define_human_type
 from dica.sim_gateway.insertion import InsertionHold
 from dica.sim_gateway.junction import Car, Junction, Seen
 from dica.sim_gateway.metrics import TripLog, summarize
@@ -46,6 +48,12 @@ from dica.sim_gateway.traffic import Traffic, define_vehicle_types
 from dica.sim_gateway.walkers import Walkers, draw_legs, kerbs
 from dica.vehicle_agent.actuation import MODE_CONFIRMED, Actuation
 from dica.vehicle_agent.machine import Observation
+
+
+def human_limits(ica_cfg: IcaConfig) -> DriverLimits:
+    """What the roadside assumes of a human driver here: SUMO's passenger car, at most a
+    tenth over the road's limit."""
+    return DriverLimits(top_mps=ica_cfg.caps.road_mps * DriverLimits().speed_factor_max)
 
 
 class World:
@@ -96,6 +104,12 @@ class World:
                 )
             self.hold = InsertionHold(ls, rf, self.gate)
         define_vehicle_types(ls, ica_cfg, cfg.length_m, cfg.width_m, any(v.ev for v in schedule))
+        # human drivers (--cav-share below 1): SUMO's own, each with a signal head at its line
+        self.heads: SignalHeads | None = None
+        self.human_seen: list[Seen] = []  # this step's, apart from the connected vehicles
+        if any(v.human for v in schedule):
+            limits = human_limits(ica_cfg)
+            define_human_type(ls, limits, cfg.length_m, cfg.width_m)
         self.junctions = [
             Junction.open(
                 ls,
@@ -108,6 +122,8 @@ class World:
             for x in (inter, *more)
         ]
         self.junction = self.junctions[0]
+        if any(v.human for v in schedule):
+            self.heads = SignalHeads(ls, self.junction, limits, self.h, cfg.seed, not signalised)
         self.traffic = Traffic(ls, ica_cfg, cfg.length_m, self.log)
         self.traffic.register(self.junction)
         self._arrivals = [v.arrival_s for v in schedule]
@@ -190,6 +206,8 @@ class World:
         for vin in departed:
             if vin not in taken and self.traffic.departed(first, vin, t):
                 Reads.subscribe(ls, vin, self.want_xy)
+                if self.heads is not None and first.cars[vin].human:
+                    self.heads.departed(first.cars[vin])
         if self.cfg.routes_path:
             # a vehicle is one junction's at a time: the next takes it once the last let go
             held = {c.sumo for j in self.junctions for c in j.active if not c.exited}
@@ -205,6 +223,11 @@ class World:
                 self.gate.measure(ls, self.junctions)
         vw = Reads(ls)
         each = [self._look(j, vw, present, t) for j in self.junctions]
+        if self.heads is not None:  # the human drivers apart: no machine drives them
+            self.human_seen = [s for s in each[0] if s.car.human]
+            each[0] = [s for s in each[0] if not s.car.human]
+            if self.heads.hold:
+                self.heads.audit(self.human_seen, t)
         if self.actuator.predict_steps:
             for j, seen in zip(self.junctions, each, strict=True):
                 self._tell_intents(j, seen, t)
@@ -331,6 +354,8 @@ class World:
         """``c``'s front has just passed the entry line: it must be flying its plan."""
         c.entered = True
         j.last_in[c.route.in_lane] = c
+        if c.human:
+            return  # its own light and envelope say whether it may (the audit checks)
         if not j.signalised and c.speed_mode != MODE_CONFIRMED:
             j.unconfirmed_entries.append(c.vin)  # never: the vehicles must stop
         elif c.plan_s is not None:
@@ -413,6 +438,8 @@ class World:
                 # vehicle-seconds that vehicles free to ask spent refused room by the gate
                 "vehicle_s_held": round(self.gate_holds * self.h, 1),
             }
+        if self.heads is not None:
+            extra["humans"] = self.heads.summary()
         persons = None
         if self.walkers is not None:
             checks = [j.person_check.report() for j in self.junctions]

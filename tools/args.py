@@ -45,7 +45,7 @@ def run_config(args: argparse.Namespace):
         from dica.sim_gateway.scenario import ScenarioError, default_scenario
 
         tls = None
-        if args.algorithm in LIGHTS:
+        if args.algorithm in LIGHTS and args.algorithm != "allway-stop":  # that one: no light
             tls = "actuated" if args.algorithm == "actuated" else "static"
         try:
             sc = default_scenario(args.layout, tls=tls)
@@ -84,6 +84,7 @@ def run_config(args: argparse.Namespace):
             network_gate=getattr(args, "network_gate", True),
             network_gate_rule=getattr(args, "network_gate_rule", "route"),
             peds_per_h=getattr(args, "peds", 0.0) or 0.0,
+            cav_share=getattr(args, "cav_share", 1.0),
         )
     except RunError as e:
         raise UsageError(str(e)) from None

@@ -8,6 +8,9 @@ over the run writes to ``.../r<A>-<B>/s<seed>/``. A cell whose
 stopped. Volumes go up to 2000 per 10 minutes; ``dica report`` finds each
 controller's saturation volume in a grid of volumes.
 
+With ``--cav-shares`` every cell is run at each share of connected vehicles, under
+``<algorithm>/c<share>/``; ``python -m dica.tools.mixed_report OUT`` reports that grid.
+
 Reactive DICA is named with its solver, ``rdica-exact``, ``rdica-ga`` or
 ``rdica-exhaustive`` (``rdica`` alone is ``rdica-exact``). Chapter 5's grid:
 
@@ -84,6 +87,13 @@ def parser() -> argparse.ArgumentParser:
         help="also volumes rising linearly over the run, FROM-TO comma-separated (100-1000)",
     )
     p.add_argument("--seeds", type=_ints, default=[12, 21, 66])
+    p.add_argument(
+        "--cav-shares",
+        type=_floats,
+        default=[1.0],
+        help="mixed traffic: shares of connected vehicles, comma-separated (0,0.25,0.5,0.75,1); "
+        "each share's cells go to <algorithm>/c<share>/ (default 1 only, as before)",
+    )
     options.add(p, "--duration")
     p.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="parallel runs")
     options.add(p, "--out", "--quiet", out={"help": "grid directory", "required": True})
@@ -125,9 +135,15 @@ def main(argv: list[str] | None = None) -> int:
         (f"r{a:g}-{b:g}", a, ("--volume-end", f"{b:g}", "--ramp", f"{args.duration:g}"))
         for a, b in args.ramps
     ]
+    if any(not 0.0 <= c <= 1.0 for c in args.cav_shares):
+        print("dica experiment: --cav-shares must be between 0 and 1", file=sys.stderr)
+        return 2
+    mixed = args.cav_shares != [1.0]
     cells = []
-    for (alg, algorithm, solver), (name, vol, ramp), seed in product(named, shapes, args.seeds):
-        cell = args.out / args.layout / alg / name / f"s{seed}"
+    grid = product(named, args.cav_shares, shapes, args.seeds)
+    for (alg, algorithm, solver), share, (name, vol, ramp), seed in grid:
+        under = args.out / args.layout / alg / (f"c{share:g}" if mixed else "")
+        cell = under / name / f"s{seed}"
         cmd = [
             sys.executable,
             "-m",
@@ -148,6 +164,7 @@ def main(argv: list[str] | None = None) -> int:
             str(cell),
             "--quiet",
             *ramp,
+            *(["--cav-share", f"{share:g}"] if mixed else []),
             *shlex.split(args.extra),
         ]
         cells.append((cell, cmd))

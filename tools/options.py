@@ -307,6 +307,16 @@ OPTIONS: dict[str, Option] = {
             metavar="N",
         ),
         Option(
+            "--cav-share",
+            "mixed traffic: the share of connected automated vehicles, 0 to 1 (default 1); "
+            "the others are SUMO's own drivers, each held at a signal head of its lane that "
+            "the ICA turns green once it has reserved every way the driver may cross",
+            float,
+            default=1.0,
+            limit=LIMITS["cav_share"],
+            metavar="P",
+        ),
+        Option(
             "--approach-weights",
             "relative demand per approach, e.g. N_in=1,S_in=1,E_in=0.3,W_in=0.3 (default equal)",
         ),
@@ -526,7 +536,7 @@ VOLUME_500 = {"default": 500.0, "help": "vehicles per 10 min (default 500)"}  # 
 NET = ("--layout", "--net", "--junction")
 PLAN = ("--margin", "--time-pad", "--platoon", "--headway", "--run-up", "--exit-spacing")
 TRAFFIC = ("--volume", "--volume-end", "--ramp", "--seed", "--duration", "--until-left",
-           "--ev-prob", "--peds", "--approach-weights", "--sumo-args", "--routes",
+           "--ev-prob", "--peds", "--cav-share", "--approach-weights", "--sumo-args", "--routes",
            "--begin")  # fmt: skip
 
 

@@ -143,6 +143,7 @@ while [ $# -gt 0 ]; do
     --routes) demand+=(--routes "$(from_caller "$2")"); shift 2 ;;
     --begin) demand+=(--begin "$2"); shift 2 ;;
     --peds) demand+=(--peds "$2"); peds="$2"; shift 2 ;;
+    --cav-share) die "--cav-share (human drivers) runs embedded for now (dica run --cav-share P), not as a cluster" ;;
     --agents) agents="$2"; shift 2 ;;
     --per-agent) per_agent="$2"; shift 2 ;;
     --clock) clock="$2"; shift 2 ;;

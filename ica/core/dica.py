@@ -47,6 +47,7 @@ from dica.ica.core.conflict import (
 )
 from dica.ica.core.crosswalk import passage
 from dica.ica.core.dtot import Dtot, build_dtot
+from dica.ica.core.envelope import EXIT_HEADWAY_S, DriverLimits, bounds, envelope_dtot, first_reach
 from dica.ica.core.gridlock import QUEUE_GAP_M
 from dica.ica.core.handover import Handover
 from dica.ica.core.intersection import Intersection
@@ -71,6 +72,23 @@ from dica.ica.core.zones import ConflictTables, Shape
 LEFT_MEMORY_S = 20.0  # [s] how long exit spacing remembers a vehicle that has left
 ROOM_GAP_M = 2.5  # [m] standstill gap behind each vehicle queued on an exit lane (SUMO's)
 ROOM_SLACK_M = 7.5  # [m] one car more: a vehicle may change into the lane beyond
+
+
+@dataclass(frozen=True, slots=True)
+class Green:
+    """A human driver's green: from ``green_s`` it may take any of ``routes`` (the ids of
+    its lane's), between its fastest and slowest crossing (:mod:`ica.core.envelope`),
+    all of them reserved; ``keys`` name those reservations in the confirmed set."""
+
+    vin: str
+    green_s: float
+    asked_s: float
+    routes: tuple[str, ...]
+    keys: tuple[str, ...]
+    rounds: int
+
+
+MAX_GREEN_ROUNDS = 10_000  # a green's search moves it later every round; past this, refused
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -158,6 +176,10 @@ class Dica:
         # went anyway after CLAIM_S
         self._walk_refused: dict[str, float] = {}
         self.walk_claims = 0
+        # human drivers: the greens given, by vin; per exit lane, the reservations of a
+        # human's envelope there: (key, when it may enter at the soonest, when it is out)
+        self.greens: dict[str, Green] = {}
+        self._human_exits: dict[str, list[tuple[str, float, float]]] = {}
 
     def prepare(self) -> None:
         """Work a controller can do once before it serves, so that no request waits
@@ -224,6 +246,7 @@ class Dica:
                 self._left[lane] = [r for r in rows if r[0] > now_s - LEFT_MEMORY_S]
         for vin in gone:
             self._withdraw(vin)
+            self.greens.pop(vin, None)
             lane = self._lane_of.pop(vin, None)
             if lane is not None:
                 self._lanes[lane] = [e for e in self._lanes[lane] if e[2] != vin]
@@ -242,6 +265,9 @@ class Dica:
         return True
 
     def _withdraw(self, vin: str) -> None:
+        if self._human_exits:
+            for lane, rows in self._human_exits.items():
+                self._human_exits[lane] = [r for r in rows if r[0] != vin]
         del self._confirmed[vin]
         self._rows.remove(vin)
         self._version += 1
@@ -622,6 +648,94 @@ class Dica:
             f"(at most {most:.0f} s ahead)",
         )
 
+    # -- human drivers ----------------------------------------------------------------
+    def green(
+        self,
+        vin: str,
+        now_s: float,
+        length_m: float,
+        width_m: float,
+        limits: DriverLimits,
+        dist_m: float = 0.5,
+    ) -> Green:
+        """A human driver standing at the head of its lane asks (its signal head, for it):
+        the earliest green at or after ``now_s`` at which every crossing it may make, on
+        every route of its lane, between its fastest and slowest (:mod:`ica.core.envelope`),
+        meets no confirmed reservation, and every vehicle confirmed onto an exit lane it
+        may take is out :data:`EXIT_HEADWAY_S` before it can enter. All of them are then
+        reserved, as confirmed vehicles are (asked again, the same green). The green is a
+        pure shift of the envelope: the driver stands at the line until then."""
+        held = self.greens.get(vin)
+        if held is not None:
+            return held
+        if not all(math.isfinite(x) for x in (now_s, length_m, width_m, dist_m)):
+            raise RequestError(Reason.NOT_FINITE, f"figures of {vin}'s green are not finite")
+        if not 0.0 <= dist_m <= 10.0:
+            raise RequestError(Reason.BAD_STATE, f"{vin} stands {dist_m} m short of its line")
+        if not (0.0 < length_m <= 30.0 and 0.0 < width_m <= 5.0):
+            raise RequestError(Reason.BAD_STATE, f"{vin}'s size is not a road vehicle's")
+        lane = self._lane_of.get(vin)
+        if lane is None:
+            raise RequestError(Reason.NOT_DETECTED, f"{vin} was never detected entering the region")
+        if vin in self._confirmed:
+            raise RequestError(Reason.ALREADY_CONFIRMED, f"{vin} holds a confirmation")
+        if not self.is_head(vin, now_s):
+            raise RequestError(Reason.NOT_HEAD, f"{vin} is not the head vehicle of {lane}")
+        routes = [r for r in self.intersection.routes_from(lane) if r.cars]
+        if not routes:
+            raise RequestError(Reason.UNKNOWN_ROUTE, f"no route for cars leaves {lane}")
+        cfg = self.config
+        shape = Shape.of(length_m, width_m)
+        ahead = EXIT_HEADWAY_S + 2.0 * cfg.time_pad_s
+        g, rounds = now_s, 0
+        while True:
+            rounds += 1
+            built = []
+            late = 0.0
+            for r in routes:
+                fast, slow = bounds(r, length_m, g, cfg.step_s, limits, dist_m)
+                d = envelope_dtot(
+                    r, shape, fast, slow, cfg.margin_m, self.tables.grid(r, shape),
+                    cfg.techniques.estimated_oti,
+                )  # fmt: skip
+                fast_in = float(first_reach(fast, np.zeros(1))[0])
+                built.append((r, slow, d, fast_in))
+                for c in self.conflicts(d):
+                    late = max(late, c.delay_s)
+                for t_out, _, _ in self._exits(r.out_lane):
+                    late = max(late, t_out + ahead - fast_in)
+                for _, _, slow_out in self._human_exits.get(r.out_lane, ()):
+                    late = max(late, slow_out + ahead - fast_in)
+            if late <= 1e-9:
+                break
+            if rounds >= MAX_GREEN_ROUNDS:
+                raise RequestError(Reason.INFEASIBLE, f"no green for {vin} in {rounds} rounds")
+            g += max(late, cfg.step_s)
+        built.sort(key=lambda b: float(b[2].ub_s[-1]))
+        keys = []
+        for i, (r, slow, d, fast_in) in enumerate(built):
+            key = vin if i == len(built) - 1 else f"{vin}~{r.id}"  # vin: the one out last
+            conf = Confirmation(
+                vin=key,
+                seq=0,
+                route_id=r.id,
+                tss=Tss(*slow.tss(r, length_m)),
+                entry_time_s=slow.entry_time_s(),
+                exit_time_s=float(d.t_s[-1]),
+                delay_s=g - now_s,
+                iterations=rounds,
+            )
+            stored = padded(d, 2.0 * cfg.time_pad_s)
+            done = Confirmed.of(key, stored, conf, length_m)
+            self._confirmed[key] = done
+            self._rows.add(key, stored, done.packed)
+            self._human_exits.setdefault(r.out_lane, []).append((key, fast_in, done.out_s))
+            keys.append(key)
+        self._version += 1
+        green = Green(vin, g, now_s, tuple(b[0].id for b in built), tuple(keys), rounds)
+        self.greens[vin] = green
+        return green
+
     def walk_conflict(
         self, route: Route, shape: Shape, traj: Trajectory, exit_mps: float
     ) -> Conflict | None:
@@ -655,6 +769,13 @@ class Dica:
             need = t_out + self.config.step_s  # its padded reservation's end
             if need > out_s and (worst is None or need - out_s > worst.delay_s):
                 worst = Conflict(vin, out_s, need - out_s)
+        # a human who may take this exit lane: leave it well before the human can enter
+        # (it never brakes behind this plan inside), or after it is surely out
+        ahead = EXIT_HEADWAY_S + 2.0 * self.config.time_pad_s
+        for key, fast_in, slow_out in self._human_exits.get(route.out_lane, ()):
+            need = slow_out + self.config.step_s
+            if fast_in - ahead < out_s < need and (worst is None or need - out_s > worst.delay_s):
+                worst = Conflict(key, out_s, need - out_s)
         return worst
 
     def _exits(self, out_lane: str) -> list[tuple[float, float, str]]:

@@ -1,0 +1,137 @@
+"""Human drivers: every way a driver the ICA cannot command may cross once its signal
+head turns green, as one reservation.
+
+A human-driven vehicle stands at its lane's line until the head shows green. From
+then on it is somewhere between two bounds, both derived from SUMO's default driver
+(Krauss) and the limits the roadside states for human drivers (:class:`DriverLimits`):
+
+- **fastest**: it moves at the green at once (a step early), accelerates at the type's full
+  acceleration and reaches the type's top speed (the limit times the highest speed
+  factor a human is given);
+- **slowest**: it moves :attr:`DriverLimits.react_s` late, accelerates at
+  ``(1 - sigma)`` of it (Krauss's dawdling takes at most ``sigma * accel * step`` off
+  each step's speed) and cruises at the lowest speed factor times the lowest limit on
+  its way, less one step's dawdle.
+
+Its front is then never ahead of the fast bound nor behind the slow one. The
+envelope's timed occupancies are the slow bound's footprints, each held from the time
+the fast bound could first touch it to the time the slow bound has surely left it
+(:func:`envelope_dtot`), so any crossing between the bounds stays inside them, in
+continuous time. A lane's routes are all reserved (the ICA cannot know where a human
+turns). Pure: routes and numbers in, trajectories and DTOTs out.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from dica.ica.core.dtot import Dtot, build_dtot
+from dica.ica.core.route import Route
+from dica.ica.core.trajectory import Trajectory
+from dica.ica.core.zones import RouteGrid, Shape
+
+STOP_SHORT_M = 0.5  # [m] a human stands this far short of its line at a red head
+# [s] a vehicle confirmed onto an exit lane a human may take leaves the junction at least
+# this long before the human can enter it, so the human never brakes behind it inside
+EXIT_HEADWAY_S = 2.0
+
+
+@dataclass(frozen=True, slots=True)
+class DriverLimits:
+    """What the roadside assumes of a human driver (SUMO's Krauss with these limits)."""
+
+    accel_mps2: float = 2.6  # SUMO's passenger car: Krauss never accelerates harder
+    sigma: float = 0.5  # Krauss's imperfection
+    speed_factor_min: float = 0.9  # each human's share of the limit is drawn in these bounds
+    speed_factor_max: float = 1.1
+    top_mps: float = 70.0 / 3.6 * 1.1  # the type's own top speed (never exceeded)
+    react_s: float = 1.0  # [s] from the green until it surely moves
+
+    def __post_init__(self) -> None:
+        if not (
+            self.accel_mps2 > 0.0
+            and 0.0 <= self.sigma < 1.0
+            and 0.0 < self.speed_factor_min <= self.speed_factor_max
+            and self.top_mps > 0.0
+            and self.react_s >= 0.0
+        ):
+            raise ValueError(f"driver limits out of range: {self}")
+
+    def slow_mps(self, route: Route, step_s: float) -> float:
+        """The slowest a human cruises along ``route`` (at least 1 m/s)."""
+        limit = min(route.road_mps, route.exit_mps)
+        return max(self.speed_factor_min * limit - self.sigma * self.accel_mps2 * step_s, 1.0)
+
+
+def profile(
+    t0_s: float, step_s: float, s0_m: float, s_end_m: float, wait_s: float, accel: float, top: float
+) -> Trajectory:
+    """Front positions every ``step_s`` from ``t0_s``: standing at ``s0_m`` for
+    ``wait_s``, then accelerating at ``accel`` up to ``top`` until past ``s_end_m``."""
+    dist = s_end_m - s0_m
+    t_acc = top / accel
+    d_acc = 0.5 * accel * t_acc * t_acc
+    moving = math.sqrt(2.0 * dist / accel) if dist <= d_acc else t_acc + (dist - d_acc) / top
+    n = max(math.ceil((wait_s + moving) / step_s - 1e-9) + 2, 2)
+    t = np.arange(n) * step_s - wait_s
+    tm = np.clip(t, 0.0, None)
+    s = np.where(tm <= t_acc, 0.5 * accel * tm * tm, d_acc + top * (tm - t_acc))
+    return Trajectory(t0_s, step_s, s0_m + s)
+
+
+def bounds(
+    route: Route,
+    length_m: float,
+    green_s: float,
+    step_s: float,
+    limits: DriverLimits,
+    dist_m: float = STOP_SHORT_M,
+) -> tuple[Trajectory, Trajectory]:
+    """The fastest and the slowest crossing of ``route`` by a driver standing ``dist_m``
+    short of the line, from the green at ``green_s``, each until the rear is out of the
+    junction."""
+    s_end = route.cross_length_m + length_m
+    s0 = -dist_m
+    # a step's head start: a simulator's step takes the new speed over the whole step (SUMO's
+    # Euler update), which runs half a step ahead of continuous acceleration, and more
+    fast = profile(green_s, step_s, s0, s_end, -step_s, limits.accel_mps2, limits.top_mps)
+    slow_a = (1.0 - limits.sigma) * limits.accel_mps2
+    slow = profile(
+        green_s, step_s, s0, s_end, limits.react_s, slow_a, limits.slow_mps(route, step_s)
+    )
+    return fast, slow
+
+
+def first_reach(traj: Trajectory, s_m: np.ndarray) -> np.ndarray:
+    """For each position in ``s_m``, the time of the last sample of ``traj`` before its
+    front reaches it (the first sample if it is there already): no sooner than that is
+    the front at ``s_m``."""
+    i = np.searchsorted(traj.s_m, s_m, side="left")
+    return traj.t0_s + traj.step_s * np.maximum(i - 1, 0)
+
+
+def envelope_dtot(
+    route: Route,
+    shape: Shape,
+    fast: Trajectory,
+    slow: Trajectory,
+    margin_m: float,
+    grid: RouteGrid | None = None,
+    estimated: bool = False,
+) -> Dtot:
+    """The timed occupancies of every crossing between ``fast`` and ``slow``: the slow
+    bound's, each interval opened as early as the fast bound can reach the position the
+    slow one held at the interval's start (no sooner can it touch that footprint)."""
+    d = build_dtot(route, shape, slow, margin_m, grid, estimated)
+    k = np.clip(np.round((d.lb_s - slow.t0_s) / slow.step_s).astype(int), 0, len(slow) - 1)
+    lb = np.minimum(first_reach(fast, slow.s_m[k]), d.lb_s)
+    return dataclasses.replace(d, lb_s=np.maximum.accumulate(lb))
+
+
+def path_s(traj: Trajectory, t_s: float) -> float:
+    """Where ``traj``'s front is at ``t_s`` (held at its ends), linear between samples."""
+    return float(np.interp(t_s, traj.t_s, traj.s_m))

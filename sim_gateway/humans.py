@@ -1,0 +1,174 @@
+"""Human drivers at a signal-free junction: the roadside's side of them in SUMO.
+
+A share of the random demand (``--cav-share``) is driven by SUMO's own driver, with
+its imperfection, and cannot be sent a plan. Each meets a signal head of its own lane
+that only human drivers obey: modelled as a SUMO stop at the line, which the head's
+green ends (``resume``). The roadside detects it entering the region as it detects
+any vehicle (position, speed, lane: no intent), the ICA is told, and once the driver
+stands at the head of its lane the ICA is asked for its green
+(:meth:`ica.core.dica.Dica.green`), which reserves every crossing the driver may make.
+
+The audit here trusts none of that: every step it reads the driver's position from
+SUMO and counts a driver that passed its line before its green (on red), or whose
+front is ahead of its fastest or behind its slowest crossing of the route it really
+took (outside its envelope), from the same stated limits
+(:class:`ica.core.envelope.DriverLimits`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from dica.ica.core.envelope import STOP_SHORT_M, DriverLimits, bounds, path_s
+from dica.ica.core.trajectory import Trajectory
+from dica.sim_gateway.junction import Car, Junction, Seen
+from dica.sim_gateway.traffic import HUMAN_VTYPE
+
+HUMAN_COLOR = (150, 150, 150, 255)  # grey: a car the ICA cannot command
+# SUMO speed mode of a human driver: its own safe speed, acceleration and braking limits
+# and red lights, but not the junction's right of way (its head's green gives it the way)
+HUMAN_SPEED_MODE = 0b110111
+STOP_S = 1e7  # [s] a stop at the head lasts until the green ends it
+TOL_M = 0.05  # [m] the audit's tolerance on a position (SUMO's rounding)
+
+
+def define_human_type(ls, limits: DriverLimits, length_m: float, width_m: float) -> None:
+    """SUMO's default driver (Krauss with its imperfection), with the stated limits."""
+    ls.vehicletype.copy("DEFAULT_VEHTYPE", HUMAN_VTYPE)
+    for setter, value in (
+        ("setLength", length_m),
+        ("setWidth", width_m),
+        ("setAccel", limits.accel_mps2),
+        ("setDecel", 4.5),
+        ("setEmergencyDecel", 9.0),
+        ("setImperfection", limits.sigma),
+        ("setMaxSpeed", limits.top_mps),
+        ("setSpeedFactor", 1.0),  # each driver's own is set on departure
+        ("setSpeedDeviation", 0.0),
+        ("setColor", HUMAN_COLOR),
+    ):
+        getattr(ls.vehicletype, setter)(HUMAN_VTYPE, value)
+    ls.vehicletype.setParameter(HUMAN_VTYPE, "junctionModel.jmIgnoreFoeProb", "1")
+    ls.vehicletype.setParameter(HUMAN_VTYPE, "junctionModel.jmIgnoreFoeSpeed", "100")
+
+
+@dataclass(slots=True)
+class Driver:
+    """One human driver as the roadside knows it."""
+
+    car: Car
+    speed_factor: float
+    told: bool = False  # the ICA knows it is in the region
+    standing_s: float = math.nan  # when it first stood at its head
+    green_s: float = math.nan
+    routes: tuple[str, ...] = ()
+    resumed: bool = False
+    # the audit: its bounds on the route it took, and what it found
+    fast: Trajectory | None = None
+    slow: Trajectory | None = None
+    on_red: bool = False
+    outside_steps: int = 0
+    worst_ahead_m: float = 0.0  # how far ahead of its fastest crossing it was, at worst
+    worst_behind_m: float = 0.0  # and behind its slowest
+
+
+@dataclass(slots=True)
+class SignalHeads:
+    """The human drivers of one junction and their signal heads."""
+
+    ls: object
+    junction: Junction
+    limits: DriverLimits
+    step_s: float
+    seed: int
+    hold: bool = True  # signal-free: the head holds it (under a light: SUMO's light does)
+    drivers: dict[str, Driver] = field(default_factory=dict)
+    rng: np.random.Generator = field(init=False)
+
+    def __post_init__(self) -> None:
+        self.rng = np.random.default_rng([self.seed, 27])
+
+    # -- SUMO ------------------------------------------------------------------------
+    def departed(self, c: Car) -> None:
+        """``c`` is on the road: its own share of the limit, its lane kept, and a stop
+        at its head's line."""
+        lim = self.limits
+        f = float(np.clip(self.rng.normal(1.0, 0.1), lim.speed_factor_min, lim.speed_factor_max))
+        v = self.ls.vehicle
+        v.setSpeedFactor(c.sumo, f)
+        v.setLaneChangeMode(c.sumo, 0)
+        self.drivers[c.vin] = Driver(c, f)
+        if not self.hold:
+            return
+        v.setSpeedMode(c.sumo, HUMAN_SPEED_MODE)
+        lane_m = self.junction.lane_len_m[c.route.in_lane]
+        edge = c.route.in_lane.rsplit("_", 1)[0]
+        v.setStop(c.sumo, edge, pos=lane_m - STOP_SHORT_M, laneIndex=c.lane_index,
+                  duration=STOP_S)  # fmt: skip
+
+    def asking(self, seen: list[Seen], t: float) -> list[Driver]:
+        """The drivers standing at the head of their lane, with no green yet."""
+        out = []
+        for s in seen:
+            d = self.drivers.get(s.car.vin)
+            if d is None or not math.isnan(d.green_s) or not s.car.head:
+                continue
+            if self.ls.vehicle.isStopped(s.car.sumo):
+                if math.isnan(d.standing_s):
+                    d.standing_s = t
+                out.append(d)
+        return out
+
+    def lit(self, vin: str, green_s: float, routes: tuple[str, ...], dist_m: float) -> None:
+        """The ICA gave ``vin``, standing ``dist_m`` short of its line, its green from
+        ``green_s``."""
+        d = self.drivers[vin]
+        d.green_s, d.routes = green_s, routes
+        c = d.car
+        d.fast, d.slow = bounds(c.route, c.length_m, green_s, self.step_s, self.limits, dist_m)
+
+    def release(self, t: float) -> None:
+        """End the stop of every driver whose green has come."""
+        for d in self.drivers.values():
+            if not d.resumed and t + 1e-9 >= d.green_s:
+                self.ls.vehicle.resume(d.car.sumo)
+                d.resumed = True
+
+    # -- the audit -------------------------------------------------------------------
+    def audit(self, seen: list[Seen], t: float) -> None:
+        """Each driver's front from SUMO against its light and its envelope."""
+        for s in seen:
+            d = self.drivers.get(s.car.vin)
+            c = s.car
+            if d is None or c.exited or math.isnan(c.s_m):
+                continue
+            if math.isnan(d.green_s) or t < d.green_s:
+                if c.s_m > TOL_M:
+                    d.on_red = True
+                continue
+            ahead = c.s_m - path_s(d.fast, t)
+            behind = path_s(d.slow, t) - c.s_m
+            d.worst_ahead_m = max(d.worst_ahead_m, ahead)
+            d.worst_behind_m = max(d.worst_behind_m, behind)
+            if ahead > TOL_M or behind > TOL_M:
+                d.outside_steps += 1
+
+    def summary(self) -> dict:
+        """The human drivers of the run: how many, their wait for the green, the audit."""
+        ds = list(self.drivers.values())
+        waits = [d.green_s - d.standing_s for d in ds if not math.isnan(d.green_s)]
+        outside = sorted(d.car.vin for d in ds if d.outside_steps)
+        return {
+            "count": len(ds),
+            "given_green": len(waits),
+            "mean_wait_for_green_s": float(np.mean(waits)) if waits else None,
+            "max_wait_for_green_s": float(np.max(waits)) if waits else None,
+            "entered_on_red": sum(d.on_red for d in ds),
+            "outside_envelope": len(outside),
+            "outside_envelope_vins": outside[:50],
+            "worst_ahead_of_fastest_m": round(max((d.worst_ahead_m for d in ds), default=0.0), 3),
+            "worst_behind_slowest_m": round(max((d.worst_behind_m for d in ds), default=0.0), 3),
+        }
