@@ -7,6 +7,7 @@ dissertation's layouts: the routes are whatever connections the network has.
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -225,7 +226,8 @@ def _route(
         )
     except ValueError as exc:
         raise NetworkError(f"bad geometry for route {route_id}: {exc}") from exc
-    return route if cars else replace(route, cars=False)
+    via_mps = min((v.getSpeed() for v in vias), default=math.inf)
+    return replace(route, cars=cars, via_mps=via_mps)
 
 
 def _serves(lane_or_connection) -> bool:

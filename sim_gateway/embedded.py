@@ -111,6 +111,11 @@ class LocalLink:
             self.ica.restore(vin, seq)
 
 
+# [s] how often the roadside has the ICA shrink a crossing human's reservations to where
+# it is seen, and a waiting one ask again
+TIGHTEN_S = 0.5
+
+
 class LocalDrivers:
     """The vehicles' machines, all in this process, with the ICA beside them."""
 
@@ -176,7 +181,36 @@ class LocalDrivers:
             heads.lit(c.vin, g.green_s, g.routes, -c.s_m)
             if self.greens is not None:
                 self.greens.append((t, g))
+        self._tighten(heads, seen, t)
         heads.release(t)
+
+    def _tighten(self, heads: SignalHeads, seen: list[Seen], t: float) -> None:
+        """The roadside sees every human driver every step: the ICA shrinks the
+        reservations of those on their green to where each is now (every
+        :data:`TIGHTEN_S`, and once its turn shows which way it goes), and those still
+        standing ask again for a sooner green when anything has shrunk."""
+        for s in seen:
+            d = heads.drivers.get(s.car.vin)
+            if d is None or math.isnan(d.green_s) or s.car.exited or math.isnan(s.car.s_m):
+                continue
+            c = s.car
+            if t + 1e-9 < d.green_s:  # standing, its green to come
+                if self.ica.shrunk == d.asked_shrunk or t < d.asked_s + TIGHTEN_S - 1e-9:
+                    continue
+                d.asked_shrunk, d.asked_s = self.ica.shrunk, t
+                g = self.ica.regreen(c.vin, t, c.length_m, c.width_m, heads.limits, -c.s_m)
+                if g is not None:
+                    heads.lit(c.vin, g.green_s, g.routes, -c.s_m)
+                    if self.greens is not None:
+                        self.greens.append((t, g))
+                continue
+            turned = s.obs.lane != d.lane
+            if not turned and t < d.tightened_s + TIGHTEN_S - 1e-9:
+                continue
+            d.lane, d.tightened_s = s.obs.lane, t
+            paths = self.ica.tighten(c.vin, t, c.s_m, c.speed_mps, s.obs.lane, heads.limits)
+            if paths is not None:
+                heads.tightened(c.vin, t, paths)
 
     def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
         self.ica.advance(t)

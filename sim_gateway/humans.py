@@ -66,6 +66,12 @@ class Driver:
     green_s: float = math.nan
     routes: tuple[str, ...] = ()
     resumed: bool = False
+    lane: str = ""  # the lane it was last seen on when its reservations shrank
+    tightened_s: float = -math.inf  # when they last shrank to where it was
+    asked_s: float = -math.inf  # when it last asked again for a sooner green
+    asked_shrunk: int = -1  # the ICA's count of shrunk reservations then
+    tightenings: int = 0  # how often its reservations shrank to where it was seen
+    sooner: int = 0  # how often it was given a sooner green, asking again
     # the audit: its bounds on the route it took, and what it found
     fast: Trajectory | None = None
     slow: Trajectory | None = None
@@ -126,9 +132,20 @@ class SignalHeads:
         """The ICA gave ``vin``, standing ``dist_m`` short of its line, its green from
         ``green_s``."""
         d = self.drivers[vin]
+        d.sooner += not math.isnan(d.green_s)
         d.green_s, d.routes = green_s, routes
         c = d.car
         d.fast, d.slow = bounds(c.route, c.length_m, green_s, self.step_s, self.limits, dist_m)
+
+    def tightened(
+        self, vin: str, t: float, paths: dict[str, tuple[Trajectory, Trajectory]]
+    ) -> None:
+        """The ICA shrank ``vin``'s reservations at ``t`` to these bounds per route: the
+        audit holds it to the ones of the route it takes from now on."""
+        d = self.drivers[vin]
+        d.tightenings += 1
+        if d.car.route.id in paths:
+            d.fast, d.slow = paths[d.car.route.id]
 
     def release(self, t: float) -> None:
         """End the stop of every driver whose green has come."""
@@ -166,6 +183,8 @@ class SignalHeads:
             "given_green": len(waits),
             "mean_wait_for_green_s": float(np.mean(waits)) if waits else None,
             "max_wait_for_green_s": float(np.max(waits)) if waits else None,
+            "reservations_shrunk": sum(d.tightenings for d in ds),
+            "sooner_greens": sum(d.sooner for d in ds),
             "entered_on_red": sum(d.on_red for d in ds),
             "outside_envelope": len(outside),
             "outside_envelope_vins": outside[:50],

@@ -47,7 +47,15 @@ from dica.ica.core.conflict import (
 )
 from dica.ica.core.crosswalk import passage
 from dica.ica.core.dtot import Dtot, build_dtot
-from dica.ica.core.envelope import EXIT_HEADWAY_S, DriverLimits, bounds, envelope_dtot, first_reach
+from dica.ica.core.envelope import (
+    EXIT_HEADWAY_S,
+    DriverLimits,
+    bounds,
+    bounds_from,
+    envelope_dtot,
+    first_reach,
+    follow_delay,
+)
 from dica.ica.core.gridlock import QUEUE_GAP_M
 from dica.ica.core.handover import Handover
 from dica.ica.core.intersection import Intersection
@@ -106,6 +114,21 @@ class Confirmed:
         """Keep what each later request asks of this reservation, worked out once."""
         out_s, out_mps = float(dtot.t_s[-1]), dtot.exit_speed_mps
         return cls(vin, dtot, confirmation, pack(dtot), out_s, out_mps, length_m)
+
+
+def _no_slower(new: Trajectory, old: Trajectory) -> bool:
+    """``new`` is nowhere behind ``old``, nor slower, at ``new``'s samples: a follower
+    kept clear of ``old`` as the slowest of a vehicle ahead stays clear of ``new``."""
+    t = new.t_s
+    ok_s = new.s_m >= np.interp(t, old.t_s, old.s_m) - 1e-6
+    if len(new) < 2 or len(old) < 2:
+        return bool(ok_s.all())
+    v_new = np.diff(new.s_m) / new.step_s
+    v_old = np.diff(old.s_m) / old.step_s
+    k = np.clip(((t[:-1] - old.t0_s) / old.step_s + 1e-9).astype(int), 0, len(v_old) - 1)
+    after = t[:-1] > old.t_s[-1]
+    v_ref = np.where(after, v_old[-1], v_old[k])
+    return bool(ok_s.all() and (v_new >= v_ref - 1e-6).all())
 
 
 def padded(dtot: Dtot, pad_s: float) -> Dtot:
@@ -179,6 +202,7 @@ class Dica:
         # human drivers: the greens given, by vin; per exit lane, the reservations of a
         # human's envelope there: (key, when it may enter at the soonest, when it is out)
         self.greens: dict[str, Green] = {}
+        self.shrunk = 0  # how often a human's reservations shrank (tighten, regreen)
         self._human_exits: dict[str, list[tuple[str, float, float]]] = {}
 
     def prepare(self) -> None:
@@ -661,10 +685,12 @@ class Dica:
         """A human driver standing at the head of its lane asks (its signal head, for it):
         the earliest green at or after ``now_s`` at which every crossing it may make, on
         every route of its lane, between its fastest and slowest (:mod:`ica.core.envelope`),
-        meets no confirmed reservation, and every vehicle confirmed onto an exit lane it
-        may take is out :data:`EXIT_HEADWAY_S` before it can enter. All of them are then
-        reserved, as confirmed vehicles are (asked again, the same green). The green is a
-        pure shift of the envelope: the driver stands at the line until then."""
+        meets no confirmed reservation, and at its fastest it never comes so close behind a
+        vehicle confirmed onto an exit lane it may take, at that one's slowest, that it
+        would brake inside the junction (:func:`ica.core.envelope.follow_delay`; it would
+        fall behind its own envelope). All of them are then reserved, as confirmed
+        vehicles are (asked again, the same green). The green is a pure shift of the
+        envelope: the driver stands at the line until then."""
         held = self.greens.get(vin)
         if held is not None:
             return held
@@ -686,12 +712,12 @@ class Dica:
             raise RequestError(Reason.UNKNOWN_ROUTE, f"no route for cars leaves {lane}")
         cfg = self.config
         shape = Shape.of(length_m, width_m)
-        ahead = EXIT_HEADWAY_S + 2.0 * cfg.time_pad_s
+        pad = 2.0 * cfg.time_pad_s  # a plan may run this late
         g, rounds = now_s, 0
         while True:
             rounds += 1
             built = []
-            late = 0.0
+            late, hit = 0.0, False
             for r in routes:
                 fast, slow = bounds(r, length_m, g, cfg.step_s, limits, dist_m)
                 d = envelope_dtot(
@@ -700,21 +726,34 @@ class Dica:
                 )  # fmt: skip
                 fast_in = float(first_reach(fast, np.zeros(1))[0])
                 built.append((r, slow, d, fast_in))
-                for c in self.conflicts(d):
-                    late = max(late, c.delay_s)
-                for t_out, _, _ in self._exits(r.out_lane):
-                    late = max(late, t_out + ahead - fast_in)
-                for _, _, slow_out in self._human_exits.get(r.out_lane, ()):
-                    late = max(late, slow_out + ahead - fast_in)
-            if late <= 1e-9:
+                for c in self.conflicts(d):  # one that only touches still moves it a step
+                    late, hit = max(late, c.delay_s), True
+                for _, _, key in self._exits(r.out_lane):  # never brakes behind one inside
+                    c = self._confirmed[key]
+                    lead = c.dtot.trajectory
+                    lead = Trajectory(lead.t0_s + pad, lead.step_s, lead.s_m)
+                    late = max(late, follow_delay(
+                        fast, r.cross_length_m, length_m, lead, c.dtot.route.cross_length_m,
+                        c.length_m,
+                    ))  # fmt: skip
+            if not hit and late <= 1e-9:
                 break
             if rounds >= MAX_GREEN_ROUNDS:
                 raise RequestError(Reason.INFEASIBLE, f"no green for {vin} in {rounds} rounds")
             g += max(late, cfg.step_s)
-        built.sort(key=lambda b: float(b[2].ub_s[-1]))
+        green = Green(vin, g, now_s, (), (), rounds)
+        return self._reserve(green, built, length_m)
+
+    def _reserve(
+        self, green: Green, built: list[tuple[Route, Trajectory, Dtot, float]], length_m: float
+    ) -> Green:
+        """Store a green's envelopes (route, slow bound, DTOT, soonest entry) as
+        reservations: ``vin`` names the one out last, ``vin~route`` the others."""
+        cfg, vin = self.config, green.vin
+        built = sorted(built, key=lambda b: float(b[2].ub_s[-1]))
         keys = []
         for i, (r, slow, d, fast_in) in enumerate(built):
-            key = vin if i == len(built) - 1 else f"{vin}~{r.id}"  # vin: the one out last
+            key = vin if i == len(built) - 1 else f"{vin}~{r.id}"
             conf = Confirmation(
                 vin=key,
                 seq=0,
@@ -722,8 +761,8 @@ class Dica:
                 tss=Tss(*slow.tss(r, length_m)),
                 entry_time_s=slow.entry_time_s(),
                 exit_time_s=float(d.t_s[-1]),
-                delay_s=g - now_s,
-                iterations=rounds,
+                delay_s=green.green_s - green.asked_s,
+                iterations=green.rounds,
             )
             stored = padded(d, 2.0 * cfg.time_pad_s)
             done = Confirmed.of(key, stored, conf, length_m)
@@ -732,9 +771,132 @@ class Dica:
             self._human_exits.setdefault(r.out_lane, []).append((key, fast_in, done.out_s))
             keys.append(key)
         self._version += 1
-        green = Green(vin, g, now_s, tuple(b[0].id for b in built), tuple(keys), rounds)
+        green = dataclasses.replace(green, routes=tuple(b[0].id for b in built), keys=tuple(keys))
         self.greens[vin] = green
         return green
+
+    def _unreserve(self, green: Green) -> tuple[list[Confirmed], dict[str, list]]:
+        """Take a green's reservations out of the confirmed set (to put back with
+        :meth:`_restore`)."""
+        taken = [self._confirmed.pop(k) for k in green.keys if k in self._confirmed]
+        for c in taken:
+            self._rows.remove(c.vin)
+        keys = set(green.keys)
+        exits = {}
+        for lane, rows in self._human_exits.items():
+            exits[lane] = [r for r in rows if r[0] in keys]
+            self._human_exits[lane] = [r for r in rows if r[0] not in keys]
+        self.greens.pop(green.vin, None)
+        self._version += 1
+        return taken, exits
+
+    def _restore(self, green: Green, taken: list[Confirmed], exits: dict[str, list]) -> None:
+        for c in taken:
+            self._confirmed[c.vin] = c
+            self._rows.add(c.vin, c.dtot, c.packed)
+        for lane, rows in exits.items():
+            self._human_exits.setdefault(lane, []).extend(rows)
+        self.greens[green.vin] = green
+        self._version += 1
+
+    def regreen(
+        self,
+        vin: str,
+        now_s: float,
+        length_m: float,
+        width_m: float,
+        limits: DriverLimits,
+        dist_m: float = 0.5,
+    ) -> Green | None:
+        """A human driver still standing at its line, its green to come, asks again: the
+        reservations it waits for may have shrunk (:meth:`tighten`). The new green if it
+        comes sooner (its reservations replace the old), else None (the old stay)."""
+        held = self.greens.get(vin)
+        if held is None or now_s + 1e-9 >= held.green_s:
+            return None
+        taken, exits = self._unreserve(held)
+        try:
+            new = self.green(vin, now_s, length_m, width_m, limits, dist_m)
+        except RequestError:
+            new = None
+        if new is not None and new.green_s < held.green_s - 1e-9:
+            self.shrunk += 1
+            return new
+        if new is not None:
+            self._unreserve(new)
+        self._restore(held, taken, exits)
+        return None
+
+    def tighten(
+        self,
+        vin: str,
+        now_s: float,
+        s_m: float,
+        v_mps: float,
+        lane: str,
+        limits: DriverLimits,
+    ) -> dict[str, tuple[Trajectory, Trajectory]] | None:
+        """A human driver on its green, seen (by the roadside, as any vehicle) with its
+        front at ``s_m`` along its lane's routes at ``v_mps`` on ``lane``: its envelope
+        again, from there (:func:`ica.core.envelope.bounds_from`), on the routes it may
+        still take (once on a lane of the junction or beyond, the one it took). The new
+        reservations lie within the old if the driver keeps to the stated limits; they
+        are taken only if they meet nothing confirmed and keep the exit rules the old
+        kept (each enters no sooner and is out no later), else the old stay. The bounds
+        per route if taken, else None."""
+        held = self.greens.get(vin)
+        if held is None or now_s < held.green_s or vin not in self._confirmed:
+            return None
+        if not (math.isfinite(s_m) and math.isfinite(v_mps) and v_mps >= 0.0):
+            raise RequestError(Reason.NOT_FINITE, f"{vin} was seen at no finite place")
+        routes = [self.intersection.route_by_id(rid) for rid in held.routes]
+        routes = [r for r in routes if r is not None]
+        took = [r for r in routes if lane == r.out_lane or lane in r.via_lanes]
+        if took:
+            routes = took
+        elif not any(lane == r.in_lane for r in routes):
+            return None  # a lane the green knows nothing of: keep what is held
+        cfg = self.config
+        c0 = self._confirmed[vin]
+        length_m, shape = c0.length_m, c0.dtot.shape
+        old_in = {k: (fi, out) for rows in self._human_exits.values() for k, fi, out in rows}
+        old = {
+            self._confirmed[k].dtot.route.id: (*old_in[k], self._confirmed[k].dtot.trajectory)
+            for k in held.keys
+            if k in self._confirmed and k in old_in
+        }
+        wait = 0.0
+        if v_mps <= 1e-9 and s_m <= 0.0:  # not surely moving yet
+            wait = held.green_s + limits.react_s - now_s
+        taken, exits = self._unreserve(held)
+        built, paths = [], {}
+        ok = True
+        for r in routes:
+            fast, slow = bounds_from(r, length_m, now_s, s_m, v_mps, cfg.step_s, limits, wait)
+            d = envelope_dtot(
+                r, shape, fast, slow, cfg.margin_m, self.tables.grid(r, shape),
+                cfg.techniques.estimated_oti,
+            )  # fmt: skip
+            fast_in = float(first_reach(fast, np.zeros(1))[0])
+            was = old.get(r.id)
+            out_s = float(d.t_s[-1])
+            if (
+                was is None
+                or fast_in < was[0] - 1e-9
+                or out_s > was[1] + 1e-9
+                or not _no_slower(slow, was[2])
+                or self.conflicts(d)
+            ):
+                ok = False
+                break
+            built.append((r, slow, d, fast_in))
+            paths[r.id] = (fast, slow)
+        if not ok:
+            self._restore(held, taken, exits)
+            return None
+        self._reserve(held, built, length_m)
+        self.shrunk += 1
+        return paths
 
     def walk_conflict(
         self, route: Route, shape: Shape, traj: Trajectory, exit_mps: float

@@ -62,8 +62,10 @@ class DriverLimits:
             raise ValueError(f"driver limits out of range: {self}")
 
     def slow_mps(self, route: Route, step_s: float) -> float:
-        """The slowest a human cruises along ``route`` (at least 1 m/s)."""
-        limit = min(route.road_mps, route.exit_mps)
+        """The slowest a human cruises along ``route`` (at least 1 m/s): the lowest limit on
+        its way, the junction's own lanes (a turn) included, at the lowest speed factor,
+        less one step's dawdle."""
+        limit = min(route.road_mps, route.exit_mps, route.via_mps)
         return max(self.speed_factor_min * limit - self.sigma * self.accel_mps2 * step_s, 1.0)
 
 
@@ -106,6 +108,54 @@ def bounds(
     return fast, slow
 
 
+def euler(
+    t0_s: float,
+    step_s: float,
+    s0_m: float,
+    v0_mps: float,
+    s_end_m: float,
+    wait_steps: int,
+    accel: float,
+    top: float,
+) -> Trajectory:
+    """Front positions every ``step_s`` from ``t0_s`` of a driver at ``s0_m`` and
+    ``v0_mps`` that stands ``wait_steps`` steps, then gains ``accel * step_s`` of speed a
+    step up to ``top`` (starting at most at ``top``), until past ``s_end_m``. SUMO's
+    update, in which each step's new speed carries the vehicle over the step."""
+    v0 = min(max(v0_mps, 0.0), top)
+    dv = accel * step_s
+    n_acc = math.ceil(max(top - v0, 0.0) / dv)
+    n = wait_steps + n_acc + math.ceil(max(s_end_m - s0_m, 0.0) / (top * step_s)) + 2
+    j = np.arange(1, n + 1) - wait_steps
+    v = np.where(j > 0, np.minimum(v0 + dv * j, top), 0.0)
+    s = s0_m + step_s * np.concatenate([[0.0], np.cumsum(v)])
+    past = int(np.searchsorted(s, s_end_m, side="right"))
+    return Trajectory(t0_s, step_s, s[: min(past + 1, len(s))])
+
+
+def bounds_from(
+    route: Route,
+    length_m: float,
+    t0_s: float,
+    s0_m: float,
+    v0_mps: float,
+    step_s: float,
+    limits: DriverLimits,
+    wait_s: float = 0.0,
+) -> tuple[Trajectory, Trajectory]:
+    """The fastest and the slowest crossing of ``route`` from where a driver is seen, its
+    front at ``s0_m`` at ``v0_mps`` at ``t0_s``: no faster than full acceleration from
+    there, no slower than the dawdler's (Krauss never takes more than ``sigma * accel *
+    step`` off a step's gain, nor brakes with the way clear), after ``wait_s`` if it has
+    not surely moved yet. Each until the rear is out of the junction."""
+    s_end = route.cross_length_m + length_m
+    fast = euler(t0_s, step_s, s0_m, v0_mps, s_end, 0, limits.accel_mps2, limits.top_mps)
+    slow_a = (1.0 - limits.sigma) * limits.accel_mps2
+    stand = math.ceil(max(wait_s, 0.0) / step_s - 1e-9)
+    slow = euler(t0_s, step_s, s0_m, v0_mps, s_end, stand, slow_a, limits.slow_mps(route, step_s))
+    return fast, slow
+
+
 def first_reach(traj: Trajectory, s_m: np.ndarray) -> np.ndarray:
     """For each position in ``s_m``, the time of the last sample of ``traj`` before its
     front reaches it (the first sample if it is there already): no sooner than that is
@@ -130,6 +180,72 @@ def envelope_dtot(
     k = np.clip(np.round((d.lb_s - slow.t0_s) / slow.step_s).astype(int), 0, len(slow) - 1)
     lb = np.minimum(first_reach(fast, slow.s_m[k]), d.lb_s)
     return dataclasses.replace(d, lb_s=np.maximum.accumulate(lb))
+
+
+# SUMO's Krauss follows the vehicle ahead at no more than its safe speed
+# -tau b + sqrt((tau b)^2 + v_lead^2 + 2 b gap), the gap net of its standstill gap
+KRAUSS_TAU_S = 1.0
+KRAUSS_DECEL_MPS2 = 4.5
+MIN_GAP_M = 2.5
+
+
+def _lead_at(lead: Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Front position and speed of ``lead`` at times ``t``: standing at its first sample
+    before it, carried on at its last speed after it."""
+    s, dt = lead.s_m, lead.step_s
+    v_all = np.diff(s) / dt if len(s) > 1 else np.zeros(1)
+    k = np.clip(((t - lead.t0_s) / dt).astype(int), 0, len(s) - 1)
+    pos = np.interp(t, lead.t_s, s)
+    end = lead.t_s[-1]
+    after = t > end
+    pos = np.where(after, s[-1] + v_all[-1] * (t - end), pos)
+    speed = np.where(after, v_all[-1], v_all[np.minimum(k, len(v_all) - 1)])
+    return pos, speed
+
+
+def follow_delay(
+    fast: Trajectory,
+    cross_m: float,
+    length_m: float,
+    lead: Trajectory,
+    lead_cross_m: float,
+    lead_length_m: float,
+) -> float:
+    """How much later a human's fastest crossing (``fast``, of a route ``cross_m``
+    long) must start so that it never comes close enough behind a vehicle leaving by
+    the same exit lane at its slowest (``lead``: a human's slow bound, or a plan) to
+    have to brake while it is still inside the junction; 0 if it never does. Both are
+    measured from the exit line, the lead carrying on at its last speed beyond its
+    trajectory, which it does if the way ahead is clear: a follower that never brakes
+    inside keeps to its own envelope."""
+    u_f = fast.s_m[:-1] - cross_m
+    inside = u_f - length_m < 0.0
+    if not inside.any():
+        return 0.0
+    t = fast.t_s[:-1][inside]
+    u_f = u_f[inside]
+    v_f = (np.diff(fast.s_m) / fast.step_s)[inside]  # its speed over the next step
+    pos, v_l = _lead_at(lead, t)
+    rear = pos - lead_cross_m - lead_length_m
+    tb = KRAUSS_TAU_S * KRAUSS_DECEL_MPS2
+    gap = rear - u_f - MIN_GAP_M
+    safe = -tb + np.sqrt(tb * tb + v_l * v_l + 2.0 * KRAUSS_DECEL_MPS2 * np.maximum(gap, 0.0))
+    bad = (gap < 0.0) | (v_f > safe + 1e-9)
+    if not bad.any():
+        return 0.0
+    # the gap at which it need not brake, and when the lead's rear is that far ahead
+    need = np.maximum(((v_f + tb) ** 2 - tb * tb - v_l * v_l) / (2.0 * KRAUSS_DECEL_MPS2), 0.0)
+    target = (u_f + MIN_GAP_M + need + lead_cross_m + lead_length_m)[bad]
+    s, end = lead.s_m, lead.t_s[-1]
+    v_end = (s[-1] - s[-2]) / lead.step_s if len(s) > 1 else 0.0
+    beyond = target > s[-1]
+    i = np.searchsorted(s, target, side="left")
+    reach = np.where(
+        beyond,
+        end + (target - s[-1]) / max(v_end, 0.1),
+        lead.t0_s + lead.step_s * np.minimum(i, len(s) - 1),
+    )
+    return float(max((reach - t[bad]).max(), fast.step_s))
 
 
 def path_s(traj: Trajectory, t_s: float) -> float:

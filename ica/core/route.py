@@ -48,6 +48,9 @@ class Route:
     in_lane_m: float = math.inf
     out_lane_m: float = math.inf
     cars: bool = True  # passenger cars may take it (not a bus or a delivery lane only)
+    # [m/s] the lowest limit the net sets on the lanes inside the junction (SUMO's turn
+    # speed): a human driver slows to it, whatever the plans' caps (inf: none known)
+    via_mps: float = math.inf
 
     @property
     def s_min(self) -> float:
