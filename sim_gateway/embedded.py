@@ -20,6 +20,7 @@ import numpy as np
 
 from dica.ica.core.controller import Controller, build_controller
 from dica.ica.core.dica import Green
+from dica.ica.core.envelope import bounds
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from dica.ica.core.revocation import DROPPED, KEPT, Reorder
@@ -431,6 +432,7 @@ def _run(
         drivers = LocalDrivers(ica, cfg)
         if recorder is not None:
             drivers.walks = []
+            drivers.greens = []
         try:
             while True:
                 seen = world.step()
@@ -443,7 +445,8 @@ def _run(
                 elif preempt is not None:
                     preempt.step(world.t, seen)
                 if recorder is not None:
-                    record_step(recorder, drivers, seen, cfg, world.t, world.walkers)
+                    record_step(recorder, drivers, seen, cfg, world.t, world.walkers,
+                                world.heads, world.human_seen)  # fmt: skip
                 world.end_step(progress)
                 if world.done():
                     break
@@ -475,6 +478,38 @@ def open_recording(inter: Intersection, rrd_path: Path | None, application_id: s
     return _Recording(rec)
 
 
+def _record_humans(
+    r: _Recording, drivers: LocalDrivers, heads: SignalHeads, human_seen: list[Seen], t: float
+) -> None:
+    """Human drivers drawn as such, each green's envelopes (what the ICA reserved, and
+    the fastest and slowest crossing of each route) and the heads at the lines."""
+    rec = r.rec
+    for s in human_seen:
+        if s.car.vin not in r.humans:
+            r.humans.add(s.car.vin)
+            rec.human(s.car.vin)
+    held = drivers.ica.confirmed if drivers.greens else {}
+    for t_g, g in drivers.greens or ():
+        routes = []
+        for key in g.keys:
+            c = held.get(key)
+            if c is None:
+                continue
+            fast, slow = bounds(c.dtot.route, c.length_m, g.green_s, heads.step_s, heads.limits)
+            routes.append((c.dtot.route.id, c.dtot, fast, slow))
+        rec.envelope(t_g, g.vin, routes)
+    if drivers.greens:
+        drivers.greens.clear()
+    red, green = [], []
+    for s in human_seen:
+        d = heads.drivers.get(s.car.vin)
+        if d is None or not s.car.head or s.car.exited or not s.car.s_m <= 0.0:
+            continue
+        at = s.car.route.points(0.0).reshape(-1)[:2]
+        (green if d.resumed else red).append(at)
+    rec.heads(t, np.array(red).reshape(-1, 2), np.array(green).reshape(-1, 2))
+
+
 class _Recording:
     """The recorder and what it has already been told: confirmations, rejections."""
 
@@ -483,6 +518,7 @@ class _Recording:
         self.wake: dict[str, float] = {}  # when each vehicle may ask again, as last seen
         self.tally: dict[str, int] = {}  # rejections per reason, as last seen
         self.emergency: set[str] = set()  # EVs the recorder has been told of
+        self.humans: set[str] = set()  # human drivers the recorder has been told of
 
     def close(self) -> None:
         self.rec.close()
@@ -495,10 +531,16 @@ def record_step(
     cfg: RunConfig,
     t: float,
     walkers: Walkers | None = None,
+    heads: SignalHeads | None = None,
+    human_seen: list[Seen] = (),
 ) -> None:
     """This step's new confirmations and rejections, every observed vehicle's footprint,
-    and with ``walkers`` the slots given this step and the people."""
+    with ``walkers`` the slots given this step and the people, and with ``heads`` the
+    human drivers, the envelopes of the greens given this step and the signal heads."""
     rec = r.rec
+    if heads is not None:
+        _record_humans(r, drivers, heads, human_seen, t)
+        seen = [*seen, *human_seen]
     for s in seen:  # before any confirmation: an EV's plan is drawn in its colour
         if s.car.ev and s.car.vin not in r.emergency:
             r.emergency.add(s.car.vin)

@@ -17,7 +17,15 @@ import pytest
 from dica.ica.core.config import IcaConfig
 from dica.ica.core.dica import Dica, padded
 from dica.ica.core.dtot import Dtot
-from dica.ica.core.envelope import DriverLimits, bounds, envelope_dtot, path_s, profile
+from dica.ica.core.envelope import (
+    DriverLimits,
+    bounds,
+    bounds_from,
+    envelope_dtot,
+    follow_delay,
+    path_s,
+    profile,
+)
 from dica.ica.core.occupancy import footprints, overlap_matrix
 from dica.ica.core.proposal import propose
 from dica.ica.core.request import Confirmation, Reason, RequestError
@@ -96,6 +104,79 @@ def test_every_crossing_between_the_bounds_stays_inside_the_envelope(ch45, seed)
                     continue  # not in the junction
                 assert path_s(slow, t) - 1e-9 <= s <= path_s(fast, t) + 1e-9
                 assert _covered(env, route, t, s, shape), (route.id, t, s)
+
+
+def _krauss(rng, t0: float, s0: float, v0: float, n: int, accel: float, sigma: float,
+            vmax: float, wait: int = 0) -> np.ndarray:  # fmt: skip
+    """SUMO's Krauss on a clear road, step by step: the speed gains ``accel * step`` up
+    to ``vmax``, less a dawdle of up to ``sigma * accel * step`` (of ``sigma * speed *
+    step`` below ``accel``), the new speed carrying it over the step. Positions."""
+    s, v, out = s0, v0, [s0]
+    for k in range(n):
+        if k < wait:
+            out.append(s)
+            continue
+        want = min(v + accel * STEP, vmax)
+        cut = sigma * (want if want < accel else accel) * STEP * rng.random()
+        v = max(0.0, want - cut)
+        s += v * STEP
+        out.append(s)
+    return np.array(out)
+
+
+def test_krauss_drivers_stay_between_the_bounds_from_where_they_are_seen(ch45):
+    """Drivers simulated the way SUMO's Krauss moves them (each with its own speed
+    factor and random dawdling), seen at some moment at some speed: from there on each
+    is never ahead of the fast bound nor behind the slow one."""
+    rng = np.random.default_rng(5)
+    for route in ch45.routes:
+        cap = min(route.road_mps, route.exit_mps, route.via_mps)
+        for _ in range(8):
+            f = rng.uniform(LIMITS.speed_factor_min, LIMITS.speed_factor_max)
+            v0 = rng.uniform(0.0, f * cap)
+            s0 = rng.uniform(-0.5, route.cross_length_m)
+            fast, slow = bounds_from(route, 4.5, 3.0, s0, v0, STEP, LIMITS)
+            n = len(slow) + 5
+            drv = _krauss(rng, 3.0, s0, v0, n, LIMITS.accel_mps2, LIMITS.sigma, f * cap)
+            t = 3.0 + STEP * np.arange(len(drv))
+            keep = t <= min(fast.t_s[-1], slow.t_s[-1])
+            s_fast = np.interp(t[keep], fast.t_s, fast.s_m)
+            s_slow = np.interp(t[keep], slow.t_s, slow.s_m)
+            assert (drv[keep] <= s_fast + 1e-9).all()
+            assert (drv[keep] >= s_slow - 1e-9).all()
+        # and one standing at the line, not yet moving, waits at most the reaction time
+        fast, slow = bounds_from(route, 4.5, 0.0, -0.5, 0.0, STEP, LIMITS, LIMITS.react_s)
+        assert path_s(slow, LIMITS.react_s) == pytest.approx(-0.5)
+        assert path_s(slow, LIMITS.react_s + 0.5) > -0.5 and path_s(fast, STEP) > -0.5
+
+
+def test_a_follower_let_go_after_its_follow_delay_never_brakes_inside(ch45):
+    """A human behind a slow one on the same route: at once it would catch up inside
+    the junction; given the delay :func:`follow_delay` asks, a Krauss driver at full
+    acceleration (the fastest it can be) behind the leader at its slowest never has
+    its safe speed below its own."""
+    route = next(r for r in ch45.routes if r.turn.value == "through")
+    _, lead = bounds(route, 4.5, 0.0, STEP, LIMITS)
+    fast, _ = bounds(route, 4.5, 0.0, STEP, LIMITS)
+    assert follow_delay(fast, route.cross_length_m, 4.5, lead, route.cross_length_m, 4.5) > 1.0
+    late = 0.0
+    for _ in range(200):  # as the green's search does: shift by what it asks, again
+        f, _ = bounds(route, 4.5, late, STEP, LIMITS)
+        d = follow_delay(f, route.cross_length_m, 4.5, lead, route.cross_length_m, 4.5)
+        if d == 0.0:
+            break
+        late += d
+    assert d == 0.0
+    f, _ = bounds(route, 4.5, late, STEP, LIMITS)
+    t = f.t_s
+    u_f = f.s_m - route.cross_length_m
+    inside = u_f - 4.5 < 0.0
+    rear = np.interp(t, lead.t_s, lead.s_m) - route.cross_length_m - 4.5
+    after = t > lead.t_s[-1]
+    v_end = (lead.s_m[-1] - lead.s_m[-2]) / STEP
+    rear = np.where(after, lead.s_m[-1] - route.cross_length_m - 4.5
+                    + v_end * (t - lead.t_s[-1]), rear)  # fmt: skip
+    assert (rear[inside] - u_f[inside] >= 2.5 - 1e-9).all()  # never closer than SUMO's minGap
 
 
 def _clash(stored: Dtot, new: Dtot) -> bool:
@@ -190,6 +271,44 @@ def test_a_green_waits_for_a_confirmed_vehicle_and_later_plans_keep_clear(ch45):
     assert c2.entry_time_s < ica.confirmed["cav2"].confirmation.entry_time_s
 
 
+def test_a_crossing_human_seen_ahead_frees_what_it_no_longer_needs(ch45):
+    """Seen on the lane of its turn, ahead of its slowest, a human's reservations shrink
+    to that one route and end sooner, and a human waiting behind its envelope on a
+    crossing lane, asking again, gets a sooner green that meets none of them."""
+    shape = Shape.of(4.5, 1.8)
+    lane = _lane_with_turns(ch45)
+    mine = [r for r in ch45.routes_from(lane) if r.cars]
+    took = next(r for r in mine if r.turn.value == "through")
+    fast, _ = bounds(took, 4.5, 0.0, STEP, LIMITS)
+    t = 2.0
+    v_now = (path_s(fast, t) - path_s(fast, t - STEP)) / STEP * 0.9
+    sooner = 0
+    for other in sorted({r.in_lane for r in ch45.routes} - {lane}):
+        ica = Dica(ch45, IcaConfig())
+        ica.detect("h", lane, 0.0)
+        g = ica.green("h", 0.0, 4.5, 1.8, LIMITS)
+        assert len(g.keys) == len(mine) > 1
+        out_before = ica.confirmed["h"].out_s
+        ica.detect("w", other, 0.0)
+        wg = ica.green("w", 0.0, 4.5, 1.8, LIMITS)
+        # seen on its lane: all its routes still; then on the lane of its turn: that one
+        assert ica.tighten("h", t, path_s(fast, t) - 0.3, v_now, lane, LIMITS) is not None
+        paths = ica.tighten("h", t + 0.5, path_s(fast, t + 0.5) - 0.3, v_now + 1.1,
+                            took.via_lanes[0], LIMITS)  # fmt: skip
+        assert paths is not None and set(paths) == {took.id}
+        assert ica.greens["h"].routes == (took.id,) and ica.greens["h"].keys == ("h",)
+        assert not any(k in ica.confirmed for k in g.keys if k != "h")
+        assert ica.confirmed["h"].out_s < out_before
+        new = ica.regreen("w", t + 0.5, 4.5, 1.8, LIMITS)
+        if new is not None:
+            assert new.green_s < wg.green_s
+            sooner += 1
+        assert ica.greens["w"].green_s <= wg.green_s
+        for e in _envelopes(ica, ica.greens["w"], ch45, shape):
+            assert not _clash(ica.confirmed["h"].dtot, e)
+    assert sooner >= 3
+
+
 # -- mixed runs in SUMO --------------------------------------------------------------
 def _run(out: Path, *args: str, code: int = 0) -> dict:
     p = subprocess.run([*DICA, "run", "--out", str(out), "--quiet", *args],
@@ -198,7 +317,7 @@ def _run(out: Path, *args: str, code: int = 0) -> dict:
     return json.loads((out / "metrics.json").read_text())
 
 
-def _rows(out: Path) -> list[dict]:
+def _rows_csv(out: Path) -> list[dict]:
     return list(csv.DictReader((out / "vehicles.csv").open()))
 
 
@@ -229,13 +348,41 @@ def test_half_human_traffic_is_safe_and_every_human_kept_its_light(tmp_path):
         tmp_path / "named" / "vehicles.csv"
     ).read_bytes()
     assert one["mean_trip_time_s"] == named["mean_trip_time_s"]
-    mixed, conn = _rows(tmp_path / "mixed"), _rows(tmp_path / "one")
+    mixed, conn = _rows_csv(tmp_path / "mixed"), _rows_csv(tmp_path / "one")
     assert [(r["vin"], r["route"], r["depart_s"]) for r in mixed] == [
         (r["vin"], r["route"], r["depart_s"]) for r in conn
     ]
     humans = [r for r in mixed if r["human"] == "1"]
     assert 0.3 < len(humans) / len(mixed) < 0.7
     assert all(r["stopped"] == "1" for r in humans if r["exited_s"])  # every one at its head
+
+
+@pytest.mark.sumo
+def test_the_recording_shows_humans_their_envelopes_and_heads(tmp_path):
+    """Human drivers are drawn as such in the top view, each green's envelope holds
+    conflict points in the chart and draws its fastest and slowest crossing on the lane
+    chart, and the heads show red and green at the lines."""
+    from dica.sim_gateway.recording.style import HEAD_GREEN_RGB, HEAD_RED_RGB, HUMAN_RGBA, rgba
+    from tests.test_recording import _read, _rows
+
+    out = tmp_path / "rec"
+    _run(out, "--layout", "ch45", "--volume", "300", "--seed", "21", "--duration", "120",
+         "--cav-share", "0.5", "--record")  # fmt: skip
+    humans = {r["vin"] for r in _rows_csv(out) if r["human"] == "1"}
+    data = _read(out / "spacetime.rrd")
+    outlines = {c for _, row in _rows(data["/junction/vehicles"], "LineStrips2D:colors")
+                for c in row or ()}  # fmt: skip
+    assert HUMAN_RGBA in outlines and len(outlines) > 2  # connected ones in their states
+    heads = {c for _, row in _rows(data["/junction/heads"], "Points2D:colors") for c in row}
+    assert {rgba(HEAD_RED_RGB), rgba(HEAD_GREEN_RGB)} <= heads
+    boxes = [lb.split()[0] for _, row in _rows(data["/charts/data/zones/reserved"],
+             "Boxes2D:labels") for lb in row]  # fmt: skip
+    assert humans & set(boxes) and set(boxes) - humans
+    lines = [lb for lane in {r["route"].split("_")[0] for r in _rows_csv(out)}
+             for key in data if key.startswith(f"/charts/data/lanes/{lane}_")
+             and key.endswith("/plans")
+             for _, row in _rows(data[key], "LineStrips2D:labels") for lb in row]  # fmt: skip
+    assert any("slowest" in lb and lb.split()[0] in humans for lb in lines)
 
 
 @pytest.mark.sumo
@@ -258,6 +405,31 @@ def test_the_audit_sees_a_human_released_before_its_green(tmp_path):
     assert p.returncode in (0, 1), p.stderr
     m = json.loads((out / "metrics.json").read_text())
     assert m["humans"]["entered_on_red"] > 0
+
+
+@pytest.mark.sumo
+def test_the_audit_sees_a_human_outside_bounds_narrower_than_its_own(tmp_path):
+    """Nor blind to the envelope: held to bounds that assume a driver with no reaction
+    time and no dawdling (and never to the ICA's shrunk ones), SUMO's drivers fall
+    behind the slowest of them."""
+    out = tmp_path / "narrow"
+    code = (
+        "import dataclasses, sys; import dica.sim_gateway.humans as h\n"
+        "orig = h.bounds\n"
+        "h.bounds = lambda r, n, g, st, lim, d: orig(r, n, g, st,\n"
+        "    dataclasses.replace(lim, sigma=0.0, react_s=0.0, speed_factor_min=1.1), d)\n"
+        "h.SignalHeads.tightened = lambda self, vin, t, paths: None\n"
+        "from dica.tools.cli import main\n"
+        "sys.exit(main(sys.argv[1:]))\n"
+    )
+    p = subprocess.run(
+        [sys.executable, "-c", code, "run", "--layout", "ch45", "--volume", "200", "--seed",
+         "12", "--duration", "200", "--cav-share", "0.5", "--out", str(out), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=600,
+    )  # fmt: skip
+    assert p.returncode in (0, 1), p.stderr
+    h = json.loads((out / "metrics.json").read_text())["humans"]
+    assert h["outside_envelope"] > 0 and h["worst_behind_slowest_m"] > 0.1
 
 
 @pytest.mark.sumo

@@ -75,6 +75,7 @@ class StepBatch:
         projector: RouteProjector,
         plans: Mapping[str, Plan],
         emergency: set[str],
+        human: set[str] = frozenset(),
     ) -> StepBatch:
         counts = np.array([len(s.vins) for s in steps])
         times = np.array([s.t_s for s in steps])
@@ -107,7 +108,11 @@ class StepBatch:
         out_m = np.array([p.out_m if p is not None else np.inf for p in mine])
         ev = np.array([v in emergency for v in vins], dtype=bool)
         on_route = np.where(dist <= LANE_WIDTH_M, s, np.nan)
-        state = vehicle_statuses(confirmed, on_route, out_m, ev)
+        hum = np.array([v in human for v in vins], dtype=bool) if human else None
+        if hum is not None:  # out by its route's own end: it holds no plan
+            ends = np.where(ridx >= 0, projector.cross_m[np.maximum(ridx, 0)] + length, np.inf)
+            out_m = np.where(hum, ends, out_m)
+        state = vehicle_statuses(confirmed, on_route, out_m, ev, hum)
         step_nos = first_step_no + np.arange(len(steps))
         return cls(
             times, counts, step_nos, step_of, vins, x, y, np.cos(heading), np.sin(heading),

@@ -77,6 +77,7 @@ class RouteProjector:
 
     def __init__(self, routes: Sequence[Route]) -> None:
         self.index = {r.id: i for i, r in enumerate(routes)}
+        self.cross_m = np.array([r.cross_length_m for r in routes])  # entry to exit line
         n_seg = max(len(r.xy) for r in routes) - 1
         a = np.empty((len(routes), n_seg, 2))
         d = np.empty_like(a)

@@ -111,6 +111,27 @@ class LaneCharts:
         self._rows.add(entity, rr.LineStrips2D, now, 1, **fields)
         self._rows.again(float(t_s[-1]), now, entity, rr.LineStrips2D, 1, fields)
 
+    def envelope(self, now: float, vin: str, route: Route, fast, slow) -> None:
+        """A human driver's envelope on its lane's chart: its fastest and its slowest
+        crossing (route position against time) as two lines, logged at ``now`` and
+        again when the slowest ends."""
+        k = CHART_M_PER_S
+        strips = [
+            np.stack([b.t_s[::CHART_EVERY] * k, -b.s_m[::CHART_EVERY]], -1).astype(np.float32)
+            for b in (fast, slow)
+        ]
+        fields = {
+            "strips": strips,
+            "colors": np.full(2, self._colours.of(vin) & 0xFFFFFF00 | PLAN_ALPHA, np.uint32),
+            "labels": [
+                f"{vin} fastest ({route.turn.value})",
+                f"{vin} slowest ({route.turn.value})",
+            ],
+        }
+        entity = f"charts/data/lanes/{route.in_lane}/plans"
+        self._rows.add(entity, rr.LineStrips2D, now, 2, **fields)
+        self._rows.again(float(slow.t_s[-1]), now, entity, rr.LineStrips2D, 2, fields)
+
     def reorder(
         self, t: float, ev: str, lane: str, solver: str, entry_before_s: float, entry_after_s: float
     ) -> None:

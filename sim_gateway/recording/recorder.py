@@ -31,8 +31,10 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from dica.ica.core.dtot import Dtot
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.route import Route
+from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.walk import WalkSlot
 from dica.ica.core.zones import ConflictTables, Shape
 from dica.sim_gateway.conflict_points import ConflictPoints, dtot_of_tss, find_conflict_points
@@ -45,6 +47,8 @@ from dica.sim_gateway.recording.lane_charts import LaneCharts
 from dica.sim_gateway.recording.layout import Layout
 from dica.sim_gateway.recording.rows import RowBuffer
 from dica.sim_gateway.recording.style import (
+    HEAD_GREEN_RGB,
+    HEAD_RED_RGB,
     PERSON_WAITING_RGB,
     PERSON_WALKING_RGB,
     VehicleColours,
@@ -125,6 +129,7 @@ class SpaceTimeRecorder:
         region = np.asarray(intersection.region, dtype=float).reshape(-1, 2)
         self._people_at = region.mean(axis=0)  # people this near are drawn: the sidewalks too
         self._people_reach = float(np.abs(region - self._people_at).max()) + 45.0
+        self._heads_t = -math.inf
 
     def __enter__(self) -> SpaceTimeRecorder:
         return self
@@ -235,6 +240,50 @@ class SpaceTimeRecorder:
         until it has cleared, and its plans and progress in the charts (call it before
         its first confirmation, so that its plan is drawn in that colour too)."""
         self._colours.mark_emergency(vin)
+
+    def human(self, vin: str) -> None:
+        """Draw ``vin`` as a human driver from now on (it holds no plan: the ICA reserves
+        its envelope, :meth:`envelope`)."""
+        self._colours.mark_human(vin)
+
+    def envelope(
+        self,
+        now_s: float,
+        vin: str,
+        routes: Sequence[tuple[str, Dtot, Trajectory, Trajectory]],
+        time_pad_s: float = 0.0,
+    ) -> None:
+        """A human driver's green at ``now_s``: per route of its lane (route id, the
+        envelope's DTOT as the core built it, its fastest and slowest crossing), the
+        intervals in which it holds each conflict point go to the conflict-point chart,
+        and the two bounds to its lane's chart. A sooner green replaces the boxes of
+        the one before from here on."""
+        self._rows.forget((f"{vin} P",))
+        for route_id, dtot, fast, slow in routes:
+            hold = self._conflicts.holding(dtot, time_pad_s)
+            self._conflicts.reserved(float(now_s), vin, hold)
+            self._lane_charts.envelope(float(now_s), vin, self._route(route_id), fast, slow)
+
+    def heads(self, t_s: float, red_xy: np.ndarray, green_xy: np.ndarray) -> None:
+        """The signal heads of the lanes where a human driver stands or goes, in SUMO's
+        frame, every :data:`PEOPLE_EVERY_S`: red until the ICA's green, then green."""
+        t = float(t_s)
+        if t - self._heads_t < PEOPLE_EVERY_S - 1e-9:
+            return
+        self._heads_t = t
+        red = np.asarray(red_xy, dtype=float).reshape(-1, 2)
+        green = np.asarray(green_xy, dtype=float).reshape(-1, 2)
+        xy = np.vstack([red, green])
+        colors = [HEAD_RED_RGB] * len(red) + [HEAD_GREEN_RGB] * len(green)
+        self._rows.add_many(
+            "junction/heads",
+            rr.Points2D,
+            np.array([t]),
+            np.array([len(xy)]),
+            positions=(xy * FLIP_Y).astype(np.float32),
+            colors=np.array(colors, dtype=np.uint8).reshape(-1, 3),
+            radii=np.full(len(xy), 0.6, dtype=np.float32),
+        )
 
     def reordered(
         self,
@@ -369,8 +418,9 @@ class SpaceTimeRecorder:
         """A batch of steps into rows: the top view every TOP_EVERY steps, the charts
         and the vehicle count every CHART_EVERY steps, and the rows due again."""
         batch = StepBatch.of(
-            steps, self._step_no, self._projector, self._plans, self._colours.emergency
-        )
+            steps, self._step_no, self._projector, self._plans, self._colours.emergency,
+            self._colours.human,
+        )  # fmt: skip
         self._step_no += len(steps)
         self._top.draw(batch, self._plans)
         chart_step = batch.every(CHART_EVERY)

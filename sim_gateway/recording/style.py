@@ -45,6 +45,7 @@ class Status(IntEnum):
     CROSSING = 3  # front past the entry line, rear not yet past the exit line
     CLEARED = 4  # rear past the exit line
     EMERGENCY = 5  # an emergency vehicle, in the region, whatever its state
+    HUMAN = 6  # a human driver (--cav-share), until it has cleared
 
 
 # The one table of states, names and colours (the top view and its legend).
@@ -54,6 +55,7 @@ STATUS_STYLE: dict[Status, tuple[str, RGB]] = {
     Status.CROSSING: ("crossing", (20, 165, 60)),
     Status.CLEARED: ("cleared", (140, 140, 140)),
     Status.EMERGENCY: ("emergency vehicle", (230, 30, 30)),
+    Status.HUMAN: ("human driver", (120, 80, 40)),
 }
 
 
@@ -67,6 +69,9 @@ STATUS_RGBA = np.zeros(max(STATUS_STYLE) + 1, dtype=np.uint32)  # packed colour 
 for _state, (_, _rgb) in STATUS_STYLE.items():
     STATUS_RGBA[_state] = rgba(_rgb)
 EMERGENCY_RGBA = rgba(STATUS_STYLE[Status.EMERGENCY][1])
+HUMAN_RGBA = rgba(STATUS_STYLE[Status.HUMAN][1])
+HEAD_RED_RGB: RGB = (220, 30, 30)  # a human driver's signal head: red, then green
+HEAD_GREEN_RGB: RGB = (20, 180, 60)
 
 
 def vehicle_statuses(
@@ -74,10 +79,12 @@ def vehicle_statuses(
     s_m: np.ndarray,
     out_m: np.ndarray,
     emergency: np.ndarray | None = None,
+    human: np.ndarray | None = None,
 ) -> np.ndarray:
     """Status per vehicle from whether it holds a confirmation, its front's distance
     along its route ``s_m`` (NaN: unknown) and the distance at which its rear is out;
-    an emergency vehicle is EMERGENCY until it has cleared the junction."""
+    an emergency vehicle is EMERGENCY until it has cleared the junction, a human
+    driver HUMAN until it has crossed (it holds no plan: its envelope is reserved)."""
     st = np.full(len(s_m), int(Status.REQUESTING), dtype=np.uint16)
     s = np.nan_to_num(s_m, nan=-np.inf)
     st[confirmed] = Status.CONFIRMED
@@ -85,6 +92,8 @@ def vehicle_statuses(
     st[confirmed & (s >= out_m)] = Status.CLEARED
     if emergency is not None:
         st[emergency & (st != Status.CLEARED)] = Status.EMERGENCY
+    if human is not None:
+        st[human & ~(s >= out_m)] = Status.HUMAN
     return st
 
 
@@ -103,10 +112,15 @@ class VehicleColours:
     def __init__(self) -> None:
         self._rgba: dict[str, int] = {}
         self.emergency: set[str] = set()  # VINs drawn as emergency vehicles
+        self.human: set[str] = set()  # VINs of human drivers
 
     def mark_emergency(self, vin: str) -> None:
         self.emergency.add(vin)
         self._rgba[vin] = EMERGENCY_RGBA
+
+    def mark_human(self, vin: str) -> None:
+        self.human.add(vin)
+        self._rgba[vin] = HUMAN_RGBA
 
     def of(self, vin: str) -> int:
         c = self._rgba.get(vin)
@@ -125,6 +139,8 @@ def top_legend(margin_m: float) -> list[tuple[str, RGB]]:
         (f"reserved, with its {margin_m:g} m margin: band", RESERVED_RGBA[:3]),
         ("entry line", ENTRY_RGB),
         ("communication region starts", REGION_START_RGB),
+        ("human drivers' signal head: red", HEAD_RED_RGB),
+        ("human drivers' signal head: green", HEAD_GREEN_RGB),
     ]
     return entries
 
