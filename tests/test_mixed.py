@@ -386,6 +386,25 @@ def test_the_recording_shows_humans_their_envelopes_and_heads(tmp_path):
 
 
 @pytest.mark.sumo
+def test_human_drivers_on_a_users_net_of_other_limits(tmp_path):
+    """A user's net: 40 km/h, two lanes, 150 m blocks, tighter turns than ours (its own
+    turn speeds bound the slowest human): half the drivers human, nothing collides and
+    no human leaves its envelope."""
+    from tests.user_nets import make, tool
+
+    net = tmp_path / "grid.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "150",
+          "--default.lanenumber", "2", "--default.speed", "11.11", "--no-turnarounds", "true",
+          "--default.junctions.radius", "3", "-o", str(net)])  # fmt: skip
+    m = _run(tmp_path / "r", "--net", str(net), "--junction", "B1", "--volume", "250",
+             "--cav-share", "0.5", "--duration", "300", "--seed", "21")  # fmt: skip
+    h = m["humans"]
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    assert h["entered_on_red"] == 0 and h["outside_envelope"] == 0
+    assert h["given_green"] > 20 and m["crossed"] > 60
+
+
+@pytest.mark.sumo
 def test_the_audit_sees_a_human_released_before_its_green(tmp_path):
     """The audit is not blind: heads that turn green three seconds before the ICA's
     green send humans over the line on red."""
