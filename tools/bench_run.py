@@ -8,7 +8,10 @@ ratio of the two. Targets: at least 50x real time, at most 1.5x the light.
 
 With ``--peds N`` both run on the chapter 4-5 layout with sidewalks (``ch45-walk``)
 with N people an hour at every crossing, and enhanced DICA once more without them,
-for the cost of serving people (the ratio of the two enhanced runs).
+for the cost of serving people (the ratio of the two enhanced runs). With
+``--cav-share P`` both run with a share ``1 - P`` of human drivers, and enhanced DICA
+once more with none, for the cost of serving them (the greens, their shrinking and
+the audit), with the p99 of one green.
 """
 
 from __future__ import annotations
@@ -58,11 +61,20 @@ def main(argv: list[str] | None = None) -> int:
         "--peds", type=float, default=0.0,
         help="people an hour at every crossing, on ch45-walk (default 0: ch45)",
     )  # fmt: skip
+    p.add_argument(
+        "--cav-share", type=float, default=1.0,
+        help="share of connected vehicles, the rest human drivers (default 1: none)",
+    )  # fmt: skip
     args = options.parse(p, argv)
     walk = ("--layout", "ch45-walk", "--peds", f"{args.peds:g}") if args.peds else ()
+    mixed = args.cav_share < 1.0
+    if mixed:
+        walk = (*walk, "--cav-share", f"{args.cav_share:g}")
     runs = {"enhanced": walk, "fixed": walk}
     if args.peds:
         runs["enhanced, no people"] = ("--layout", "ch45-walk")
+    if mixed:
+        runs["enhanced, no humans"] = ()
     best: dict[str, dict] = {}
     for _ in range(args.repeat):
         for name, extra in runs.items():
@@ -93,6 +105,15 @@ def main(argv: list[str] | None = None) -> int:
             enhanced_no_people_wall_s=alone["wall_s"],
             wall_ratio_people_to_none=e["wall_s"] / alone["wall_s"],
         )
+    if mixed:
+        alone = best["enhanced, no humans"]
+        result.update(
+            cav_share=args.cav_share,
+            humans=e["humans"]["count"],
+            green_p99_ms=e["requests"].get("green_p99_ms"),
+            enhanced_no_humans_wall_s=alone["wall_s"],
+            wall_ratio_humans_to_none=e["wall_s"] / alone["wall_s"],
+        )
     if args.json:
         print(json.dumps(result, indent=2))
     else:
@@ -110,6 +131,13 @@ def main(argv: list[str] | None = None) -> int:
                 f"{result['person_hits']} touched): enhanced without them "
                 f"{result['enhanced_no_people_wall_s']:.1f} s wall; ratio with / without "
                 f"{result['wall_ratio_people_to_none']:.2f}"
+            )
+        if mixed:
+            print(
+                f"  with {result['humans']} human drivers (share {args.cav_share:g} connected):"
+                f" green p99 {result['green_p99_ms']:.2f} ms; enhanced without them "
+                f"{result['enhanced_no_humans_wall_s']:.1f} s wall; ratio with / without "
+                f"{result['wall_ratio_humans_to_none']:.2f}"
             )
     return 0
 
