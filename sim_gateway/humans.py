@@ -35,8 +35,12 @@ STOP_S = 1e7  # [s] a stop at the head lasts until the green ends it
 TOL_M = 0.05  # [m] the audit's tolerance on a position (SUMO's rounding)
 
 
-def define_human_type(ls, limits: DriverLimits, length_m: float, width_m: float) -> None:
-    """SUMO's default driver (Krauss with its imperfection), with the stated limits."""
+def define_human_type(
+    ls, limits: DriverLimits, length_m: float, width_m: float, ignore_foes: bool = True
+) -> None:
+    """SUMO's default driver (Krauss with its imperfection), with the stated limits; at a
+    signal-free junction (``ignore_foes``) it ignores the junction's right of way, which
+    its head's green gives it; under a light it keeps SUMO's."""
     ls.vehicletype.copy("DEFAULT_VEHTYPE", HUMAN_VTYPE)
     for setter, value in (
         ("setLength", length_m),
@@ -51,8 +55,9 @@ def define_human_type(ls, limits: DriverLimits, length_m: float, width_m: float)
         ("setColor", HUMAN_COLOR),
     ):
         getattr(ls.vehicletype, setter)(HUMAN_VTYPE, value)
-    ls.vehicletype.setParameter(HUMAN_VTYPE, "junctionModel.jmIgnoreFoeProb", "1")
-    ls.vehicletype.setParameter(HUMAN_VTYPE, "junctionModel.jmIgnoreFoeSpeed", "100")
+    if ignore_foes:
+        ls.vehicletype.setParameter(HUMAN_VTYPE, "junctionModel.jmIgnoreFoeProb", "1")
+        ls.vehicletype.setParameter(HUMAN_VTYPE, "junctionModel.jmIgnoreFoeSpeed", "100")
 
 
 @dataclass(slots=True)

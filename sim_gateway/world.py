@@ -109,7 +109,7 @@ class World:
         self.human_seen: list[Seen] = []  # this step's, apart from the connected vehicles
         if any(v.human for v in schedule):
             limits = human_limits(ica_cfg)
-            define_human_type(ls, limits, cfg.length_m, cfg.width_m)
+            define_human_type(ls, limits, cfg.length_m, cfg.width_m, ignore_foes=not signalised)
         self.junctions = [
             Junction.open(
                 ls,

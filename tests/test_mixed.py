@@ -481,3 +481,12 @@ def test_mixed_traffic_it_cannot_serve_is_refused_in_one_line(tmp_path, args):
                        capture_output=True, text=True, cwd=ROOT, timeout=120)  # fmt: skip
     assert p.returncode == 2, p.stderr
     assert "Traceback" not in p.stderr and "cav-share" in p.stderr
+
+
+@pytest.mark.sumo
+def test_human_drivers_under_a_light_keep_its_right_of_way(tmp_path):
+    """Under the lights human drivers ignore no foe (the head's green is the ICA's, not
+    the light's): all drivers human, nothing collides at the actuated light."""
+    m = _run(tmp_path / "act", "--layout", "ch45", "--algorithm", "actuated", "--volume", "300",
+             "--seed", "12", "--duration", "400", "--cav-share", "0")  # fmt: skip
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["crossed"] > 100
