@@ -404,26 +404,31 @@ def test_human_drivers_on_a_users_net_of_other_limits(tmp_path):
     assert h["given_green"] > 20 and m["crossed"] > 60
 
 
-@pytest.mark.sumo
-def test_the_audit_sees_a_human_released_before_its_green(tmp_path):
-    """The audit is not blind: heads that turn green three seconds before the ICA's
-    green send humans over the line on red."""
-    out = tmp_path / "early"
-    code = (
-        "import sys; import dica.sim_gateway.humans as h\n"
-        "orig = h.SignalHeads.release\n"
-        "h.SignalHeads.release = lambda self, t: orig(self, t + 3.0)\n"
-        "from dica.tools.cli import main\n"
-        "sys.exit(main(sys.argv[1:]))\n"
+def _patched_run(out: Path, patch: str, volume: str) -> dict:
+    """A half-human run at the chapter 4-5 junction in a process whose roadside is
+    changed by ``patch`` (Python run after ``import dica.sim_gateway.humans as h``):
+    the run's ``humans`` figures (collisions may follow: exit 1 is taken)."""
+    code = f"import sys\nimport dica.sim_gateway.humans as h\n{patch}" + (
+        "from dica.tools.cli import main\nsys.exit(main(sys.argv[1:]))\n"
     )
     p = subprocess.run(
-        [sys.executable, "-c", code, "run", "--layout", "ch45", "--volume", "300", "--seed",
+        [sys.executable, "-c", code, "run", "--layout", "ch45", "--volume", volume, "--seed",
          "12", "--duration", "200", "--cav-share", "0.5", "--out", str(out), "--quiet"],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )  # fmt: skip
     assert p.returncode in (0, 1), p.stderr
-    m = json.loads((out / "metrics.json").read_text())
-    assert m["humans"]["entered_on_red"] > 0
+    return json.loads((out / "metrics.json").read_text())["humans"]
+
+
+@pytest.mark.sumo
+def test_the_audit_sees_a_human_released_before_its_green(tmp_path):
+    """The audit is not blind: heads that turn green three seconds before the ICA's
+    green send humans over the line on red."""
+    patch = (
+        "orig = h.SignalHeads.release\n"
+        "h.SignalHeads.release = lambda self, t: orig(self, t + 3.0)\n"
+    )
+    assert _patched_run(tmp_path / "early", patch, "300")["entered_on_red"] > 0
 
 
 @pytest.mark.sumo
@@ -431,23 +436,14 @@ def test_the_audit_sees_a_human_outside_bounds_narrower_than_its_own(tmp_path):
     """Nor blind to the envelope: held to bounds that assume a driver with no reaction
     time and no dawdling (and never to the ICA's shrunk ones), SUMO's drivers fall
     behind the slowest of them."""
-    out = tmp_path / "narrow"
-    code = (
-        "import dataclasses, sys; import dica.sim_gateway.humans as h\n"
+    patch = (
+        "import dataclasses\n"
         "orig = h.bounds\n"
         "h.bounds = lambda r, n, g, st, lim, d: orig(r, n, g, st,\n"
         "    dataclasses.replace(lim, sigma=0.0, react_s=0.0, speed_factor_min=1.1), d)\n"
         "h.SignalHeads.tightened = lambda self, vin, t, paths: None\n"
-        "from dica.tools.cli import main\n"
-        "sys.exit(main(sys.argv[1:]))\n"
     )
-    p = subprocess.run(
-        [sys.executable, "-c", code, "run", "--layout", "ch45", "--volume", "200", "--seed",
-         "12", "--duration", "200", "--cav-share", "0.5", "--out", str(out), "--quiet"],
-        capture_output=True, text=True, cwd=ROOT, timeout=600,
-    )  # fmt: skip
-    assert p.returncode in (0, 1), p.stderr
-    h = json.loads((out / "metrics.json").read_text())["humans"]
+    h = _patched_run(tmp_path / "narrow", patch, "200")
     assert h["outside_envelope"] > 0 and h["worst_behind_slowest_m"] > 0.1
 
 

@@ -720,11 +720,7 @@ class Dica:
             late, hit = 0.0, False
             for r in routes:
                 fast, slow = bounds(r, length_m, g, cfg.step_s, limits, dist_m)
-                d = envelope_dtot(
-                    r, shape, fast, slow, cfg.margin_m, self.tables.grid(r, shape),
-                    cfg.techniques.estimated_oti,
-                )  # fmt: skip
-                fast_in = float(first_reach(fast, np.zeros(1))[0])
+                d, fast_in = self._envelope(r, shape, fast, slow)
                 built.append((r, slow, d, fast_in))
                 for c in self.conflicts(d):  # one that only touches still moves it a step
                     late, hit = max(late, c.delay_s), True
@@ -743,6 +739,18 @@ class Dica:
             g += max(late, cfg.step_s)
         green = Green(vin, g, now_s, (), (), rounds)
         return self._reserve(green, built, length_m)
+
+    def _envelope(
+        self, route: Route, shape: Shape, fast: Trajectory, slow: Trajectory
+    ) -> tuple[Dtot, float]:
+        """The envelope's DTOT between ``fast`` and ``slow``, built as this ICA builds
+        every DTOT, and the soonest the driver can enter."""
+        cfg = self.config
+        d = envelope_dtot(
+            route, shape, fast, slow, cfg.margin_m, self.tables.grid(route, shape),
+            cfg.techniques.estimated_oti,
+        )  # fmt: skip
+        return d, float(first_reach(fast, np.zeros(1))[0])
 
     def _reserve(
         self, green: Green, built: list[tuple[Route, Trajectory, Dtot, float]], length_m: float
@@ -873,11 +881,7 @@ class Dica:
         ok = True
         for r in routes:
             fast, slow = bounds_from(r, length_m, now_s, s_m, v_mps, cfg.step_s, limits, wait)
-            d = envelope_dtot(
-                r, shape, fast, slow, cfg.margin_m, self.tables.grid(r, shape),
-                cfg.techniques.estimated_oti,
-            )  # fmt: skip
-            fast_in = float(first_reach(fast, np.zeros(1))[0])
+            d, fast_in = self._envelope(r, shape, fast, slow)
             was = old.get(r.id)
             out_s = float(d.t_s[-1])
             if (
