@@ -11,20 +11,23 @@ The file is a stream of msgpack maps. A record cut short by a crash is the
 last one and was never answered, so it is dropped on replay. A DETECT keeps
 what the detector read (an emergency vehicle, its speed): reactive DICA's
 priority rests on it, so a restarted ICA still lets the EV go first. A walker's
-slot is kept too: a restarted ICA never confirms a vehicle through it. Journals
+slot is kept too: a restarted ICA never confirms a vehicle through it, and so is a
+human driver's green (rebuilt at the same time from the same limits) and each
+shrinking of its reservations. Journals
 written before the flag existed replay with every vehicle a normal one.
 """
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import msgpack
 import numpy as np
 
 from dica.ica.core.controller import Controller
+from dica.ica.core.envelope import DriverLimits, human_limits
 from dica.ica.core.request import Confirmation, RequestError, Tss
 from dica.ica.core.walk import WalkSlot
 
@@ -39,6 +42,8 @@ class Replayed:
     confirmations: int = 0
     cancels: int = 0
     walks: int = 0
+    greens: int = 0
+    humans: list[str] = field(default_factory=list)  # human drivers' VINs: no agent's
     skipped: int = 0  # records the core refused (a geometry that changed, a bad record)
     truncated: bool = False
 
@@ -112,6 +117,26 @@ class Journal:
              "near_lo": slot.near_lo_m}
         )  # fmt: skip
 
+    def human(self, vin: str) -> None:
+        """``vin`` is a human driver: the roadside speaks for it, no agent."""
+        self._write({"k": "human", "vin": vin})
+
+    def green(self, lit) -> None:
+        """A human driver's green (a :class:`schemas.messages.Lit`)."""
+        self._write(
+            {"k": "green", "vin": lit.vin, "green": lit.green_s, "asked": lit.asked_s,
+             "near": lit.near_m, "length": lit.length_m, "width": lit.width_m,
+             "routes": list(lit.routes)}
+        )  # fmt: skip
+
+    def sighting(self, seen) -> None:
+        """A human driver's reservations shrunk to where it was seen (a
+        :class:`schemas.messages.Sighting`)."""
+        self._write(
+            {"k": "sighting", "vin": seen.vin, "t": seen.t_s, "lane": seen.lane,
+             "s": seen.s_m, "v": seen.speed_mps}
+        )  # fmt: skip
+
 
 def records(path: Path) -> tuple[list[dict], bool]:
     """The journal's records in order, and whether a torn record ended it."""
@@ -181,6 +206,18 @@ def replay(path: Path, ica: Controller) -> Replayed:
                     )
                 )  # fmt: skip
                 out.walks += 1
+            elif kind == "green" and getattr(ica, "greens", None) is not None:
+                ica.relight(
+                    str(rec["vin"]), float(rec["green"]), float(rec["asked"]),
+                    float(rec["length"]), float(rec["width"]), limits(ica),
+                    float(rec["near"]), tuple(str(r) for r in rec["routes"]),
+                )  # fmt: skip
+                out.greens += 1
+            elif kind == "sighting" and getattr(ica, "greens", None) is not None:
+                ica.tighten(str(rec["vin"]), float(rec["t"]), float(rec["s"]), float(rec["v"]),
+                            str(rec["lane"]), limits(ica))  # fmt: skip
+            elif kind == "human":
+                out.humans.append(str(rec["vin"]))
             elif kind == "across" and getattr(ica, "walks", None) is not None:
                 ica.walks.across(str(rec["person"]), str(rec["crossing"]), float(rec["t"]))
             else:
@@ -188,6 +225,10 @@ def replay(path: Path, ica: Controller) -> Replayed:
         except (RequestError, KeyError, TypeError, ValueError):
             out.skipped += 1
     return out
+
+
+def limits(ica: Controller) -> DriverLimits:
+    return human_limits(ica.config.caps.road_mps)
 
 
 def _f8(a: np.ndarray) -> bytes:

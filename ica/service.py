@@ -3,7 +3,10 @@
 Keys (``schemas.keys``): each agent asks on its own chunk, REQUESTs on
 ``dica/<j>/request/<agent>`` (a RESPONSE or a REJECT), DETECTs on
 ``dica/<j>/detect/<agent>`` (an ACK or a REJECT), CANCELs on
-``dica/<j>/cancel/<agent>``. Every new confirmation is also published on
+``dica/<j>/cancel/<agent>``. The roadside (the gateway) alone tells of walkers on
+``dica/<j>/walk/gateway`` and of human drivers on ``dica/<j>/human/gateway``
+(SPOTTED, ASKGREEN, SIGHTING); a human driver's VIN is the roadside's, and no
+agent may ask, detect or cancel for it. Every new confirmation is also published on
 ``dica/<j>/confirmed/<vin>`` for observers, reactive DICA's reorderings (and
 what became of each revoked plan) on ``dica/<j>/reorder``, and the statistics
 answer on ``dica/<j>/stats``.
@@ -55,6 +58,7 @@ from dica.ica.convert import (
 )
 from dica.ica.core import reactive
 from dica.ica.core.controller import Controller
+from dica.ica.core.envelope import human_limits
 from dica.ica.core.request import Confirmation, Reason, Rejection, RequestError
 from dica.ica.journal import Journal, Replayed, replay
 from dica.schemas import keys
@@ -68,20 +72,29 @@ from dica.schemas.messages import (
     TIME,
     Ack,
     Across,
+    AskGreen,
     Cancel,
     Clock,
     Detect,
+    Lit,
     Place,
     Reject,
     Reorder,
     Request,
     Revoke,
+    Shrunk,
+    Sighting,
+    Spotted,
     State,
     Stats,
     Walk,
 )
 
 HOLD_S = 2.0  # [s wall] longest a request may wait for the clock to reach its time
+# [s sim] how far ahead of its last CLOCK the roadside may ask about a human driver: it
+# asks at the start of its step, before that step's CLOCK
+HUMAN_AHEAD_S = 1.0
+HUMAN_OWNER = "gateway"  # who speaks for a human driver: the roadside, no agent
 REVOKE_EVERY_S = 0.5  # [s wall] an unanswered REVOKE goes out again this often
 STATS_EVERY_S = 5.0  # [s wall] how often the statistics file is rewritten
 SHOWN_REORDERS = 16  # reorderings kept to tell observers what became of their revoked plans
@@ -98,6 +111,9 @@ class ServiceStats:
     detects: int = 0
     cancels: int = 0
     walks: int = 0  # walkers given a slot on a crossing
+    humans: int = 0  # human drivers the roadside told of
+    greens: int = 0  # greens given them (sooner ones included)
+    shrunk: int = 0  # their reservations shrunk to where they were seen
     bad_messages: int = 0
     acks: int = 0
     ignored_clocks: int = 0
@@ -121,6 +137,9 @@ class ServiceStats:
             "detects": self.detects,
             "cancels": self.cancels,
             "walks": self.walks,
+            "humans": self.humans,
+            "greens": self.greens,
+            "shrunk": self.shrunk,
             "bad_messages": self.bad_messages,
             "acks": self.acks,
             "ignored_clocks": self.ignored_clocks,
@@ -174,11 +193,14 @@ class IcaService:
         done = replay(path, self.ica)
         for vin, c in self.ica.confirmed.items():
             self._published.add((vin, c.confirmation.seq))
+        for vin in done.humans:
+            self._owner[vin] = HUMAN_OWNER
         self.stats.journal_replayed = {
             "detects": done.detects,
             "confirmations": done.confirmations,
             "cancels": done.cancels,
             "walks": done.walks,
+            "greens": done.greens,
             "skipped": done.skipped,
             "truncated": done.truncated,
             "confirmed_set_after": len(self.ica.confirmed),
@@ -209,6 +231,7 @@ class IcaService:
             self.session.declare_queryable(keys.detect(j), self.inbox.query_cb("detect")),
             self.session.declare_queryable(keys.cancel(j), self.inbox.query_cb("cancel")),
             self.session.declare_queryable(keys.walk(j), self.inbox.query_cb("walk")),
+            self.session.declare_queryable(keys.human(j), self.inbox.query_cb("human")),
             self.session.declare_queryable(keys.ica_stats(j), self.inbox.query_cb("stats")),
             self.session.declare_subscriber(self._clock_key, self.inbox.sample_cb("clock")),
             self.session.declare_subscriber(keys.ack(j), self.inbox.sample_cb("ack")),
@@ -267,6 +290,8 @@ class IcaService:
             self._on_vehicles(item)
         elif item.what == "walk":
             self._on_walk(item)
+        elif item.what == "human":
+            self._on_human(item)
         elif item.what == "stats":
             self.note_reactive()
             body = json.dumps(self.stats.as_dict())
@@ -394,6 +419,8 @@ class IcaService:
             return
         for v in state.vehicles:
             before = self._owner.get(v.vin)
+            if before == HUMAN_OWNER:  # a human driver is no agent's to be handed
+                continue
             if v.owner and before != v.owner:
                 self._owner[v.vin] = v.owner
                 self.stats.handovers += before is not None
@@ -403,6 +430,8 @@ class IcaService:
     def _speaks_for(self, item: Item, vin: str) -> bool:
         """Whether the agent that asked (its key's last chunk) may speak for ``vin``."""
         owner = self._owner.get(vin)
+        if owner == HUMAN_OWNER:  # a human driver's: the roadside's, on its own key
+            return False
         return owner is None or owner == keys.last(item.key)
 
     def _on_request(self, item: Item, since: float | None = None) -> None:
@@ -535,6 +564,75 @@ class IcaService:
             put(self.session, keys.walks(self.junction, keys.chunk(slot.person)), payload)
         reply(item.query, item.key, payload)
 
+    def _on_human(self, item: Item) -> None:
+        """A human driver, told by the roadside: in the region (SPOTTED), at its line
+        (ASKGREEN: the green, journalled before it is answered, so a restarted ICA never
+        confirms a vehicle through its envelope), or seen on its green (SIGHTING: its
+        reservations shrunk to where it is). Each is decided at the roadside's step time,
+        which may be one step ahead of the last CLOCK (the roadside asks first), never
+        behind it."""
+        msg = self._asked(item, Spotted, AskGreen, Sighting)
+        if msg is None:
+            return
+        if keys.last(item.key) != "gateway":
+            self.stats.not_theirs += 1
+            self._reject(item.query, msg.vin, -1, Reason.BAD_STATE, "only the roadside asks")
+            return
+        if getattr(self.ica, "greens", None) is None:
+            self._reject(item.query, msg.vin, -1, Reason.BAD_STATE, "no human drivers served here")
+            return
+        if not _is_chunk(msg.vin):
+            self._reject(item.query, "?", -1, Reason.BAD_STATE, "VIN has key characters")
+            return
+        late = msg.t_s < self.now_s - 1e-9 and not isinstance(msg, Spotted)  # seen before
+        if late or msg.t_s > self.now_s + HUMAN_AHEAD_S:
+            why = f"t={msg.t_s:g} s is not this step's (clock {self.now_s:g} s)"
+            self._reject(item.query, msg.vin, -1, Reason.BAD_TIME, why)
+            return
+        ica, limits = self.ica, human_limits(self.ica.config.caps.road_mps)
+        try:
+            if isinstance(msg, Spotted):
+                known = ica.knows(msg.vin)
+                ica.detect(msg.vin, msg.lane, msg.t_s)
+                self._owner[msg.vin] = HUMAN_OWNER  # no agent speaks for it
+                if self.journal is not None and not known:
+                    self.journal.detect(msg.vin, msg.lane, msg.t_s)
+                    self.journal.human(msg.vin)
+                self.stats.humans += not known
+                reply(item.query, item.key, encode(Ack(msg.vin, -1, Spotted.KIND, now_ns())))
+                return
+            ica.advance(msg.t_s)  # as the embedded roadside does before it asks
+            if isinstance(msg, AskGreen):
+                ask = ica.regreen if msg.again else ica.green
+                had = ica.greens.get(msg.vin)
+                t_c = time.perf_counter()
+                g = ask(msg.vin, msg.t_s, msg.length_m, msg.width_m, limits, msg.near_m)
+                self.stats.compute_s.append(time.perf_counter() - t_c)
+                if g is None:  # none sooner: the one held stands
+                    reply(item.query, item.key, encode(Ack(msg.vin, -1, AskGreen.KIND, now_ns())))
+                    return
+                lit = Lit(g.vin, g.green_s, g.asked_s, msg.near_m, msg.length_m, msg.width_m,
+                          g.routes, now_ns(), limits.top_mps, ica.config.step_s)  # fmt: skip
+                if g is not had:  # a new green (a repeated ask gets the one it holds)
+                    if self.journal is not None:
+                        self.journal.green(lit)
+                    self.stats.greens += 1
+                    put(self.session, keys.greens(self.junction, msg.vin), encode(lit))
+                reply(item.query, item.key, encode(lit))
+                return
+            paths = ica.tighten(msg.vin, msg.t_s, msg.s_m, msg.speed_mps, msg.lane, limits)
+            if paths is None:
+                reply(item.query, item.key, encode(Ack(msg.vin, -1, Sighting.KIND, now_ns())))
+                return
+            if self.journal is not None:
+                self.journal.sighting(msg)
+            self.stats.shrunk += 1
+            shrunk = Shrunk(msg.vin, msg.t_s, tuple(paths), now_ns())
+            reply(item.query, item.key, encode(shrunk))
+        except RequestError as e:
+            self._count(Rejection(msg.vin, -1, e.reason, e.detail))
+            self._reject(item.query, msg.vin, -1, e.reason, e.detail)
+
     # -- helpers -------------------------------------------------------------
     def _asked(self, item: Item, *kinds: type):
         """The query's message of one of ``kinds``, or None: bytes that are not one are
@@ -617,8 +715,8 @@ def write_stats(path: Path, stats: ServiceStats) -> None:
     runs.append(mine)
     total: dict = {"incarnations": runs}
     for k in ("requests", "confirmed", "repeated", "superseded", "detects", "cancels",
-              "walks", "bad_messages", "acks", "ignored_clocks", "not_theirs",
-              "handovers"):  # fmt: skip
+              "walks", "humans", "greens", "shrunk", "bad_messages", "acks", "ignored_clocks",
+              "not_theirs", "handovers"):  # fmt: skip
         total[k] = sum(int(r.get(k, 0)) for r in runs)
     rej: dict[str, int] = {}
     for r in runs:

@@ -22,7 +22,7 @@ from functools import cache
 import msgpack
 import numpy as np
 
-from dica.schemas.messages import MAX_SAMPLES, MAX_VEHICLES, MESSAGES, VERSION
+from dica.schemas.messages import MAX_SAMPLES, MAX_TEXT, MAX_VEHICLES, MESSAGES, VERSION
 
 MAX_PAYLOAD = 1 << 20  # [bytes] a full TSS is 4 x 64 KiB; a STATE of MAX_VEHICLES about 400 KiB
 _BY_KIND = {m.KIND: m for m in MESSAGES}
@@ -72,7 +72,7 @@ def _pack_record(rec) -> dict:
         if isinstance(value, np.ndarray):
             value = np.ascontiguousarray(value, dtype="<f8").tobytes()
         elif isinstance(value, tuple):
-            value = [_pack_record(x) for x in value]
+            value = [x if isinstance(x, str) else _pack_record(x) for x in value]
         elif isinstance(value, np.generic):
             value = value.item()
         out[name] = value
@@ -185,6 +185,9 @@ def _value(where: str, x, hint, lo, hi, n):
             raise DecodeError(Why.BAD_TYPE, f"{where} must be a list, got {type(x).__name__}")
         if len(x) > n:
             raise DecodeError(Why.TOO_LARGE, f"{where} has {len(x)} items, at most {n}")
+        if item is str:  # ids: each as long as any text id may be
+            return tuple(_value(f"{where}[{i}]", v, str, None, None, MAX_TEXT)
+                         for i, v in enumerate(x))  # fmt: skip
         out = []
         for i, rec in enumerate(x):
             if not isinstance(rec, dict):

@@ -48,6 +48,17 @@ def walks(junction: str, person: str = "*") -> str:
     return f"dica/{chunk(junction)}/walks/{_one(person)}"
 
 
+def human(junction: str, asker: str = "*") -> str:
+    """Queryable (ICA): the roadside tells of a human driver (SPOTTED), asks for its
+    green (ASKGREEN) or shrinks its reservations (SIGHTING), through ``asker``."""
+    return f"dica/{chunk(junction)}/human/{_one(asker)}"
+
+
+def greens(junction: str, vin: str = "*") -> str:
+    """The ICA publishes each green it gives a human driver (LIT), for observers."""
+    return f"dica/{chunk(junction)}/greens/{_one(vin)}"
+
+
 def ack(junction: str, agent: str = "*") -> str:
     """Publication (agent): ACK of a RESPONSE received."""
     return f"dica/{chunk(junction)}/ack/{_one(agent)}"
@@ -143,11 +154,11 @@ def writer_of(key: str, action: str) -> str | None:
         if kind == "stats" and name:
             return {"query": "gateway", "reply": name}.get(action)
     elif space == "dica":
-        if kind in ("request", "detect", "cancel", "walk") and name:
+        if kind in ("request", "detect", "cancel", "walk", "human") and name:
             return {"query": name, "reply": "ica"}.get(action)
         if kind == "ack" and name:
             return name if action == "put" else None
-        if kind in ("confirmed", "revoke", "walks") and name:
+        if kind in ("confirmed", "revoke", "walks", "greens") and name:
             return "ica" if action == "put" else None
         if kind == "stats" and name is None:
             return {"query": "gateway", "reply": "ica"}.get(action)

@@ -17,6 +17,8 @@ from typing import ClassVar
 
 import numpy as np
 
+# 10: SPOTTED, ASKGREEN, LIT, SIGHTING and SHRUNK exist (human drivers), and a vehicle
+# state carries a human driver's ``signal``;
 # 9: a WALK carries ``near_lo_m`` (the shortest way the walker may take to the crossing),
 # a GO the whole slot (the ICA also publishes it for observers), and PEOPLE exists;
 # 8: a WALK carries the walker's ``walk_m``, ``speed_mps``, ``side`` and ``near_m``, and
@@ -26,7 +28,7 @@ import numpy as np
 # REORDER; 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev``
 # and ``kept_seq``, a setpoint ``drop``, and REVOKE exists (2 had no revocations; 1 had
 # open-loop speed commands)
-VERSION = 9
+VERSION = 10
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
@@ -157,6 +159,84 @@ class Go:
     v_lo: float = lim(0.0, 20.0, default=1.0)
     v_hi: float = lim(0.0, 20.0, default=2.5)
     eta_s: float = lim(*TIME, default=0.0)
+
+
+@dataclass(frozen=True, slots=True)
+class Spotted:
+    """The roadside's detector saw human driver ``vin`` enter the communication region
+    on ``lane`` at sim time ``t_s``: a car the ICA cannot command, with no intent."""
+
+    KIND: ClassVar[str] = "spotted"
+    vin: str = lim(n=MAX_TEXT)
+    lane: str = lim(n=MAX_TEXT)
+    t_s: float = lim(*TIME)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class AskGreen:
+    """Human driver ``vin`` stands ``near_m`` short of its line at the head of its lane at
+    sim time ``t_s``, its signal head red: the roadside asks for its green. ``again``: it
+    holds one still to come and asks for a sooner one (an ACK: none sooner)."""
+
+    KIND: ClassVar[str] = "askgreen"
+    vin: str = lim(n=MAX_TEXT)
+    t_s: float = lim(*TIME)
+    length_m: float = lim(0.0, 100.0)
+    width_m: float = lim(0.0, 20.0)
+    near_m: float = lim(0.0, 100.0)
+    again: bool = lim()
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class Lit:
+    """The ICA's answer to an ASKGREEN, also published for observers: ``vin``'s head
+    turns green at ``green_s``, asked at ``asked_s`` standing ``near_m`` short of its
+    line; it may then take any of ``routes``, every crossing between its fastest and
+    slowest reserved (``ica.core.envelope``, from the limits both sides derive from the
+    site's configuration)."""
+
+    KIND: ClassVar[str] = "lit"
+    vin: str = lim(n=MAX_TEXT)
+    green_s: float = lim(*TIME)
+    asked_s: float = lim(*TIME)
+    near_m: float = lim(0.0, 100.0)
+    length_m: float = lim(0.0, 100.0)
+    width_m: float = lim(0.0, 20.0)
+    routes: tuple[str, ...] = lim(n=64)
+    sent_ns: int = lim(0, 2**63 - 1)
+    # what the ICA assumed, for an observer to draw the same envelope: the drivers' top
+    # speed and the ICA's time step
+    top_mps: float = lim(0.0, 200.0, default=0.0)
+    step_s: float = lim(0.0, 10.0, default=0.0)
+
+
+@dataclass(frozen=True, slots=True)
+class Sighting:
+    """Human driver ``vin``, on its green, seen at sim time ``t_s`` on ``lane`` with its
+    front ``s_m`` along its lane's routes at ``speed_mps``: the roadside asks the ICA to
+    shrink its reservations to where it is (a SHRUNK, or an ACK: they stay)."""
+
+    KIND: ClassVar[str] = "sighting"
+    vin: str = lim(n=MAX_TEXT)
+    t_s: float = lim(*TIME)
+    lane: str = lim(n=MAX_TEXT)
+    s_m: float = lim(-BIG, BIG)
+    speed_mps: float = lim(0.0, 200.0)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class Shrunk:
+    """The ICA's answer to a SIGHTING: ``vin``'s reservations now run from where it was
+    seen at ``t_s``, on ``routes`` only (the ones it may still take)."""
+
+    KIND: ClassVar[str] = "shrunk"
+    vin: str = lim(n=MAX_TEXT)
+    t_s: float = lim(*TIME)
+    routes: tuple[str, ...] = lim(n=64)
+    sent_ns: int = lim(0, 2**63 - 1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -303,6 +383,9 @@ class VehicleState:
     # room left in the network of junctions for it [m] (BIG: not entering one; see
     # Observation.network_room_m)
     network_room_m: float = lim(0.0, BIG, default=BIG)
+    # a human driver's signal head, "red" or "green" (observers only; "": a connected
+    # vehicle)
+    signal: str = lim(n=8, default="")
 
 
 @dataclass(frozen=True, slots=True)
@@ -402,6 +485,11 @@ MESSAGES: tuple[type, ...] = (
     Walk,
     Across,
     Go,
+    Spotted,
+    AskGreen,
+    Lit,
+    Sighting,
+    Shrunk,
     Ack,
     Revoke,
     Reorder,

@@ -20,7 +20,7 @@ import numpy as np
 
 from dica.ica.core.controller import Controller, build_controller
 from dica.ica.core.dica import Green
-from dica.ica.core.envelope import bounds
+from dica.ica.core.envelope import bounds, human_limits
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from dica.ica.core.revocation import DROPPED, KEPT, Reorder
@@ -28,7 +28,7 @@ from dica.ica.core.walk import WalkSlot
 from dica.ica.core.window import WindowOrder
 from dica.sim_gateway.demand import Arrival, schedule_for
 from dica.sim_gateway.humans import SignalHeads
-from dica.sim_gateway.junction import Seen
+from dica.sim_gateway.junction import Car, Seen
 from dica.sim_gateway.light_control import ReactiveLight, setup_signal
 from dica.sim_gateway.runconfig import (
     LIGHTS,
@@ -112,11 +112,6 @@ class LocalLink:
             self.ica.restore(vin, seq)
 
 
-# [s] how often the roadside has the ICA shrink a crossing human's reservations to where
-# it is seen, and a waiting one ask again
-TIGHTEN_S = 0.5
-
-
 class LocalDrivers:
     """The vehicles' machines, all in this process, with the ICA beside them."""
 
@@ -130,8 +125,10 @@ class LocalDrivers:
         self.revocations: list[tuple[float, str, str]] = []  # (t, vin, what), to record
         self.kept: list[tuple[float, str, str]] = []  # revoked plans that stand: (t, vin, why)
         self.walks: list[tuple[float, WalkSlot]] | None = None  # slots given, to record
-        self.greens: list[tuple[float, Green]] | None = None  # human drivers' greens, to record
+        # human drivers' greens and their reservations as given, to record
+        self.greens: list[tuple[float, Green, list]] | None = None
         self.green_refused: dict[str, int] = {}  # greens asked for too soon, by reason
+        self.limits = human_limits(ica.config.caps.road_mps)  # what the ICA assumes
         self.delivered: set[tuple[str, int]] = set()  # revocations handed to their vehicles
         self.order = WindowOrder(ica) if cfg.window_s else None
         self.close_s = cfg.window_s  # when the current window closes
@@ -158,60 +155,38 @@ class LocalDrivers:
         walkers.release(t)
 
     def humans(self, heads: SignalHeads, seen: list[Seen], t: float) -> None:
-        """The human drivers of this step: the ICA hears of those new in the region (from
-        the roadside's detector, as of any vehicle); those standing at the head of their
-        lane ask for their green (its signal head, for them); and whose green has come
-        are let go."""
+        """The human drivers of this step, the ICA asked in this process
+        (:meth:`sim_gateway.humans.SignalHeads.serve`)."""
         self.ica.advance(t)
-        for s in seen:
-            d = heads.drivers.get(s.car.vin)
-            if d is not None and not d.told:
-                d.told = True
-                self.link.detect(s.car.vin, s.car.route.in_lane, s.car.detected_s)
-        for d in heads.asking(seen, t):
-            c = d.car
-            t_c = time.perf_counter()
-            try:
-                g = self.ica.green(c.vin, t, c.length_m, c.width_m, heads.limits, -c.s_m)
-            except RequestError as e:  # not yet (one ahead has not begun to enter): again
-                why = str(e.reason)
-                self.green_refused[why] = self.green_refused.get(why, 0) + 1
-                continue
-            finally:
-                self.link.green_s.append(time.perf_counter() - t_c)
-            heads.lit(c.vin, g.green_s, g.routes, -c.s_m)
-            if self.greens is not None:
-                self.greens.append((t, g))
-        self._tighten(heads, seen, t)
-        heads.release(t)
+        heads.serve(seen, t, self)
 
-    def _tighten(self, heads: SignalHeads, seen: list[Seen], t: float) -> None:
-        """The roadside sees every human driver every step: the ICA shrinks the
-        reservations of those on their green to where each is now (every
-        :data:`TIGHTEN_S`, and once its turn shows which way it goes), and those still
-        standing ask again for a sooner green when anything has shrunk."""
-        for s in seen:
-            d = heads.drivers.get(s.car.vin)
-            if d is None or math.isnan(d.green_s) or s.car.exited or math.isnan(s.car.s_m):
-                continue
-            c = s.car
-            if t + 1e-9 < d.green_s:  # standing, its green to come
-                if self.ica.shrunk == d.asked_shrunk or t < d.asked_s + TIGHTEN_S - 1e-9:
-                    continue
-                d.asked_shrunk, d.asked_s = self.ica.shrunk, t
-                g = self.ica.regreen(c.vin, t, c.length_m, c.width_m, heads.limits, -c.s_m)
-                if g is not None:
-                    heads.lit(c.vin, g.green_s, g.routes, -c.s_m)
-                    if self.greens is not None:
-                        self.greens.append((t, g))
-                continue
-            turned = s.obs.lane != d.lane
-            if not turned and t < d.tightened_s + TIGHTEN_S - 1e-9:
-                continue
-            d.lane, d.tightened_s = s.obs.lane, t
-            paths = self.ica.tighten(c.vin, t, c.s_m, c.speed_mps, s.obs.lane, heads.limits)
-            if paths is not None:
-                heads.tightened(c.vin, t, paths)
+    # -- the roadside's desk at the ICA for human drivers (sim_gateway.humans.Desk) --------
+    def spotted(self, car: Car, t: float) -> bool:
+        self.link.detect(car.vin, car.route.in_lane, t)
+        return True
+
+    def green(self, car: Car, t: float, near_m: float, again: bool) -> tuple[float, tuple] | None:
+        ask = self.ica.regreen if again else self.ica.green
+        t_c = time.perf_counter()
+        try:
+            g = ask(car.vin, t, car.length_m, car.width_m, self.limits, near_m)
+        except RequestError as e:  # not yet (one ahead has not begun to enter): again
+            why = str(e.reason)
+            self.green_refused[why] = self.green_refused.get(why, 0) + 1
+            return None
+        finally:
+            if not again:
+                self.link.green_s.append(time.perf_counter() - t_c)
+        if g is None:
+            return None
+        if self.greens is not None:  # as given: its reservations may shrink this very step
+            held = self.ica.confirmed
+            self.greens.append((t, g, [held[k] for k in g.keys if k in held]))
+        return g.green_s, g.routes
+
+    def tighten(self, car: Car, t: float, s_m: float, v_mps: float, lane: str) -> tuple | None:
+        paths = self.ica.tighten(car.vin, t, s_m, v_mps, lane, self.limits)
+        return None if paths is None else tuple(paths)
 
     def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
         self.ica.advance(t)
@@ -488,18 +463,16 @@ def _record_humans(
         if s.car.vin not in r.humans:
             r.humans.add(s.car.vin)
             rec.human(s.car.vin)
-    held = drivers.ica.confirmed if drivers.greens else {}
-    for t_g, g in drivers.greens or ():
+    for t_g, g, given in drivers.greens or ():
         routes = []
-        for key in g.keys:
-            c = held.get(key)
-            if c is None:
-                continue
+        for c in given:
             fast, slow = bounds(c.dtot.route, c.length_m, g.green_s, heads.step_s, heads.limits)
             routes.append((c.dtot.route.id, c.dtot, fast, slow))
         rec.envelope(t_g, g.vin, routes)
     if drivers.greens:
         drivers.greens.clear()
+    if not r.humans:  # no head drawn before the first human driver (as an observer)
+        return
     red, green = [], []
     for s in human_seen:
         d = heads.drivers.get(s.car.vin)

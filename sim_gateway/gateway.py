@@ -59,20 +59,26 @@ from dica.schemas.messages import (
     MAX_VEHICLES,
     Ack,
     Across,
+    AskGreen,
     Clock,
     Command,
     Go,
+    Lit,
     People,
     PersonPlace,
     Reject,
     Revoke,
+    Shrunk,
+    Sighting,
+    Spotted,
     State,
     Stats,
     VehicleState,
     Walk,
 )
 from dica.sim_gateway.demand import schedule_for
-from dica.sim_gateway.junction import Seen
+from dica.sim_gateway.humans import SignalHeads
+from dica.sim_gateway.junction import Car, Seen
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.walkers import Walkers
 from dica.sim_gateway.world import World
@@ -158,6 +164,9 @@ class ZenohDrivers:
         self._seen_now: list[Seen] = []
         self.dropped_setpoints = 0
         self.walks_unanswered = 0  # WALKs the ICA did not answer with a GO (asked again)
+        self.humans_unanswered = 0  # human drivers' questions the ICA did not answer
+        self.green_refused: dict[str, int] = {}  # greens asked too soon, by reason
+        self._human_states: tuple[VehicleState, ...] = ()  # this step's, for observers
         self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
         self.age_ms: list[float] = []
         self.wait_s: list[float] = []
@@ -280,12 +289,12 @@ class ZenohDrivers:
         key = keys.walk(self.junction, "gateway")
         for person, crossing, _junction in walkers.cleared:
             msg = Across(person, crossing, t, now_ns())
-            if self._ask_ica(key, msg, Ack) is None:
+            if self._ask_ica(key, msg, (Ack,)) is None:
                 self.walks_unanswered += 1
         for ask in [*walkers.asks, *walkers.again(t)]:
             msg = Walk(ask.person, ask.crossing, ask.ready_s, ask.walk_m, ask.speed_mps,
                        ask.side, ask.near_m, ask.near_lo_m, now_ns())  # fmt: skip
-            got = self._ask_ica(key, msg, Go)
+            got = self._ask_ica(key, msg, (Go,))
             if isinstance(got, Go):
                 walkers.answer(got.person, got.start_s, got.end_s, t)
             else:
@@ -306,8 +315,54 @@ class ZenohDrivers:
         )
         self._people_pub.put(encode(People(self._k, t, places, now_ns())))
 
-    def _ask_ica(self, key: str, msg, kind: type):
-        """One query to the ICA, waited for: its answer of ``kind`` or a REJECT, or None."""
+    def humans(self, heads: SignalHeads, seen: list[Seen], t: float) -> None:
+        """The human drivers of this step, the ICA asked over Zenoh before the step's
+        CLOCK, as the embedded roadside asks it in process
+        (:meth:`sim_gateway.humans.SignalHeads.serve`). While the ICA is gone none is
+        asked: those at their line wait on red, those on their green go on in the
+        envelopes reserved for them."""
+        if self.ica_alive:
+            heads.serve(seen, t, self)
+        else:
+            heads.release(t)
+        if self.observers:
+            self._human_states = tuple(
+                self._vehicle_state(s, "green" if heads.drivers[s.car.vin].resumed else "red")
+                for s in seen
+                if s.car.vin in heads.drivers
+            )
+
+    # -- the roadside's desk at the ICA for human drivers (sim_gateway.humans.Desk) --------
+    def spotted(self, car: Car, t: float) -> bool:
+        got = self._ask_ica(keys.human(self.junction, "gateway"),
+                            Spotted(car.vin, car.route.in_lane, t, now_ns()), (Ack,))  # fmt: skip
+        if isinstance(got, Ack):
+            return True
+        self.humans_unanswered += got is None
+        self.log.warning("SPOTTED %s: %s", car.vin, "no answer" if got is None else got.detail)
+        return got is not None  # refused: telling it again changes nothing
+
+    def green(self, car: Car, t: float, near_m: float, again: bool) -> tuple[float, tuple] | None:
+        msg = AskGreen(car.vin, t, car.length_m, car.width_m, near_m, again, now_ns())
+        got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Lit, Ack))
+        if isinstance(got, Lit):
+            return got.green_s, got.routes
+        if isinstance(got, Reject):  # not yet (one ahead has not begun to enter): again
+            if not again:
+                self.green_refused[got.reason] = self.green_refused.get(got.reason, 0) + 1
+        elif got is None:
+            self.humans_unanswered += 1
+        return None
+
+    def tighten(self, car: Car, t: float, s_m: float, v_mps: float, lane: str) -> tuple | None:
+        msg = Sighting(car.vin, t, lane, s_m, v_mps, now_ns())
+        got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Shrunk, Ack))
+        self.humans_unanswered += got is None
+        return got.routes if isinstance(got, Shrunk) else None
+
+    def _ask_ica(self, key: str, msg, kinds: tuple[type, ...]):
+        """One query to the ICA, waited for: its answer of one of ``kinds`` or a REJECT,
+        or None."""
         got = None
         for r in self.session.get(
             key, payload=query_payload(encode(msg)), timeout=WALK_TIMEOUT_S, **every_answer()
@@ -315,7 +370,7 @@ class ZenohDrivers:
             body = reply_body(r, key) if r.ok is not None else None
             if got is None and body is not None:
                 with contextlib.suppress(DecodeError):
-                    got = decode(body, kind, Reject)
+                    got = decode(body, *kinds, Reject)
         return got
 
     def send(self, t: float, seen: list[Seen]) -> None:
@@ -331,7 +386,7 @@ class ZenohDrivers:
         self._clock_pub.put(encode(Clock(k, t, self.clock, self.speed, False, now_ns())))
         stamp = now_ns()
         if self._vehicles_due(k, seen):
-            everyone = tuple(self._vehicle_state(s) for s in seen)
+            everyone = (*(self._vehicle_state(s) for s in seen), *self._human_states)
             self._vehicles_pub.put(encode(State("", k, 0, t, everyone, stamp)))
         if self.clock == "lockstep":
             self._seen_now = seen
@@ -662,7 +717,7 @@ class ZenohDrivers:
                 self.log.info("the ICA of %s is back", self.junction)
             self.ica_alive = up
 
-    def _vehicle_state(self, s: Seen) -> VehicleState:
+    def _vehicle_state(self, s: Seen, signal: str = "") -> VehicleState:
         c, o = s.car, s.obs
         return VehicleState(
             vin=c.vin,
@@ -688,6 +743,7 @@ class ZenohDrivers:
             intent_m=np.asarray(o.intent_m, dtype=float),
             exit_room_m=min(o.exit_room_m, WIRE_BIG),
             network_room_m=min(max(o.network_room_m, 0.0), WIRE_BIG),
+            signal=signal,
         )
 
     def facts(self) -> dict:
@@ -697,6 +753,8 @@ class ZenohDrivers:
         return {
             "clock": self.clock,
             "walks_unanswered": self.walks_unanswered,
+            "humans_unanswered": self.humans_unanswered,
+            "green_refused": dict(sorted(self.green_refused.items())),
             "speed": self.speed if self.clock == "realtime" else None,
             "agents": dict(sorted(self.fleet.hosted.items())),
             "agent_deaths": self.agent_deaths,
@@ -751,9 +809,6 @@ def run_gateway(
     """
     from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
 
-    if cfg.cav_share < 1.0:
-        raise RunError("--cav-share (human drivers) runs embedded for now (dica run), not as a "
-                       "cluster")  # fmt: skip
     ls = import_libsumo()
     ica_cfg = cfg.controller_spec().config
     schedule, _spec, horizon = schedule_for(cfg, inter, ica_cfg.step_s)
@@ -779,6 +834,8 @@ def run_gateway(
                 if world.walkers is not None:
                     drivers.walk(world.walkers, world.t)  # the roadside asks first
                     drivers.people(world.walkers, world.t)
+                if world.heads is not None:
+                    drivers.humans(world.heads, world.human_seen, world.t)
                 drivers.send(world.t, seen)
                 world.end_step(progress)  # while the agents decide
                 world.apply(drivers.collect(world.t))

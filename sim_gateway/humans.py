@@ -19,10 +19,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
 
-from dica.ica.core.envelope import STOP_SHORT_M, DriverLimits, bounds, path_s
+from dica.ica.core.envelope import STOP_SHORT_M, DriverLimits, bounds, bounds_seen, path_s
 from dica.ica.core.trajectory import Trajectory
 from dica.sim_gateway.junction import Car, Junction, Seen
 from dica.sim_gateway.traffic import HUMAN_VTYPE
@@ -33,6 +34,27 @@ HUMAN_COLOR = (150, 150, 150, 255)  # grey: a car the ICA cannot command
 HUMAN_SPEED_MODE = 0b110111
 STOP_S = 1e7  # [s] a stop at the head lasts until the green ends it
 TOL_M = 0.05  # [m] the audit's tolerance on a position (SUMO's rounding)
+# [s] how often the roadside has the ICA shrink a crossing human's reservations to where
+# it is seen, and a waiting one ask again
+TIGHTEN_S = 0.5
+
+
+class Desk(Protocol):
+    """The ICA as the roadside asks it about human drivers: in the same process
+    (:class:`sim_gateway.embedded.LocalDrivers`) or over Zenoh
+    (:class:`sim_gateway.gateway.ZenohDrivers`). The same questions in the same order
+    either way, so both runs are the same."""
+
+    def spotted(self, car: Car, t: float) -> bool:
+        """``car`` entered the communication region (from the detector: no intent).
+        False: the ICA did not hear it (it is told again next step)."""
+
+    def green(self, car: Car, t: float, near_m: float, again: bool) -> tuple[float, tuple] | None:
+        """Its green (start, routes) standing ``near_m`` short of its line; ``again``:
+        only a sooner one than it holds. None: none given (not yet, or not sooner)."""
+
+    def tighten(self, car: Car, t: float, s_m: float, v_mps: float, lane: str) -> tuple | None:
+        """Its reservations shrunk to where it is seen: the routes kept, or None."""
 
 
 def define_human_type(
@@ -97,6 +119,7 @@ class SignalHeads:
     seed: int
     hold: bool = True  # signal-free: the head holds it (under a light: SUMO's light does)
     drivers: dict[str, Driver] = field(default_factory=dict)
+    shrunk: int = 0  # reservations the ICA shrank, or greens it brought sooner
     rng: np.random.Generator = field(init=False)
 
     def __post_init__(self) -> None:
@@ -133,6 +156,49 @@ class SignalHeads:
                 out.append(d)
         return out
 
+    def serve(self, seen: list[Seen], t: float, desk: Desk) -> None:
+        """The human drivers of this step: the ICA hears of those new in the region (from
+        the roadside's detector, as of any vehicle); those standing at the head of their
+        lane ask for their green (its signal head, for them); the reservations of those
+        on their green shrink to where they are seen; and whose green has come go."""
+        for s in seen:
+            d = self.drivers.get(s.car.vin)
+            if d is not None and not d.told:
+                d.told = desk.spotted(s.car, s.car.detected_s)
+        for d in self.asking(seen, t):
+            got = desk.green(d.car, t, -d.car.s_m, False)
+            if got is not None:
+                self.lit(d.car.vin, got[0], got[1], -d.car.s_m)
+        self._tighten(seen, t, desk)
+        self.release(t)
+
+    def _tighten(self, seen: list[Seen], t: float, desk: Desk) -> None:
+        """Every :data:`TIGHTEN_S` (and once its turn shows which way it goes) the ICA
+        shrinks the reservations of each driver on its green to where it is seen; one
+        still standing asks again for a sooner green when anything has shrunk."""
+        for s in seen:
+            d = self.drivers.get(s.car.vin)
+            if d is None or math.isnan(d.green_s) or s.car.exited or math.isnan(s.car.s_m):
+                continue
+            c = s.car
+            if t + 1e-9 < d.green_s:  # standing, its green to come
+                if self.shrunk == d.asked_shrunk or t < d.asked_s + TIGHTEN_S - 1e-9:
+                    continue
+                d.asked_shrunk, d.asked_s = self.shrunk, t
+                got = desk.green(c, t, -c.s_m, True)
+                if got is not None:
+                    self.shrunk += 1
+                    self.lit(c.vin, got[0], got[1], -c.s_m)
+                continue
+            turned = s.obs.lane != d.lane
+            if not turned and t < d.tightened_s + TIGHTEN_S - 1e-9:
+                continue
+            d.lane, d.tightened_s = s.obs.lane, t
+            routes = desk.tighten(c, t, c.s_m, c.speed_mps, s.obs.lane)
+            if routes is not None:
+                self.shrunk += 1
+                self.tightened(c.vin, t, routes)
+
     def lit(self, vin: str, green_s: float, routes: tuple[str, ...], dist_m: float) -> None:
         """The ICA gave ``vin``, standing ``dist_m`` short of its line, its green from
         ``green_s``."""
@@ -142,15 +208,16 @@ class SignalHeads:
         c = d.car
         d.fast, d.slow = bounds(c.route, c.length_m, green_s, self.step_s, self.limits, dist_m)
 
-    def tightened(
-        self, vin: str, t: float, paths: dict[str, tuple[Trajectory, Trajectory]]
-    ) -> None:
-        """The ICA shrank ``vin``'s reservations at ``t`` to these bounds per route: the
-        audit holds it to the ones of the route it takes from now on."""
+    def tightened(self, vin: str, t: float, routes: tuple[str, ...]) -> None:
+        """The ICA shrank ``vin``'s reservations at ``t`` to where it was seen, on these
+        routes: the audit holds it to the bounds from there (the same stated limits)
+        of the route it takes."""
         d = self.drivers[vin]
         d.tightenings += 1
-        if d.car.route.id in paths:
-            d.fast, d.slow = paths[d.car.route.id]
+        c = d.car
+        if c.route.id in routes:
+            d.fast, d.slow = bounds_seen(c.route, c.length_m, t, c.s_m, c.speed_mps,
+                                         self.step_s, self.limits, d.green_s)  # fmt: skip
 
     def release(self, t: float) -> None:
         """End the stop of every driver whose green has come."""

@@ -3,9 +3,11 @@
 It only listens: the STATE of every vehicle in the region (``sim/<j>/vehicles``), the
 confirmations the ICA publishes (``dica/<j>/confirmed/*``), reactive DICA's
 reorderings (``dica/<j>/reorder``), the walkers' slots (``dica/<j>/walks/*``), the
-people near the junction (``sim/<j>/people``) and the CLOCK. It is not a lockstep
-participant, so recording never slows the run; at the run's end on the clock
-it drains what is queued, closes the ``.rrd`` and exits. All Rerun calls go
+people near the junction (``sim/<j>/people``), the human drivers' greens
+(``dica/<j>/greens/*``: each envelope rebuilt from the same limits by the pure core)
+and the CLOCK. Human drivers come in the vehicle feed with their signal head's
+colour. It is not a lockstep participant, so recording never slows the run; at the
+run's end on the clock it drains what is queued, closes the ``.rrd`` and exits. All Rerun calls go
 through :class:`sim_gateway.recording.SpaceTimeRecorder`. With ``live_port`` it
 also serves the recording over gRPC on 127.0.0.1 while it writes the file, so
 ``dica view --live`` can watch the run as it happens.
@@ -31,8 +33,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dica.deploy.transport import Inbox, Item
+from dica.ica.core.envelope import DriverLimits, bounds, envelope_dtot
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.walk import WalkSlot
+from dica.ica.core.zones import ConflictTables, Shape
 from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode
 from dica.schemas.messages import (
@@ -41,6 +45,7 @@ from dica.schemas.messages import (
     KEPT,
     Clock,
     Go,
+    Lit,
     People,
     Place,
     Reorder,
@@ -108,6 +113,9 @@ class Observer:
         self.sizes: dict[str, tuple[float, float]] = {}
         self.confirmations = 0
         self.walks = 0  # walkers' slots drawn
+        self.greens = 0  # human drivers' greens drawn
+        self._humans: set[str] = set()  # human drivers the recorder has been told of
+        self._tables: ConflictTables | None = None  # built at the first green
         self.reorders = 0
         self.withdrawn = 0
         self.steps = 0
@@ -127,6 +135,7 @@ class Observer:
             session.declare_subscriber(keys.clock(j), self.inbox.sample_cb("clock")),
             session.declare_subscriber(keys.walks(j), self.inbox.sample_cb("walk")),
             session.declare_subscriber(keys.people(j), self.inbox.sample_cb("people")),
+            session.declare_subscriber(keys.greens(j), self.inbox.sample_cb("green")),
         ]
         # declared last: a gateway waiting for observers starts once all of the above are up
         self._token = session.liveliness().declare_token(keys.observer_alive(j, name))
@@ -157,6 +166,9 @@ class Observer:
                 if v.ev and v.vin not in self._emergency:
                     self._emergency.add(v.vin)
                     self.recorder.emergency(v.vin)
+                if v.signal and v.vin not in self._humans:
+                    self._humans.add(v.vin)
+                    self.recorder.human(v.vin)
         elif item.what == "confirmed":
             r = decode(item.payload, Response)
             if r.vin in self._watch:
@@ -189,6 +201,8 @@ class Observer:
                             go.v_lo, go.v_hi, go.eta_s, go.near_lo_m)  # fmt: skip
             self.recorder.walk(go.given_s, slot)
             self.walks += 1
+        elif item.what == "green":
+            self._on_green(decode(item.payload, Lit))
         elif item.what == "people":
             seen = decode(item.payload, People)
             xy = np.array([(p.x_m, p.y_m) for p in seen.people], dtype=float).reshape(-1, 2)
@@ -198,6 +212,26 @@ class Observer:
             c = decode(item.payload, Clock)
             if c.end:
                 self.ended = True
+
+    def _on_green(self, g: Lit) -> None:
+        """A human driver's green: each route's envelope, as the ICA built it from the
+        same stated limits, to the conflict-point and lane charts."""
+        if self._tables is None:
+            self._tables = ConflictTables(self.inter, self.margin_m)
+        limits = DriverLimits(top_mps=g.top_mps) if g.top_mps > 0.0 else DriverLimits()
+        shape = Shape.of(g.length_m, g.width_m)
+        step = g.step_s or 0.1
+        routes = []
+        for rid in g.routes:
+            r = self.inter.route_by_id(rid)
+            if r is None:
+                raise ValueError(f"{g.vin}'s green names no route {rid!r} of this junction")
+            fast, slow = bounds(r, g.length_m, g.green_s, step, limits, g.near_m)
+            d = envelope_dtot(r, shape, fast, slow, self.margin_m, self._tables.grid(r, shape),
+                              True)  # fmt: skip
+            routes.append((rid, d, fast, slow))
+        self.recorder.envelope(g.asked_s, g.vin, routes, 2.0 * self.time_pad_s)
+        self.greens += 1
 
     def _on_reorder(self, m: Reorder) -> None:
         if (m.ev, m.t_s) not in self._marked:
@@ -279,5 +313,14 @@ class Observer:
             np.array([v.width_m for v in vs]),
             route_ids=[v.route_id for v in vs],
         )
+        if self._humans:  # the heads of the lanes where a human driver stands or goes
+            heads = {"red": [], "green": []}
+            for v in vs:
+                if v.signal in heads and v.head and not v.exited and v.dist_to_entry_m >= 0.0:
+                    r = self.inter.route_by_id(v.route_id)
+                    if r is not None:
+                        heads[v.signal].append(r.points(0.0).reshape(-1)[:2])
+            self.recorder.heads(cur.t_s, np.array(heads["red"]).reshape(-1, 2),
+                                np.array(heads["green"]).reshape(-1, 2))  # fmt: skip
         self.steps += 1
         self._cur = _Step()

@@ -31,7 +31,7 @@ from dataclasses import replace
 from pathlib import Path
 
 from dica.ica.core.config import IcaConfig
-from dica.ica.core.envelope import DriverLimits
+from dica.ica.core.envelope import human_limits
 from dica.ica.core.intersection import Intersection
 from dica.sim_gateway.actuator import Actuator
 from dica.sim_gateway.demand import Arrival
@@ -48,12 +48,6 @@ from dica.sim_gateway.traffic import Traffic, define_vehicle_types
 from dica.sim_gateway.walkers import Walkers, draw_legs, kerbs
 from dica.vehicle_agent.actuation import MODE_CONFIRMED, Actuation
 from dica.vehicle_agent.machine import Observation
-
-
-def human_limits(ica_cfg: IcaConfig) -> DriverLimits:
-    """What the roadside assumes of a human driver here: SUMO's passenger car, at most a
-    tenth over the road's limit."""
-    return DriverLimits(top_mps=ica_cfg.caps.road_mps * DriverLimits().speed_factor_max)
 
 
 class World:
@@ -108,7 +102,7 @@ class World:
         self.heads: SignalHeads | None = None
         self.human_seen: list[Seen] = []  # this step's, apart from the connected vehicles
         if any(v.human for v in schedule):
-            limits = human_limits(ica_cfg)
+            limits = human_limits(ica_cfg.caps.road_mps)
             define_human_type(ls, limits, cfg.length_m, cfg.width_m, ignore_foes=not signalised)
         self.junctions = [
             Junction.open(

@@ -486,3 +486,48 @@ def test_human_drivers_under_a_light_keep_its_right_of_way(tmp_path):
     m = _run(tmp_path / "act", "--layout", "ch45", "--algorithm", "actuated", "--volume", "300",
              "--seed", "12", "--duration", "400", "--cav-share", "0")  # fmt: skip
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["crossed"] > 100
+
+
+@pytest.mark.cluster
+def test_a_lockstep_cluster_with_human_drivers_makes_the_embedded_decisions(tmp_path):
+    """Over Zenoh the gateway tells the ICA process of each human driver (SPOTTED), asks
+    for its green (ASKGREEN -> LIT) and shrinks its reservations (SIGHTING -> SHRUNK)
+    before the step's clock: every vehicle, connected or not, crosses as in one process,
+    byte for byte. The observer draws what the embedded recording does: the humans as
+    such, their envelopes from the greens the ICA publishes, and the heads."""
+    from tests.test_cluster import _cluster
+    from tests.test_recording import _read, _rows
+
+    common = ["--layout", "ch45", "--volume", "300", "--seed", "21", "--duration", "120",
+              "--cav-share", "0.5"]  # fmt: skip
+    p = _cluster(tmp_path / "cl", "--agents", "2", *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _run(tmp_path / "emb", *common, "--record")
+    for name in ("vehicles.csv", "timeseries.csv"):
+        assert (tmp_path / "cl" / name).read_bytes() == (tmp_path / "emb" / name).read_bytes()
+    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
+    h = m["humans"]
+    assert h["given_green"] > 10 and h["reservations_shrunk"] > 50
+    assert h["entered_on_red"] == 0 and h["outside_envelope"] == 0
+    assert m["humans_unanswered"] == 0 and m["collisions"] == 0
+    assert m == {**m, "humans": json.loads((tmp_path / "emb" / "metrics.json").read_text())[
+        "humans"]}  # fmt: skip
+    ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
+    assert ica["humans"] == h["count"] and ica["greens"] >= h["given_green"]
+    assert ica["shrunk"] == h["reservations_shrunk"]
+    humans = {r["vin"] for r in _rows_csv(tmp_path / "cl") if r["human"] == "1"}
+    drawn = {}
+    for run in ("cl", "emb"):
+        data = _read(tmp_path / run / "spacetime.rrd")
+        boxes = _rows(data["/charts/data/zones/reserved"], "Boxes2D:labels")
+        lines = [row for key in data if key.startswith("/charts/data/lanes/")
+                 and key.endswith("/plans")
+                 for _, row in _rows(data[key], "LineStrips2D:labels")]  # fmt: skip
+        drawn[run] = {
+            "envelopes": sorted(lb for _, row in boxes for lb in row if lb.split()[0] in humans),
+            "bounds": sorted(lb for row in lines for lb in row if lb.split()[0] in humans),
+            "heads": [(round(t, 3), row) for t, row in _rows(data["/junction/heads"],
+                                                             "Points2D:colors") if len(row)],
+        }
+    assert len(drawn["cl"]["envelopes"]) > 50 and len(drawn["cl"]["heads"]) > 50
+    assert drawn["cl"] == drawn["emb"]

@@ -399,8 +399,9 @@ def cmd_observer(args: argparse.Namespace) -> int:
     _record(obs, session, log, live, f"recording junction {inter.junction_id} into {args.rrd}")
     log.info(
         "wrote %s: %d steps, %d confirmations, %d reorderings, %d plans withdrawn, "
-        "%d walkers' slots",
+        "%d walkers' slots, %d human drivers' greens",
         args.rrd, obs.steps, obs.confirmations, obs.reorders, obs.withdrawn, obs.walks,
+        obs.greens,
     )  # fmt: skip
     return 0
 

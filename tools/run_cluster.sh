@@ -65,6 +65,9 @@ scenario and roles:
   --begin S             with --routes: the simulated time the run starts at (default 0)
   --peds N              people on foot: N an hour at every crossing (a net with crossings,
                         e.g. --layout ch45-walk); the gateway asks the ICA for each
+  --cav-share P         mixed traffic: the share of connected vehicles (default 1); the
+                        others are SUMO's drivers, each held at a signal head of its lane
+                        that the gateway asks the ICA to turn green
   --agents N            vehicle-agent processes (default 2)
   --per-agent K         most vehicles one agent hosts at a time (default 0: no limit)
   --clock lockstep|realtime
@@ -143,7 +146,7 @@ while [ $# -gt 0 ]; do
     --routes) demand+=(--routes "$(from_caller "$2")"); shift 2 ;;
     --begin) demand+=(--begin "$2"); shift 2 ;;
     --peds) demand+=(--peds "$2"); peds="$2"; shift 2 ;;
-    --cav-share) die "--cav-share (human drivers) runs embedded for now (dica run --cav-share P), not as a cluster" ;;
+    --cav-share) demand+=(--cav-share "$2"); shift 2 ;;
     --agents) agents="$2"; shift 2 ;;
     --per-agent) per_agent="$2"; shift 2 ;;
     --clock) clock="$2"; shift 2 ;;

@@ -51,7 +51,7 @@ from dica.ica.core.envelope import (
     EXIT_HEADWAY_S,
     DriverLimits,
     bounds,
-    bounds_from,
+    bounds_seen,
     envelope_dtot,
     first_reach,
     follow_delay,
@@ -740,6 +740,34 @@ class Dica:
         green = Green(vin, g, now_s, (), (), rounds)
         return self._reserve(green, built, length_m)
 
+    def relight(
+        self,
+        vin: str,
+        green_s: float,
+        asked_s: float,
+        length_m: float,
+        width_m: float,
+        limits: DriverLimits,
+        dist_m: float,
+        routes: tuple[str, ...],
+    ) -> Green:
+        """A green given before a restart (from the journal): its envelopes on ``routes``
+        rebuilt at the same time from the same limits and reserved as they were, without
+        a check (they were checked when given). A later one replaces an earlier."""
+        shape = Shape.of(length_m, width_m)
+        built = []
+        for rid in routes:
+            r = self.intersection.route_by_id(rid)
+            if r is None:
+                raise RequestError(Reason.UNKNOWN_ROUTE, f"{vin}'s green names no route {rid!r}")
+            fast, slow = bounds(r, length_m, green_s, self.config.step_s, limits, dist_m)
+            d, fast_in = self._envelope(r, shape, fast, slow)
+            built.append((r, slow, d, fast_in))
+        held = self.greens.get(vin)
+        if held is not None:
+            self._unreserve(held)
+        return self._reserve(Green(vin, green_s, asked_s, (), (), 0), built, length_m)
+
     def _envelope(
         self, route: Route, shape: Shape, fast: Trajectory, slow: Trajectory
     ) -> tuple[Dtot, float]:
@@ -846,7 +874,7 @@ class Dica:
     ) -> dict[str, tuple[Trajectory, Trajectory]] | None:
         """A human driver on its green, seen (by the roadside, as any vehicle) with its
         front at ``s_m`` along its lane's routes at ``v_mps`` on ``lane``: its envelope
-        again, from there (:func:`ica.core.envelope.bounds_from`), on the routes it may
+        again, from there (:func:`ica.core.envelope.bounds_seen`), on the routes it may
         still take (once on a lane of the junction or beyond, the one it took). The new
         reservations lie within the old if the driver keeps to the stated limits; they
         are taken only if they meet nothing confirmed and keep the exit rules the old
@@ -873,14 +901,12 @@ class Dica:
             for k in held.keys
             if k in self._confirmed and k in old_in
         }
-        wait = 0.0
-        if v_mps <= 1e-9 and s_m <= 0.0:  # not surely moving yet
-            wait = held.green_s + limits.react_s - now_s
         taken, exits = self._unreserve(held)
         built, paths = [], {}
         ok = True
         for r in routes:
-            fast, slow = bounds_from(r, length_m, now_s, s_m, v_mps, cfg.step_s, limits, wait)
+            fast, slow = bounds_seen(r, length_m, now_s, s_m, v_mps, cfg.step_s, limits,
+                                     held.green_s)  # fmt: skip
             d, fast_in = self._envelope(r, shape, fast, slow)
             was = old.get(r.id)
             out_s = float(d.t_s[-1])

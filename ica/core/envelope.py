@@ -69,6 +69,13 @@ class DriverLimits:
         return max(self.speed_factor_min * limit - self.sigma * self.accel_mps2 * step_s, 1.0)
 
 
+def human_limits(road_mps: float) -> DriverLimits:
+    """What the roadside and the ICA assume of a human driver on a road of ``road_mps``:
+    SUMO's passenger car, at most a tenth over the limit. Both derive it from the same
+    configuration, so neither has to send it."""
+    return DriverLimits(top_mps=road_mps * DriverLimits().speed_factor_max)
+
+
 def profile(
     t0_s: float, step_s: float, s0_m: float, s_end_m: float, wait_s: float, accel: float, top: float
 ) -> Trajectory:
@@ -154,6 +161,23 @@ def bounds_from(
     stand = math.ceil(max(wait_s, 0.0) / step_s - 1e-9)
     slow = euler(t0_s, step_s, s0_m, v0_mps, s_end, stand, slow_a, limits.slow_mps(route, step_s))
     return fast, slow
+
+
+def bounds_seen(
+    route: Route,
+    length_m: float,
+    t_s: float,
+    s_m: float,
+    v_mps: float,
+    step_s: float,
+    limits: DriverLimits,
+    green_s: float,
+) -> tuple[Trajectory, Trajectory]:
+    """:func:`bounds_from` for a driver on its green since ``green_s``, seen at ``t_s``: one
+    still standing at its line may not have reacted yet, and may wait until its reaction
+    time is up. The ICA reserves these bounds and the roadside audits against them."""
+    wait = green_s + limits.react_s - t_s if v_mps <= 1e-9 and s_m <= 0.0 else 0.0
+    return bounds_from(route, length_m, t_s, s_m, v_mps, step_s, limits, wait)
 
 
 def first_reach(traj: Trajectory, s_m: np.ndarray) -> np.ndarray:

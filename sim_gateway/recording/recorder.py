@@ -268,9 +268,10 @@ class SpaceTimeRecorder:
         """The signal heads of the lanes where a human driver stands or goes, in SUMO's
         frame, every :data:`PEOPLE_EVERY_S`: red until the ICA's green, then green."""
         t = float(t_s)
-        if t - self._heads_t < PEOPLE_EVERY_S - 1e-9:
+        tick = math.floor(t / PEOPLE_EVERY_S + 1e-6)  # on a fixed grid: the same in any run
+        if tick == self._heads_t:
             return
-        self._heads_t = t
+        self._heads_t = tick
         red = np.asarray(red_xy, dtype=float).reshape(-1, 2)
         green = np.asarray(green_xy, dtype=float).reshape(-1, 2)
         xy = np.vstack([red, green])
