@@ -5,9 +5,11 @@ an audit that trusts none of it checks every human against its light and its bou
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import subprocess
 import sys
+import time
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -23,6 +25,7 @@ from dica.ica.core.envelope import (
     bounds_from,
     envelope_dtot,
     follow_delay,
+    human_limits,
     path_s,
     profile,
 )
@@ -526,8 +529,96 @@ def test_a_lockstep_cluster_with_human_drivers_makes_the_embedded_decisions(tmp_
         drawn[run] = {
             "envelopes": sorted(lb for _, row in boxes for lb in row if lb.split()[0] in humans),
             "bounds": sorted(lb for row in lines for lb in row if lb.split()[0] in humans),
-            "heads": [(round(t, 3), row) for t, row in _rows(data["/junction/heads"],
-                                                             "Points2D:colors") if len(row)],
+            "heads": [
+                (round(t, 3), row)
+                for t, row in _rows(data["/junction/heads"], "Points2D:colors")
+                if len(row)
+            ],
         }
     assert len(drawn["cl"]["envelopes"]) > 50 and len(drawn["cl"]["heads"]) > 50
     assert drawn["cl"] == drawn["emb"]
+
+
+@pytest.mark.cluster
+def test_the_ica_process_serves_the_roadside_alone_and_keeps_greens_over_a_restart(
+    ch45_net, ch45, tmp_path
+):
+    """On dica/<j>/human/gateway: a human driver SPOTTED, its green (LIT, published once
+    for observers), asked at this step's time only; the same asked through an agent's key
+    refused, and no agent may detect or ask for a human driver's VIN. The green is
+    journalled: the restarted ICA still delays a car through its envelope."""
+    from dica.ica.convert import request_from_core
+    from dica.schemas import keys
+    from dica.schemas.codec import decode, encode, now_ns
+    from dica.schemas.messages import Ack, AskGreen, Clock, Detect, Lit, Reject, Response, Spotted
+    from dica.tools.loopback import router_and_ica
+
+    j = ch45_net.junction_id
+    lane = _lane_with_turns(ch45)
+    # in process: a car from another approach that the human's green delays
+    ica = Dica(ch45)
+    ica.detect("h1", lane, 0.0)
+    ica.advance(0.05)
+    g = ica.green("h1", 0.05, 5.0, 1.8, human_limits(ica.config.caps.road_mps), 0.5)
+    for route in (r for r in ch45.routes if r.in_lane != lane and r.cars):
+        req = propose(route, vin="car", seq=0, t0_s=0.05, dist_to_entry_m=30.0, speed_mps=10.0)
+        alone, held = Dica(ch45), Dica(ch45)
+        alone.detect("car", route.in_lane, 0.0)
+        free = alone.handle(req, 0.05).entry_time_s
+        held.detect("h1", lane, 0.0)
+        held.detect("car", route.in_lane, 0.0)
+        held.advance(0.05)
+        held.green("h1", 0.05, 5.0, 1.8, human_limits(ica.config.caps.road_mps), 0.5)
+        if held.handle(req, 0.05).entry_time_s > free + 1.0:
+            break
+    else:
+        raise AssertionError("no car crosses the human's envelope")
+
+    def ask(session, key, msg):
+        (r,) = [r for r in session.get(key, payload=encode(msg), timeout=5.0) if r.ok]
+        return decode(r.ok.payload.to_bytes())
+
+    def clock(session, k, end=False):
+        session.put(keys.clock(j), encode(Clock(k, 0.05 * k, "lockstep", 1.0, end, now_ns())))
+
+    args = ("--net", str(ch45_net.net_path), "--junction", j, "--out", str(tmp_path))
+    gw = keys.human(j, "gateway")
+    with router_and_ica(j, args) as (session, proc):
+        heard = []
+        sub = session.declare_subscriber(keys.greens(j), lambda s: heard.append(s))
+        no = ask(session, keys.human(j, "agent-1"), Spotted("h1", lane, 0.0, now_ns()))
+        assert isinstance(no, Reject) and "only the roadside" in no.detail
+        assert isinstance(ask(session, gw, Spotted("h1", lane, 0.0, now_ns())), Ack)
+        no = ask(session, keys.detect(j, "agent-1"), Detect("h1", lane, 0.0, False, 9.0, now_ns()))
+        assert isinstance(no, Reject) and "another agent" in no.detail
+        clock(session, 1)
+        time.sleep(0.3)  # the clock is a publication: let it land before the query
+        no = ask(session, gw, AskGreen("h1", 5.0, 5.0, 1.8, 0.5, False, now_ns()))
+        assert isinstance(no, Reject) and no.reason == "bad_time"
+        lit = ask(session, gw, AskGreen("h1", 0.05, 5.0, 1.8, 0.5, False, now_ns()))
+        assert isinstance(lit, Lit) and lit.green_s == pytest.approx(g.green_s)
+        assert set(lit.routes) == set(g.routes) and len(lit.routes) > 1
+        again = ask(session, gw, AskGreen("h1", 0.05, 5.0, 1.8, 0.5, False, now_ns()))
+        assert again.green_s == lit.green_s
+        time.sleep(0.3)
+        (pub,) = [decode(s.payload.to_bytes(), Lit) for s in heard]
+        assert str(heard[0].key_expr) == keys.greens(j, "h1") and pub.routes == lit.routes
+        sub.undeclare()
+        clock(session, 2, end=True)
+        assert proc.wait(15) == 0
+    with router_and_ica(j, args) as (session, proc):  # the same journal
+        clock(session, 1)
+        time.sleep(0.3)
+        det = Detect("car", route.in_lane, 0.0, False, 10.0, now_ns())
+        assert isinstance(ask(session, keys.detect(j, "a"), det), Ack)
+        got = ask(session, keys.request(j, "a"), request_from_core(req))
+        assert isinstance(got, Response) and got.entry_time_s > free + 1.0
+        no = ask(session, keys.request(j, "a"), request_from_core(dataclasses.replace(
+            req, vin="h1")))  # fmt: skip
+        assert isinstance(no, Reject) and "another agent" in no.detail
+        clock(session, 2, end=True)
+        assert proc.wait(15) == 0
+    stats = json.loads((tmp_path / "ica.json").read_text())
+    first, second = stats["incarnations"]
+    assert first["humans"] == 1 and first["greens"] == 1
+    assert second["journal_replayed"]["greens"] == 1

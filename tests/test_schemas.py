@@ -19,11 +19,13 @@ from dica.schemas.messages import (
     VERSION,
     Ack,
     Across,
+    AskGreen,
     Cancel,
     Clock,
     Command,
     Detect,
     Go,
+    Lit,
     People,
     PersonPlace,
     Place,
@@ -33,6 +35,9 @@ from dica.schemas.messages import (
     Response,
     Revoke,
     Setpoint,
+    Shrunk,
+    Sighting,
+    Spotted,
     State,
     Stats,
     VehicleState,
@@ -72,6 +77,11 @@ SAMPLES = {
     Walk: Walk("p0001", ":C_c0", 12.5, 22.0, 1.3, 1, 2.0, 1.2, 7),
     Across: Across("p0001", ":C_c0", 40.25, 8),
     Go: Go("p0001", ":C_c0", 14.0, 28.8, 7, 12.5, 1, 3.5, 2.25, 0.8, 1.4, 26.0),
+    Spotted: Spotted("h00004", "W_in_0", 10.05, 9),
+    AskGreen: AskGreen("h00004", 18.5, 5.0, 1.8, 0.5, False, 10),
+    Lit: Lit("h00004", 21.0, 18.5, 0.5, 5.0, 1.8, ("W_S", "W_E", "W_N"), 11, 21.39, 0.05),
+    Sighting: Sighting("h00004", 22.5, ":C_3_0", 2.75, 4.2, 12),
+    Shrunk: Shrunk("h00004", 22.5, ("W_E",), 13),
     People: People(247, 12.35, (PersonPlace(1.5, -2.0, True), PersonPlace(3.0, 4.0, False)), 8),
     Detect: Detect("v00001", "W_in_0", 10.05, True, 12.5, 3),
     Revoke: Revoke("v00001", 3, 12.4, 9),
@@ -105,6 +115,9 @@ SAMPLES = {
 
 def _same(a, b) -> None:
     assert type(a) is type(b)
+    if isinstance(a, str):
+        assert a == b
+        return
     for name in a.__dataclass_fields__:
         x, y = getattr(a, name), getattr(b, name)
         if isinstance(x, np.ndarray):

@@ -274,6 +274,8 @@ def _uses() -> tuple[Use, ...]:
             "ica", ""),
         Use("put", f"dica/{J}/revoke/{A}", ("ica",), A, f"dica/{J}/revoke/{A}", "ica", ""),
         Use("put", f"dica/{J}/reorder", ("ica",), "observer", f"dica/{J}/reorder", "ica", ""),
+        Use("put", f"dica/{J}/greens/h7", ("ica",), "observer", f"dica/{J}/greens/*",
+            "ica", ""),
         Use("put", f"dica/{J}/ack/{A}", (A,), "ica", f"dica/{J}/ack/*", A, ""),
         Use("put", f"sim/{J}/command/{A}", (A,), "gateway", f"sim/{J}/command/*", A, ""),
         # subscriptions: the owner subscribes, the witness publishes
@@ -284,6 +286,8 @@ def _uses() -> tuple[Use, ...]:
             f"dica/{J}/confirmed/*"),
         Use("subscribe", f"dica/{J}/revoke/{A}", (A, "gateway"), "ica", "", A, ""),
         Use("subscribe", f"dica/{J}/reorder", ("observer",), "ica", "", "observer", ""),
+        Use("subscribe", f"dica/{J}/greens/h7", ("observer",), "ica", "", "observer",
+            f"dica/{J}/greens/*"),
         Use("subscribe", f"dica/{J}/ack/{A}", ("ica",), A, "", "ica", f"dica/{J}/ack/*"),
         Use("subscribe", f"sim/{J}/command/{A}", ("gateway",), A, "", "gateway",
             f"sim/{J}/command/*"),
@@ -294,11 +298,15 @@ def _uses() -> tuple[Use, ...]:
         Use("queryable", stats, (A,), "gateway", f"sim/{J}/stats/*", A, ""),
         Use("queryable", f"dica/{J}/walk/gateway", ("ica",), "gateway", "", "ica",
             f"dica/{J}/walk/*"),
+        Use("queryable", f"dica/{J}/human/gateway", ("ica",), "gateway", "", "ica",
+            f"dica/{J}/human/*"),
         # queries: the owner asks, the witness serves
         *(Use("query", f"dica/{J}/{k}/{A}", (A,), "ica", f"dica/{J}/{k}/*", A, "")
           for k in ("request", "detect", "cancel")),
         Use("query", f"dica/{J}/stats", ("gateway",), "ica", "", "gateway", ""),
         Use("query", f"dica/{J}/walk/gateway", ("gateway",), "ica", f"dica/{J}/walk/*",
+            "gateway", ""),
+        Use("query", f"dica/{J}/human/gateway", ("gateway",), "ica", f"dica/{J}/human/*",
             "gateway", ""),
         Use("query", stats, ("gateway",), A, "", "gateway", f"sim/{J}/stats/*"),
         # replies travel back on the asked key: answering on another is refused
