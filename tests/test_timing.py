@@ -320,6 +320,37 @@ def test_a_killed_ica_comes_back_from_its_journal_and_keeps_its_promises(tmp_pat
     assert conflicts(flown, 0.25) == []
 
 
+def test_a_killed_ica_with_human_drivers_keeps_their_greens_and_nothing_collides(tmp_path):
+    """Half the drivers human, in real time, the ICA SIGKILLed mid-run: meanwhile no
+    human is given a green (they wait on red) and those on theirs go on in the envelopes
+    reserved for them; the restarted ICA replays their greens from its journal. Nothing
+    collides and no human leaves its envelope or goes on red."""
+    from dica.ica.journal import records
+
+    out = tmp_path / "rt"
+    proc = _start_cluster(
+        out,
+        *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
+        *("--volume", "300", "--duration", "60", "--seed", "21", "--cav-share", "0.5"),
+    )
+    _wait_for_sim_time(out, 25, proc)
+    journal = records(out / "ica-journal.msgpack")[0]
+    greens = [r for r in journal if r["k"] == "green"]  # sooner ones too
+    lit = len({r["vin"] for r in greens})  # human drivers given a green before the crash
+    assert lit > 3
+    _kill(out, "ica")
+    stdout, stderr = _finish(proc, out)
+    assert proc.returncode == 0, stdout + stderr
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    assert m["ica_outages"] >= 1
+    h = m["humans"]
+    assert h["entered_on_red"] == 0 and h["outside_envelope"] == 0
+    assert h["given_green"] > lit  # the restarted ICA went on giving greens
+    ica = json.loads((out / "ica.json").read_text())
+    assert ica["incarnations"][1]["journal_replayed"]["greens"] >= len(greens)
+
+
 def test_a_killed_gateway_leaves_what_the_run_knew(tmp_path):
     out = tmp_path / "rt"
     proc = _start_cluster(
