@@ -20,6 +20,8 @@ from dica.ica.core.config import IcaConfig
 from dica.ica.core.dica import Dica, padded
 from dica.ica.core.dtot import Dtot
 from dica.ica.core.envelope import (
+    KRAUSS_DECEL_MPS2,
+    KRAUSS_TAU_S,
     DriverLimits,
     bounds,
     bounds_from,
@@ -180,6 +182,60 @@ def test_a_follower_let_go_after_its_follow_delay_never_brakes_inside(ch45):
     rear = np.where(after, lead.s_m[-1] - route.cross_length_m - 4.5
                     + v_end * (t - lead.t_s[-1]), rear)  # fmt: skip
     assert (rear[inside] - u_f[inside] >= 2.5 - 1e-9).all()  # never closer than SUMO's minGap
+
+
+def _merging_lanes(inter) -> tuple[str, str, str]:
+    """Two approach lanes with car routes onto one exit lane: (lane a, lane b, exit)."""
+    for a in inter.routes:
+        for b in inter.routes:
+            if a.cars and b.cars and a.in_lane != b.in_lane and a.out_lane == b.out_lane:
+                return a.in_lane, b.in_lane, a.out_lane
+    raise AssertionError("no two lanes lead onto one exit lane")
+
+
+def test_a_human_may_go_ahead_of_a_later_human_onto_its_exit_lane_never_of_a_plan(ch45):
+    """Human b holds a green 20 s from now; human a, merging onto b's exit lane, asks
+    now: it goes at once, ahead of b (it used to wait until b had gone), because b at
+    its fastest never comes close enough behind a at its slowest to brake inside the
+    junction (checked here step by step with SUMO's safe speed, not by the ICA's
+    function), and their envelopes meet nowhere (brute force). Ahead of a connected
+    vehicle's plan onto that lane it never goes: the plan is flown, not braked."""
+    lane_a, lane_b, out = _merging_lanes(ch45)
+    shape = Shape.of(4.5, 1.8)
+    ica = Dica(ch45, IcaConfig())
+    ica.detect("b", lane_b, 0.0)
+    ica.detect("a", lane_a, 0.0)
+    gb = ica.green("b", 20.0, shape.length_m, shape.width_m, LIMITS)
+    ga = ica.green("a", 0.0, shape.length_m, shape.width_m, LIMITS)
+    assert ga.green_s < 1.0 < 20.0 <= gb.green_s
+    for ea in _envelopes(ica, ga, ch45, shape):
+        assert not any(_clash(eb, ea) for eb in _envelopes(ica, gb, ch45, shape))
+    tb = KRAUSS_TAU_S * KRAUSS_DECEL_MPS2
+    for ra in (r for r in ch45.routes_from(lane_a) if r.out_lane == out):
+        _, slow_a = bounds(ra, 4.5, ga.green_s, STEP, LIMITS)
+        for rb in (r for r in ch45.routes_from(lane_b) if r.out_lane == out):
+            fast_b, _ = bounds(rb, 4.5, gb.green_s, STEP, LIMITS)
+            u_b = fast_b.s_m - rb.cross_length_m  # from the exit line
+            inside = u_b - 4.5 < 0.0
+            rear_a = np.interp(fast_b.t_s, slow_a.t_s, slow_a.s_m) - ra.cross_length_m - 4.5
+            v_a = np.gradient(slow_a.s_m, STEP)[-1]
+            late = fast_b.t_s > slow_a.t_s[-1]
+            rear_a[late] = (slow_a.s_m[-1] - ra.cross_length_m - 4.5
+                            + v_a * (fast_b.t_s[late] - slow_a.t_s[-1]))  # fmt: skip
+            gap = rear_a - u_b - 2.5
+            v_b = np.append(np.diff(fast_b.s_m) / STEP, 0.0)
+            safe = -tb + np.sqrt(tb * tb + v_a * v_a + 2 * KRAUSS_DECEL_MPS2 * np.maximum(gap, 0))
+            assert (gap[inside] >= 0.0).all() and (v_b[inside] <= safe[inside] + 1e-9).all()
+    # the same ask behind a connected vehicle's plan onto that exit lane waits for it
+    cav_route = next(r for r in ch45.routes_from(lane_b) if r.out_lane == out)
+    ica2 = Dica(ch45, IcaConfig())
+    ica2.detect("cav", lane_b, 0.0)
+    ica2.detect("a", lane_a, 0.0)
+    req = propose(cav_route, vin="cav", seq=0, t0_s=10.0, dist_to_entry_m=30.0, speed_mps=10.0)
+    assert isinstance(ica2.handle(req, 10.0), Confirmation)
+    entry = ica2.confirmed["cav"].confirmation.entry_time_s
+    g = ica2.green("a", 0.0, shape.length_m, shape.width_m, LIMITS)
+    assert g.green_s > entry
 
 
 def _clash(stored: Dtot, new: Dtot) -> bool:

@@ -203,7 +203,9 @@ class Dica:
         # human's envelope there: (key, when it may enter at the soonest, when it is out)
         self.greens: dict[str, Green] = {}
         self.shrunk = 0  # how often a human's reservations shrank (tighten, regreen)
-        self._human_exits: dict[str, list[tuple[str, float, float]]] = {}
+        # per exit lane, the human reservations onto it: (key, soonest entry, latest exit,
+        # fastest crossing)
+        self._human_exits: dict[str, list[tuple[str, float, float, Trajectory]]] = {}
 
     def prepare(self) -> None:
         """Work a controller can do once before it serves, so that no request waits
@@ -721,17 +723,20 @@ class Dica:
             for r in routes:
                 fast, slow = bounds(r, length_m, g, cfg.step_s, limits, dist_m)
                 d, fast_in = self._envelope(r, shape, fast, slow)
-                built.append((r, slow, d, fast_in))
+                built.append((r, slow, d, fast_in, fast))
                 for c in self.conflicts(d):  # one that only touches still moves it a step
                     late, hit = max(late, c.delay_s), True
                 for _, _, key in self._exits(r.out_lane):  # never brakes behind one inside
                     c = self._confirmed[key]
                     lead = c.dtot.trajectory
                     lead = Trajectory(lead.t0_s + pad, lead.step_s, lead.s_m)
-                    late = max(late, follow_delay(
+                    behind = follow_delay(
                         fast, r.cross_length_m, length_m, lead, c.dtot.route.cross_length_m,
                         c.length_m,
-                    ))  # fmt: skip
+                    )  # fmt: skip
+                    if behind > 1e-9 and self._goes_ahead(key, c, r, slow, length_m):
+                        continue
+                    late = max(late, behind)
             if not hit and late <= 1e-9:
                 break
             if rounds >= MAX_GREEN_ROUNDS:
@@ -762,11 +767,27 @@ class Dica:
                 raise RequestError(Reason.UNKNOWN_ROUTE, f"{vin}'s green names no route {rid!r}")
             fast, slow = bounds(r, length_m, green_s, self.config.step_s, limits, dist_m)
             d, fast_in = self._envelope(r, shape, fast, slow)
-            built.append((r, slow, d, fast_in))
+            built.append((r, slow, d, fast_in, fast))
         held = self.greens.get(vin)
         if held is not None:
             self._unreserve(held)
         return self._reserve(Green(vin, green_s, asked_s, (), (), 0), built, length_m)
+
+    def _goes_ahead(
+        self, key: str, c: Confirmed, route: Route, slow: Trajectory, length_m: float
+    ) -> bool:
+        """Whether a human's green may put it ahead of reservation ``key`` (``c``) on their
+        exit lane: ``key`` is another human's, and at its fastest it never comes so close
+        behind this one at its slowest (``slow`` on ``route``) that it would brake inside
+        the junction. A connected vehicle's plan is never overtaken so: it flies its plan
+        and would not brake for a human that slipped in ahead."""
+        fast = next((row[3] for row in self._human_exits.get(route.out_lane, ())
+                     if row[0] == key), None)  # fmt: skip
+        if fast is None:
+            return False
+        return follow_delay(
+            fast, c.dtot.route.cross_length_m, c.length_m, slow, route.cross_length_m, length_m
+        ) <= 1e-9
 
     def _envelope(
         self, route: Route, shape: Shape, fast: Trajectory, slow: Trajectory
@@ -781,14 +802,17 @@ class Dica:
         return d, float(first_reach(fast, np.zeros(1))[0])
 
     def _reserve(
-        self, green: Green, built: list[tuple[Route, Trajectory, Dtot, float]], length_m: float
+        self,
+        green: Green,
+        built: list[tuple[Route, Trajectory, Dtot, float, Trajectory]],
+        length_m: float,
     ) -> Green:
-        """Store a green's envelopes (route, slow bound, DTOT, soonest entry) as
+        """Store a green's envelopes (route, slow bound, DTOT, soonest entry, fast bound) as
         reservations: ``vin`` names the one out last, ``vin~route`` the others."""
         cfg, vin = self.config, green.vin
         built = sorted(built, key=lambda b: float(b[2].ub_s[-1]))
         keys = []
-        for i, (r, slow, d, fast_in) in enumerate(built):
+        for i, (r, slow, d, fast_in, fast) in enumerate(built):
             key = vin if i == len(built) - 1 else f"{vin}~{r.id}"
             conf = Confirmation(
                 vin=key,
@@ -804,7 +828,7 @@ class Dica:
             done = Confirmed.of(key, stored, conf, length_m)
             self._confirmed[key] = done
             self._rows.add(key, stored, done.packed)
-            self._human_exits.setdefault(r.out_lane, []).append((key, fast_in, done.out_s))
+            self._human_exits.setdefault(r.out_lane, []).append((key, fast_in, done.out_s, fast))
             keys.append(key)
         self._version += 1
         green = dataclasses.replace(green, routes=tuple(b[0].id for b in built), keys=tuple(keys))
@@ -895,7 +919,7 @@ class Dica:
         cfg = self.config
         c0 = self._confirmed[vin]
         length_m, shape = c0.length_m, c0.dtot.shape
-        old_in = {k: (fi, out) for rows in self._human_exits.values() for k, fi, out in rows}
+        old_in = {k: (fi, out) for rows in self._human_exits.values() for k, fi, out, _ in rows}
         old = {
             self._confirmed[k].dtot.route.id: (*old_in[k], self._confirmed[k].dtot.trajectory)
             for k in held.keys
@@ -919,7 +943,7 @@ class Dica:
             ):
                 ok = False
                 break
-            built.append((r, slow, d, fast_in))
+            built.append((r, slow, d, fast_in, fast))
             paths[r.id] = (fast, slow)
         if not ok:
             self._restore(held, taken, exits)
@@ -964,7 +988,7 @@ class Dica:
         # a human who may take this exit lane: leave it well before the human can enter
         # (it never brakes behind this plan inside), or after it is surely out
         ahead = EXIT_HEADWAY_S + 2.0 * self.config.time_pad_s
-        for key, fast_in, slow_out in self._human_exits.get(route.out_lane, ()):
+        for key, fast_in, slow_out, _ in self._human_exits.get(route.out_lane, ()):
             need = slow_out + self.config.step_s
             if fast_in - ahead < out_s < need and (worst is None or need - out_s > worst.delay_s):
                 worst = Conflict(key, out_s, need - out_s)
