@@ -193,49 +193,61 @@ def _merging_lanes(inter) -> tuple[str, str, str]:
     raise AssertionError("no two lanes lead onto one exit lane")
 
 
-def test_a_human_may_go_ahead_of_a_later_human_onto_its_exit_lane_never_of_a_plan(ch45):
-    """Human b holds a green 20 s from now; human a, merging onto b's exit lane, asks
-    now: it goes at once, ahead of b (it used to wait until b had gone), because b at
-    its fastest never comes close enough behind a at its slowest to brake inside the
-    junction (checked here step by step with SUMO's safe speed, not by the ICA's
-    function), and their envelopes meet nowhere (brute force). Ahead of a connected
-    vehicle's plan onto that lane it never goes: the plan is flown, not braked."""
+def _never_brakes_behind(follower, f_route, lead, l_route, length_m: float = 4.5) -> bool:
+    """By SUMO's safe speed, step by step (not by the ICA's function): ``follower``
+    (a trajectory on ``f_route``) never comes closer than the standstill gap behind
+    ``lead`` (on ``l_route``, carried on at its last speed) nor faster than its safe
+    speed behind it while inside the junction. Both measured from the exit line."""
+    tb = KRAUSS_TAU_S * KRAUSS_DECEL_MPS2
+    u = follower.s_m - f_route.cross_length_m
+    inside = u - length_m < 0.0
+    rear = np.interp(follower.t_s, lead.t_s, lead.s_m) - l_route.cross_length_m - length_m
+    v_lead = (lead.s_m[-1] - lead.s_m[-2]) / STEP
+    late = follower.t_s > lead.t_s[-1]
+    rear[late] = (lead.s_m[-1] - l_route.cross_length_m - length_m
+                  + v_lead * (follower.t_s[late] - lead.t_s[-1]))  # fmt: skip
+    gap = rear - u - 2.5
+    v = np.append(np.diff(follower.s_m) / STEP, 0.0)
+    safe = -tb + np.sqrt(tb * tb + v_lead * v_lead + 2 * KRAUSS_DECEL_MPS2 * np.maximum(gap, 0))
+    return bool((gap[inside] >= 0.0).all() and (v[inside] <= safe[inside] + 1e-9).all())
+
+
+@pytest.mark.parametrize("later", ["human", "plan", "plan-sooner"])
+def test_a_human_may_go_ahead_of_a_later_vehicle_onto_its_exit_lane(ch45, later):
+    """Human b holds a green 20 s from now (or a connected vehicle a plan that enters
+    about 22 s from now) onto the exit lane of human a, who asks now: a goes at once,
+    ahead of it (it used to wait until it had gone), because at its fastest it never
+    comes close enough behind a at its slowest to brake inside the junction (by SUMO's
+    safe speed, step by step), and their reservations meet nowhere (brute force). A
+    plan that enters about 12 s from now would catch a up inside: a waits for it."""
     lane_a, lane_b, out = _merging_lanes(ch45)
     shape = Shape.of(4.5, 1.8)
+    rb = next(r for r in ch45.routes_from(lane_b) if r.out_lane == out)
     ica = Dica(ch45, IcaConfig())
     ica.detect("b", lane_b, 0.0)
     ica.detect("a", lane_a, 0.0)
-    gb = ica.green("b", 20.0, shape.length_m, shape.width_m, LIMITS)
+    if later == "human":
+        gb = ica.green("b", 20.0, shape.length_m, shape.width_m, LIMITS)
+        held = _envelopes(ica, gb, ch45, shape)
+        fast_b, _ = bounds(rb, 4.5, gb.green_s, STEP, LIMITS)
+        soonest = gb.green_s
+    else:
+        t0 = 20.0 if later == "plan" else 10.0
+        req = propose(rb, vin="b", seq=0, t0_s=t0, dist_to_entry_m=30.0, speed_mps=10.0)
+        assert isinstance(ica.handle(req, t0), Confirmation)
+        held, fast_b = [ica.confirmed["b"].dtot], ica.confirmed["b"].dtot.trajectory
+        soonest = ica.confirmed["b"].confirmation.entry_time_s
     ga = ica.green("a", 0.0, shape.length_m, shape.width_m, LIMITS)
-    assert ga.green_s < 1.0 < 20.0 <= gb.green_s
+    if later == "plan-sooner":  # it meets nothing, but the plan would catch it inside
+        assert not any(_clash(held[0], e) for e in _envelopes(ica, ga, ch45, shape))
+        assert ga.green_s > soonest
+        return
+    assert ga.green_s < 1.0 < 20.0 <= soonest
     for ea in _envelopes(ica, ga, ch45, shape):
-        assert not any(_clash(eb, ea) for eb in _envelopes(ica, gb, ch45, shape))
-    tb = KRAUSS_TAU_S * KRAUSS_DECEL_MPS2
+        assert not any(_clash(eb, ea) for eb in held)
     for ra in (r for r in ch45.routes_from(lane_a) if r.out_lane == out):
         _, slow_a = bounds(ra, 4.5, ga.green_s, STEP, LIMITS)
-        for rb in (r for r in ch45.routes_from(lane_b) if r.out_lane == out):
-            fast_b, _ = bounds(rb, 4.5, gb.green_s, STEP, LIMITS)
-            u_b = fast_b.s_m - rb.cross_length_m  # from the exit line
-            inside = u_b - 4.5 < 0.0
-            rear_a = np.interp(fast_b.t_s, slow_a.t_s, slow_a.s_m) - ra.cross_length_m - 4.5
-            v_a = np.gradient(slow_a.s_m, STEP)[-1]
-            late = fast_b.t_s > slow_a.t_s[-1]
-            rear_a[late] = (slow_a.s_m[-1] - ra.cross_length_m - 4.5
-                            + v_a * (fast_b.t_s[late] - slow_a.t_s[-1]))  # fmt: skip
-            gap = rear_a - u_b - 2.5
-            v_b = np.append(np.diff(fast_b.s_m) / STEP, 0.0)
-            safe = -tb + np.sqrt(tb * tb + v_a * v_a + 2 * KRAUSS_DECEL_MPS2 * np.maximum(gap, 0))
-            assert (gap[inside] >= 0.0).all() and (v_b[inside] <= safe[inside] + 1e-9).all()
-    # the same ask behind a connected vehicle's plan onto that exit lane waits for it
-    cav_route = next(r for r in ch45.routes_from(lane_b) if r.out_lane == out)
-    ica2 = Dica(ch45, IcaConfig())
-    ica2.detect("cav", lane_b, 0.0)
-    ica2.detect("a", lane_a, 0.0)
-    req = propose(cav_route, vin="cav", seq=0, t0_s=10.0, dist_to_entry_m=30.0, speed_mps=10.0)
-    assert isinstance(ica2.handle(req, 10.0), Confirmation)
-    entry = ica2.confirmed["cav"].confirmation.entry_time_s
-    g = ica2.green("a", 0.0, shape.length_m, shape.width_m, LIMITS)
-    assert g.green_s > entry
+        assert _never_brakes_behind(fast_b, rb, slow_a, ra, 4.5 if later == "human" else 5.0)
 
 
 def _clash(stored: Dtot, new: Dtot) -> bool:

@@ -777,17 +777,22 @@ class Dica:
         self, key: str, c: Confirmed, route: Route, slow: Trajectory, length_m: float
     ) -> bool:
         """Whether a human's green may put it ahead of reservation ``key`` (``c``) on their
-        exit lane: ``key`` is another human's, and at its fastest it never comes so close
-        behind this one at its slowest (``slow`` on ``route``) that it would brake inside
-        the junction. A connected vehicle's plan is never overtaken so: it flies its plan
-        and would not brake for a human that slipped in ahead."""
+        exit lane: ``c`` at its fastest (another human's fast bound, or a connected
+        vehicle's plan run early by the time pad) never comes so close behind this one at
+        its slowest (``slow`` on ``route``) that it would brake inside the junction. A
+        connected vehicle flies its plan until its rear is out, and SUMO's driver, to
+        whom it is then handed, starts no faster than SUMO's safe speed behind it."""
         fast = next((row[3] for row in self._human_exits.get(route.out_lane, ())
                      if row[0] == key), None)  # fmt: skip
-        if fast is None:
-            return False
-        return follow_delay(
-            fast, c.dtot.route.cross_length_m, c.length_m, slow, route.cross_length_m, length_m
-        ) <= 1e-9
+        if fast is None:  # a plan
+            plan = c.dtot.trajectory
+            fast = Trajectory(plan.t0_s - 2.0 * self.config.time_pad_s, plan.step_s, plan.s_m)
+        return (
+            follow_delay(
+                fast, c.dtot.route.cross_length_m, c.length_m, slow, route.cross_length_m, length_m
+            )
+            <= 1e-9
+        )
 
     def _envelope(
         self, route: Route, shape: Shape, fast: Trajectory, slow: Trajectory
