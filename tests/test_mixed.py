@@ -250,6 +250,36 @@ def test_a_human_may_go_ahead_of_a_later_vehicle_onto_its_exit_lane(ch45, later)
         assert _never_brakes_behind(fast_b, rb, slow_a, ra, 4.5 if later == "human" else 5.0)
 
 
+def test_a_plan_onto_a_humans_exit_lane_never_has_either_brake_inside(ch45):
+    """Human a holds a green at 0 onto an exit lane; a connected vehicle from the other
+    lane onto it asks for a plan from t0: whether it goes ahead of a or behind, by
+    SUMO's safe speed step by step the one behind never brakes inside the junction (a
+    at its fastest behind the plan, or the plan behind a at its slowest). The rule
+    binds: at some t0 it is planned later than on an empty junction."""
+    lane_a, lane_b, out = _merging_lanes(ch45)
+    shape = Shape.of(4.5, 1.8)
+    rb = next(r for r in ch45.routes_from(lane_b) if r.out_lane == out)
+    later = []
+    for t0 in (0.0, 2.0, 4.0, 8.0):
+        ica = Dica(ch45, IcaConfig())
+        ica.detect("a", lane_a, 0.0)
+        ica.detect("b", lane_b, 0.0)
+        ga = ica.green("a", 0.0, shape.length_m, shape.width_m, LIMITS)
+        req = propose(rb, vin="b", seq=0, t0_s=t0, dist_to_entry_m=30.0, speed_mps=10.0)
+        assert isinstance(ica.handle(req, t0), Confirmation)
+        plan = ica.confirmed["b"].dtot.trajectory
+        for ra in (r for r in ch45.routes_from(lane_a) if r.out_lane == out):
+            fast_a, slow_a = bounds(ra, 4.5, ga.green_s, STEP, LIMITS)
+            assert _never_brakes_behind(fast_a, ra, plan, rb) or _never_brakes_behind(
+                plan, rb, slow_a, ra, 5.0
+            )
+        bare = Dica(ch45, IcaConfig())
+        bare.detect("b", lane_b, 0.0)
+        free = bare.handle(req, t0).entry_time_s
+        later.append(ica.confirmed["b"].confirmation.entry_time_s - free)
+    assert max(later) > 1.0
+
+
 def _clash(stored: Dtot, new: Dtot) -> bool:
     """The ICA's rule, by brute force: an occupancy of ``new`` overlaps one of
     ``stored`` (padded as stored) in space while their intervals overlap in time."""

@@ -48,7 +48,6 @@ from dica.ica.core.conflict import (
 from dica.ica.core.crosswalk import passage
 from dica.ica.core.dtot import Dtot, build_dtot
 from dica.ica.core.envelope import (
-    EXIT_HEADWAY_S,
     DriverLimits,
     bounds,
     bounds_seen,
@@ -976,12 +975,21 @@ class Dica:
                 worst = Conflict(f"walkers on {cid}", t_in, d)
         return worst
 
-    def exit_order(self, route: Route, out_s: float, out_mps: float) -> Conflict | None:
+    def exit_order(
+        self,
+        route: Route,
+        out_s: float,
+        out_mps: float,
+        traj: Trajectory | None = None,
+        length_m: float = 5.0,
+    ) -> Conflict | None:
         """checkFV beyond the junction: a plan may not leave by an exit lane ahead of a
         confirmed vehicle that leaves it faster, which would run into it out there
         (nothing checks the road after the junction). The conflict with the one that
         leaves last: delay this plan (its rear out at ``out_s``, at ``out_mps``) until
-        it leaves after it."""
+        it leaves after it. With the plan itself (``traj``, of a vehicle ``length_m``
+        long), the human drivers who may take the exit lane too
+        (:meth:`_human_order`)."""
         v = out_mps + self.config.speed_tol_mps
         worst: Conflict | None = None
         for t_out, v_out, vin in self._exits(route.out_lane):
@@ -990,13 +998,40 @@ class Dica:
             need = t_out + self.config.step_s  # its padded reservation's end
             if need > out_s and (worst is None or need - out_s > worst.delay_s):
                 worst = Conflict(vin, out_s, need - out_s)
-        # a human who may take this exit lane: leave it well before the human can enter
-        # (it never brakes behind this plan inside), or after it is surely out
-        ahead = EXIT_HEADWAY_S + 2.0 * self.config.time_pad_s
-        for key, fast_in, slow_out, _ in self._human_exits.get(route.out_lane, ()):
-            need = slow_out + self.config.step_s
-            if fast_in - ahead < out_s < need and (worst is None or need - out_s > worst.delay_s):
-                worst = Conflict(key, out_s, need - out_s)
+        if traj is not None:
+            late = self._human_order(route, traj, length_m, out_s)
+            if late is not None and (worst is None or late.delay_s > worst.delay_s):
+                worst = late
+        return worst
+
+    def _human_order(
+        self, route: Route, traj: Trajectory, length_m: float, out_s: float
+    ) -> Conflict | None:
+        """A plan onto an exit lane a human may take goes ahead of the human, which at
+        its fastest then never comes so close behind the plan run late by the time pad
+        that it would brake inside the junction, or behind it, the plan run early never
+        so close behind the human at its slowest: Krauss's safe speed either way
+        (:func:`ica.core.envelope.follow_delay`), as between two humans. Else the
+        conflict that puts it behind the one it would have to follow the latest."""
+        rows = self._human_exits.get(route.out_lane, ())
+        if not rows:
+            return None
+        pad = 2.0 * self.config.time_pad_s
+        late_plan = Trajectory(traj.t0_s + pad, traj.step_s, traj.s_m)
+        early_plan = Trajectory(traj.t0_s - pad, traj.step_s, traj.s_m)
+        worst: Conflict | None = None
+        for key, _fast_in, _slow_out, fast in rows:
+            c = self._confirmed.get(key)
+            if c is None:
+                continue
+            cross = c.dtot.route.cross_length_m
+            if follow_delay(fast, cross, c.length_m, late_plan, route.cross_length_m,
+                            length_m) <= 1e-9:  # fmt: skip
+                continue  # ahead of the human: it never brakes behind the plan inside
+            d = follow_delay(early_plan, route.cross_length_m, length_m, c.dtot.trajectory,
+                             cross, c.length_m)  # fmt: skip
+            if d > 1e-9 and (worst is None or d > worst.delay_s):
+                worst = Conflict(key, out_s, d)
         return worst
 
     def _exits(self, out_lane: str) -> list[tuple[float, float, str]]:

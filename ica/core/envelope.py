@@ -35,9 +35,6 @@ from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.zones import RouteGrid, Shape
 
 STOP_SHORT_M = 0.5  # [m] a human stands this far short of its line at a red head
-# [s] a vehicle confirmed onto an exit lane a human may take leaves the junction at least
-# this long before the human can enter it, so the human never brakes behind it inside
-EXIT_HEADWAY_S = 2.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -412,7 +412,7 @@ class Search:
         passes (:meth:`Dica.walk_conflict`): the conflict that delays ``traj`` the most,
         or None."""
         ica = self.ica
-        late = ica.exit_order(self.route, out_s, out_mps)
+        late = ica.exit_order(self.route, out_s, out_mps, traj, self.shape.length_m)
         if ica.config.exit_spacing:
             gap = ica.exit_spacing(self.route, out_s, out_mps, self.shape.length_m)
             if gap is not None and (late is None or gap.delay_s > late.delay_s):
