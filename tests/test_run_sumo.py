@@ -286,3 +286,15 @@ def test_unconfirmed_entries_are_counted(tmp_path):
     )
     assert p.returncode == 0, p.stderr
     assert int(p.stdout.split()[-1]) > 10
+
+
+def test_experiment_writes_a_relative_out_where_the_user_stands(tmp_path):
+    """Run from the user's own directory with ``--out grid``: the cells land in that
+    directory's ``grid``, not in the project's."""
+    p = subprocess.run(
+        [sys.executable, "-m", "dica.tools.cli", "experiment", "--algorithms", "enhanced",
+         "--volumes", "300", "--seeds", "12", "--duration", "20", "--out", "grid", "--quiet"],
+        capture_output=True, text=True, cwd=tmp_path, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert (tmp_path / "grid" / "ch45" / "enhanced" / "v300" / "s12" / "metrics.json").is_file()

@@ -31,8 +31,6 @@ from pathlib import Path
 
 from dica.tools import options
 
-ROOT = Path(__file__).resolve().parents[1]
-
 
 def _list_of(cast, what: str):
     """An argparse type: comma-separated values of one kind."""
@@ -177,7 +175,8 @@ def main(argv: list[str] | None = None) -> int:
 
     def one(cell: Path, cmd: list[str]) -> tuple[Path, int, str]:
         cell.mkdir(parents=True, exist_ok=True)
-        p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+        # from the user's directory: a relative --out or path in --extra means theirs
+        p = subprocess.run(cmd, capture_output=True, text=True)
         (cell / "run.log").write_text(p.stdout + p.stderr)
         tail = (p.stderr.strip().splitlines() or [""])[-1]
         return cell, p.returncode, tail
