@@ -104,6 +104,28 @@ def _safe_and_whole(m: dict) -> None:
     assert acc["crossed"] == m["crossed"]
 
 
+def _ica_killed_mid_run(out: Path, *demand: str) -> tuple[list[dict], dict]:
+    """A real-time two-agent cluster run of 60 s whose ICA is SIGKILLed at sim time 25 s
+    (and restarted): the journal's records before the kill, and the run's metrics once
+    checked safe and whole and showing the outage."""
+    from dica.ica.journal import records
+
+    proc = _start_cluster(
+        out,
+        *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
+        "--duration", "60", *demand,
+    )  # fmt: skip
+    _wait_for_sim_time(out, 25, proc)
+    kept = records(out / "ica-journal.msgpack")[0]
+    _kill(out, "ica")
+    stdout, stderr = _finish(proc, out)
+    assert proc.returncode == 0, stdout + stderr
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    assert m["ica_outages"] >= 1
+    return kept, m
+
+
 # -- the emulator itself, on real Zenoh sessions ------------------------------------------
 def test_the_link_emulator_delays_and_loses_real_zenoh_messages(tmp_path):
     from dica.deploy.linkem import Faults, Proxy, write_profile, write_spec
@@ -278,21 +300,10 @@ def test_a_killed_ica_comes_back_from_its_journal_and_keeps_its_promises(tmp_pat
     from dica.sim_gateway.scenario import default_scenario
 
     out = tmp_path / "rt"
-    proc = _start_cluster(
-        out,
-        *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
-        *("--volume", "500", "--duration", "60", "--seed", "66"),
-    )
-    _wait_for_sim_time(out, 25, proc)
     journal = out / "ica-journal.msgpack"
-    before = sum(1 for r in records(journal)[0] if r["k"] == "confirm")
+    kept, _ = _ica_killed_mid_run(out, "--volume", "500", "--seed", "66")
+    before = sum(1 for r in kept if r["k"] == "confirm")
     assert before > 5
-    _kill(out, "ica")
-    stdout, stderr = _finish(proc, out)
-    assert proc.returncode == 0, stdout + stderr
-    m = json.loads((out / "metrics.json").read_text())
-    _safe_and_whole(m)
-    assert m["ica_outages"] >= 1
     ica = json.loads((out / "ica.json").read_text())
     assert ica["journal_replays"] == 1 and len(ica["incarnations"]) == 2
     replayed = ica["incarnations"][1]["journal_replayed"]
@@ -325,25 +336,11 @@ def test_a_killed_ica_with_human_drivers_keeps_their_greens_and_nothing_collides
     human is given a green (they wait on red) and those on theirs go on in the envelopes
     reserved for them; the restarted ICA replays their greens from its journal. Nothing
     collides and no human leaves its envelope or goes on red."""
-    from dica.ica.journal import records
-
     out = tmp_path / "rt"
-    proc = _start_cluster(
-        out,
-        *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
-        *("--volume", "300", "--duration", "60", "--seed", "21", "--cav-share", "0.5"),
-    )
-    _wait_for_sim_time(out, 25, proc)
-    journal = records(out / "ica-journal.msgpack")[0]
-    greens = [r for r in journal if r["k"] == "green"]  # sooner ones too
+    kept, m = _ica_killed_mid_run(out, "--volume", "300", "--seed", "21", "--cav-share", "0.5")
+    greens = [r for r in kept if r["k"] == "green"]  # sooner ones too
     lit = len({r["vin"] for r in greens})  # human drivers given a green before the crash
     assert lit > 3
-    _kill(out, "ica")
-    stdout, stderr = _finish(proc, out)
-    assert proc.returncode == 0, stdout + stderr
-    m = json.loads((out / "metrics.json").read_text())
-    _safe_and_whole(m)
-    assert m["ica_outages"] >= 1
     h = m["humans"]
     assert h["entered_on_red"] == 0 and h["outside_envelope"] == 0
     assert h["given_green"] > lit  # the restarted ICA went on giving greens
