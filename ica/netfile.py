@@ -223,6 +223,7 @@ def _route(
             approach_m=approach_m,
             tail_m=tail_m,
             lane_limits_mps=(in_lane.getSpeed(), out_lane.getSpeed()),
+            via_lengths_m=[float(v.getLength()) for v in vias],
         )
     except ValueError as exc:
         raise NetworkError(f"bad geometry for route {route_id}: {exc}") from exc

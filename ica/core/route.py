@@ -24,8 +24,10 @@ from dica.ica.core.limits import SpeedCaps, Turn
 class Route:
     """One way through a junction, as a polyline with arc length.
 
-    ``xy`` (M, 2) are the vertices and ``s`` (M,) their arc length, strictly
-    increasing, with 0 at the entry line. The polyline reaches at least
+    ``xy`` (M, 2) are the vertices and ``s`` (M,) their arc length as SUMO drives
+    it (inside the junction an internal lane's own length, which may differ from its
+    drawn shape by a few percent: see :func:`build_route`), strictly increasing, with
+    0 at the entry line; between vertices ``s`` runs in proportion along the segment. The polyline reaches at least
     ``approach_m`` upstream of the entry line and ``tail_m`` downstream of the
     exit line so that every vehicle the ICA accepts can be drawn anywhere in
     its communication region and until it is fully out.
@@ -102,7 +104,7 @@ class Route:
         dist2 = np.sum((p[:, None, :] - closest) ** 2, axis=-1)
         k = np.argmin(dist2, axis=1)
         rows = np.arange(len(p))
-        s = self.s[k] + u[rows, k] * np.sqrt(seg_len2[k])
+        s = self.s[k] + u[rows, k] * (self.s[k + 1] - self.s[k])
         return s, np.sqrt(dist2[rows, k])
 
 
@@ -155,8 +157,15 @@ def build_route(
     approach_m: float,
     tail_m: float,
     lane_limits_mps: tuple[float, float] | None = None,
+    via_lengths_m: list[float] | None = None,
 ) -> Route:
     """Join lane shapes into a route; extend straight where a lane is too short.
+
+    ``via_lengths_m`` are the internal lanes' lengths as SUMO moves vehicles along
+    them (a net's ``length``, which may differ from its drawn shape by a few percent):
+    along each, the arc length is stretched to it, so that route position ``s`` is
+    where SUMO places a vehicle that has gone ``s`` past the entry line, and the
+    crossing is as long as SUMO drives it.
 
     ``lane_limits_mps`` are the net's speed limits of the incoming and the
     outgoing lane (None: the dissertation's road): the approach keeps the first, the crossing the
@@ -190,19 +199,37 @@ def build_route(
         out_shape = np.vstack([out_shape, out_shape[-1] + d * (tail_m - out_len + 1.0)])
 
     entry_xy = in_shape[-1]
-    middle = (
-        np.vstack([entry_xy[None], *inner, out_shape[:1]])
-        if inner
-        else np.vstack([entry_xy[None], out_shape[:1]])
-    )
-    middle = _dedup(middle)
-    cross_length = float(seglen(middle).sum()) if len(middle) > 1 else 0.0
+    # the crossing's vertices and the length of the step to each: along an internal lane
+    # stretched to the length SUMO drives, between lanes as drawn
+    pts, steps = [entry_xy[None]], []
+    prev = entry_xy
+    for i, v in enumerate(inner):
+        geo = seglen(v)
+        want = via_lengths_m[i] if via_lengths_m is not None else None
+        k = want / float(geo.sum()) if want and want > 0.0 and geo.sum() > 0.0 else 1.0
+        pts.append(v)
+        steps += [float(np.linalg.norm(v[0] - prev)), *(geo * k)]
+        prev = v[-1]
+    pts.append(out_shape[:1])
+    steps.append(float(np.linalg.norm(out_shape[0] - prev)))
+    middle, mid_steps = np.vstack(pts), np.array(steps)
+    keep = np.linalg.norm(np.diff(middle, axis=0), axis=1) > 1e-6  # as _dedup drops them
+    middle = np.vstack([middle[:1], middle[1:][keep]])
+    mid_steps = mid_steps[keep]
+    cross_length = float(mid_steps.sum()) if len(middle) > 1 else 0.0
     if cross_length <= 0.0:
         raise ValueError(f"route {route_id}: zero length inside the junction")
 
-    xy = _dedup(np.vstack([in_shape, middle[1:], out_shape[1:]]))
-    s = np.concatenate([[0.0], np.cumsum(seglen(xy))])
-    s -= float(seglen(in_shape).sum())  # entry line at s = 0
+    in_s = np.concatenate([[0.0], np.cumsum(seglen(in_shape))])
+    in_s -= in_s[-1]  # entry line at s = 0
+    mid_s = np.cumsum(mid_steps)
+    out_tail = _dedup(out_shape)
+    out_steps = seglen(out_tail)
+    out_s = cross_length + np.cumsum(out_steps)
+    xy = np.vstack([in_shape, middle[1:], out_tail[1:]])
+    s = np.concatenate([in_s, mid_s, out_s])
+    if not (np.diff(s) > 0.0).all():
+        raise ValueError(f"route {route_id}: its arc length does not grow along it")
     return Route(
         id=route_id,
         in_lane=in_lane,

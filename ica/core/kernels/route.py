@@ -115,6 +115,6 @@ def project(xy: np.ndarray, route_s: np.ndarray, p: np.ndarray) -> tuple[np.ndar
                 best = d2
                 bk = j
                 bu = u
-        s[q] = route_s[bk] + bu * math.sqrt(seg[bk])
+        s[q] = route_s[bk] + bu * (route_s[bk + 1] - route_s[bk])
         dist[q] = math.sqrt(best)
     return s, dist
