@@ -17,7 +17,7 @@ import sumolib
 from dica.ica.core.crosswalk import Crosswalk
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import SpeedCaps, Turn
-from dica.ica.core.route import Route, build_route, classify_turn
+from dica.ica.core.route import Route, Via, build_route, classify_turn
 
 _DIR_TO_TURN = {"l": Turn.LEFT, "L": Turn.LEFT, "r": Turn.RIGHT, "R": Turn.RIGHT, "s": Turn.THROUGH}
 _VEHICLE_CLASS = "passenger"  # the random demand's
@@ -202,12 +202,14 @@ def _route(
     in_lane, out_lane = conn.getFromLane(), conn.getToLane()
     vias = _via_chain(net, conn)
     in_shape = _xy(in_lane.getShape())
-    via_shapes = [_xy(v.getShape()) for v in vias]
+    via_shapes = [Via(_xy(v.getShape()), float(v.getLength())) for v in vias]
     out_shape = _xy(out_lane.getShape())
     turn = _DIR_TO_TURN.get(conn.getDirection())
     if turn is None:
         # Headings just before the entry and just after the exit line.
-        turn = classify_turn(_distinct(np.vstack([in_shape[-2:], *via_shapes, out_shape[:2]])))
+        turn = classify_turn(
+            _distinct(np.vstack([in_shape[-2:], *(v.shape for v in via_shapes), out_shape[:2]]))
+        )
     route_id = f"{in_lane.getID()}>{out_lane.getID()}"
     try:
         route = build_route(
@@ -223,7 +225,6 @@ def _route(
             approach_m=approach_m,
             tail_m=tail_m,
             lane_limits_mps=(in_lane.getSpeed(), out_lane.getSpeed()),
-            via_lengths_m=[float(v.getLength()) for v in vias],
         )
     except ValueError as exc:
         raise NetworkError(f"bad geometry for route {route_id}: {exc}") from exc

@@ -627,7 +627,7 @@ def test_a_lockstep_cluster_with_human_drivers_makes_the_embedded_decisions(tmp_
 
     common = ["--layout", "ch45", "--volume", "300", "--seed", "21", "--duration", "120",
               "--cav-share", "0.5"]  # fmt: skip
-    p = _cluster(tmp_path / "cl", "--agents", "2", *common)
+    p = _cluster(tmp_path / "cl", "--agents", "1", *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _run(tmp_path / "emb", *common, "--record")
     for name in ("vehicles.csv", "timeseries.csv"):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -27,10 +28,10 @@ class Route:
     ``xy`` (M, 2) are the vertices and ``s`` (M,) their arc length as SUMO drives
     it (inside the junction an internal lane's own length, which may differ from its
     drawn shape by a few percent: see :func:`build_route`), strictly increasing, with
-    0 at the entry line; between vertices ``s`` runs in proportion along the segment. The polyline reaches at least
-    ``approach_m`` upstream of the entry line and ``tail_m`` downstream of the
-    exit line so that every vehicle the ICA accepts can be drawn anywhere in
-    its communication region and until it is fully out.
+    0 at the entry line; between vertices ``s`` runs in proportion along the segment.
+    The polyline reaches at least ``approach_m`` upstream of the entry line and
+    ``tail_m`` downstream of the exit line so that every vehicle the ICA accepts can
+    be drawn anywhere in its communication region and until it is fully out.
     """
 
     id: str
@@ -143,6 +144,14 @@ def _dedup(xy: np.ndarray, eps: float = 1e-6) -> np.ndarray:
     return xy[keep]
 
 
+class Via(NamedTuple):
+    """An internal lane: its drawn shape (K, 2) and its length as SUMO drives it (None:
+    as drawn)."""
+
+    shape: np.ndarray
+    length_m: float | None = None
+
+
 def build_route(
     *,
     route_id: str,
@@ -150,22 +159,21 @@ def build_route(
     out_lane: str,
     via_lanes: tuple[str, ...],
     in_shape: np.ndarray,
-    via_shapes: list[np.ndarray],
+    via_shapes: list[np.ndarray | Via],
     out_shape: np.ndarray,
     turn: Turn,
     caps: SpeedCaps,
     approach_m: float,
     tail_m: float,
     lane_limits_mps: tuple[float, float] | None = None,
-    via_lengths_m: list[float] | None = None,
 ) -> Route:
     """Join lane shapes into a route; extend straight where a lane is too short.
 
-    ``via_lengths_m`` are the internal lanes' lengths as SUMO moves vehicles along
-    them (a net's ``length``, which may differ from its drawn shape by a few percent):
-    along each, the arc length is stretched to it, so that route position ``s`` is
-    where SUMO places a vehicle that has gone ``s`` past the entry line, and the
-    crossing is as long as SUMO drives it.
+    ``via_shapes`` are the internal lanes' shapes, each plain or a :class:`Via` with its
+    length as SUMO moves vehicles along it (a net's ``length``, which may differ from
+    its drawn shape by a few percent): along each, the arc length is stretched to it,
+    so that route position ``s`` is where SUMO places a vehicle that has gone ``s``
+    past the entry line, and the crossing is as long as SUMO drives it.
 
     ``lane_limits_mps`` are the net's speed limits of the incoming and the
     outgoing lane (None: the dissertation's road): the approach keeps the first, the crossing the
@@ -180,7 +188,8 @@ def build_route(
     in_limit_mps, out_limit_mps = lane_limits_mps or (None, None)
     in_shape = _dedup(np.asarray(in_shape, dtype=float))
     out_shape = _dedup(np.asarray(out_shape, dtype=float))
-    inner = [_dedup(np.asarray(v, dtype=float)) for v in via_shapes]
+    vias = [v if isinstance(v, Via) else Via(v) for v in via_shapes]
+    inner = [_dedup(np.asarray(v.shape, dtype=float)) for v in vias]
     if len(in_shape) < 2 or len(out_shape) < 2:
         raise ValueError(f"route {route_id}: lane shapes need at least two distinct points")
 
@@ -205,7 +214,7 @@ def build_route(
     prev = entry_xy
     for i, v in enumerate(inner):
         geo = seglen(v)
-        want = via_lengths_m[i] if via_lengths_m is not None else None
+        want = vias[i].length_m
         k = want / float(geo.sum()) if want and want > 0.0 and geo.sum() > 0.0 else 1.0
         pts.append(v)
         steps += [float(np.linalg.norm(v[0] - prev)), *(geo * k)]

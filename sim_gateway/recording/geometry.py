@@ -82,13 +82,15 @@ class RouteProjector:
         a = np.empty((len(routes), n_seg, 2))
         d = np.empty_like(a)
         s0 = np.empty((len(routes), n_seg))
+        ds = np.empty((len(routes), n_seg))
         for i, r in enumerate(routes):
             m = len(r.xy) - 1
             pad = [*range(m), *([m - 1] * (n_seg - m))]
             a[i] = r.xy[:-1][pad]
             d[i] = (r.xy[1:] - r.xy[:-1])[pad]
             s0[i] = r.s[:-1][pad]
-        self._a, self._d, self._s0 = a, d, s0
+            ds[i] = np.diff(r.s)[pad]  # a route's s need not be the drawn length
+        self._a, self._d, self._s0, self._ds = a, d, s0, ds
         self._len2 = np.einsum("rij,rij->ri", d, d)
 
     def project(self, route_idx: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -99,7 +101,7 @@ class RouteProjector:
         dist2 = np.sum((w - u[..., None] * d) ** 2, axis=-1)
         k = np.argmin(dist2, axis=1)
         rows = np.arange(len(xy))
-        s = self._s0[route_idx, k] + u[rows, k] * np.sqrt(len2[rows, k])
+        s = self._s0[route_idx, k] + u[rows, k] * self._ds[route_idx, k]
         return s, np.sqrt(dist2[rows, k])
 
 
