@@ -27,7 +27,7 @@ import msgpack
 import numpy as np
 
 from dica.ica.core.controller import Controller
-from dica.ica.core.envelope import DriverLimits, human_limits
+from dica.ica.core.envelope import human_limits
 from dica.ica.core.request import Confirmation, RequestError, Tss
 from dica.ica.core.walk import WalkSlot
 
@@ -175,6 +175,7 @@ def replay(path: Path, ica: Controller) -> Replayed:
     """Rebuild the core's state from the journal (before serving again)."""
     out = Replayed()
     recs, out.truncated = records(path)
+    limits = human_limits(ica.config.caps.road_mps)  # the ICA's own, as when it decided
     for rec in recs:
         try:
             kind = rec.get("k")
@@ -209,13 +210,13 @@ def replay(path: Path, ica: Controller) -> Replayed:
             elif kind == "green" and getattr(ica, "greens", None) is not None:
                 ica.relight(
                     str(rec["vin"]), float(rec["green"]), float(rec["asked"]),
-                    float(rec["length"]), float(rec["width"]), limits(ica),
+                    float(rec["length"]), float(rec["width"]), limits,
                     float(rec["near"]), tuple(str(r) for r in rec["routes"]),
                 )  # fmt: skip
                 out.greens += 1
             elif kind == "sighting" and getattr(ica, "greens", None) is not None:
                 ica.tighten(str(rec["vin"]), float(rec["t"]), float(rec["s"]), float(rec["v"]),
-                            str(rec["lane"]), limits(ica))  # fmt: skip
+                            str(rec["lane"]), limits)  # fmt: skip
             elif kind == "human":
                 out.humans.append(str(rec["vin"]))
             elif kind == "across" and getattr(ica, "walks", None) is not None:
@@ -225,10 +226,6 @@ def replay(path: Path, ica: Controller) -> Replayed:
         except (RequestError, KeyError, TypeError, ValueError):
             out.skipped += 1
     return out
-
-
-def limits(ica: Controller) -> DriverLimits:
-    return human_limits(ica.config.caps.road_mps)
 
 
 def _f8(a: np.ndarray) -> bytes:

@@ -187,6 +187,7 @@ class IcaService:
         self._token = None
         self._revoke_sent: dict[tuple[str, int], float] = {}  # (vin, seq) -> wall time sent
         self._shown: list[Reorder] = []  # the latest reorderings, as observers were told
+        self._driver_limits = human_limits(ica.config.caps.road_mps)  # as the roadside's
 
     def restore(self, path: Path) -> Replayed:
         """Replay a journal into the core before serving (a restarted ICA)."""
@@ -525,17 +526,10 @@ class IcaService:
         """A walker at the kerb (WALK), or across (ACROSS), told by the roadside: the slot
         journalled before it is answered (a restarted ICA never confirms a vehicle through
         it), or its end brought forward."""
-        msg = self._asked(item, Walk, Across)
+        msg = self._from_roadside(item, (Walk, Across), "walks", "crossings")
         if msg is None:
             return
-        if keys.last(item.key) != "gateway":
-            self.stats.not_theirs += 1
-            self._reject(item.query, msg.person, -1, Reason.BAD_STATE, "only the roadside asks")
-            return
-        walks = getattr(self.ica, "walks", None)
-        if walks is None:
-            self._reject(item.query, msg.person, -1, Reason.BAD_STATE, "no crossings served here")
-            return
+        walks = self.ica.walks
         if isinstance(msg, Across):
             try:
                 if self.ica.walked(msg.person, msg.crossing, msg.t_s) and self.journal:
@@ -571,15 +565,8 @@ class IcaService:
         reservations shrunk to where it is). Each is decided at the roadside's step time,
         which may be one step ahead of the last CLOCK (the roadside asks first), never
         behind it."""
-        msg = self._asked(item, Spotted, AskGreen, Sighting)
+        msg = self._from_roadside(item, (Spotted, AskGreen, Sighting), "greens", "human drivers")
         if msg is None:
-            return
-        if keys.last(item.key) != "gateway":
-            self.stats.not_theirs += 1
-            self._reject(item.query, msg.vin, -1, Reason.BAD_STATE, "only the roadside asks")
-            return
-        if getattr(self.ica, "greens", None) is None:
-            self._reject(item.query, msg.vin, -1, Reason.BAD_STATE, "no human drivers served here")
             return
         if not _is_chunk(msg.vin):
             self._reject(item.query, "?", -1, Reason.BAD_STATE, "VIN has key characters")
@@ -589,7 +576,7 @@ class IcaService:
             why = f"t={msg.t_s:g} s is not this step's (clock {self.now_s:g} s)"
             self._reject(item.query, msg.vin, -1, Reason.BAD_TIME, why)
             return
-        ica, limits = self.ica, human_limits(self.ica.config.caps.road_mps)
+        ica, limits = self.ica, self._driver_limits
         try:
             if isinstance(msg, Spotted):
                 known = ica.knows(msg.vin)
@@ -620,20 +607,37 @@ class IcaService:
                     put(self.session, keys.greens(self.junction, msg.vin), encode(lit))
                 reply(item.query, item.key, encode(lit))
                 return
-            paths = ica.tighten(msg.vin, msg.t_s, msg.s_m, msg.speed_mps, msg.lane, limits)
-            if paths is None:
+            routes = ica.tighten(msg.vin, msg.t_s, msg.s_m, msg.speed_mps, msg.lane, limits)
+            if routes is None:
                 reply(item.query, item.key, encode(Ack(msg.vin, -1, Sighting.KIND, now_ns())))
                 return
             if self.journal is not None:
                 self.journal.sighting(msg)
             self.stats.shrunk += 1
-            shrunk = Shrunk(msg.vin, msg.t_s, tuple(paths), now_ns())
+            shrunk = Shrunk(msg.vin, msg.t_s, routes, now_ns())
             reply(item.query, item.key, encode(shrunk))
         except RequestError as e:
             self._count(Rejection(msg.vin, -1, e.reason, e.detail))
             self._reject(item.query, msg.vin, -1, e.reason, e.detail)
 
     # -- helpers -------------------------------------------------------------
+    def _from_roadside(self, item: Item, kinds: tuple[type, ...], served: str, what: str):
+        """The roadside's message of one of ``kinds`` on its own key (``gateway``), or
+        None, answered with a REJECT: bytes that are none, another asker, or a core
+        without ``served`` (it serves no ``what``)."""
+        msg = self._asked(item, *kinds)
+        if msg is None:
+            return None
+        who = getattr(msg, "person", None) or msg.vin
+        if keys.last(item.key) != "gateway":
+            self.stats.not_theirs += 1
+            self._reject(item.query, who, -1, Reason.BAD_STATE, "only the roadside asks")
+            return None
+        if getattr(self.ica, served, None) is None:
+            self._reject(item.query, who, -1, Reason.BAD_STATE, f"no {what} served here")
+            return None
+        return msg
+
     def _asked(self, item: Item, *kinds: type):
         """The query's message of one of ``kinds``, or None: bytes that are not one are
         counted, logged and answered with a REJECT ``bad_message``."""

@@ -185,8 +185,7 @@ class LocalDrivers:
         return g.green_s, g.routes
 
     def tighten(self, car: Car, t: float, s_m: float, v_mps: float, lane: str) -> tuple | None:
-        paths = self.ica.tighten(car.vin, t, s_m, v_mps, lane, self.limits)
-        return None if paths is None else tuple(paths)
+        return self.ica.tighten(car.vin, t, s_m, v_mps, lane, self.limits)
 
     def step(self, t: float, seen: list[Seen]) -> list[Actuation]:
         self.ica.advance(t)

@@ -53,7 +53,9 @@ class Desk(Protocol):
         """Its green (start, routes) standing ``near_m`` short of its line; ``again``:
         only a sooner one than it holds. None: none given (not yet, or not sooner)."""
 
-    def tighten(self, car: Car, t: float, s_m: float, v_mps: float, lane: str) -> tuple | None:
+    def tighten(
+        self, car: Car, t: float, s_m: float, v_mps: float, lane: str
+    ) -> tuple[str, ...] | None:
         """Its reservations shrunk to where it is seen: the routes kept, or None."""
 
 

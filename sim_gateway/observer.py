@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dica.deploy.transport import Inbox, Item
+from dica.ica.core.config import IcaConfig
 from dica.ica.core.envelope import DriverLimits, bounds, envelope_dtot
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.walk import WalkSlot
@@ -220,7 +221,7 @@ class Observer:
             self._tables = ConflictTables(self.inter, self.margin_m)
         limits = DriverLimits(top_mps=g.top_mps) if g.top_mps > 0.0 else DriverLimits()
         shape = Shape.of(g.length_m, g.width_m)
-        step = g.step_s or 0.1
+        step = g.step_s or IcaConfig().step_s  # a sender that left them out: the defaults
         routes = []
         for rid in g.routes:
             r = self.inter.route_by_id(rid)

@@ -674,7 +674,17 @@ def test_the_ica_process_serves_the_roadside_alone_and_keeps_greens_over_a_resta
     from dica.ica.convert import request_from_core
     from dica.schemas import keys
     from dica.schemas.codec import decode, encode, now_ns
-    from dica.schemas.messages import Ack, AskGreen, Clock, Detect, Lit, Reject, Response, Spotted
+    from dica.schemas.messages import (
+        Ack,
+        AskGreen,
+        Clock,
+        Detect,
+        Lit,
+        Reject,
+        Response,
+        Sighting,
+        Spotted,
+    )
     from dica.tools.loopback import router_and_ica
 
     j = ch45_net.junction_id
@@ -703,28 +713,49 @@ def test_the_ica_process_serves_the_roadside_alone_and_keeps_greens_over_a_resta
         return decode(r.ok.payload.to_bytes())
 
     def clock(session, k, end=False):
-        session.put(keys.clock(j), encode(Clock(k, 0.05 * k, "lockstep", 1.0, end, now_ns())))
+        """CLOCK k, and (a publication) wait until the ICA has taken it: a SIGHTING of no
+        one at its time is refused as ahead of the clock until then."""
+        t = 0.05 * k
+        session.put(keys.clock(j), encode(Clock(k, t, "lockstep", 1.0, end, now_ns())))
+        if end:
+            return
+        deadline = time.monotonic() + 30.0
+        while isinstance(ask(session, gw, Sighting("nobody", t, lane, 0.0, 0.0, now_ns())),
+                         Reject):  # fmt: skip
+            assert time.monotonic() < deadline, "the ICA never took the clock"
+            time.sleep(0.05)
 
     args = ("--net", str(ch45_net.net_path), "--junction", j, "--out", str(tmp_path))
     gw = keys.human(j, "gateway")
     with router_and_ica(j, args) as (session, proc):
         heard = []
         sub = session.declare_subscriber(keys.greens(j), lambda s: heard.append(s))
-        no = ask(session, keys.human(j, "agent-1"), Spotted("h1", lane, 0.0, now_ns()))
-        assert isinstance(no, Reject) and "only the roadside" in no.detail
-        assert isinstance(ask(session, gw, Spotted("h1", lane, 0.0, now_ns())), Ack)
+        for asker in ("agent-1", "*"):  # another's key, or all of them at once
+            no = ask(session, keys.human(j, asker), Spotted("h1", lane, 0.0, now_ns()))
+            assert isinstance(no, Reject) and "only the roadside" in no.detail
+        for _ in range(2):  # told twice (a lost ACK): one human driver
+            assert isinstance(ask(session, gw, Spotted("h1", lane, 0.0, now_ns())), Ack)
         no = ask(session, keys.detect(j, "agent-1"), Detect("h1", lane, 0.0, False, 9.0, now_ns()))
         assert isinstance(no, Reject) and "another agent" in no.detail
         clock(session, 1)
-        time.sleep(0.3)  # the clock is a publication: let it land before the query
-        no = ask(session, gw, AskGreen("h1", 5.0, 5.0, 1.8, 0.5, False, now_ns()))
-        assert isinstance(no, Reject) and no.reason == "bad_time"
+        for t in (1.1, 0.0):  # a step past the second ahead it may be, or behind the clock
+            no = ask(session, gw, AskGreen("h1", t, 5.0, 1.8, 0.5, False, now_ns()))
+            assert isinstance(no, Reject) and no.reason == "bad_time"
+        no = ask(session, gw, AskGreen("h1", 0.05, 5.0, 1.8, 10.5, False, now_ns()))
+        assert isinstance(no, Reject) and no.reason == "bad_state"  # 10 m short at most
+        no = ask(session, keys.human(j, "agent-1"),
+                 Sighting("h1", 0.05, lane, 0.0, 0.0, now_ns()))  # fmt: skip
+        assert isinstance(no, Reject) and "only the roadside" in no.detail
         lit = ask(session, gw, AskGreen("h1", 0.05, 5.0, 1.8, 0.5, False, now_ns()))
         assert isinstance(lit, Lit) and lit.green_s == pytest.approx(g.green_s)
         assert set(lit.routes) == set(g.routes) and len(lit.routes) > 1
         again = ask(session, gw, AskGreen("h1", 0.05, 5.0, 1.8, 0.5, False, now_ns()))
         assert again.green_s == lit.green_s
-        time.sleep(0.3)
+        deadline = time.monotonic() + 30.0
+        while not heard:
+            assert time.monotonic() < deadline, "the green was never published"
+            time.sleep(0.05)
+        ask(session, gw, Spotted("h1", lane, 0.0, now_ns()))  # a round trip after both
         (pub,) = [decode(s.payload.to_bytes(), Lit) for s in heard]
         assert str(heard[0].key_expr) == keys.greens(j, "h1") and pub.routes == lit.routes
         sub.undeclare()
@@ -732,7 +763,6 @@ def test_the_ica_process_serves_the_roadside_alone_and_keeps_greens_over_a_resta
         assert proc.wait(15) == 0
     with router_and_ica(j, args) as (session, proc):  # the same journal
         clock(session, 1)
-        time.sleep(0.3)
         det = Detect("car", route.in_lane, 0.0, False, 10.0, now_ns())
         assert isinstance(ask(session, keys.detect(j, "a"), det), Ack)
         got = ask(session, keys.request(j, "a"), request_from_core(req))

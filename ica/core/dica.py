@@ -725,15 +725,14 @@ class Dica:
                 built.append((r, slow, d, fast_in, fast))
                 for c in self.conflicts(d):  # one that only touches still moves it a step
                     late, hit = max(late, c.delay_s), True
+                fasts = {k: f for k, _, _, f in self._human_exits.get(r.out_lane, ())}
                 for _, _, key in self._exits(r.out_lane):  # never brakes behind one inside
                     c = self._confirmed[key]
-                    lead = c.dtot.trajectory
-                    lead = Trajectory(lead.t0_s + pad, lead.step_s, lead.s_m)
                     behind = follow_delay(
-                        fast, r.cross_length_m, length_m, lead, c.dtot.route.cross_length_m,
-                        c.length_m,
+                        fast, r.cross_length_m, length_m, c.dtot.trajectory.shifted(pad),
+                        c.dtot.route.cross_length_m, c.length_m,
                     )  # fmt: skip
-                    if behind > 1e-9 and self._goes_ahead(key, c, r, slow, length_m):
+                    if behind > 1e-9 and self._goes_ahead(fasts.get(key), c, r, slow, length_m):
                         continue
                     late = max(late, behind)
             if not hit and late <= 1e-9:
@@ -773,19 +772,22 @@ class Dica:
         return self._reserve(Green(vin, green_s, asked_s, (), (), 0), built, length_m)
 
     def _goes_ahead(
-        self, key: str, c: Confirmed, route: Route, slow: Trajectory, length_m: float
+        self,
+        fast: Trajectory | None,
+        c: Confirmed,
+        route: Route,
+        slow: Trajectory,
+        length_m: float,
     ) -> bool:
-        """Whether a human's green may put it ahead of reservation ``key`` (``c``) on their
-        exit lane: ``c`` at its fastest (another human's fast bound, or a connected
-        vehicle's plan run early by the time pad) never comes so close behind this one at
-        its slowest (``slow`` on ``route``) that it would brake inside the junction. A
-        connected vehicle flies its plan until its rear is out, and SUMO's driver, to
-        whom it is then handed, starts no faster than SUMO's safe speed behind it."""
-        fast = next((row[3] for row in self._human_exits.get(route.out_lane, ())
-                     if row[0] == key), None)  # fmt: skip
-        if fast is None:  # a plan
-            plan = c.dtot.trajectory
-            fast = Trajectory(plan.t0_s - 2.0 * self.config.time_pad_s, plan.step_s, plan.s_m)
+        """Whether a human's green may put it ahead of reservation ``c`` on their exit
+        lane: ``c`` at its fastest (``fast``, another human's fast bound; None: a
+        connected vehicle's plan, run early by the time pad) never comes so close behind
+        this one at its slowest (``slow`` on ``route``) that it would brake inside the
+        junction. A connected vehicle flies its plan until its rear is out, and SUMO's
+        driver, to whom it is then handed, starts no faster than SUMO's safe speed
+        behind it."""
+        if fast is None:
+            fast = c.dtot.trajectory.shifted(-2.0 * self.config.time_pad_s)
         return (
             follow_delay(
                 fast, c.dtot.route.cross_length_m, c.length_m, slow, route.cross_length_m, length_m
@@ -899,15 +901,16 @@ class Dica:
         v_mps: float,
         lane: str,
         limits: DriverLimits,
-    ) -> dict[str, tuple[Trajectory, Trajectory]] | None:
+    ) -> tuple[str, ...] | None:
         """A human driver on its green, seen (by the roadside, as any vehicle) with its
         front at ``s_m`` along its lane's routes at ``v_mps`` on ``lane``: its envelope
         again, from there (:func:`ica.core.envelope.bounds_seen`), on the routes it may
         still take (once on a lane of the junction or beyond, the one it took). The new
         reservations lie within the old if the driver keeps to the stated limits; they
         are taken only if they meet nothing confirmed and keep the exit rules the old
-        kept (each enters no sooner and is out no later), else the old stay. The bounds
-        per route if taken, else None."""
+        kept (each enters no sooner and is out no later), else the old stay. The routes
+        kept if taken (the roadside audits the driver against the same bounds), else
+        None."""
         held = self.greens.get(vin)
         if held is None or now_s < held.green_s or vin not in self._confirmed:
             return None
@@ -930,7 +933,7 @@ class Dica:
             if k in self._confirmed and k in old_in
         }
         taken, exits = self._unreserve(held)
-        built, paths = [], {}
+        built = []
         ok = True
         for r in routes:
             fast, slow = bounds_seen(r, length_m, now_s, s_m, v_mps, cfg.step_s, limits,
@@ -948,13 +951,12 @@ class Dica:
                 ok = False
                 break
             built.append((r, slow, d, fast_in, fast))
-            paths[r.id] = (fast, slow)
         if not ok:
             self._restore(held, taken, exits)
             return None
         self._reserve(held, built, length_m)
         self.shrunk += 1
-        return paths
+        return tuple(b[0].id for b in built)
 
     def walk_conflict(
         self, route: Route, shape: Shape, traj: Trajectory, exit_mps: float
@@ -980,15 +982,15 @@ class Dica:
         route: Route,
         out_s: float,
         out_mps: float,
-        traj: Trajectory | None = None,
-        length_m: float = 5.0,
+        traj: Trajectory,
+        length_m: float,
     ) -> Conflict | None:
         """checkFV beyond the junction: a plan may not leave by an exit lane ahead of a
         confirmed vehicle that leaves it faster, which would run into it out there
         (nothing checks the road after the junction). The conflict with the one that
         leaves last: delay this plan (its rear out at ``out_s``, at ``out_mps``) until
-        it leaves after it. With the plan itself (``traj``, of a vehicle ``length_m``
-        long), the human drivers who may take the exit lane too
+        it leaves after it. And the plan itself (``traj``, of a vehicle ``length_m``
+        long) against the human drivers who may take the exit lane
         (:meth:`_human_order`)."""
         v = out_mps + self.config.speed_tol_mps
         worst: Conflict | None = None
@@ -998,10 +1000,9 @@ class Dica:
             need = t_out + self.config.step_s  # its padded reservation's end
             if need > out_s and (worst is None or need - out_s > worst.delay_s):
                 worst = Conflict(vin, out_s, need - out_s)
-        if traj is not None:
-            late = self._human_order(route, traj, length_m, out_s)
-            if late is not None and (worst is None or late.delay_s > worst.delay_s):
-                worst = late
+        late = self._human_order(route, traj, length_m, out_s)
+        if late is not None and (worst is None or late.delay_s > worst.delay_s):
+            worst = late
         return worst
 
     def _human_order(
@@ -1017,8 +1018,7 @@ class Dica:
         if not rows:
             return None
         pad = 2.0 * self.config.time_pad_s
-        late_plan = Trajectory(traj.t0_s + pad, traj.step_s, traj.s_m)
-        early_plan = Trajectory(traj.t0_s - pad, traj.step_s, traj.s_m)
+        late_plan, early_plan = traj.shifted(pad), traj.shifted(-pad)
         worst: Conflict | None = None
         for key, _fast_in, _slow_out, fast in rows:
             c = self._confirmed.get(key)

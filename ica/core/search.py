@@ -187,7 +187,7 @@ class Search:
         lag = leader.dtot.trajectory if leader is not None else None
         behind_s = 2.0 * cfg.time_pad_s + cfg.headway_s
         if lag is not None and behind_s > 0.0:
-            lag = Trajectory(lag.t0_s + behind_s, lag.step_s, lag.s_m)
+            lag = lag.shifted(behind_s)
         self.lag = lag
         # what every compiled call of this request reads alike: the grid, the confirmed
         # rows and the lane leader, as tuples (built on the first call)

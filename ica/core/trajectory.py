@@ -30,6 +30,11 @@ class Trajectory:
     def __len__(self) -> int:
         return len(self.s_m)
 
+    def shifted(self, dt_s: float) -> Trajectory:
+        """The same positions ``dt_s`` later (earlier if negative): a plan run late or
+        early by the time pad."""
+        return Trajectory(self.t0_s + dt_s, self.step_s, self.s_m)
+
     @property
     def t_s(self) -> np.ndarray:
         return self.t0_s + self.step_s * np.arange(len(self.s_m))
