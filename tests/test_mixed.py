@@ -197,10 +197,11 @@ def _never_brakes_behind(follower, f_route, lead, l_route, length_m: float = 4.5
     """By SUMO's safe speed, step by step (not by the ICA's function): ``follower``
     (a trajectory on ``f_route``) never comes closer than the standstill gap behind
     ``lead`` (on ``l_route``, carried on at its last speed) nor faster than its safe
-    speed behind it while inside the junction. Both measured from the exit line."""
+    speed behind it while inside the junction (from its entry line until its rear is
+    out). Both measured from the exit line."""
     tb = KRAUSS_TAU_S * KRAUSS_DECEL_MPS2
     u = follower.s_m - f_route.cross_length_m
-    inside = u - length_m < 0.0
+    inside = (u - length_m < 0.0) & (follower.s_m >= 0.0)  # past its line, rear not out
     rear = np.interp(follower.t_s, lead.t_s, lead.s_m) - l_route.cross_length_m - length_m
     v_lead = (lead.s_m[-1] - lead.s_m[-2]) / STEP
     late = follower.t_s > lead.t_s[-1]
@@ -278,6 +279,32 @@ def test_a_plan_onto_a_humans_exit_lane_never_has_either_brake_inside(ch45):
         free = bare.handle(req, t0).entry_time_s
         later.append(ica.confirmed["b"].confirmation.entry_time_s - free)
     assert max(later) > 1.0
+
+
+@pytest.mark.parametrize("t0", [1.0, 2.0, 3.0, 4.0, 5.0])
+def test_a_fast_approach_behind_a_crossing_human_is_planned_in_a_few_rounds(ch45, t0):
+    """A connected vehicle 50 m out at the road's speed while a human crosses onto its
+    exit lane: its plan is found in a few rounds, and neither brakes inside behind the
+    other. (Watching the plan's samples on its approach as if it followed the human
+    there asked the same delay round after round, since a delay cannot move where the
+    vehicle already is: the search crawled for hundreds of rounds.)"""
+    lane_a, lane_b, out = _merging_lanes(ch45)
+    shape = Shape.of(4.5, 1.8)
+    rb = next(r for r in ch45.routes_from(lane_b) if r.out_lane == out)
+    ica = Dica(ch45, IcaConfig())
+    ica.detect("a", lane_a, 0.0)
+    ica.detect("b", lane_b, 0.0)
+    ga = ica.green("a", 0.0, shape.length_m, shape.width_m, LIMITS)
+    req = propose(rb, vin="b", seq=0, t0_s=t0, dist_to_entry_m=50.0, speed_mps=rb.road_mps)
+    done = ica.handle(req, t0)
+    assert isinstance(done, Confirmation), done
+    assert done.iterations <= 10
+    plan = ica.confirmed["b"].dtot.trajectory
+    for ra in (r for r in ch45.routes_from(lane_a) if r.out_lane == out):
+        fast_a, slow_a = bounds(ra, 4.5, ga.green_s, STEP, LIMITS)
+        assert _never_brakes_behind(fast_a, ra, plan, rb) or _never_brakes_behind(
+            plan, rb, slow_a, ra, 5.0
+        )
 
 
 def _clash(stored: Dtot, new: Dtot) -> bool:

@@ -786,12 +786,12 @@ class Dica:
         junction. A connected vehicle flies its plan until its rear is out, and SUMO's
         driver, to whom it is then handed, starts no faster than SUMO's safe speed
         behind it."""
+        from_m = -math.inf
         if fast is None:
-            fast = c.dtot.trajectory.shifted(-2.0 * self.config.time_pad_s)
+            fast, from_m = c.dtot.trajectory.shifted(-2.0 * self.config.time_pad_s), 0.0
+        c_cross = c.dtot.route.cross_length_m
         return (
-            follow_delay(
-                fast, c.dtot.route.cross_length_m, c.length_m, slow, route.cross_length_m, length_m
-            )
+            follow_delay(fast, c_cross, c.length_m, slow, route.cross_length_m, length_m, from_m)
             <= 1e-9
         )
 
@@ -1010,8 +1010,9 @@ class Dica:
     ) -> Conflict | None:
         """A plan onto an exit lane a human may take goes ahead of the human, which at
         its fastest then never comes so close behind the plan run late by the time pad
-        that it would brake inside the junction, or behind it, the plan run early never
-        so close behind the human at its slowest: Krauss's safe speed either way
+        that it would brake inside the junction, or behind it, the plan run early never,
+        from its entry line on, so close behind the human at its slowest: Krauss's
+        safe speed either way
         (:func:`ica.core.envelope.follow_delay`), as between two humans. Else the
         conflict that puts it behind the one it would have to follow the latest."""
         rows = self._human_exits.get(route.out_lane, ())
@@ -1029,7 +1030,7 @@ class Dica:
                             length_m) <= 1e-9:  # fmt: skip
                 continue  # ahead of the human: it never brakes behind the plan inside
             d = follow_delay(early_plan, route.cross_length_m, length_m, c.dtot.trajectory,
-                             cross, c.length_m)  # fmt: skip
+                             cross, c.length_m, 0.0)  # fmt: skip
             if d > 1e-9 and (worst is None or d > worst.delay_s):
                 worst = Conflict(key, out_s, d)
         return worst

@@ -231,6 +231,7 @@ def follow_delay(
     lead: Trajectory,
     lead_cross_m: float,
     lead_length_m: float,
+    from_m: float = -math.inf,
 ) -> float:
     """How much later a human's fastest crossing (``fast``, of a route ``cross_m``
     long) must start so that it never comes close enough behind a vehicle leaving by
@@ -238,9 +239,12 @@ def follow_delay(
     have to brake while it is still inside the junction; 0 if it never does. Both are
     measured from the exit line, the lead carrying on at its last speed beyond its
     trajectory, which it does if the way ahead is clear: a follower that never brakes
-    inside keeps to its own envelope."""
+    inside keeps to its own envelope. The follower is watched from its position
+    ``from_m`` on: a connected vehicle's plan from its entry line (0), since short of
+    it the vehicle is on its own approach under its plan, where a delay does not move
+    the samples it already flies, and where no lead on the exit lane is in its way."""
     u_f = fast.s_m[:-1] - cross_m
-    inside = u_f - length_m < 0.0
+    inside = (u_f - length_m < 0.0) & (fast.s_m[:-1] >= from_m)
     if not inside.any():
         return 0.0
     t = fast.t_s[:-1][inside]
