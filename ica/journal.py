@@ -13,8 +13,10 @@ what the detector read (an emergency vehicle, its speed): reactive DICA's
 priority rests on it, so a restarted ICA still lets the EV go first. A walker's
 slot is kept too: a restarted ICA never confirms a vehicle through it, and so is a
 human driver's green (rebuilt at the same time from the same limits) and each
-shrinking of its reservations. Journals
-written before the flag existed replay with every vehicle a normal one.
+shrinking of its reservations. So is reactive DICA's event each time it changes
+(the reordering, the revocations still unanswered): a restarted ICA asks those
+vehicles again rather than forget it revoked them. Journals written before the flag
+existed replay with every vehicle a normal one.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ class Replayed:
     cancels: int = 0
     walks: int = 0
     greens: int = 0
+    revocations: int = 0  # revocations still unanswered, awaited again (reactive DICA)
     humans: list[str] = field(default_factory=list)  # human drivers' VINs: no agent's
     skipped: int = 0  # records the core refused (a geometry that changed, a bad record)
     truncated: bool = False
@@ -129,6 +132,11 @@ class Journal:
              "routes": list(lit.routes)}
         )  # fmt: skip
 
+    def reactive(self, snapshot: dict) -> None:
+        """Reactive DICA's event as it now stands (:meth:`ReactiveDica.snapshot`): the
+        last one replayed is the one carried on."""
+        self._write({"k": "reactive", "state": snapshot})
+
     def sighting(self, seen) -> None:
         """A human driver's reservations shrunk to where it was seen (a
         :class:`schemas.messages.Sighting`)."""
@@ -176,6 +184,7 @@ def replay(path: Path, ica: Controller) -> Replayed:
     out = Replayed()
     recs, out.truncated = records(path)
     limits = human_limits(ica.config.caps.road_mps)  # the ICA's own, as when it decided
+    event = None
     for rec in recs:
         try:
             kind = rec.get("k")
@@ -219,11 +228,19 @@ def replay(path: Path, ica: Controller) -> Replayed:
                             str(rec["lane"]), limits)  # fmt: skip
             elif kind == "human":
                 out.humans.append(str(rec["vin"]))
+            elif kind == "reactive" and hasattr(ica, "restore_snapshot"):
+                event = rec["state"]
             elif kind == "across" and getattr(ica, "walks", None) is not None:
                 ica.walks.across(str(rec["person"]), str(rec["crossing"]), float(rec["t"]))
             else:
                 out.skipped += 1
         except (RequestError, KeyError, TypeError, ValueError):
+            out.skipped += 1
+    if event is not None:  # after every confirmation and cancel it knew of
+        try:
+            ica.restore_snapshot(event)
+            out.revocations = len(ica.pending())
+        except (KeyError, TypeError, ValueError):
             out.skipped += 1
     return out
 

@@ -187,11 +187,15 @@ class IcaService:
         self._token = None
         self._revoke_sent: dict[tuple[str, int], float] = {}  # (vin, seq) -> wall time sent
         self._shown: list[Reorder] = []  # the latest reorderings, as observers were told
+        self._event_journalled: dict | None = None  # reactive DICA's event as last journalled
         self._driver_limits = human_limits(ica.config.caps.road_mps)  # as the roadside's
 
     def restore(self, path: Path) -> Replayed:
         """Replay a journal into the core before serving (a restarted ICA)."""
         done = replay(path, self.ica)
+        snap = getattr(self.ica, "snapshot", None)
+        if snap is not None:
+            self._event_journalled = snap()
         for vin, c in self.ica.confirmed.items():
             self._published.add((vin, c.confirmation.seq))
         for vin in done.humans:
@@ -202,6 +206,7 @@ class IcaService:
             "cancels": done.cancels,
             "walks": done.walks,
             "greens": done.greens,
+            "revocations": done.revocations,
             "skipped": done.skipped,
             "truncated": done.truncated,
             "confirmed_set_after": len(self.ica.confirmed),
@@ -315,6 +320,7 @@ class IcaService:
         then has it before it answers its STATE.
         """
         ica = self.ica
+        self._journal_event()  # before any vehicle hears of it
         for r in ica.take_reorders():
             if r.revoked:
                 self.log.info(
@@ -340,6 +346,17 @@ class IcaService:
         if len(self._revoke_sent) > len(due):
             keep = set(due)
             self._revoke_sent = {k: t for k, t in self._revoke_sent.items() if k in keep}
+
+    def _journal_event(self) -> None:
+        """Journal reactive DICA's event whenever it has changed (a reordering, an answer
+        to a revocation), so that a restarted ICA carries it on."""
+        snap = getattr(self.ica, "snapshot", None)
+        if self.journal is None or snap is None:
+            return
+        now = snap()
+        if now != self._event_journalled:
+            self.journal.reactive(now)
+            self._event_journalled = now
 
     def _show(self, msg: Reorder) -> None:
         """Tell observers of a reordering, or of a change in what became of its plans."""
@@ -376,12 +393,14 @@ class IcaService:
         if ack.of == KEPT:
             ica.restore(ack.vin, ack.seq)
             self.stats.revoke_kept += 1
+            self._journal_event()
             return
         if self.journal is not None:
             self.journal.cancel(ack.vin, ack.seq)
         counts = ica.revoked_seq(ack.vin) == ack.seq  # else an answer about another plan
         ica.acknowledge(ack.vin, ack.seq)
         self.stats.revoke_acks += counts
+        self._journal_event()
 
     def _revoked_seq(self, vin: str) -> int | None:
         return self.ica.revoked_seq(vin)

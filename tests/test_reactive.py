@@ -320,6 +320,53 @@ def test_a_replayed_journal_keeps_the_ev_flag_and_the_ev_still_goes_first(ch45, 
     assert restarted._lane_confirmed[CROSS[0]] == ["w1"]  # the lane's order came back too
 
 
+def test_a_restarted_ica_carries_on_the_revocations_it_awaited(ch45, tmp_path):
+    """The ICA revokes the car's plan for the EV and dies before the answer comes.
+    Restarted from its journal, it still awaits that answer (the event is journalled):
+    the same revocation is due, the room stays taken, the EV's next ask is held within
+    the same event, and the answer frees the room so that the EV goes first. Restarted
+    from a journal without the event, it knows of no revocation: it would ignore the
+    car's answer and decide the event anew."""
+    full, bare = tmp_path / "full.msgpack", tmp_path / "bare.msgpack"
+    journalled_scene(ch45, full)
+    journalled_scene(ch45, bare)
+    ica = ReactiveDica(ch45, CFG, reactive=ASK)
+    replay(full, ica)
+    ica.advance(0.5)
+    r = start_event(ica, ch45)
+    assert r.revoked == ("w1",)
+    journal = Journal(full, sync=False)
+    journal.reactive(ica.snapshot())  # as the service writes it, before the REVOKE goes out
+    journal.close()
+    assert records(full)[0][-1]["k"] == "reactive"
+
+    late = 1.0
+    restarted = ReactiveDica(ch45, CFG, reactive=ASK)
+    done = replay(full, restarted)
+    restarted.advance(late)
+    assert done.revocations == 1 and restarted.pending() == ("w1",)
+    assert restarted.due_revocations() == [("w1", 0)] and "w1~revoked" in restarted.confirmed
+    assert restarted.event is not None and restarted.event.reorder.revoked == ("w1",)
+    assert restarted.snapshot() == ica.snapshot()
+    held = restarted.handle(request(ch45, "ev", EV_ROUTE, late, 42.5, 15.0, seq=1), late)
+    assert isinstance(held, Rejection) and held.reason is Reason.HELD
+    assert restarted.take_reorders() == []  # the same event goes on, not a new one
+    assert restarted.cancel("w1", 0)  # the answer: the plan is dropped, the room free
+    assert restarted.pending() == () and not {"w1", "w1~revoked"} & set(restarted.confirmed)
+    ev = restarted.handle(request(ch45, "ev", EV_ROUTE, late, 42.5, 15.0, seq=2), late)
+    empty = Dica(ch45, CFG)
+    empty.detect("ev", EV_ROUTE[0], 0.5)
+    free = empty.handle(request(ch45, "ev", EV_ROUTE, late, 42.5, 15.0, seq=2), late)
+    assert isinstance(ev, Confirmation) and ev.entry_time_s == pytest.approx(free.entry_time_s)
+
+    forgot = ReactiveDica(ch45, CFG, reactive=ASK)
+    assert replay(bare, forgot).revocations == 0
+    forgot.advance(late)
+    assert forgot.pending() == () and "w1" in forgot.confirmed  # the answer would be ignored
+    forgot.handle(request(ch45, "ev", EV_ROUTE, late, 42.5, 15.0, seq=1), late)
+    assert len(forgot.take_reorders()) == 1  # it decides the event again
+
+
 def test_an_old_journal_without_the_flag_still_replays(ch45, tmp_path):
     path = tmp_path / "old.msgpack"
     journalled_scene(ch45, path, ev_flag=False)

@@ -348,6 +348,42 @@ def test_a_killed_ica_with_human_drivers_keeps_their_greens_and_nothing_collides
     assert ica["incarnations"][1]["journal_replayed"]["greens"] >= len(greens)
 
 
+def test_an_ica_killed_mid_reordering_carries_the_event_on(tmp_path):
+    """Reactive DICA in real time, the agents' links 300 ms each way, the ICA SIGKILLed
+    while a revocation awaits its answer (the journal's latest word on the event has
+    one pending) and restarted: it replays the event and awaits that answer again;
+    every revocation is answered or runs out with its plan, and the run is safe and
+    whole."""
+    from dica.ica.journal import records
+
+    out = tmp_path / "rt"
+    proc = _start_cluster(
+        out,
+        *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
+        *("--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "500", "--seed", "12"),
+        *("--duration", "90", "--delay", "300", "--faulty", "agents"),
+    )  # fmt: skip
+    journal = out / "ica-journal.msgpack"
+    deadline = time.monotonic() + 150
+    while True:
+        events = [r for r in records(journal)[0] if r["k"] == "reactive"]
+        if events and events[-1]["state"]["pending"]:
+            break
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "no revocation was ever pending"
+        time.sleep(0.02)
+    _kill(out, "ica")
+    stdout, stderr = _finish(proc, out)
+    assert proc.returncode == 0, stdout + stderr
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    assert m["ica_outages"] >= 1
+    ica = json.loads((out / "ica.json").read_text())
+    assert ica["incarnations"][1]["journal_replayed"]["revocations"] >= 1
+    last = ica["incarnations"][-1]["reactive"]
+    assert last["pending"] == 0  # each answered (again) or run out
+
+
 def test_a_killed_gateway_leaves_what_the_run_knew(tmp_path):
     out = tmp_path / "rt"
     proc = _start_cluster(

@@ -55,7 +55,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 
 import numpy as np
 
@@ -323,6 +323,74 @@ class ReactiveDica(Dica):
         if events:
             out["events_log"] = [event_log(e) for e in self.events]
         return out
+
+    # -- crash survival ----------------------------------------------------------------
+    def snapshot(self) -> dict:
+        """What a restarted ICA needs, beyond its confirmations, to carry on the event it
+        was in: the EV's event and its reordering, the EVs waiting, the revocations still
+        unanswered (each by the seq of the plan revoked) and the re-confirmations still
+        to come, as plain data for the journal (:meth:`restore_snapshot`)."""
+        ev = self._event
+        return {
+            "event": None if ev is None else {
+                "ev": ev.ev, "lane": ev.lane, "detected": ev.detected_s,
+                "started": ev.started_s, "confirmed": ev.ev_confirmed_s,
+                "entry": ev.ev_entry_s, "unplanned": list(ev.unplanned),
+                "failed": list(ev.failed),
+                "reorder": None if ev.reorder is None else asdict(ev.reorder),
+            },
+            "waiting": [list(w) for w in self._waiting_evs],
+            "pending": [[v, self._revoked_seq[v], self._revoked_at.get(v, 0.0)]
+                        for v in self._pending],
+            "lanes": {ln: list(vs) for ln, vs in self._lane_revoked.items() if vs},
+            "before": [_replan_row(r) for r in self._before],
+            "after": [_replan_row(r) for r in self._after],
+            "answers": [self.acknowledged, self.restored, self.expired],
+        }  # fmt: skip
+
+    def restore_snapshot(self, snap: dict) -> None:
+        """Carry on from :meth:`snapshot` after the journal's confirmations were replayed:
+        each revoked plan still held under its seq is set aside again and awaits its
+        answer (one answered before the crash was journalled as a cancel and is gone);
+        the event, the EVs waiting and the re-confirmations to come are as they were."""
+        ev = snap.get("event")
+        self._event = None
+        if ev is not None:
+            r = ev.get("reorder")
+            reorder = None
+            if r is not None:
+                reorder = Reorder(**{
+                    k: tuple(v) if isinstance(v, list) else v for k, v in r.items()
+                })  # fmt: skip
+            self._event = EvEvent(
+                str(ev["ev"]), str(ev["lane"]), float(ev["detected"]), float(ev["started"]),
+                reorder, [], list(ev["failed"]), list(ev["unplanned"]), ev["confirmed"],
+                ev["entry"],
+            )  # fmt: skip
+            self.events = [e for e in self.events if e.ev != self._event.ev] + [self._event]
+        self._waiting_evs = [(str(v), str(ln), float(t)) for v, ln, t in snap["waiting"]]
+        for vin, seq, at in snap["pending"]:
+            c = self._confirmed.get(vin)
+            if c is None or c.confirmation.seq != seq or vin in self._pending:
+                continue
+            key = vin + _ASIDE
+            self._set_aside(vin, key)
+            self._pending[vin] = key
+            self._revoked_seq[vin] = int(seq)
+            self._revoked_at[vin] = float(at)
+        self._lane_revoked = {
+            ln: [v for v in vs if v in self._pending] for ln, vs in snap["lanes"].items()
+        }
+        self._before = [r for r in map(self._replan_of, snap["before"]) if r is not None]
+        self._after = [r for r in map(self._replan_of, snap["after"]) if r is not None]
+        self.acknowledged, self.restored, self.expired = (int(x) for x in snap["answers"])
+
+    def _replan_of(self, row: list) -> Replan | None:
+        vin, seq, rid, length, width, t0, dist, speed = row
+        route = self.intersection.route_by_id(rid)
+        if route is None:
+            return None
+        return Replan(vin, int(seq), route, Shape.of(length, width), t0, dist, speed)
 
     # -- DICA's entry points ------------------------------------------------------------
     def detect(
@@ -673,6 +741,11 @@ class ReactiveDica(Dica):
         for lst in self._lane_confirmed.values():
             if vin in lst:
                 lst.remove(vin)
+
+
+def _replan_row(r: Replan) -> list:
+    return [r.vin, r.seq, r.route.id, r.shape.length_m, r.shape.width_m, r.t0_s, r.dist_m,
+            r.speed_mps]  # fmt: skip
 
 
 def _sized(req: Request) -> bool:
