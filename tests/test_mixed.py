@@ -27,6 +27,7 @@ from dica.ica.core.envelope import (
     bounds_from,
     envelope_dtot,
     follow_delay,
+    follow_delay_numpy,
     human_limits,
     path_s,
     profile,
@@ -182,6 +183,44 @@ def test_a_follower_let_go_after_its_follow_delay_never_brakes_inside(ch45):
     rear = np.where(after, lead.s_m[-1] - route.cross_length_m - 4.5
                     + v_end * (t - lead.t_s[-1]), rear)  # fmt: skip
     assert (rear[inside] - u_f[inside] >= 2.5 - 1e-9).all()  # never closer than SUMO's minGap
+
+
+def test_the_compiled_follow_delay_is_numpys_bit_for_bit(ch45):
+    """The kernel the searches call against the numpy reference: real bounds of every
+    pair of routes onto one exit lane at staggered greens, and random trajectories
+    (rising, falling behind, one sample long), watched from the start or the line."""
+    from dica.ica.core.trajectory import Trajectory
+
+    cases = []
+    for a in ch45.routes:
+        for b in ch45.routes:
+            if a.cars and b.cars and a.out_lane == b.out_lane:
+                for g in (0.0, 1.3, 2.7):
+                    fast, _ = bounds(a, 4.5, g, STEP, LIMITS)
+                    _, slow = bounds(b, 5.0, 0.0, STEP, LIMITS)
+                    cases.append((fast, a.cross_length_m, 4.5, slow, b.cross_length_m, 5.0))
+    rng = np.random.default_rng(27)
+    for _ in range(400):
+        nf, nl = int(rng.integers(2, 300)), int(rng.integers(1, 200))
+        f = Trajectory(
+            float(rng.uniform(0, 20)),
+            STEP,
+            np.cumsum(np.abs(rng.normal(0.6, 0.4, nf))) + rng.uniform(-60, 10),
+        )
+        lead = Trajectory(
+            float(rng.uniform(0, 20)),
+            STEP,
+            np.cumsum(np.abs(rng.normal(0.4, 0.4, nl))) + rng.uniform(-20, 40),
+        )
+        cases.append((f, float(rng.uniform(10, 40)), float(rng.uniform(3, 12)), lead,
+                      float(rng.uniform(10, 40)), float(rng.uniform(3, 12))))  # fmt: skip
+    nonzero = 0
+    for case in cases:
+        for from_m in (-np.inf, 0.0):
+            want = follow_delay_numpy(*case, from_m)
+            assert follow_delay(*case, from_m) == want
+            nonzero += want > 0.0
+    assert nonzero > len(cases) // 2
 
 
 def _merging_lanes(inter) -> tuple[str, str, str]:

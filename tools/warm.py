@@ -18,7 +18,11 @@ import sys
 from pathlib import Path
 
 HALVES = (
-    ("dica.ica.core.kernels.dtot", "dica.ica.core.kernels.conflict"),
+    (
+        "dica.ica.core.kernels.dtot",
+        "dica.ica.core.kernels.conflict",
+        "dica.ica.core.kernels.follow",
+    ),
     (
         "dica.ica.core.kernels.validate",
         "dica.ica.core.kernels.planner",

@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from dica.ica.core.dtot import Dtot, build_dtot
+from dica.ica.core.kernels.follow import Krauss
+from dica.ica.core.kernels.follow import follow_delay as _follow_kernel
 from dica.ica.core.route import Route
 from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.zones import RouteGrid, Shape
@@ -208,6 +210,7 @@ def envelope_dtot(
 KRAUSS_TAU_S = 1.0
 KRAUSS_DECEL_MPS2 = 4.5
 MIN_GAP_M = 2.5
+_KRAUSS = tuple(Krauss(KRAUSS_TAU_S, KRAUSS_DECEL_MPS2, MIN_GAP_M))
 
 
 def _lead_at(lead: Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -225,6 +228,26 @@ def _lead_at(lead: Trajectory, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def follow_delay(
+    fast: Trajectory,
+    cross_m: float,
+    length_m: float,
+    lead: Trajectory,
+    lead_cross_m: float,
+    lead_length_m: float,
+    from_m: float = -math.inf,
+) -> float:
+    """:func:`follow_delay_numpy` in one compiled call
+    (:func:`ica.core.kernels.follow.follow_delay`), bit for bit."""
+    return _follow_kernel(
+        (float(fast.t0_s), float(fast.step_s), float(cross_m), float(length_m), float(from_m)),
+        np.ascontiguousarray(fast.s_m, dtype=float),
+        (float(lead.t0_s), float(lead.step_s), float(lead_cross_m), float(lead_length_m)),
+        np.ascontiguousarray(lead.s_m, dtype=float),
+        _KRAUSS,
+    )
+
+
+def follow_delay_numpy(
     fast: Trajectory,
     cross_m: float,
     length_m: float,

@@ -15,7 +15,9 @@ module that owns it:
 * :mod:`.validate`: the numeric checks of a REQUEST's TSS;
 * :mod:`.planner`: the planner's phase arithmetic, plan building and sampling;
 * :mod:`.resolve`: Algorithm 1's round loop, whole;
-* :mod:`.handover`: the least separation at which the road's driver takes over.
+* :mod:`.handover`: the least separation at which the road's driver takes over;
+* :mod:`.follow`: Krauss's safe speed behind a vehicle on the same exit lane (a
+  human driver's green, the exit-lane order).
 
 Floating-point results equal numpy's exactly where the arithmetic is IEEE's
 basic operations and square root: the expressions are written in numpy's
