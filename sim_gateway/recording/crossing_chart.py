@@ -13,6 +13,7 @@ box meets a walker's, and every dot lies in a walker's box (red where it does no
 from __future__ import annotations
 
 import itertools
+import math
 
 import numpy as np
 import rerun as rr
@@ -71,7 +72,10 @@ class CrossingChart:
         self._slots: dict[str, list[WalkSlot]] = {c.id: [] for c in crosswalks}
         self._passages: dict[tuple[str, float, float, float], list] = {}  # [passage or None]
         self._ends = [c.shape[[0, -1]] for c in crosswalks]
-        self._walked = False  # a walker was given a crossing (no light run draws people here)
+        # when a walker was first given a crossing (no light run draws people here): an
+        # observer may hear of that slot before the people it has yet to draw from earlier
+        # steps, and draws none of those, as the run in one process does not
+        self._walked_s = math.inf
 
     @property
     def n_rows(self) -> int:
@@ -170,7 +174,7 @@ class CrossingChart:
         fastest arrival there to its slowest departure (:meth:`WalkSlot.over`)."""
         if slot.crossing not in self._index:
             return
-        self._walked = True
+        self._walked_s = min(self._walked_s, now)
         self._slots[slot.crossing].append(slot)
         c = self.crosswalks[self._index[slot.crossing]]
         cuts = np.linspace(-CORNER_M, c.length_m + CORNER_M, PIECES + 1)
@@ -205,7 +209,7 @@ class CrossingChart:
         people on the sidewalk beside an end are that near it too): amber within a
         walker's reservation of that place, red outside every one. Only in runs whose
         walkers ask an ICA."""
-        if not self._walked or not len(xy):
+        if t_s < self._walked_s - 1e-9 or not len(xy):
             return
         pos, cols = [], []
         for c, (p0, p1) in zip(self.crosswalks, self._ends, strict=True):
