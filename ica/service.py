@@ -425,7 +425,10 @@ class IcaService:
             self.ica.advance(self.now_s)
         held, self._held = self._held, []
         for since, h in held:
-            self._on_request(h, since)
+            if h.what == "human":
+                self._on_human(h, since)
+            else:
+                self._on_request(h, since)
         self.ended = clock.end
 
     def _on_vehicles(self, item: Item) -> None:
@@ -577,7 +580,7 @@ class IcaService:
             put(self.session, keys.walks(self.junction, keys.chunk(slot.person)), payload)
         reply(item.query, item.key, payload)
 
-    def _on_human(self, item: Item) -> None:
+    def _on_human(self, item: Item, since: float | None = None) -> None:
         """A human driver, told by the roadside: in the region (SPOTTED), at its line
         (ASKGREEN: the green, journalled before it is answered, so a restarted ICA never
         confirms a vehicle through its envelope), or seen on its green (SIGHTING: its
@@ -590,8 +593,14 @@ class IcaService:
         if not _is_chunk(msg.vin):
             self._reject(item.query, "?", -1, Reason.BAD_STATE, "VIN has key characters")
             return
+        if msg.t_s > self.now_s + HUMAN_AHEAD_S:
+            # the CLOCKs sent before it may not have been taken yet (the session hands
+            # samples and queries over on threads of its own): wait for them, as a REQUEST
+            # observed ahead of the clock does; refused if they never come (HOLD_S)
+            self._held.append((since if since is not None else time.monotonic(), item))
+            return
         late = msg.t_s < self.now_s - 1e-9 and not isinstance(msg, Spotted)  # seen before
-        if late or msg.t_s > self.now_s + HUMAN_AHEAD_S:
+        if late:
             why = f"t={msg.t_s:g} s is not this step's (clock {self.now_s:g} s)"
             self._reject(item.query, msg.vin, -1, Reason.BAD_TIME, why)
             return
