@@ -296,28 +296,42 @@ def test_a_plan_onto_a_humans_exit_lane_never_has_either_brake_inside(ch45):
     SUMO's safe speed step by step the one behind never brakes inside the junction (a
     at its fastest behind the plan, or the plan behind a at its slowest). The rule
     binds: at some t0 it is planned later than on an empty junction."""
+    later = []
+    for t0 in (0.0, 2.0, 4.0, 8.0):
+        req, done = _plan_behind_a_green(ch45, t0, 30.0, 10.0)
+        assert isinstance(done, Confirmation)
+        bare = Dica(ch45, IcaConfig())
+        bare.detect("b", req.in_lane, 0.0)
+        free = bare.handle(req, t0).entry_time_s
+        later.append(done.entry_time_s - free)
+    assert max(later) > 1.0
+
+
+def _plan_behind_a_green(ch45, t0: float, dist_m: float, speed_mps: float | None = None):
+    """Human a holds a green at 0 onto an exit lane; connected vehicle b, from another
+    lane onto it, asks at ``t0``, ``dist_m`` out at ``speed_mps`` (default: the road's
+    speed): b's request and the ICA's answer. If b was confirmed, it is checked first
+    by SUMO's safe speed step by step: whether b goes ahead of a or behind, the one
+    behind never brakes inside the junction (a at its fastest behind the plan, or the
+    plan behind a at its slowest)."""
     lane_a, lane_b, out = _merging_lanes(ch45)
     shape = Shape.of(4.5, 1.8)
     rb = next(r for r in ch45.routes_from(lane_b) if r.out_lane == out)
-    later = []
-    for t0 in (0.0, 2.0, 4.0, 8.0):
-        ica = Dica(ch45, IcaConfig())
-        ica.detect("a", lane_a, 0.0)
-        ica.detect("b", lane_b, 0.0)
-        ga = ica.green("a", 0.0, shape.length_m, shape.width_m, LIMITS)
-        req = propose(rb, vin="b", seq=0, t0_s=t0, dist_to_entry_m=30.0, speed_mps=10.0)
-        assert isinstance(ica.handle(req, t0), Confirmation)
+    ica = Dica(ch45, IcaConfig())
+    ica.detect("a", lane_a, 0.0)
+    ica.detect("b", lane_b, 0.0)
+    ga = ica.green("a", 0.0, shape.length_m, shape.width_m, LIMITS)
+    v = rb.road_mps if speed_mps is None else speed_mps
+    req = propose(rb, vin="b", seq=0, t0_s=t0, dist_to_entry_m=dist_m, speed_mps=v)
+    done = ica.handle(req, t0)
+    if isinstance(done, Confirmation):
         plan = ica.confirmed["b"].dtot.trajectory
         for ra in (r for r in ch45.routes_from(lane_a) if r.out_lane == out):
             fast_a, slow_a = bounds(ra, 4.5, ga.green_s, STEP, LIMITS)
             assert _never_brakes_behind(fast_a, ra, plan, rb) or _never_brakes_behind(
                 plan, rb, slow_a, ra, 5.0
             )
-        bare = Dica(ch45, IcaConfig())
-        bare.detect("b", lane_b, 0.0)
-        free = bare.handle(req, t0).entry_time_s
-        later.append(ica.confirmed["b"].confirmation.entry_time_s - free)
-    assert max(later) > 1.0
+    return req, done
 
 
 @pytest.mark.parametrize("t0", [1.0, 2.0, 3.0, 4.0, 5.0])
@@ -327,23 +341,9 @@ def test_a_fast_approach_behind_a_crossing_human_is_planned_in_a_few_rounds(ch45
     other. (Watching the plan's samples on its approach as if it followed the human
     there asked the same delay round after round, since a delay cannot move where the
     vehicle already is: the search crawled for hundreds of rounds.)"""
-    lane_a, lane_b, out = _merging_lanes(ch45)
-    shape = Shape.of(4.5, 1.8)
-    rb = next(r for r in ch45.routes_from(lane_b) if r.out_lane == out)
-    ica = Dica(ch45, IcaConfig())
-    ica.detect("a", lane_a, 0.0)
-    ica.detect("b", lane_b, 0.0)
-    ga = ica.green("a", 0.0, shape.length_m, shape.width_m, LIMITS)
-    req = propose(rb, vin="b", seq=0, t0_s=t0, dist_to_entry_m=50.0, speed_mps=rb.road_mps)
-    done = ica.handle(req, t0)
+    _, done = _plan_behind_a_green(ch45, t0, 50.0)
     assert isinstance(done, Confirmation), done
     assert done.iterations <= 10
-    plan = ica.confirmed["b"].dtot.trajectory
-    for ra in (r for r in ch45.routes_from(lane_a) if r.out_lane == out):
-        fast_a, slow_a = bounds(ra, 4.5, ga.green_s, STEP, LIMITS)
-        assert _never_brakes_behind(fast_a, ra, plan, rb) or _never_brakes_behind(
-            plan, rb, slow_a, ra, 5.0
-        )
 
 
 def _clash(stored: Dtot, new: Dtot) -> bool:
