@@ -367,6 +367,32 @@ def test_a_restarted_ica_carries_on_the_revocations_it_awaited(ch45, tmp_path):
     assert len(forgot.take_reorders()) == 1  # it decides the event again
 
 
+def test_an_answer_journalled_after_the_event_is_not_awaited_again(ch45, tmp_path):
+    """The car's answer came (journalled as a cancel of the revoked plan) but the ICA died
+    before it journalled the event again: the replay finds the plan gone and awaits
+    nothing; the event is carried on, and the EV's next ask is planned first. A second
+    copy of the answer changes nothing."""
+    path = tmp_path / "j.msgpack"
+    journalled_scene(ch45, path)
+    ica = ReactiveDica(ch45, CFG, reactive=ASK)
+    replay(path, ica)
+    ica.advance(0.5)
+    start_event(ica, ch45)
+    journal = Journal(path, sync=False)
+    journal.reactive(ica.snapshot())
+    journal.cancel("w1", 0)  # the answer, as the service journals it before it acts
+    journal.close()
+    restarted = ReactiveDica(ch45, CFG, reactive=ASK)
+    done = replay(path, restarted)
+    restarted.advance(1.0)
+    assert done.revocations == 0 and restarted.pending() == ()
+    assert not {"w1", "w1~revoked"} & set(restarted.confirmed)
+    assert restarted.event is not None and restarted.event.reorder.revoked == ("w1",)
+    assert not restarted.cancel("w1", 0)  # the same answer again: nothing to free
+    ev = restarted.handle(request(ch45, "ev", EV_ROUTE, 1.0, 42.5, 15.0, seq=1), 1.0)
+    assert isinstance(ev, Confirmation) and restarted.take_reorders() == []
+
+
 def test_an_old_journal_without_the_flag_still_replays(ch45, tmp_path):
     path = tmp_path / "old.msgpack"
     journalled_scene(ch45, path, ev_flag=False)
