@@ -65,23 +65,20 @@ def follow_delay(
     lead_cross_m, lead_length_m = ld.cross_m, ld.length_m
     tau_s, decel_mps2, min_gap_m = kr.tau_s, kr.decel_mps2, kr.min_gap_m
     n = len(s_m) - 1
-    m = 0
-    for j in range(n):
-        if s_m[j] - cross_m - length_m < 0.0 and s_m[j] >= from_m:
-            m += 1
-    if m == 0:
-        return 0.0
-    t = np.empty(m)
-    u_f = np.empty(m)
-    v_f = np.empty(m)
-    q = 0
+    t = np.empty(n)
+    u_f = np.empty(n)
+    v_f = np.empty(n)
+    m = 0  # the follower's samples watched while its rear is inside
     for j in range(n):
         u = s_m[j] - cross_m
         if u - length_m < 0.0 and s_m[j] >= from_m:
-            t[q] = t0_s + step_s * j
-            u_f[q] = u
-            v_f[q] = (s_m[j + 1] - s_m[j]) / step_s
-            q += 1
+            t[m] = t0_s + step_s * j
+            u_f[m] = u
+            v_f[m] = (s_m[j + 1] - s_m[j]) / step_s
+            m += 1
+    if m == 0:
+        return 0.0
+    t, u_f, v_f = t[:m], u_f[:m], v_f[:m]
     # the lead's front and speed at those times: standing at its first sample before
     # it, carried on at its last speed after it
     ln = len(lead_s_m)
@@ -131,11 +128,10 @@ def follow_delay(
             q += 1
     idx = np.empty(nbad, dtype=np.int64)
     searchsorted(lead_s_m, target, False, idx)
-    v_end = v_last
     worst = -math.inf
     for j in range(nbad):
         if target[j] > lead_s_m[ln - 1]:
-            reach = end + (target[j] - lead_s_m[ln - 1]) / max(v_end, 0.1)
+            reach = end + (target[j] - lead_s_m[ln - 1]) / max(v_last, 0.1)
         else:
             reach = lead_t0_s + lead_step_s * min(idx[j], ln - 1)
         worst = max(worst, reach - tbad[j])
