@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -70,6 +71,7 @@ LIMITS = {
     "begin_s": Limit("--begin", 0.0, 1e7, "s"),
     "peds_per_h": Limit("--peds", 0.0, 3600.0, "persons per hour per crossing"),
     "cav_share": Limit("--cav-share", 0.0, 1.0),
+    "max_added_delay_s": Limit("--max-added-delay", 0.0, math.inf, "s"),
 }
 
 
@@ -97,6 +99,8 @@ class RunConfig:
     time_pad_s: float = 0.0  # [s] the ICA's padding of every confirmed occupancy interval
     ev_prob: float = 0.0  # each arrival an emergency-vehicle candidate with this probability
     solver: str = "exact"  # reactive DICA's ordering solver
+    # [s] reactive DICA: the most reorderings may add to any one normal vehicle (inf: none)
+    max_added_delay_s: float = math.inf
     # reactive DICA's revoked vehicles: "replan" (the ICA plans them again in the solver's
     # order; in process only) or "drop" (they drop their plans and ask again: the cluster)
     revocation: str = "replan"
@@ -134,11 +138,18 @@ class RunConfig:
     def controller_spec(self) -> ControllerSpec:
         """The controller this run drives (a light runs FIFO underneath, never asked)."""
         from dica.ica.core.controller import ControllerSpec  # the compiled core, when needed
+        from dica.ica.core.ev_event import ReactiveConfig
 
+        reactive = ReactiveConfig(
+            solver=self.solver,
+            seed=self.seed,
+            replan_revoked=self.revocation == "replan",
+            max_added_delay_s=self.max_added_delay_s,
+        )
         return ControllerSpec.of(
             "fifo" if self.algorithm in LIGHTS else self.algorithm,
             self.margin_m, self.time_pad_s, self.platoon, self.headway_s, self.run_up,
-            self.exit_spacing, self.tile_m, self.solver, self.seed, self.revocation == "replan",
+            self.exit_spacing, self.tile_m, reactive,
         )  # fmt: skip
 
     def _check_mixed(self) -> None:

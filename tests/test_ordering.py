@@ -197,3 +197,112 @@ def test_an_order_that_breaks_a_lane_is_refused():
         evaluate(p, [1, 0])
     with pytest.raises(OrderingError, match="unknown solver"):
         solve(p, "annealing")
+
+
+# -- a bound on what a reordering may add to anyone ------------------------------------
+BUDGETS = st.sampled_from([0.0, 0.0, 0.4, 1.3, 3.0, np.inf])
+
+
+@st.composite
+def bounded_problems(draw, max_n: int = 7, max_lanes: int = 4) -> tuple[Problem, list[int]]:
+    """A problem whose deadlines are, as reactive DICA sets them, each vehicle's entry in
+    the present order plus what it may still be delayed (the EV has none), and that
+    present order (which therefore keeps them all)."""
+    p = draw(problems(max_n, max_lanes))
+    queues = [list(q) for q in p.queues()]
+    present: list[int] = []
+    while any(queues):
+        q = draw(st.sampled_from([q for q in queues if q]))
+        present.append(int(q.pop(0)))
+    e, _, _ = evaluate(p, present)
+    budget = np.array(draw(st.lists(BUDGETS, min_size=p.n, max_size=p.n)))
+    deadline = e + budget
+    deadline[p.ev] = np.inf
+    return Problem(p.lane, p.release_s, p.sep_s, p.ev, deadline), present
+
+
+def brute_force_within(p: Problem) -> tuple[float, float] | None:
+    """:func:`brute_force` over the orders that keep every deadline (None: no such order)."""
+    best = None
+    for perm in itertools.permutations(range(p.n)):
+        if not feasible(p, perm):
+            continue
+        e, delay = entries_reference(p, list(perm))
+        if any(e[k] > p.deadline_s[k] + 1e-9 for k in range(p.n)):
+            continue
+        key = (e[p.ev], delay)
+        if best is None or better(key, best):
+            best = key
+    return best
+
+
+def keeps_deadlines(p: Problem, order) -> bool:
+    e, _, _ = evaluate(p, order)
+    return p.lateness_s(e) <= 1e-9
+
+
+@settings(max_examples=200, deadline=None)
+@given(bounded_problems())
+def test_under_deadlines_exact_equals_exhaustive_and_brute_force(pp):
+    p, present = pp
+    e, x = exact(p), exhaustive(p)
+    assert keeps_deadlines(p, e.order) and keeps_deadlines(p, x.order)
+    assert same_key(e.key(), x.key())
+    if p.n <= 6:
+        best = brute_force_within(p)
+        assert best is not None  # the present order keeps them
+        assert same_key(e.key(), best)
+    # never worse for the EV than the present order
+    _, ev_present, _ = evaluate(p, present)
+    assert e.ev_entry_s <= ev_present + 1e-9
+
+
+@settings(max_examples=60, deadline=None)
+@given(bounded_problems(max_n=9, max_lanes=5), st.integers(0, 2**31 - 1))
+def test_under_deadlines_the_ga_keeps_them_or_says_so(pp, seed):
+    p, _ = pp
+    best = exact(p)
+    try:
+        g = ga(p, seed=seed)
+    except OrderingError as err:
+        assert "deadline" in str(err)
+        return
+    assert keeps_deadlines(p, g.order)
+    assert not better(g.key(), best.key())
+
+
+def test_a_zero_bound_keeps_the_present_order_and_enough_room_lets_the_ev_first():
+    # lane 0: a (released 0) then b (released 0.5); lane 1: the EV (released 1.0);
+    # a conflicts with the EV (2 s either way); b is compatible with everyone
+    sep = np.array([[0.0, 1.0, 2.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]])
+    free = Problem(np.array([0, 0, 1]), np.array([0.0, 0.5, 1.0]), sep, 2)
+    present = [0, 1, 2]  # a, b, EV: the EV enters at 2.0
+    e_present, ev_present, _ = evaluate(free, present)
+    assert ev_present == pytest.approx(2.0)
+    # unbounded, the EV goes first (1.0) and a waits till 3.0, b till 4.0
+    unbounded = exact(free)
+    assert unbounded.ev_entry_s == pytest.approx(1.0)
+    assert unbounded.entry_s[0] == pytest.approx(3.0)
+    deadline = e_present.copy()
+    deadline[2] = np.inf
+    bounded = Problem(free.lane, free.release_s, free.sep_s, 2, deadline)
+    for sol in (exact(bounded), exhaustive(bounded)):
+        assert list(sol.order) == present
+        assert sol.ev_entry_s == pytest.approx(2.0)
+    # 3 s to spare for a and b: the EV goes first again; 2.9 s: not yet
+    for spare, ev_entry in ((2.9, 2.0), (3.0, 1.0)):
+        d = e_present + spare
+        d[2] = np.inf
+        p = Problem(free.lane, free.release_s, free.sep_s, 2, d)
+        for sol in (exact(p), exhaustive(p)):
+            assert sol.ev_entry_s == pytest.approx(ev_entry)
+
+
+def test_deadlines_no_order_keeps_are_refused_by_every_solver():
+    sep = np.array([[0.0, 2.0], [2.0, 0.0]])
+    p = Problem(np.array([0, 1]), np.array([0.0, 0.0]), sep, 1, np.array([1.0, 1.0]))
+    for solver in ("exact", "exhaustive", "ga"):
+        with pytest.raises(OrderingError, match="deadline"):
+            solve(p, solver)
+    with pytest.raises(OrderingError, match="deadlines"):
+        Problem(np.array([0, 1]), np.array([0.0, 0.0]), sep, 1, np.array([1.0, np.nan]))

@@ -449,3 +449,66 @@ def test_a_requested_confirmation_is_held_with_the_time_pad_and_no_more(ch45):
     assert np.array_equal(held[0.2].t_s, held[0.0].t_s)  # the same plan
     assert np.allclose(held[0.2].lb_s, held[0.0].lb_s - 0.4)
     assert np.allclose(held[0.2].ub_s, held[0.0].ub_s + 0.4)
+
+
+# -- a bound on what reorderings add to a vehicle -------------------------------------
+def _bounded(inter, bound: float) -> tuple[ReactiveDica, Confirmation]:
+    ica = ReactiveDica(inter, CFG, reactive=ReactiveConfig(max_added_delay_s=bound))
+    return ica, scene(ica, inter)
+
+
+def test_the_ev_goes_first_only_if_the_car_it_passes_stays_within_the_bound(ch45):
+    ica, _ = _bounded(ch45, float("inf"))
+    free = start_event(ica, ch45)
+    added = dict(zip(free.order, free.added_s, strict=True))
+    assert free.order.index("ev") < free.order.index("w1") and added["ev"] == 0.0
+    cost = added["w1"]
+    assert cost > 0.5  # passing the car costs it time: the bound has something to cut
+    # a bound just under that cost: the car keeps its plan (nothing is revoked) and the
+    # EV is planned at once, behind it
+    ica, w1 = _bounded(ch45, cost - 0.05)
+    detect_ev(ica)
+    ev = ev_request(ica, ch45)
+    [r] = ica.take_reorders()
+    assert r.order.index("w1") < r.order.index("ev") and r.revoked == ()
+    assert r.added_s == (0.0, 0.0)
+    assert isinstance(ev, Confirmation) and ev.entry_time_s > w1.entry_time_s
+    assert ica.confirmed["w1"].confirmation == w1
+    assert conflicts(flown(ch45, [ev, w1]), CFG.margin_m) == []
+    # and one just over it lets the EV first, charging the car what it was added
+    ica, _ = _bounded(ch45, cost + 0.05)
+    r = start_event(ica, ch45)
+    assert r.order.index("ev") < r.order.index("w1") and r.revoked == ("w1",)
+    assert ica.summary()["added_delay_max_s"] == pytest.approx(cost, abs=1e-3)
+    assert ica.summary()["max_added_delay_s"] == pytest.approx(cost + 0.05)
+    ica.acknowledge("w1")
+    ev = ev_request(ica, ch45, seq=1)
+    [w1_new] = ica.take_confirmations()
+    assert w1_new.entry_time_s > ev.entry_time_s
+    assert conflicts(flown(ch45, [ev, w1_new]), CFG.margin_m) == []
+    assert ica.summary()["replanned_later_max_s"] > 0
+
+
+def test_what_a_vehicle_was_added_counts_against_later_reorderings_and_a_restart(ch45):
+    ica, _ = _bounded(ch45, 10.0)
+    r = start_event(ica, ch45)
+    cost = dict(zip(r.order, r.added_s, strict=True))["w1"]
+    assert ica.snapshot()["added"] == {"w1": pytest.approx(cost)}
+    again = ReactiveDica(ch45, CFG, reactive=ReactiveConfig(max_added_delay_s=10.0))
+    again.restore_snapshot(ica.snapshot())
+    assert again.snapshot()["added"] == ica.snapshot()["added"]
+    # a vehicle that has used its bound up is passed by no later EV
+    spent = ReactiveDica(ch45, CFG, reactive=ReactiveConfig(max_added_delay_s=10.0))
+    scene(spent, ch45)
+    spent.restore_snapshot(spent.snapshot() | {"added": {"w1": 10.0}})
+    detect_ev(spent)
+    assert isinstance(ev_request(spent, ch45), Confirmation)  # nothing to revoke: planned
+    [r] = spent.take_reorders()
+    assert r.order.index("w1") < r.order.index("ev") and r.revoked == ()
+
+
+def test_the_bound_must_not_be_negative():
+    with pytest.raises(ValueError, match="max_added_delay_s"):
+        ReactiveConfig(max_added_delay_s=-1.0)
+    with pytest.raises(ValueError, match="max_added_delay_s"):
+        ReactiveConfig(max_added_delay_s=float("nan"))

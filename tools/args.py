@@ -9,6 +9,7 @@ processes) both build on these two modules and on nothing of each other.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -73,6 +74,7 @@ def run_config(args: argparse.Namespace):
             window_s=getattr(args, "window", 0.0),
             ev_prob=_ev_prob(args),
             solver=args.solver,
+            max_added_delay_s=getattr(args, "max_added_delay", math.inf),
             revocation=getattr(args, "revocation", "replan"),
             platoon=args.platoon,
             headway_s=headway_s(args),
@@ -186,8 +188,8 @@ def headway_s(args: argparse.Namespace) -> float:
     return PLATOON_HEADWAY_S if args.platoon else 0.0
 
 
-RUN = (*options.NET, "--algorithm", "--solver", "--tile-size", *options.TRAFFIC,
-       "--margin", "--time-pad", "--platoon", "--headway")  # fmt: skip
+RUN = (*options.NET, "--algorithm", "--solver", "--max-added-delay", "--tile-size",
+       *options.TRAFFIC, "--margin", "--time-pad", "--platoon", "--headway")  # fmt: skip
 
 
 def add_run_args(p: argparse.ArgumentParser, **changes: dict) -> None:

@@ -172,6 +172,17 @@ OPTIONS: dict[str, Option] = {
             only_for=RDICA,
         ),
         Option(
+            "--max-added-delay",
+            "rdica: the most delay emergency vehicles' reorderings may add to any one other "
+            "vehicle, summed over every reordering it meets [s] (default inf: no bound, the "
+            "dissertation's); the ordering solvers keep it as a constraint",
+            float,
+            _run("max_added_delay_s"),
+            LIMITS["max_added_delay_s"],
+            only_for=RDICA,
+            metavar="S",
+        ),
+        Option(
             "--revocation",
             "rdica's revoked vehicles: replan (the ICA plans them again in the solver's order, "
             "at once; default) or drop (each drops its plan, stops short of the line and asks "

@@ -156,6 +156,7 @@ def _log_refused(log):
 # -- ica -----------------------------------------------------------------------
 def cmd_ica(args: argparse.Namespace) -> int:
     from dica.ica.core.controller import ControllerSpec, build_controller
+    from dica.ica.core.ev_event import ReactiveConfig
     from dica.ica.journal import Journal, JournalError
     from dica.ica.service import IcaService, write_stats
 
@@ -163,10 +164,15 @@ def cmd_ica(args: argparse.Namespace) -> int:
     try:
         # reactive DICA's revoked vehicles drop their plans and ask again: the ICA cannot
         # re-plan a vehicle over a link that may lose the new plan after the old one is gone
+        reactive = ReactiveConfig(
+            solver=args.solver,
+            seed=args.seed,
+            replan_revoked=False,
+            max_added_delay_s=args.max_added_delay,
+        )
         spec = ControllerSpec.of(
             args.algorithm, args.margin, args.time_pad, args.platoon, headway_s(args),
-            args.run_up, args.exit_spacing, args.tile_size, args.solver, args.seed,
-            replan_revoked=False,
+            args.run_up, args.exit_spacing, args.tile_size, reactive,
         )  # fmt: skip
         spec = dataclasses.replace(
             spec, config=dataclasses.replace(spec.config, max_request_age_s=args.max_age)
@@ -480,7 +486,8 @@ def add_role_parsers(sub) -> None:
         "SIGTERM or when the clock announces the end of the run.",
     )
     options.add(
-        i, *options.NET, "--algorithm", "--solver", "--seed", *options.PLAN, "--max-age",
+        i, *options.NET, "--algorithm", "--solver", "--max-added-delay", "--seed", *options.PLAN,
+        "--max-age",
         "--tile-size", "--out", "--idle-exit",
         algorithm={"help": options.ALGORITHMS_HELP + " (revoked vehicles drop their plans "
                    "and ask again)"},

@@ -45,6 +45,7 @@ scenario and roles:
   --ev-prob P           probability an arrival is an emergency vehicle (default 0.02
                         for rdica, else 0)
   --solver NAME         rdica's ordering solver: exact (default), ga, exhaustive
+  --max-added-delay S   rdica: the most reorderings may add to any one vehicle [s]
   --no-platoon          a vehicle asks only once the vehicle ahead of it has entered the
                         junction (the dissertation's rule); by default it may ask once
                         that vehicle flies its plan, and crosses behind it as a platoon
@@ -121,7 +122,7 @@ prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1
 layout=ch45 net="" junction="" junctions="" rsus="" netns=0 algorithm=enhanced volume=500 duration=600 seed=12
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
 delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
-max_age="" restart=1 router_rules=1 ev_prob="" solver="" platoon=(--platoon) headway="" run_up=(--run-up)
+max_age="" restart=1 router_rules=1 ev_prob="" solver="" max_added="" platoon=(--platoon) headway="" run_up=(--run-up)
 exit_spacing=(--exit-spacing)
 demand=()
 extra=()
@@ -136,6 +137,7 @@ while [ $# -gt 0 ]; do
     --algorithm) algorithm="$2"; shift 2 ;;
     --ev-prob) ev_prob="$2"; shift 2 ;;
     --solver) solver="$2"; shift 2 ;;
+    --max-added-delay) max_added="$2"; shift 2 ;;
     --no-platoon) platoon=(--no-platoon); shift ;;
     --headway) headway="$2"; shift 2 ;;
     --no-run-up) run_up=(--no-run-up); shift ;;
@@ -185,6 +187,7 @@ prob --loss "$loss"; prob --dup "$dup"; prob --reorder "$reorder"
 solver_args=()  # the roles refuse a --solver that is not rdica's, and one they do not know
 [ -z "$solver" ] || solver_args=(--solver "$solver")
 ev_args=("${solver_args[@]}")
+[ -z "$max_added" ] || { [ "$max_added" = inf ] || number --max-added-delay "$max_added"; solver_args+=(--max-added-delay "$max_added"); }
 [ -z "$ev_prob" ] || ev_args+=(--ev-prob "$ev_prob")
 [ "$lead" = auto ] || number --lead "$lead"
 [ -z "$port" ] || [[ "$port" =~ ^[0-9]+$ ]] || die "--port wants a port number"

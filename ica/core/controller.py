@@ -114,9 +114,7 @@ class ControllerSpec:
         run_up: bool = True,
         exit_spacing: bool = True,
         tile_m: float = 1.0,
-        solver: str = "exact",
-        seed: int = 0,
-        replan_revoked: bool = True,
+        reactive: ReactiveConfig | None = None,
     ) -> ControllerSpec:
         """A spec from the options of a run or of the ICA process.
 
@@ -141,8 +139,7 @@ class ControllerSpec:
             kinematics=Kinematics() if run_up else Kinematics.at_the_line(),
             exit_spacing=exit_spacing,
         )
-        reactive = ReactiveConfig(solver=solver, seed=seed, replan_revoked=replan_revoked)
-        return cls(algorithm, config, tile_m, reactive)
+        return cls(algorithm, config, tile_m, reactive or ReactiveConfig())
 
 
 def build_controller(

@@ -42,8 +42,14 @@ class ReactiveConfig:
     # revoked vehicle drops its plan, stops short of the line and asks again like any
     # head of lane; revocations go out together, each lane's from the back (due_revocations)
     replan_revoked: bool = True
+    # [s] the most delay reorderings may add to any one normal vehicle, summed over every
+    # reordering it meets (by the ordering model: its entry in the new order less that in
+    # the order kept); inf: no bound (the dissertation's). The solvers take it as a deadline
+    max_added_delay_s: float = math.inf
 
     def __post_init__(self) -> None:
+        if not self.max_added_delay_s >= 0:  # (NaN too)
+            raise ValueError("max_added_delay_s must be 0 or more")
         if self.solver not in SOLVERS:
             raise ValueError(f"unknown solver {self.solver!r}: use {', '.join(SOLVERS)}")
         if self.revoke_latency_s < 0:

@@ -116,6 +116,10 @@ class ReactiveDica(Dica):
         self._revoked_seq: dict[str, int] = {}  # revoked vin -> the seq of the plan revoked
         self._revoked_at: dict[str, float] = {}  # revoked vin -> when it was decided [s]
         self._lane_revoked: dict[str, list[str]] = {}  # per lane, revoked vins front to back
+        self._added: dict[str, float] = {}  # vin -> delay reorderings added to it so far [s]
+        self.added_peak_s = 0.0  # the most any vehicle was added, over the run [s]
+        self._revoked_entry: dict[str, float] = {}  # revoked vin -> its revoked plan's entry
+        self.replanned_later_s = 0.0  # the most a revoked vehicle's new entry came later [s]
         self.acknowledged = 0  # revocations the vehicle confirmed (its plan dropped)
         self.restored = 0  # reservations given back: the vehicle could no longer stop
         self.expired = 0  # set-aside reservations that ended unanswered
@@ -305,9 +309,16 @@ class ReactiveDica(Dica):
                 stopped.add(r.route.in_lane)
                 continue
             out.append(conf)
+            self._measure(conf)
         if ev is not None:
             ev.confirmations.extend(out)
         return out
+
+    def _measure(self, conf: Confirmation) -> None:
+        """How much later than its revoked plan a revoked vehicle's new plan enters."""
+        old = self._revoked_entry.pop(conf.vin, None)
+        if old is not None:
+            self.replanned_later_s = max(self.replanned_later_s, conf.entry_time_s - old)
 
     def summary(self, events: bool = False) -> dict:
         """Per-run figures of the events (counts, solver time, the EV's entries) and of
@@ -319,6 +330,11 @@ class ReactiveDica(Dica):
             "pending": len(self._pending),
             # when the oldest revocation still unanswered was decided [sim s]
             "pending_since_s": min((self._revoked_at[v] for v in self._pending), default=None),
+            # the bound on what reorderings add to a vehicle, and the most any was added
+            "max_added_delay_s": _finite(self.reactive.max_added_delay_s),
+            "added_delay_max_s": round(self.added_peak_s, 3),
+            # measured on the plans: the most a revoked vehicle's new plan entered later
+            "replanned_later_max_s": round(self.replanned_later_s, 3),
         }
         if events:
             out["events_log"] = [event_log(e) for e in self.events]
@@ -346,6 +362,7 @@ class ReactiveDica(Dica):
             "before": [_replan_row(r) for r in self._before],
             "after": [_replan_row(r) for r in self._after],
             "answers": [self.acknowledged, self.restored, self.expired],
+            "added": dict(self._added),
         }  # fmt: skip
 
     def restore_snapshot(self, snap: dict) -> None:
@@ -384,6 +401,7 @@ class ReactiveDica(Dica):
         self._before = [r for r in map(self._replan_of, snap["before"]) if r is not None]
         self._after = [r for r in map(self._replan_of, snap["after"]) if r is not None]
         self.acknowledged, self.restored, self.expired = (int(x) for x in snap["answers"])
+        self._added = {str(v): float(a) for v, a in snap.get("added", {}).items()}
 
     def _replan_of(self, row: list) -> Replan | None:
         vin, seq, rid, length, width, t0, dist, speed = row
@@ -442,6 +460,8 @@ class ReactiveDica(Dica):
                         self._forget_confirmed(vin)
                 continue
             self._detected.pop(key, None)
+            self._added.pop(key, None)
+            self._revoked_entry.pop(key, None)
             for lst in self._lane_confirmed.values():
                 if key in lst:
                     lst.remove(key)
@@ -512,6 +532,7 @@ class ReactiveDica(Dica):
         conf = super()._handle(req, now_s)
         if not known:
             self._lane_confirmed[req.in_lane].append(req.vin)
+            self._measure(conf)
         if ev is not None and req.vin == ev.ev and ev.ev_confirmed_s is None:
             ev.ev_confirmed_s = now_s
             ev.ev_entry_s = conf.entry_time_s
@@ -593,9 +614,19 @@ class ReactiveDica(Dica):
         prepare_s = t0 - t_prep
         refused = ""
         before = after = math.nan
+        added = np.zeros(n)
         try:
-            problem = Problem(np.array([lanes.index(c.lane) for c in cands]), release, sep, ev_idx)
-            _, before, _ = evaluate(problem, present)
+            lane_idx = np.array([lanes.index(c.lane) for c in cands])
+            problem = Problem(lane_idx, release, sep, ev_idx)
+            e_present, before, _ = evaluate(problem, present)
+            bound = self.reactive.max_added_delay_s
+            if math.isfinite(bound):
+                # nobody may enter later than in the present order by more than what is
+                # left of its bound after the reorderings it met before
+                spare = np.array([max(0.0, bound - self._added.get(c.vin, 0.0)) for c in cands])
+                deadline = e_present + spare
+                deadline[ev_idx] = math.inf
+                problem = Problem(lane_idx, release, sep, ev_idx, deadline)
             sol = solve(
                 problem,
                 self.reactive.solver,
@@ -604,6 +635,8 @@ class ReactiveDica(Dica):
                 limit=self.reactive.exhaustive_limit,
             )
             order, after = sol.order, sol.ev_entry_s
+            added = np.maximum(sol.entry_s - e_present, 0.0)
+            added[ev_idx] = 0.0
         except OrderingError as e:
             refused = str(e)
             order, after = tuple(present), before
@@ -611,14 +644,26 @@ class ReactiveDica(Dica):
         revoked: list[str] = []
         if not refused:
             ev_pos = order.index(ev_idx)
+            # under a bound, a vehicle the order keeps ahead of the EV keeps its plan: revoked,
+            # it would be planned around the EV's real plan, after it, for nothing it agreed to
+            keep = {order[p] for p in range(ev_pos)} if problem.bounded else set()
+            for i in keep:
+                if cands[i].state is not None:
+                    added[i] = 0.0
+            for i, c in enumerate(cands):
+                if added[i] > 0.0:
+                    total = self._added.get(c.vin, 0.0) + float(added[i])
+                    self._added[c.vin] = total
+                    self.added_peak_s = max(self.added_peak_s, total)
             replan = self.reactive.replan_revoked
             for pos, i in enumerate(order):
                 c = cands[i]
-                if c.state is None:
+                if c.state is None or i in keep:
                     continue
                 if replan:
                     (self._after if pos > ev_pos else self._before).append(c.state)
                 self._revoked_seq[c.vin] = self._confirmed[c.vin].confirmation.seq
+                self._revoked_entry[c.vin] = self._confirmed[c.vin].confirmation.entry_time_s
                 self._revoked_at[c.vin] = now_s
                 key = c.vin + _ASIDE
                 self._set_aside(c.vin, key)
@@ -644,6 +689,7 @@ class ReactiveDica(Dica):
             refused=refused,
             lane=ev.lane,
             seqs=tuple(self._revoked_seq[vin] for vin in revoked),
+            added_s=tuple(round(float(added[i]), 6) for i in order),
         )
         self._outbox.append(ev.reorder)
 
@@ -746,6 +792,10 @@ class ReactiveDica(Dica):
 def _replan_row(r: Replan) -> list:
     return [r.vin, r.seq, r.route.id, r.shape.length_m, r.shape.width_m, r.t0_s, r.dist_m,
             r.speed_mps]  # fmt: skip
+
+
+def _finite(x: float) -> float | None:
+    return x if math.isfinite(x) else None
 
 
 def _sized(req: Request) -> bool:

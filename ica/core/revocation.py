@@ -27,6 +27,9 @@ class Reorder:
     refused: str = ""  # why the solver gave no order (the present order is kept)
     lane: str = ""  # the EV's incoming lane
     seqs: tuple[int, ...] = ()  # the seq of each revoked confirmation, as in ``revoked``
+    # [s] what the new order adds to each vehicle of ``order`` by the ordering model (its
+    # entry less that in the present order, 0 if earlier; 0 for the EV)
+    added_s: tuple[float, ...] = ()
 
 
 DROPPED = "dropped"  # the vehicle gave up the revoked plan: its reservation is gone

@@ -8,9 +8,11 @@ import numpy as np
 from numba import njit
 
 from dica.ica.core.ordering.problem import (
+    EPS_S,
     OrderingError,
     Problem,
     Solution,
+    entries_of,
     ev_bound_s,
     greedy_order,
     lane_members,
@@ -50,7 +52,7 @@ def _grow1b(a: np.ndarray, cap: int) -> np.ndarray:
 
 @njit(
     "Tuple((int64[::1], float64, int64))(float64[::1], float64[:, ::1], int64, int64[:, ::1], "
-    "int64[::1], int64[::1], float64, float64, int64, int64)",
+    "int64[::1], int64[::1], float64[::1], float64, float64, int64, int64)",
     cache=True,
 )
 def _exact(
@@ -60,6 +62,7 @@ def _exact(
     members: np.ndarray,
     sizes: np.ndarray,
     slot: np.ndarray,
+    deadline: np.ndarray,
     ev_bound: float,
     ub_delay: float,
     max_labels: int,
@@ -69,6 +72,12 @@ def _exact(
 
     With ``beam`` > 0 each state keeps only its ``beam`` least-delay labels:
     not exact, but a quick and usually tight bound for the exact pass.
+
+    A vehicle is never given an entry past its ``deadline``, and a label is dropped as
+    soon as a lower bound of a vehicle still to come passes that vehicle's: entries only
+    grow along a label, so this loses no order that keeps every deadline. The EV's entry
+    is pruned at ``ev_bound`` (inf: not at all) and the delay at ``ub_delay``; the label
+    returned is the least EV entry, then the least delay.
 
     A label holds the entries of the vehicles taken so far that can still bind a
     later vehicle (others set to -inf: they can never exceed the last entry), the
@@ -142,6 +151,8 @@ def _exact(
                     v = lab_e[q, j] + sep[j, k]
                     if v > t:
                         t = v
+                if t > deadline[k] + eps:
+                    continue
                 ev_t = lab_ev[q]
                 if k == ev:
                     if t > ev_bound + eps:
@@ -181,6 +192,7 @@ def _exact(
                 # everyone still to come enters no earlier than t, nor before its lane
                 # leader plus their separation: a lower bound on the delay still to come
                 lb = delay
+                overdue = False
                 for li2 in range(n_lanes):
                     c2 = counts[li2] + (1 if li2 == li else 0)
                     prev_t = -np.inf
@@ -200,10 +212,12 @@ def _exact(
                                 v = e_new[j] + sep[j, m]
                                 if v > tm:
                                     tm = v
+                        if tm > deadline[m] + eps:
+                            overdue = True
                         if m != ev:
                             lb += tm - release[m]
                         prev, prev_t = m, tm
-                if lb > ub_delay + eps:
+                if overdue or lb > ub_delay + eps:
                     continue
                 # insert into the next state unless dominated; drop what it dominates
                 nxt = sid + stride[li]
@@ -268,7 +282,11 @@ def _exact(
     best = -1
     r = head[n_states - 1]
     while r >= 0:
-        if not lab_dead[r] and (best < 0 or lab_delay[r] < lab_delay[best]):
+        if not lab_dead[r] and (
+            best < 0
+            or lab_ev[r] < lab_ev[best] - eps
+            or (lab_ev[r] <= lab_ev[best] + eps and lab_delay[r] < lab_delay[best])
+        ):
             best = r
         r = lab_next[r]
     if best < 0:
@@ -286,19 +304,37 @@ QUICK_BEAM = 3  # labels per state in the quick pass that bounds the exact one
 
 
 def exact(problem: Problem) -> Solution:
-    """The optimal order (EV entry first, the others' total delay second)."""
+    """The optimal order (EV entry first, the others' total delay second) among those
+    that keep every candidate's deadline.
+
+    First with the EV's entry held to its bound (its own lane alone) and the delay to
+    the best quick order's; if the deadlines leave the EV no order at its bound, again
+    with neither pruning (slower, still exact)."""
     t0 = time.perf_counter()
     members, sizes, slot = lane_members(problem)
-    args = (problem.release_s, problem.sep_s, problem.ev, members, sizes, slot)
-    ub = total_delay(problem, greedy_order(*args))
+    args = (problem.release_s, problem.sep_s, problem.ev, members, sizes, slot,
+            problem.deadline_s)  # fmt: skip
+    ub = np.inf
+    greedy = greedy_order(*args[:-1])
+    if _kept(problem, greedy):
+        ub = total_delay(problem, greedy)
     bound = ev_bound_s(problem)
     quick, _, quick_work = _exact(*args, bound, ub, MAX_LABELS, QUICK_BEAM)
     if len(quick):
         ub = min(ub, total_delay(problem, quick))
     order, _, work = _exact(*args, bound, ub, MAX_LABELS, 0)
-    work += max(quick_work, 0)
+    if work >= 0 and len(order) == 0 and problem.bounded:
+        order, _, more = _exact(*args, np.inf, np.inf, MAX_LABELS, 0)
+        work = -1 if more < 0 else work + more
     if work < 0:
         raise OrderingError(f"the exact solver ran past {MAX_LABELS} labels")
-    if len(order) == 0:  # cannot happen: the greedy order is within both bounds
-        raise OrderingError("the exact solver found no order within its bounds")
+    work += max(quick_work, 0)
+    if len(order) == 0:  # with no deadlines the greedy order is within both bounds
+        raise OrderingError("no order keeps every vehicle's deadline")
     return solution_of(problem, order, work, t0)
+
+
+def _kept(problem: Problem, order: np.ndarray) -> bool:
+    e = np.empty(problem.n)
+    entries_of(order, problem.release_s, problem.sep_s, problem.ev, e)
+    return problem.lateness_s(e) <= EPS_S

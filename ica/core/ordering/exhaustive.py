@@ -9,6 +9,7 @@ from numba import njit
 
 from dica.ica.core.ordering.problem import (
     EXHAUSTIVE_LIMIT,
+    OrderingError,
     Problem,
     Solution,
     TooManyOrders,
@@ -20,13 +21,21 @@ from dica.ica.core.ordering.problem import (
 
 # -- exhaustive: every feasible order ---------------------------------------------------
 @njit(
-    "Tuple((int64[::1], int64))(float64[::1], float64[:, ::1], int64, int64[:, ::1], int64[::1])",
+    "Tuple((int64[::1], int64, boolean))(float64[::1], float64[:, ::1], int64, int64[:, ::1], "
+    "int64[::1], float64[::1])",
     cache=True,
 )
 def _exhaustive(
-    release: np.ndarray, sep: np.ndarray, ev: int, members: np.ndarray, sizes: np.ndarray
-) -> tuple[np.ndarray, int]:
-    """Depth first through every interleaving of the lane queues; returns (best, orders)."""
+    release: np.ndarray,
+    sep: np.ndarray,
+    ev: int,
+    members: np.ndarray,
+    sizes: np.ndarray,
+    deadline: np.ndarray,
+) -> tuple[np.ndarray, int, bool]:
+    """Depth first through every interleaving of the lane queues that keeps every
+    deadline (a branch ends where a vehicle would enter past its own); returns (best,
+    orders, whether any order kept them)."""
     n = len(release)
     n_lanes = len(sizes)
     eps = 1e-9
@@ -37,6 +46,7 @@ def _exhaustive(
     counts = np.zeros(n_lanes, dtype=np.int64)
     best = np.empty(n, dtype=np.int64)
     best_ev, best_delay = np.inf, np.inf
+    found = False
     orders = 0
     depth = 0
     next_lane = np.zeros(n + 1, dtype=np.int64)  # next lane to try at each depth
@@ -44,7 +54,12 @@ def _exhaustive(
         if depth == n:
             orders += 1
             ev_t, d = e[ev], delay_at[n]
-            if ev_t < best_ev - eps or (ev_t <= best_ev + eps and d < best_delay - eps):
+            if (
+                not found
+                or ev_t < best_ev - eps
+                or (ev_t <= best_ev + eps and d < best_delay - eps)
+            ):
+                found = True
                 best_ev, best_delay = ev_t, d
                 best[:] = order
             depth -= 1
@@ -68,6 +83,8 @@ def _exhaustive(
             v = e[j] + sep[j, k]
             if v > t:
                 t = v
+        if t > deadline[k] + eps:
+            continue  # every order from here lets k in too late
         e[k] = t
         order[depth] = k
         lane_at[depth] = li
@@ -75,11 +92,12 @@ def _exhaustive(
         counts[li] += 1
         depth += 1
         next_lane[depth] = 0
-    return best, orders
+    return best, orders, found
 
 
 def exhaustive(problem: Problem, limit: int = EXHAUSTIVE_LIMIT) -> Solution:
-    """The best of every feasible order; :class:`TooManyOrders` above ``limit`` orders."""
+    """The best of every feasible order that keeps the deadlines; :class:`TooManyOrders`
+    above ``limit`` orders (counted without the deadlines, which only prune)."""
     total = count_orders(problem)
     if total > limit:
         raise TooManyOrders(
@@ -88,5 +106,9 @@ def exhaustive(problem: Problem, limit: int = EXHAUSTIVE_LIMIT) -> Solution:
         )
     t0 = time.perf_counter()
     members, sizes, _ = lane_members(problem)
-    best, orders = _exhaustive(problem.release_s, problem.sep_s, problem.ev, members, sizes)
+    best, orders, found = _exhaustive(
+        problem.release_s, problem.sep_s, problem.ev, members, sizes, problem.deadline_s
+    )
+    if not found:
+        raise OrderingError("no order keeps every vehicle's deadline")
     return solution_of(problem, best, orders, t0)

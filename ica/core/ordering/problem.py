@@ -25,7 +25,9 @@ class TooManyOrders(OrderingError):
 
 @dataclass(frozen=True, slots=True, eq=False)
 class Problem:
-    """Candidates ``0..n-1``: lane index, release time [s], separations [s], the EV's index.
+    """Candidates ``0..n-1``: lane index, release time [s], separations [s], the EV's index,
+    and optionally a deadline per candidate [s] (the latest entry it may be given; inf or
+    None: none), which is how a bound on the delay a reordering adds reaches the solvers.
 
     Within a lane, candidates keep the order of their indices (front first).
     """
@@ -34,6 +36,7 @@ class Problem:
     release_s: np.ndarray  # float64 (n,)
     sep_s: np.ndarray  # float64 (n, n): sep_s[j, k] when j enters before k
     ev: int
+    deadline_s: np.ndarray | None = None  # float64 (n,), inf where there is none
 
     def __post_init__(self) -> None:
         lane = np.ascontiguousarray(self.lane, dtype=np.int64)
@@ -53,6 +56,14 @@ class Problem:
             raise OrderingError("lane indices must not be negative")
         if not 0 <= self.ev < n:
             raise OrderingError(f"the EV index {self.ev} is not a candidate (n = {n})")
+        deadline = (
+            np.full(n, np.inf)
+            if self.deadline_s is None
+            else np.ascontiguousarray(self.deadline_s, dtype=float)
+        )
+        if deadline.shape != (n,) or np.isnan(deadline).any():
+            raise OrderingError(f"need n deadlines (inf for none), got {deadline.shape}")
+        object.__setattr__(self, "deadline_s", deadline)
         object.__setattr__(self, "lane", lane)
         object.__setattr__(self, "release_s", release)
         object.__setattr__(self, "sep_s", sep)
@@ -60,6 +71,18 @@ class Problem:
     @property
     def n(self) -> int:
         return len(self.lane)
+
+    @property
+    def bounded(self) -> bool:
+        """Does any candidate have a deadline?"""
+        assert self.deadline_s is not None
+        return bool(np.isfinite(self.deadline_s).any())
+
+    def lateness_s(self, entry_s: np.ndarray) -> float:
+        """How far the latest candidate of ``entry_s`` (by index) enters past its deadline
+        (0 or less: every deadline kept)."""
+        assert self.deadline_s is not None
+        return float(np.max(entry_s - self.deadline_s))
 
     def queues(self) -> list[np.ndarray]:
         """Candidate indices per lane that has any, front first (lanes in ascending id)."""
