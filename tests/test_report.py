@@ -49,3 +49,32 @@ def test_settled_throughput_forgives_the_vehicles_still_waiting_at_the_end():
     agg = {("L", "", "light", v): row(0.92, 20.0, 22.0, settled=0.99) for v in (300.0, 500.0)}
     assert saturation(agg)[("L", "light")]["volume"] is None
     assert saturation(agg, "settled_throughput")[("L", "light")]["volume"] == 500.0
+
+
+def test_the_ev_table_names_the_worst_seed_of_the_normal_vehicles_longest_trips():
+    from dica.tools.report import _ev_row, _ev_table
+
+    def run(seed: int, normal_max: float, added: float | None = None) -> dict:
+        m = {
+            "ev": {"crossed": 1, "mean_trip_time_s": 6.0},
+            "normal": {"max_trip_time_s": normal_max},
+        }
+        if added is not None:
+            m["reactive"] = {
+                "events": 1, "solve_s_total": 0.001, "refused": 0,
+                "added_delay_max_s": added, "replanned_later_max_s": added + 0.5,
+            }  # fmt: skip
+        return {"seed": seed, "metrics": m}
+
+    plain = _ev_row([run(1, 20.0), run(2, 10.0)])
+    mine = _ev_row([run(1, 21.0, 2.0), run(2, 13.0, 3.0)])  # seed 2 is 1.30x, the mean 1.13x
+    table = "\n".join(
+        _ev_table(
+            [
+                (("L", "", "enhanced", 500.0), {"ev": plain}),
+                (("L", "", "rdica-exact", 500.0), {"ev": mine}),
+            ]
+        )
+    )
+    assert "| rdica-exact | 500 | - | - | 1.13 | 1.30 (seed 2) |" in table
+    assert mine["added_max"] == 3.0 and mine["replanned_later"] == 3.5

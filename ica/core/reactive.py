@@ -53,9 +53,10 @@ run; carrying it to the vehicles is the caller's business. No I/O here.
 
 from __future__ import annotations
 
+import copy
 import math
 import time
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -86,6 +87,33 @@ from dica.ica.core.zones import ConflictTables, Shape
 
 STOP_SLACK_STEPS, STOP_SLACK_M = 2, 0.5  # room kept beyond the stopping bound
 _ASIDE = "~revoked"  # suffix of a revoked reservation's key while it awaits acknowledgement
+
+
+@dataclass(slots=True)
+class _Ordered:
+    """One ordering of an event's candidates, before anything is revoked."""
+
+    cands: list[Candidate]
+    ev_idx: int
+    order: tuple[int, ...]
+    added: np.ndarray  # [s] per candidate, by the model (0 for one that keeps its plan)
+    before: float  # the EV's model entry in the present order
+    after: float  # ... and in this one
+    refused: str
+    bounded: bool  # under a bound on what is added (then those ahead of the EV keep plans)
+    prepare_s: float
+    solve_s: float
+
+    def kept(self) -> set[int]:
+        """Candidates that keep their plans: under a bound, those the order puts ahead of
+        the EV (revoked, they would be planned around the EV's real plan, behind it)."""
+        if not self.bounded or self.refused:
+            return set()
+        return set(self.order[: self.order.index(self.ev_idx)])
+
+    def revoked(self) -> list[int]:
+        keep = self.kept()
+        return [i for i in self.order if self.cands[i].state is not None and i not in keep]
 
 
 class ReactiveDica(Dica):
@@ -120,6 +148,7 @@ class ReactiveDica(Dica):
         self.added_peak_s = 0.0  # the most any vehicle was added, over the run [s]
         self._revoked_entry: dict[str, float] = {}  # revoked vin -> its revoked plan's entry
         self.replanned_later_s = 0.0  # the most a revoked vehicle's new entry came later [s]
+        self.trials = 0  # orders carried out on a copy to check the bound on the real plans
         self.acknowledged = 0  # revocations the vehicle confirmed (its plan dropped)
         self.restored = 0  # reservations given back: the vehicle could no longer stop
         self.expired = 0  # set-aside reservations that ended unanswered
@@ -221,6 +250,7 @@ class ReactiveDica(Dica):
                 self._answered(v, DROPPED)
                 continue
             self._restore_aside(v, key)
+            self._revoked_entry.pop(v, None)  # it flies its plan: nothing was added
             self.restored += 1
             self._answered(v, KEPT)
             back.append(v)
@@ -315,10 +345,18 @@ class ReactiveDica(Dica):
         return out
 
     def _measure(self, conf: Confirmation) -> None:
-        """How much later than its revoked plan a revoked vehicle's new plan enters."""
+        """How much later than its revoked plan a revoked vehicle's new plan enters: what
+        the reordering added to it, charged against its bound."""
         old = self._revoked_entry.pop(conf.vin, None)
         if old is not None:
             self.replanned_later_s = max(self.replanned_later_s, conf.entry_time_s - old)
+            self._charge(conf.vin, conf.entry_time_s - old)
+
+    def _charge(self, vin: str, added_s: float) -> None:
+        if added_s > 0.0:
+            total = self._added.get(vin, 0.0) + added_s
+            self._added[vin] = total
+            self.added_peak_s = max(self.added_peak_s, total)
 
     def summary(self, events: bool = False) -> dict:
         """Per-run figures of the events (counts, solver time, the EV's entries) and of
@@ -335,6 +373,7 @@ class ReactiveDica(Dica):
             "added_delay_max_s": round(self.added_peak_s, 3),
             # measured on the plans: the most a revoked vehicle's new plan entered later
             "replanned_later_max_s": round(self.replanned_later_s, 3),
+            "bound_trials": self.trials,
         }
         if events:
             out["events_log"] = [event_log(e) for e in self.events]
@@ -363,6 +402,7 @@ class ReactiveDica(Dica):
             "after": [_replan_row(r) for r in self._after],
             "answers": [self.acknowledged, self.restored, self.expired],
             "added": dict(self._added),
+            "revoked_entry": dict(self._revoked_entry),
         }  # fmt: skip
 
     def restore_snapshot(self, snap: dict) -> None:
@@ -402,6 +442,7 @@ class ReactiveDica(Dica):
         self._after = [r for r in map(self._replan_of, snap["after"]) if r is not None]
         self.acknowledged, self.restored, self.expired = (int(x) for x in snap["answers"])
         self._added = {str(v): float(a) for v, a in snap.get("added", {}).items()}
+        self._revoked_entry = {str(v): float(t) for v, t in snap.get("revoked_entry", {}).items()}
 
     def _replan_of(self, row: list) -> Replan | None:
         vin, seq, rid, length, width, t0, dist, speed = row
@@ -499,7 +540,7 @@ class ReactiveDica(Dica):
             # an EV asks as head of its lane: the vehicles are reordered for it now
             if ev is None:
                 self._next_event(now_s, first=req.vin, reorder=False)
-            self._reorder(self._event, now_s)
+            self._reorder(self._event, now_s, req)
             if self._pending:
                 raise RequestError(
                     Reason.HELD,
@@ -590,71 +631,40 @@ class ReactiveDica(Dica):
             if reorder:
                 self._reorder(self._event, now_s)
 
-    def _reorder(self, ev: EvEvent, now_s: float) -> None:
+    def _reorder(self, ev: EvEvent, now_s: float, req: Request | None = None) -> None:
         t_prep = time.perf_counter()
         t_eff = now_s + self.reactive.revoke_latency_s
         fixed, modifiable = self._classify(t_eff)
-        cands = [self._confirmed_candidate(vin, st) for vin, st in modifiable]
-        cands += self._lane_candidates(ev, t_eff)
-        n = len(cands)
-        ev_idx = next(i for i, c in enumerate(cands) if c.vin == ev.ev)
-        lanes = sorted({c.lane for c in cands})
-        sep = np.zeros((n, n))
-        for j, cj in enumerate(cands):
-            for k, ck in enumerate(cands):
-                if j != k:
-                    sep[j, k] = self._sep(cj.routes, cj.entry_mps, ck.routes, ck.entry_mps)
-        release = np.array([self._release(c, fixed) for c in cands])
-        # the present order: confirmed vehicles by their confirmed entries, then the EV's lane
-        present = sorted(
-            (i for i in range(n) if cands[i].state is not None),
-            key=lambda i: (self._confirmed[cands[i].vin].confirmation.entry_time_s, i),
-        ) + [i for i in range(n) if cands[i].state is None]
-        t0 = time.perf_counter()
-        prepare_s = t0 - t_prep
-        refused = ""
-        before = after = math.nan
-        added = np.zeros(n)
-        try:
-            lane_idx = np.array([lanes.index(c.lane) for c in cands])
-            problem = Problem(lane_idx, release, sep, ev_idx)
-            e_present, before, _ = evaluate(problem, present)
-            bound = self.reactive.max_added_delay_s
-            if math.isfinite(bound):
-                # nobody may enter later than in the present order by more than what is
-                # left of its bound after the reorderings it met before
-                spare = np.array([max(0.0, bound - self._added.get(c.vin, 0.0)) for c in cands])
-                deadline = e_present + spare
-                deadline[ev_idx] = math.inf
-                problem = Problem(lane_idx, release, sep, ev_idx, deadline)
-            sol = solve(
-                problem,
-                self.reactive.solver,
-                seed=hash((self.reactive.seed, len(self.events))) & 0x7FFFFFFF,
-                ga_params=self.reactive.ga,
-                limit=self.reactive.exhaustive_limit,
-            )
-            order, after = sol.order, sol.ev_entry_s
-            added = np.maximum(sol.entry_s - e_present, 0.0)
-            added[ev_idx] = 0.0
-        except OrderingError as e:
-            refused = str(e)
-            order, after = tuple(present), before
-        solve_s = time.perf_counter() - t0
+        classify_s = time.perf_counter() - t_prep
+        o = self._ordered(ev, t_eff, fixed, modifiable)
+        prepare_s, solve_s = classify_s + o.prepare_s, o.solve_s
+        bounded = math.isfinite(self.reactive.max_added_delay_s)
+        trials = 0
+        while bounded and req is not None and not o.refused and o.revoked():
+            # the ordering model's separations are those of lone vehicles: the real re-plans
+            # (DICA's search around the EV's real plan) may come out later. Carry the order
+            # out on a copy; whoever would end past its bound keeps its plan, with everyone
+            # ahead of it in its lane, and the rest is ordered again
+            trials += 1
+            t_trial = time.perf_counter()
+            over = self._over_bound(req, now_s, o)
+            prepare_s += time.perf_counter() - t_trial
+            if not over:
+                break
+            kept = self._with_those_ahead(over, {vin for vin, _ in modifiable})
+            modifiable = [m for m in modifiable if m[0] not in kept]
+            fixed = self.entries(skip={vin for vin, _ in modifiable})
+            o = self._ordered(ev, t_eff, fixed, modifiable)
+            prepare_s += o.prepare_s
+            solve_s += o.solve_s
+        cands, order, added = o.cands, o.order, o.added
         revoked: list[str] = []
-        if not refused:
-            ev_pos = order.index(ev_idx)
-            # under a bound, a vehicle the order keeps ahead of the EV keeps its plan: revoked,
-            # it would be planned around the EV's real plan, after it, for nothing it agreed to
-            keep = {order[p] for p in range(ev_pos)} if problem.bounded else set()
-            for i in keep:
-                if cands[i].state is not None:
-                    added[i] = 0.0
+        if not o.refused:
+            ev_pos = order.index(o.ev_idx)
+            keep = o.kept()
             for i, c in enumerate(cands):
-                if added[i] > 0.0:
-                    total = self._added.get(c.vin, 0.0) + float(added[i])
-                    self._added[c.vin] = total
-                    self.added_peak_s = max(self.added_peak_s, total)
+                if c.state is None:  # not revoked: its plan is yet to come, the model's say
+                    self._charge(c.vin, float(added[i]))
             replan = self.reactive.replan_revoked
             for pos, i in enumerate(order):
                 c = cands[i]
@@ -675,6 +685,7 @@ class ReactiveDica(Dica):
                 self._lane_revoked[lane] = sorted(
                     {*lst, vin}, key=lambda v: self._detected.get(v, (0,))[0]
                 )
+        self.trials += trials
         ev.reorder = Reorder(
             t_s=now_s,
             effective_s=t_eff,
@@ -682,16 +693,123 @@ class ReactiveDica(Dica):
             solver=self.reactive.solver,
             order=tuple(cands[i].vin for i in order),
             revoked=tuple(revoked),
-            ev_entry_before_s=before,
-            ev_entry_after_s=after,
+            ev_entry_before_s=o.before,
+            ev_entry_after_s=o.after,
             solve_s=solve_s,
             prepare_s=prepare_s,
-            refused=refused,
+            refused=o.refused,
             lane=ev.lane,
             seqs=tuple(self._revoked_seq[vin] for vin in revoked),
             added_s=tuple(round(float(added[i]), 6) for i in order),
         )
         self._outbox.append(ev.reorder)
+
+    def _ordered(
+        self,
+        ev: EvEvent,
+        t_eff: float,
+        fixed: list[tuple[Route, float, float]],
+        modifiable: list[tuple[str, Replan]],
+    ) -> _Ordered:
+        """The candidates and the solver's order for them (the present one if refused)."""
+        t_prep = time.perf_counter()
+        cands = [self._confirmed_candidate(vin, st) for vin, st in modifiable]
+        cands += self._lane_candidates(ev, t_eff)
+        n = len(cands)
+        ev_idx = next(i for i, c in enumerate(cands) if c.vin == ev.ev)
+        lanes = sorted({c.lane for c in cands})
+        sep = np.zeros((n, n))
+        for j, cj in enumerate(cands):
+            for k, ck in enumerate(cands):
+                if j != k:
+                    sep[j, k] = self._sep(cj.routes, cj.entry_mps, ck.routes, ck.entry_mps)
+        release = np.array([self._release(c, fixed) for c in cands])
+        # the present order: confirmed vehicles by their confirmed entries, then the EV's lane
+        present = sorted(
+            (i for i in range(n) if cands[i].state is not None),
+            key=lambda i: (self._confirmed[cands[i].vin].confirmation.entry_time_s, i),
+        ) + [i for i in range(n) if cands[i].state is None]
+        t0 = time.perf_counter()
+        refused = ""
+        before = after = math.nan
+        added = np.zeros(n)
+        bounded = False
+        try:
+            lane_idx = np.array([lanes.index(c.lane) for c in cands])
+            problem = Problem(lane_idx, release, sep, ev_idx)
+            e_present, before, _ = evaluate(problem, present)
+            bound = self.reactive.max_added_delay_s
+            if math.isfinite(bound):
+                # nobody may enter later than in the present order by more than what is
+                # left of its bound after the reorderings it met before
+                spare = np.array([max(0.0, bound - self._added.get(c.vin, 0.0)) for c in cands])
+                deadline = e_present + spare
+                deadline[ev_idx] = math.inf
+                problem = Problem(lane_idx, release, sep, ev_idx, deadline)
+                bounded = True
+            sol = solve(
+                problem,
+                self.reactive.solver,
+                seed=hash((self.reactive.seed, len(self.events))) & 0x7FFFFFFF,
+                ga_params=self.reactive.ga,
+                limit=self.reactive.exhaustive_limit,
+            )
+            order, after = sol.order, sol.ev_entry_s
+            added = np.maximum(sol.entry_s - e_present, 0.0)
+            added[ev_idx] = 0.0
+        except OrderingError as e:
+            refused = str(e)
+            order, after = tuple(present), before
+        o = _Ordered(
+            cands, ev_idx, tuple(order), added, before, after, refused, bounded,
+            t0 - t_prep, time.perf_counter() - t0,
+        )  # fmt: skip
+        for i in o.kept():  # it keeps its plan: nothing is added to it
+            if cands[i].state is not None:
+                added[i] = 0.0
+        return o
+
+    def _with_those_ahead(self, vins: set[str], modifiable: set[str]) -> set[str]:
+        """``vins`` and every modifiable vehicle ahead of one of them in its lane: a vehicle
+        that keeps its plan must not find its leader's plan gone."""
+        out = set(vins)
+        for vin in vins:
+            lane = self._lane_of.get(vin)
+            queue = self.queue(lane) if lane is not None else []
+            if vin in queue:
+                out |= {v for v in queue[: queue.index(vin)] if v in modifiable}
+        return out
+
+    def _over_bound(self, req: Request, now_s: float, o: _Ordered) -> set[str]:
+        """Carry ``o`` out on a copy of this ICA, as it would go with every revocation
+        acknowledged at once: the EV planned by its REQUEST, then the revoked vehicles in
+        the order around its real plan. Returns the revoked vehicles whose new plan would
+        enter later than their revoked one by more than what is left of their bound (or
+        that would get no plan at all)."""
+        trial = copy.deepcopy(self, self._shared())
+        revoked = [o.cands[o.order[p]] for p in range(len(o.order))]
+        revoked = [c for i, c in zip(o.order, revoked, strict=True)
+                   if c.state is not None and i not in o.kept()]  # fmt: skip
+        old = {c.vin: self._confirmed[c.vin].confirmation.entry_time_s for c in revoked}
+        for c in revoked:
+            trial._drop(c.vin)
+        trial._event = None
+        try:
+            Dica._handle(trial, req, now_s)
+        except RequestError:
+            return set()  # the EV is not planned now: nothing to measure against
+        new = {conf.vin: conf.entry_time_s for conf in trial._replan([c.state for c in revoked])}
+        bound = self.reactive.max_added_delay_s
+        return {
+            vin
+            for vin, t in old.items()
+            if vin not in new or new[vin] - t > bound - self._added.get(vin, 0.0) + 1e-9
+        }
+
+    def _shared(self) -> dict[int, object]:
+        """What a trial copy shares with this ICA instead of copying (read-only)."""
+        return {id(x): x for x in (self.intersection, self.tables, self.separations, self.config,
+                                   self.reactive, self._shape)}  # fmt: skip
 
     def _classify(self, t_eff: float) -> tuple[list[tuple[Route, float, float]], list]:
         """Confirmed reservations split into fixed ones (route, entry, entry speed) and
