@@ -6,7 +6,7 @@ import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from dica.ica.core.config import BASELINES, REACTIVE, SOLVERS, Techniques
+from dica.ica.core.config import BASELINES, MAX_ADDED_DELAY_S, REACTIVE, SOLVERS, Techniques
 from dica.sim_gateway.metrics import TripLog
 
 if TYPE_CHECKING:
@@ -100,7 +100,7 @@ class RunConfig:
     ev_prob: float = 0.0  # each arrival an emergency-vehicle candidate with this probability
     solver: str = "exact"  # reactive DICA's ordering solver
     # [s] reactive DICA: the most reorderings may add to any one normal vehicle (inf: none)
-    max_added_delay_s: float = math.inf
+    max_added_delay_s: float = MAX_ADDED_DELAY_S
     # reactive DICA's revoked vehicles: "replan" (the ICA plans them again in the solver's
     # order; in process only) or "drop" (they drop their plans and ask again: the cluster)
     revocation: str = "replan"

@@ -358,7 +358,8 @@ def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_pat
     while they fly; the gateway wakes it in the same step (revoke_waves). Before it did,
     one REVOKE waited 5 s for the agent to idle and its plan expired unanswered."""
     port = _free_port()
-    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90",
+              "--max-added-delay", "inf"]  # (no bound: every reordering revokes)  # fmt: skip
     p = _cluster(tmp_path / "cl", "--agents", "2", "--port", str(port), "--no-record", *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)
@@ -378,10 +379,32 @@ def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_pat
     _same_decisions(tmp_path / "cl", tmp_path / "emb")
 
 
+def test_lockstep_rdica_cluster_with_a_bound_makes_the_embedded_decisions(tmp_path):
+    """Under a bound on what reorderings add, the ICA process carries each order out on a
+    copy of itself before revoking; the cluster decides exactly as dica run does."""
+    port = _free_port()
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "500", "--duration",
+              "150", "--max-added-delay", "4"]  # fmt: skip
+    p = _cluster(tmp_path / "cl", "--agents", "2", "--port", str(port), "--no-record", *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    _embedded(tmp_path / "emb", [*common, "--revocation", "drop"])
+    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    reactive = json.loads((tmp_path / "cl" / "ica.json").read_text())["incarnations"][0]["reactive"]
+    embedded = json.loads((tmp_path / "emb" / "metrics.json").read_text())["reactive"]
+    assert reactive["max_added_delay_s"] == 4.0
+    assert reactive["bound_trials"] >= 1 and reactive["revoked"] >= 1  # both happened
+    for k in ("bound_trials", "revoked", "added_delay_max_s", "replanned_later_max_s"):
+        assert reactive[k] == embedded[k], k
+    _same_decisions(tmp_path / "cl", tmp_path / "emb")
+
+
 def test_the_observer_records_evs_reorderings_and_only_the_dropped_plans(tmp_path):
     port = _free_port()
     out = tmp_path / "cl"
-    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90",
+              "--max-added-delay", "inf"]  # (no bound: every reordering revokes)  # fmt: skip
     p = _cluster(out, "--agents", "1", "--port", str(port), *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)
@@ -407,7 +430,8 @@ def test_two_agents_revoke_safely_and_the_recording_withdraws_only_dropped_plans
     """On a secured site: the ICA's REORDERs pass the router's rules and their seals."""
     port = _free_port()
     out = tmp_path / "cl"
-    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90"]
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90",
+              "--max-added-delay", "inf"]  # (no bound: every reordering revokes)  # fmt: skip
     p = _cluster(out, "--secure", "--agents", "2", "--port", str(port), *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)

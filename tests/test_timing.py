@@ -290,7 +290,7 @@ def test_lockstep_rdica_with_a_killed_agent_answers_or_outlives_every_revocation
     out = tmp_path / "ls"
     m = _agent_2_killed_at(
         out, 40, *("--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "500"),
-        *("--duration", "120", "--seed", "12"),
+        *("--duration", "120", "--seed", "12", "--max-added-delay", "inf"),
     )  # fmt: skip
     assert m["revoke_waves"] >= 1  # revocations crossed from one agent to the other
     reactive = json.loads((out / "ica.json").read_text())["incarnations"][0]["reactive"]
@@ -367,7 +367,7 @@ def test_an_ica_killed_mid_reordering_carries_the_event_on(tmp_path):
         out,
         *("--clock", "realtime", "--speed", "2", "--agents", "2", "--port", str(free_port())),
         *("--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "500", "--seed", "12"),
-        *("--duration", "90", "--delay", "300", "--faulty", "agents"),
+        *("--duration", "90", "--delay", "300", "--faulty", "agents", "--max-added-delay", "inf"),
     )  # fmt: skip
     journal = out / "ica-journal.msgpack"
     deadline = time.monotonic() + 150
@@ -460,7 +460,7 @@ def test_realtime_rdica_with_lossy_agent_links_revokes_safely(tmp_path):
         out,
         *("--clock", "realtime", "--speed", "2", "--agents", "1", "--port", str(free_port())),
         *("--algorithm", "rdica", "--ev-prob", "0.3", "--volume", "400", "--duration", "80"),
-        *("--delay", "10", "--loss", "0.3", "--faulty", "agents"),
+        *("--delay", "10", "--loss", "0.3", "--faulty", "agents", "--max-added-delay", "inf"),
     )
     link = json.loads((out / "link" / "stats.json").read_text())
     assert link["agent-1"]["dropped"] > 0

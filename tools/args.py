@@ -9,10 +9,10 @@ processes) both build on these two modules and on nothing of each other.
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 
+from dica.ica.core.config import MAX_ADDED_DELAY_S
 from dica.tools import options
 from dica.tools.options import UsageError
 
@@ -74,7 +74,7 @@ def run_config(args: argparse.Namespace):
             window_s=getattr(args, "window", 0.0),
             ev_prob=_ev_prob(args),
             solver=args.solver,
-            max_added_delay_s=getattr(args, "max_added_delay", math.inf),
+            max_added_delay_s=getattr(args, "max_added_delay", MAX_ADDED_DELAY_S),
             revocation=getattr(args, "revocation", "replan"),
             platoon=args.platoon,
             headway_s=headway_s(args),

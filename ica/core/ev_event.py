@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from dica.ica.core.config import SOLVERS, IcaConfig
+from dica.ica.core.config import MAX_ADDED_DELAY_S, SOLVERS, IcaConfig
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.ordering import EXHAUSTIVE_LIMIT, GaParams
 from dica.ica.core.planner import Planner
@@ -43,9 +43,9 @@ class ReactiveConfig:
     # head of lane; revocations go out together, each lane's from the back (due_revocations)
     replan_revoked: bool = True
     # [s] the most delay reorderings may add to any one normal vehicle, summed over every
-    # reordering it meets (by the ordering model: its entry in the new order less that in
-    # the order kept); inf: no bound (the dissertation's). The solvers take it as a deadline
-    max_added_delay_s: float = math.inf
+    # reordering it meets (each re-plan's entry less its revoked plan's); inf: no bound (the
+    # dissertation's). The solvers take it as a deadline, checked on a copy's real re-plans
+    max_added_delay_s: float = MAX_ADDED_DELAY_S
 
     def __post_init__(self) -> None:
         if not self.max_added_delay_s >= 0:  # (NaN too)
