@@ -418,7 +418,8 @@ def test_a_revised_confirmation_is_held_with_the_time_pad_like_any_other(ch45):
     revised for an EV is held so too: exactly as a restarted ICA rebuilds it from the
     journal (which pads every confirmation it adopts)."""
     cfg = IcaConfig(time_pad_s=0.2)
-    ica = ReactiveDica(ch45, cfg)
+    # no bound on what the car may be added: the case needs it revoked
+    ica = ReactiveDica(ch45, cfg, reactive=ReactiveConfig(max_added_delay_s=float("inf")))
     scene(ica, ch45)
     start_event(ica, ch45)
     assert ica.acknowledge("w1") == []

@@ -174,7 +174,7 @@ OPTIONS: dict[str, Option] = {
         Option(
             "--max-added-delay",
             "rdica: the most delay emergency vehicles' reorderings may add to any one other "
-            "vehicle, summed over every reordering it meets [s] (default 3; inf: no bound, "
+            "vehicle, summed over every reordering it meets [s] (default 2; inf: no bound, "
             "the dissertation's); the solvers keep it, checked on the real re-plans",
             float,
             _run("max_added_delay_s"),
