@@ -84,9 +84,9 @@ def load_runs(root: Path) -> list[dict]:
         algorithm = cfg["algorithm"]
         if algorithm == "rdica":
             algorithm = f"rdica-{cfg.get('solver', 'exact')}"
-            bound = float(cfg.get("max_added_delay_s", math.inf))
-            if math.isfinite(bound):
-                algorithm += f" (bound {bound:g} s)"
+            if "max_added_delay_s" in cfg:  # (runs before the bound have no such key)
+                bound = float(cfg["max_added_delay_s"])
+                algorithm += f" (bound {bound:g} s)" if math.isfinite(bound) else " (no bound)"
         runs.append(
             {
                 "settled_throughput": _settled_throughput(m.parent, cfg),
@@ -358,19 +358,21 @@ def _ev_table(rows: list[tuple[tuple, dict]]) -> list[str]:
 
 
 def _worst_seed(mine: dict, plain: dict | None) -> str:
+    worst = worst_seed(mine, plain)
+    return "-" if worst is None else f"{worst[0]:.2f} (seed {worst[1]})"
+
+
+def worst_seed(mine: dict, plain: dict | None) -> tuple[float, int] | None:
     """The largest per-seed ratio of the normal vehicles' longest trips, and its seed."""
     if plain is None:
-        return "-"
+        return None
     theirs = plain["normal_max_by_seed"]
     pairs = [
         (a / theirs[s], s)
         for s, a in mine["normal_max_by_seed"].items()
         if a is not None and theirs.get(s)
     ]
-    if not pairs:
-        return "-"
-    ratio, seed = max(pairs)
-    return f"{ratio:.2f} (seed {seed})"
+    return max(pairs) if pairs else None
 
 
 def _ratio(a: float | None, b: float | None) -> str:
@@ -477,7 +479,47 @@ def plots(agg: dict[tuple, dict], out: Path) -> list[str]:
             fig.savefig(out / name, dpi=110)
             plt.close(fig)
             images.append(name)
+            name = _ev_targets_plot(
+                plt, evs, f"{layout} {shape}".strip(), out / f"ev-targets_{tag}.png"
+            )
+            if name:
+                images.append(name)
     return images
+
+
+def _ev_targets_plot(plt, evs: dict[str, list], title: str, path: Path) -> str | None:
+    """Chapter 5's two targets per volume for each reactive DICA: the EVs' mean trip
+    against the reactive light's, and the worst seed's longest normal trip against plain
+    DICA's."""
+    light = dict(evs.get("reactive-light", []))
+    plain = dict(evs.get("enhanced", []))
+    mine = {alg: sorted(pts, key=lambda p: p[0]) for alg, pts in evs.items()
+            if alg.startswith("rdica")}  # fmt: skip
+    if not mine or not (light or plain):
+        return None
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    for alg, pts in sorted(mine.items()):
+        ev = [(v, r["ev"]["ev_mean"] / light[v]["ev"]["ev_mean"]) for v, r in pts
+              if v in light and r["ev"]["ev_mean"] and light[v]["ev"]["ev_mean"]]  # fmt: skip
+        worst = [(v, w[0]) for v, r in pts if v in plain
+                 for w in [worst_seed(r["ev"], plain[v]["ev"])] if w is not None]  # fmt: skip
+        for ax, series in ((axes[0], ev), (axes[1], worst)):
+            if series:
+                ax.plot(*zip(*series, strict=True), marker="o", label=alg)
+    for ax, target, label in (
+        (axes[0], 0.5, "EVs' mean trip / reactive light's"),
+        (axes[1], 1.10, "longest normal trip / plain DICA's, worst seed"),
+    ):
+        ax.axhline(target, color="k", linestyle="--", linewidth=1, label=f"target {target:g}")
+        ax.set_xlabel("volume [veh / 10 min]")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.suptitle(f"{title}: reactive DICA's two targets".strip())
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path.name
 
 
 def main(argv: list[str] | None = None) -> int:
