@@ -787,9 +787,7 @@ class ReactiveDica(Dica):
         enter later than their revoked one by more than what is left of their bound (or
         that would get no plan at all)."""
         trial = copy.deepcopy(self, self._shared())
-        revoked = [o.cands[o.order[p]] for p in range(len(o.order))]
-        revoked = [c for i, c in zip(o.order, revoked, strict=True)
-                   if c.state is not None and i not in o.kept()]  # fmt: skip
+        revoked = [o.cands[i] for i in o.revoked()]
         old = {c.vin: self._confirmed[c.vin].confirmation.entry_time_s for c in revoked}
         for c in revoked:
             trial._drop(c.vin)
