@@ -353,27 +353,20 @@ def _revoked_at(reorders: list[tuple[float, str]]) -> dict[str, float]:
     return out
 
 
-def _rdica_beside_drop(tmp_path: Path, volume: str, duration: str, bound: str) -> dict:
-    """A lockstep rdica cluster of two agents (EV probability 0.2) into tmp_path/cl and
-    dica run --revocation drop of the same into tmp_path/emb; the cluster's metrics,
-    checked safe."""
-    port = _free_port()
-    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", volume, "--duration",
-              duration, "--max-added-delay", bound]  # fmt: skip
-    p = _cluster(tmp_path / "cl", "--agents", "2", "--port", str(port), "--no-record", *common)
-    assert p.returncode == 0, p.stdout + p.stderr
-    _no_leftovers(port)
-    _embedded(tmp_path / "emb", [*common, "--revocation", "drop"])
-    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
-    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
-    return m
-
-
 def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_path):
     """Two agents: an EV on one revokes vehicles of the other, whose agent gets no STATE
     while they fly; the gateway wakes it in the same step (revoke_waves). Before it did,
     one REVOKE waited 5 s for the agent to idle and its plan expired unanswered."""
-    m = _rdica_beside_drop(tmp_path, "400", "90", "inf")  # no bound: every reordering revokes
+    port = _free_port()
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90",
+              "--max-added-delay", "inf"]  # (no bound: every reordering revokes)  # fmt: skip
+    p = _cluster(tmp_path / "cl", "--agents", "2", "--port", str(port), "--no-record", *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    _embedded(tmp_path / "emb", [*common, "--revocation", "drop"])
+
+    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
     ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
     reactive = ica["incarnations"][0]["reactive"]
     assert ica["incarnations"][0]["revoke_acks"] >= 1  # taken back over the wire, and ACKed
@@ -386,17 +379,26 @@ def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_pat
     _same_decisions(tmp_path / "cl", tmp_path / "emb")
 
 
-def test_lockstep_rdica_cluster_with_a_bound_makes_the_embedded_decisions(tmp_path):
+def test_an_rdica_cluster_under_a_bound_checks_orders_on_a_copy_and_answers_every_revocation(
+    tmp_path,
+):
     """Under a bound on what reorderings add, the ICA process carries each order out on a
-    copy of itself before revoking; the cluster decides exactly as dica run does."""
-    _rdica_beside_drop(tmp_path, "500", "150", "4")
-    reactive = json.loads((tmp_path / "cl" / "ica.json").read_text())["incarnations"][0]["reactive"]
-    embedded = json.loads((tmp_path / "emb" / "metrics.json").read_text())["reactive"]
+    copy of itself before revoking (its deep copy works in the process as in dica run),
+    and the revocations it then sends are all answered; the run is safe."""
+    port = _free_port()
+    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "500", "--duration",
+              "150", "--max-added-delay", "4"]  # fmt: skip
+    p = _cluster(tmp_path / "cl", "--agents", "2", "--port", str(port), "--no-record", *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    ica = json.loads((tmp_path / "cl" / "ica.json").read_text())["incarnations"][0]
+    reactive = ica["reactive"]
     assert reactive["max_added_delay_s"] == 4.0
     assert reactive["bound_trials"] >= 1 and reactive["revoked"] >= 1  # both happened
-    for k in ("bound_trials", "revoked", "added_delay_max_s", "replanned_later_max_s"):
-        assert reactive[k] == embedded[k], k
-    _same_decisions(tmp_path / "cl", tmp_path / "emb")
+    assert reactive["acknowledged"] + reactive["restored"] == reactive["revoked"]
+    assert reactive["pending"] == 0 and ica["revoke_acks"] >= 1
 
 
 def test_the_observer_records_evs_reorderings_and_only_the_dropped_plans(tmp_path):
