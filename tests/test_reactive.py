@@ -554,3 +554,15 @@ def test_the_bound_must_not_be_negative():
         ReactiveConfig(max_added_delay_s=-1.0)
     with pytest.raises(ValueError, match="max_added_delay_s"):
         ReactiveConfig(max_added_delay_s=float("nan"))
+
+
+def test_a_zero_bound_is_a_bound_no_car_is_passed_at_any_cost(ch45):
+    """0, the least value allowed, is taken as it is (not as "none"): the car keeps its
+    plan and the EV is planned behind it at once."""
+    ica, w1 = _bounded(ch45, 0.0)
+    detect_ev(ica)
+    ev = ev_request(ica, ch45)
+    [r] = ica.take_reorders()
+    assert r.revoked == () and isinstance(ev, Confirmation)
+    assert ev.entry_time_s > w1.entry_time_s
+    assert ica.summary()["max_added_delay_s"] == 0.0
