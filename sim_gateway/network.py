@@ -184,13 +184,21 @@ def run_network(
         if len(drivers) > 1:
             for j, d in zip(world.junctions, drivers, strict=True):
                 result.extra["junctions"][j.inter.junction_id]["requests"] = d.requests()
+        for j, ica in zip(world.junctions, icas, strict=False):
+            summary = ica.summary()  # reactive DICA's, per junction (None: another)
+            if summary is not None and len(icas) > 1:
+                result.extra["junctions"][j.inter.junction_id]["reactive"] = summary
+            elif summary is not None:
+                result.extra["reactive"] = summary
         waiting = world.waiting_to_enter()
         scheduled = dict(world.hold.scheduled) if world.hold is not None else {}
         end = world.t
+        vt = ls.vehicletype
+        ev_types = {x for x in vt.getIDList() if vt.getVehicleClass(x) == "emergency"}
         ls.close()
         closed = True
         if info is not None:  # SUMO writes the unfinished trips as it closes
-            trips = read_trips(info, scheduled, end)
+            trips = read_trips(info, scheduled, end, ev_types)
             result.net_trips = trips
             result.extra["network"] = summarize_trips(trips, waiting)
         return result

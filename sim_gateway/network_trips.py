@@ -15,7 +15,7 @@ from __future__ import annotations
 import csv
 import math
 import xml.etree.ElementTree as ET
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import astuple, dataclass, fields
 from pathlib import Path
 
@@ -33,15 +33,22 @@ class NetTrip:
     delay_s: float  # travel_s less free_s
     stops: int  # how often it stood (SUMO's waitingCount)
     route_m: float
+    ev: bool = False  # of a vehicle type of SUMO's emergency class
 
     @property
     def finished(self) -> bool:
         return not math.isnan(self.arrival_s)
 
 
-def read_trips(path: Path, scheduled: Mapping[str, float], end_s: float) -> list[NetTrip]:
+def read_trips(
+    path: Path,
+    scheduled: Mapping[str, float],
+    end_s: float,
+    ev_types: Collection[str] = (),
+) -> list[NetTrip]:
     """Each vehicle's trip from SUMO's tripinfo file; a vehicle SUMO recorded twice (taken
-    back after its first insertion, then put back) by its later record."""
+    back after its first insertion, then put back) by its later record. Those of the
+    vehicle types ``ev_types`` are emergency vehicles."""
     last: dict[str, ET.Element] = {}
     for el in ET.parse(path).getroot():
         if el.tag == "tripinfo" and not el.get("vaporized"):
@@ -67,6 +74,8 @@ def read_trips(path: Path, scheduled: Mapping[str, float], end_s: float) -> list
                 travel - free,
                 int(el.get("waitingCount", "0")),
                 float(el.get("routeLength", "nan")),
+                # a type SUMO copied for one vehicle (its own limits set) is "<type>@<id>"
+                el.get("vType", "").split("@")[0] in ev_types,
             )
         )
     return trips
@@ -84,7 +93,7 @@ def summarize_trips(trips: list[NetTrip], waiting_to_enter: int) -> dict:
         return float(np.percentile(values, q)) if q is not None else float(np.mean(values))
 
     delays = [t.delay_s for t in done]
-    return {
+    out = {
         "vehicles": generated,
         "finished": len(done),
         "finished_rate": len(done) / generated if generated else math.nan,
@@ -96,11 +105,38 @@ def summarize_trips(trips: list[NetTrip], waiting_to_enter: int) -> dict:
         "max_delay_s": max(delays) if delays else math.nan,
         "mean_stops": stat([float(t.stops) for t in done]),
     }
+    evs = [t for t in trips if t.ev]
+    if evs:  # the emergency vehicles apart, against their free flow, and everyone else
+        ev_done = [t for t in evs if t.finished]
+        ratios = [t.travel_s / t.free_s for t in ev_done if t.free_s > 0.0]
+        others = [t for t in done if not t.ev]
+        out["emergency"] = {
+            "vehicles": len(evs),
+            "finished": len(ev_done),
+            "mean_travel_time_s": stat([t.travel_s for t in ev_done]),
+            "mean_free_flow_s": stat([t.free_s for t in ev_done]),
+            "mean_delay_s": stat([t.delay_s for t in ev_done]),
+            "max_delay_s": max((t.delay_s for t in ev_done), default=math.nan),
+            "mean_travel_to_free_flow": stat(ratios),
+            "max_travel_to_free_flow": max(ratios, default=math.nan),
+            "mean_stops": stat([float(t.stops) for t in ev_done]),
+        }
+        out["normal"] = {
+            "finished": len(others),
+            "mean_delay_s": stat([t.delay_s for t in others]),
+            "max_travel_time_s": max((t.travel_s for t in others), default=math.nan),
+        }
+    return out
 
 
 def write_trips_csv(path: Path, trips: list[NetTrip]) -> None:
+    """A row per vehicle; the ``ev`` column only where there are emergency vehicles (the
+    file is as it was without them)."""
+    names = [x.name for x in fields(NetTrip)]
+    keep = len(names) if any(t.ev for t in trips) else names.index("ev")
     with path.open("w", newline="") as f:
         w = csv.writer(f)
-        w.writerow([x.name for x in fields(NetTrip)])
+        w.writerow(names[:keep])
         for t in sorted(trips, key=lambda t: (t.scheduled_s, t.vid)):
-            w.writerow([round(x, 3) if isinstance(x, float) else x for x in astuple(t)])
+            row = [round(x, 3) if isinstance(x, float) else x for x in astuple(t)]
+            w.writerow([int(x) if isinstance(x, bool) else x for x in row[:keep]])

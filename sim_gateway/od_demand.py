@@ -26,6 +26,12 @@ VTYPE = (
     '<vType id="car" vClass="passenger" length="5" width="1.8" accel="2.6" decel="4.5" '
     'sigma="0.5" speedFactor="1" speedDev="0"/>'
 )
+# an emergency vehicle: the same car as far as driving goes, SUMO's emergency class (which
+# is what makes it one to the junctions it meets); written only when the demand has any
+EV_VTYPE = (
+    '<vType id="emergency" vClass="emergency" length="5" width="1.8" accel="2.6" decel="4.5" '
+    'sigma="0.5" speedFactor="1" speedDev="0" color="1,0,0"/>'
+)
 TURNS = ("left", "through", "right")
 _DIRS = {"left": ("l", "L"), "through": ("s",), "right": ("r", "R")}
 MAX_CROSSINGS = 12  # a route turned this often goes straight on until it leaves
@@ -43,6 +49,9 @@ class OdDemand:
     turns: tuple[float, float, float] = (0.2, 0.6, 0.2)  # left, through, right
     # vehicles per hour on particular entries (road ids), instead of volume_vph
     entry_vph: tuple[tuple[str, float], ...] = ()
+    # each vehicle an emergency vehicle with this probability, drawn from a stream of its
+    # own: the vehicles' times and routes are those of the same demand without
+    ev_prob: float = 0.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.volume_vph) and self.volume_vph >= 0.0):
@@ -53,6 +62,8 @@ class OdDemand:
             raise DemandError(
                 f"turning ratios are three numbers >= 0 (left, through, right), got {self.turns}"
             )
+        if not 0.0 <= self.ev_prob <= 1.0:
+            raise DemandError(f"the emergency-vehicle probability is 0 to 1, got {self.ev_prob}")
         for road, vph in self.entry_vph:
             if not (math.isfinite(vph) and vph >= 0.0):
                 raise DemandError(f"the volume on {road} must be vehicles per hour >= 0, got {vph}")
@@ -141,10 +152,12 @@ def write_od_routes(net_path: Path, junctions: Sequence[str], demand: OdDemand, 
                 break
             rows.append((round(t, 2), entry, walk(turns, entry, demand.turns, rng)))
     rows.sort(key=lambda r: (r[0], r[1]))
-    lines = ["<routes>", f"  {VTYPE}"]
+    ev = np.random.default_rng([demand.seed, 1]).random(len(rows)) < demand.ev_prob
+    lines = ["<routes>", f"  {VTYPE}"] + ([f"  {EV_VTYPE}"] if ev.any() else [])
     for n, (t, _, edges) in enumerate(rows):
+        kind = "emergency" if ev[n] else "car"
         lines.append(
-            f'  <vehicle id="v{n:05d}" type="car" depart="{t:.2f}" departLane="best" '
+            f'  <vehicle id="v{n:05d}" type="{kind}" depart="{t:.2f}" departLane="best" '
             f'departSpeed="max"><route edges="{" ".join(edges)}"/></vehicle>'
         )
     lines.append("</routes>")

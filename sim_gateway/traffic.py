@@ -179,13 +179,19 @@ class Traffic:
                 )  # fmt: skip
                 if route_edges(route)[1] != dest and ls.vehicle.getRoute(vin)[-1] != dest:
                     c.reroute_to = dest
+                # of SUMO's emergency class: an EV to the junction, unless one is in its
+                # region already (one at a time, as the random demand has them)
+                c.ev = ls.vehicle.getVehicleClass(vin) == "emergency" and not any(
+                    o.ev and not o.exited for o in j.active
+                )
                 ls.vehicle.setLaneChangeMode(vin, 0)
                 j.cars[c.vin] = j.by_sumo[vin] = c
                 j.active.append(c)
                 free = self.free_flow_s(route, comm, c.entry_speed_mps, c.length_m)
                 self.log.trips[c.vin] = Trip(
-                    c.vin, route.id, route.turn.value, t, free_flow_scheduled_s=free, inserted_s=t
-                )
+                    c.vin, route.id, route.turn.value, t, free_flow_scheduled_s=free,
+                    inserted_s=t, ev=c.ev,
+                )  # fmt: skip
                 out.append(c)
         return out
 

@@ -116,6 +116,10 @@ def parser() -> options.Parser:
                    "arterial: W00_J00 and E30_J30)")  # fmt: skip
     p.add_argument("--turns", type=_turns, default=(0.2, 0.6, 0.2), metavar="L,T,R",
                    help="turning ratios at each junction (default 0.2,0.6,0.2)")  # fmt: skip
+    p.add_argument("--ev-prob", type=float, default=0.0, metavar="P",
+                   help="each drawn vehicle an emergency vehicle with probability P (default 0; "
+                   "a route file's are those of an emergency vClass). --algorithm rdica lets "
+                   "them through each junction first")  # fmt: skip
     p.add_argument("--seed", type=int, default=12, help="the drawn demand's seed (default 12)")
     p.add_argument("--duration", type=float, default=600.0, help="seconds of demand (default 600)")
     p.add_argument("--drain", type=float, default=900.0,
@@ -156,6 +160,11 @@ def _main(argv: list[str] | None) -> int:
         if not (math.isfinite(x) and x >= 0.0) or (name == "duration" and x <= 0.0):
             unit = "vehicles per hour" if name == "volume" else "seconds"
             raise UsageError(f"--{name} must be a number of {unit} > 0, got {x}")
+    if not 0.0 <= args.ev_prob <= 1.0:
+        raise UsageError(f"--ev-prob is a probability, 0 to 1, got {args.ev_prob}")
+    if args.routes is not None and args.ev_prob:
+        raise UsageError("--ev-prob draws emergency vehicles into the drawn demand; a route "
+                         "file's are those of a vType with vClass=\"emergency\"")  # fmt: skip
     if args.net is None and args.junctions != "all":
         raise UsageError("--junctions chooses junctions of --net; a built-in layout runs all")
     if args.control != "dica" and args.algorithm != "enhanced":
@@ -174,7 +183,12 @@ def _main(argv: list[str] | None) -> int:
         if routes is None:
             routes = out / "od.rou.xml"
             demand = OdDemand(
-                args.volume, args.duration, args.seed, args.turns, tuple(args.entry_volume)
+                args.volume,
+                args.duration,
+                args.seed,
+                args.turns,
+                tuple(args.entry_volume),
+                args.ev_prob,
             )
             n = write_od_routes(free_net, junctions, demand, routes)
         elif not routes.is_file():
@@ -216,6 +230,7 @@ def _main(argv: list[str] | None) -> int:
         "volume_vph": None if args.routes else args.volume,
         "entry_vph": None if args.routes else dict(args.entry_volume),
         "turns": None if args.routes else list(args.turns), "seed": args.seed,
+        "ev_prob": None if args.routes else args.ev_prob,
         "demand_s": args.duration, "drawn_vehicles": n,
     }  # fmt: skip
     write_outputs(out, dataclasses.replace(cfg), result)
@@ -284,6 +299,14 @@ def _report(out: Path, result, control: str) -> int:
         f"(p95 {f(n.get('p95_delay_s'))} s), mean travel time {f(n.get('mean_travel_time_s'))} s, "
         f"{f(n.get('mean_stops'), 2)} stops per vehicle"
     )
+    ev = n.get("emergency")
+    if ev:
+        print(
+            f"emergency vehicles: {ev['finished']} of {ev['vehicles']} finished; mean travel "
+            f"time {f(ev['mean_travel_time_s'])} s, {f(ev['mean_travel_to_free_flow'], 2)} x "
+            f"free flow (worst {f(ev['max_travel_to_free_flow'], 2)} x); the others' mean delay "
+            f"{f(n['normal']['mean_delay_s'])} s"
+        )
     stood = result.extra.get("stood_inside", 0)
     unconfirmed = result.extra.get("unconfirmed_entries", 0)
     print(

@@ -1,0 +1,133 @@
+"""Emergency vehicles through a network of junctions: drawn into the demand or of a
+route file's emergency class, let through first by every junction's reactive DICA,
+and measured against their free flow, in real SUMO runs of the built-in corridor."""
+
+from __future__ import annotations
+
+import csv
+import json
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import pytest
+
+from dica.sim_gateway.network_layouts import build_network
+from dica.sim_gateway.od_demand import DemandError, OdDemand, write_od_routes
+
+ROOT = Path(__file__).resolve().parents[1]
+ARTERIAL = ("--layout", "corridor", "--volume", "250", "--entry-volume", "W00_J00=700",
+            "--entry-volume", "E30_J30=700", "--duration", "180")  # fmt: skip
+
+
+def _vehicles(path: Path) -> list[tuple[str, str, str, str]]:
+    return [
+        (v.get("id"), v.get("type"), v.get("depart"), v.find("route").get("edges"))
+        for v in ET.parse(path).getroot().iter("vehicle")
+    ]
+
+
+def test_emergency_vehicles_are_drawn_apart_and_move_no_other_vehicle(tmp_path):
+    g = build_network("corridor", tmp_path / "net")
+    plain, with_ev = tmp_path / "a.rou.xml", tmp_path / "b.rou.xml"
+    n = write_od_routes(g.net_path, g.junctions, OdDemand(600.0, 1800.0, seed=5), plain)
+    m = write_od_routes(g.net_path, g.junctions, OdDemand(600.0, 1800.0, 5, ev_prob=0.1), with_ev)
+    a, b = _vehicles(plain), _vehicles(with_ev)
+    assert n == m == len(a) == len(b) > 1000
+    # the same vehicles at the same times on the same routes; some of them emergency
+    assert [(i, t, r) for i, _, t, r in a] == [(i, t, r) for i, _, t, r in b]
+    assert {k for _, k, _, _ in a} == {"car"}
+    evs = sum(k == "emergency" for _, k, _, _ in b)
+    assert abs(evs - 0.1 * n) < 4 * (0.09 * n) ** 0.5  # binomial: within 4 sigma
+    assert 'vClass="emergency"' in with_ev.read_text()
+    assert "emergency" not in plain.read_text()  # without EVs the file is as it was
+    with pytest.raises(DemandError, match="0 to 1"):
+        OdDemand(600.0, 60.0, ev_prob=1.5)
+
+
+def _network(out: Path, *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "-m", "dica.tools.cli", "network", *args, "--out", str(out), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=600,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def ev_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple]:
+    """The corridor's arterial with one vehicle in ten an EV, for 180 s: plain enhanced
+    DICA, reactive DICA, and reactive DICA on the drawn demand given as a route file."""
+    d = tmp_path_factory.mktemp("ev")
+    runs = {}
+    for name, algo in (("dica", "enhanced"), ("rdica", "rdica")):
+        out = d / name
+        p = _network(out, *ARTERIAL, "--ev-prob", "0.1", "--algorithm", algo)
+        runs[name] = (p, out)
+    routes = d / "rdica" / "od.rou.xml"
+    out = d / "file"
+    p = _network(out, "--layout", "corridor", "--routes", str(routes), "--duration", "180",
+                 "--algorithm", "rdica")  # fmt: skip
+    runs["file"] = (p, out)
+    return runs
+
+
+@pytest.mark.parametrize("name", ["dica", "rdica", "file"])
+def test_emergency_vehicles_cross_the_corridor_safely_and_are_measured_apart(ev_runs, name):
+    p, out = ev_runs[name]
+    assert p.returncode == 0, p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    drawn = _vehicles(ev_runs["rdica"][1] / "od.rou.xml")
+    ev_ids = {i for i, k, _, _ in drawn if k == "emergency"}
+    assert len(ev_ids) >= 8
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["stood_inside"] == 0
+    net = m["network"]
+    assert net["vehicles"] == net["finished"] == len(drawn)
+    ev = net["emergency"]
+    assert ev["vehicles"] == ev["finished"] == len(ev_ids)
+    assert ev["mean_free_flow_s"] > 20.0  # they crossed the corridor, not a corner of it
+    # no faster than free flow, and not absurdly slower on a corridor this light
+    assert 1.0 - 1e-6 <= ev["mean_travel_to_free_flow"] <= ev["max_travel_to_free_flow"] < 2.0
+    assert net["normal"]["finished"] == len(drawn) - len(ev_ids)
+    with (out / "trips.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert {r["vid"] for r in rows if r["ev"] == "1"} == ev_ids
+    assert "emergency vehicles: " in p.stdout
+    if name == "dica":
+        assert all("reactive" not in j for j in m["junctions"].values())
+        return
+    # every junction's ICA is reactive DICA, and the EVs started events at them
+    reactive = {k: j["reactive"] for k, j in m["junctions"].items()}
+    assert set(reactive) == {"J00", "J10", "J20", "J30"}
+    assert sum(r["events"] for r in reactive.values()) >= len(ev_ids)
+    assert all(r["added_delay_max_s"] <= r["max_added_delay_s"] + 1e-6 for r in reactive.values())
+
+
+def test_reactive_dica_decides_otherwise_than_plain_dica_on_the_same_vehicles(ev_runs):
+    """The same demand, the same SUMO: only the EVs' reorderings can tell the runs apart."""
+    plain = (ev_runs["dica"][1] / "vehicles.csv").read_bytes()
+    assert (ev_runs["rdica"][1] / "vehicles.csv").read_bytes() != plain
+    assert (ev_runs["file"][1] / "vehicles.csv").read_bytes() == (
+        ev_runs["rdica"][1] / "vehicles.csv"
+    ).read_bytes()
+
+
+def test_a_run_without_emergency_vehicles_keeps_its_trip_file_as_it_was(tmp_path):
+    p = _network(tmp_path / "run", "--layout", "corridor", "--volume", "100", "--duration", "30")
+    assert p.returncode == 0, p.stderr
+    head = (tmp_path / "run" / "trips.csv").read_text().splitlines()[0]
+    assert head == "vid,scheduled_s,depart_s,arrival_s,travel_s,free_s,delay_s,stops,route_m"
+    assert "emergency" not in json.loads((tmp_path / "run" / "metrics.json").read_text())["network"]
+
+
+@pytest.mark.parametrize(
+    ("args", "says"),
+    [
+        (["--ev-prob", "1.5"], "--ev-prob is a probability"),
+        (["--ev-prob", "nan"], "--ev-prob is a probability"),
+        (["--routes", "x.rou.xml", "--ev-prob", "0.1"], "a route file's are those of a vType"),
+    ],
+)
+def test_a_bad_emergency_option_is_refused_in_one_line(tmp_path, args, says):
+    p = _network(tmp_path / "run", "--layout", "corridor", *args)
+    assert p.returncode == 2, p.stderr
+    assert says in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
