@@ -105,61 +105,43 @@ def signal_links(ls, tls: str) -> list[SignalLink | None]:
     return out
 
 
-class ReactiveLight:
-    """Pre-emption for one emergency vehicle at a time (:class:`sim_gateway.signals.Preemption`).
-
-    The first EV seen in the region gets its movements green as soon as the
-    program's clearances allow; the green is held until its front has passed
-    the stop line, then the program resumes where it stands.
-    """
+class PreemptedLight:
+    """One light's pre-emption for one emergency vehicle at a time
+    (:class:`sim_gateway.signals.Preemption`): given the EV's links, its movements go
+    green as soon as the program's clearances allow; the green is held until the EV
+    has passed the stop line, then the program resumes where it stands."""
 
     _FOREVER_S = 1e6
 
-    def __init__(self, ls, inter: Intersection, phases: list[SignalPhase]) -> None:
+    def __init__(self, ls, tls: str, phases: list[SignalPhase]) -> None:
         self.ls = ls
-        self.tls = light_of(ls, inter)
+        self.tls = tls
         self.program = Preemption(phases)
-        self.program_id = ls.trafficlight.getProgram(self.tls)
-        self.links = ls.trafficlight.getControlledLinks(self.tls)
+        self.program_id = ls.trafficlight.getProgram(tls)
         self.ev: str | None = None
         self.steps: list[tuple[int | str, float | None]] = []
         self.step_end_s = math.inf
         self.served = 0
         self.kinds: dict[str, int] = {"extend": 0, "return": 0, "cut": 0}
 
-    def _ev_links(self, s: Seen) -> list[int]:
-        r = s.car.route
-        return [
-            i
-            for i, group in enumerate(self.links)
-            if any(ln[0] == r.in_lane and ln[1] == r.out_lane for ln in group)
-        ]
-
-    def step(self, t: float, seen: list[Seen]) -> None:
+    def start(self, t: float, ev: str, links: list[int]) -> None:
+        """Serve ``ev``, whose movements are the signal indices ``links``."""
         tl = self.ls.trafficlight
-        if self.ev is None:
-            for s in seen:
-                waiting = s.obs.lane == s.car.route.in_lane and not math.isnan(s.obs.detected_s)
-                if s.car.ev and waiting:
-                    links = self._ev_links(s)
-                    if not links:
-                        continue
-                    phase = tl.getPhase(self.tls)
-                    remaining = tl.getNextSwitch(self.tls) - t
-                    self.steps = self.program.steps(phase, remaining, links)
-                    kind = "cut" if len(self.steps) > 1 else (
-                        "extend" if self.steps[0][0] == phase else "return"
-                    )  # fmt: skip
-                    self.kinds[kind] += 1
-                    self.ev = s.car.vin
-                    self._begin(t, first=True)
-                    break
-            return
-        ev = next((s for s in seen if s.car.vin == self.ev), None)
-        entered = ev is None or ev.obs.lane != ev.car.route.in_lane or ev.obs.exited
+        phase = tl.getPhase(self.tls)
+        remaining = tl.getNextSwitch(self.tls) - t
+        self.steps = self.program.steps(phase, remaining, links)
+        kind = "cut" if len(self.steps) > 1 else (
+            "extend" if self.steps[0][0] == phase else "return"
+        )  # fmt: skip
+        self.kinds[kind] += 1
+        self.ev = ev
+        self._begin(t, first=True)
+
+    def step(self, t: float, passed: bool) -> None:
+        """One step while serving: ``passed`` once the EV's front is past the stop line."""
         k, duration = self.steps[0]
         if duration is HOLD:
-            if entered:
+            if passed:
                 self._resume(t, k)
             return
         if t >= self.step_end_s - 1e-6:
@@ -189,3 +171,111 @@ class ReactiveLight:
 
     def summary(self) -> dict:
         return {"served": self.served, **self.kinds}
+
+
+class ReactiveLight:
+    """The reactive light's pre-emption (:class:`PreemptedLight`): the first EV seen
+    waiting in the region is served, one at a time."""
+
+    def __init__(self, ls, inter: Intersection, phases: list[SignalPhase]) -> None:
+        self.light = PreemptedLight(ls, light_of(ls, inter), phases)
+        self.links = ls.trafficlight.getControlledLinks(self.light.tls)
+
+    @property
+    def ev(self) -> str | None:
+        return self.light.ev
+
+    def _ev_links(self, s: Seen) -> list[int]:
+        r = s.car.route
+        return [
+            i
+            for i, group in enumerate(self.links)
+            if any(ln[0] == r.in_lane and ln[1] == r.out_lane for ln in group)
+        ]
+
+    def step(self, t: float, seen: list[Seen]) -> None:
+        light = self.light
+        if light.ev is None:
+            for s in seen:
+                waiting = s.obs.lane == s.car.route.in_lane and not math.isnan(s.obs.detected_s)
+                if s.car.ev and waiting:
+                    links = self._ev_links(s)
+                    if links:
+                        light.start(t, s.car.vin, links)
+                        break
+            return
+        ev = next((s for s in seen if s.car.vin == light.ev), None)
+        entered = ev is None or ev.obs.lane != ev.car.route.in_lane or ev.obs.exited
+        light.step(t, entered)
+
+    def summary(self) -> dict:
+        return self.light.summary()
+
+
+PREEMPT_LEAD_S = 20.0  # [s] a light is pre-empted when an EV is this far from it
+
+
+class CorridorPreemption:
+    """Emergency-vehicle pre-emption at every light of a network, as deployed systems
+    do it: a light is pre-empted for an EV once the EV is :data:`PREEMPT_LEAD_S` from
+    its stop line at its road's speed (its distance along its route, as SUMO gives the
+    lights ahead of it, over the speed it may drive there), whatever the traffic
+    between; its movement is served (:class:`PreemptedLight`) until the EV is past
+    the line, then the next EV waiting for that light, in the order they came within
+    reach. Each light keeps the program it runs (fixed-time, with its clearances)."""
+
+    def __init__(self, ls, tls_ids: list[str], lead_s: float = PREEMPT_LEAD_S) -> None:
+        self.ls = ls
+        self.lead_s = lead_s
+        self.lights: dict[str, PreemptedLight] = {}
+        for tls in tls_ids:
+            logic = current_logic(ls, tls)
+            phases = phases_of(
+                [p.duration for p in logic.phases],
+                [p.state for p in logic.phases],
+                [p.minDur for p in logic.phases],
+                [p.maxDur for p in logic.phases],
+            )
+            self.lights[tls] = PreemptedLight(ls, tls, phases)
+        self.evs: list[str] = []  # in SUMO, in the order they departed
+        self.queue: dict[str, list[tuple[str, int]]] = {t: [] for t in self.lights}
+        self.calls = 0  # EVs that came within reach of a light
+
+    def step(self, t: float) -> None:
+        """Before SUMO's step: note the EVs that departed and left, call each light the
+        EVs have come within reach of, and switch every light that serves one."""
+        ls = self.ls
+        for vin in ls.simulation.getDepartedIDList():
+            if ls.vehicle.getVehicleClass(vin) == "emergency":
+                self.evs.append(vin)
+        gone = set(ls.simulation.getArrivedIDList())
+        self.evs = [v for v in self.evs if v not in gone]
+        ahead: dict[str, set[str]] = {t: set() for t in self.lights}  # EVs short of its line
+        for ev in self.evs:
+            upcoming = ls.vehicle.getNextTLS(ev)
+            reach = self.lead_s * max(ls.vehicle.getAllowedSpeed(ev), 1.0)
+            for tls, link, dist, _state in upcoming:
+                if tls not in self.lights:
+                    continue
+                ahead[tls].add(ev)
+                queued = self.queue[tls]
+                waits = self.lights[tls].ev == ev or any(e == ev for e, _ in queued)
+                if dist <= reach and not waits:
+                    queued.append((ev, link))
+                    self.calls += 1
+                break  # the next light on its way only: the one after is called later
+        for tls, light in self.lights.items():
+            queued = self.queue[tls]
+            if light.ev is not None:
+                light.step(t, passed=light.ev not in ahead[tls])
+            if light.ev is None:
+                # an EV that left the light's approach before its turn needs it no more
+                queued[:] = [(e, k) for e, k in queued if e in ahead[tls]]
+                if queued:
+                    ev, link = queued.pop(0)
+                    light.start(t, ev, [link])
+
+    def summary(self) -> dict:
+        lights = [x.summary() for x in self.lights.values()]
+        out = {k: sum(x[k] for x in lights) for k in ("served", "extend", "return", "cut")}
+        return {"lead_s": self.lead_s, "calls": self.calls, **out}

@@ -32,7 +32,7 @@ from dica.sim_gateway.embedded import (
     record_step,
     request_figures,
 )
-from dica.sim_gateway.light_control import light_of
+from dica.sim_gateway.light_control import CorridorPreemption, light_of
 from dica.sim_gateway.max_pressure import MaxPressure
 from dica.sim_gateway.network_trips import read_trips, summarize_trips
 from dica.sim_gateway.route_file import check_handovers
@@ -43,7 +43,7 @@ from dica.sim_gateway.world import World
 if TYPE_CHECKING:
     from dica.sim_gateway.network_cluster import Cluster
 
-LIGHT_CONTROLS = ("program", "max-pressure")
+LIGHT_CONTROLS = ("program", "max-pressure", "preempt")
 NETWORK_RRD = "network.rrd"  # beside the junctions' recordings: the network from above
 
 
@@ -60,7 +60,9 @@ def run_network(
     """Run the route file through ``inters``, each junction under its own ICA core, or
     by the net's lights, watched and measured alike: ``lights`` ``program`` runs them as
     the net (and the SUMO options' additional files) have them, ``max-pressure`` under
-    :class:`~sim_gateway.max_pressure.MaxPressure`.
+    :class:`~sim_gateway.max_pressure.MaxPressure`, ``preempt`` as the net has them with
+    emergency-vehicle pre-emption at each (:class:`~sim_gateway.light_control.
+    CorridorPreemption`).
 
     With ``run_dir`` SUMO's trip records go there (unless the SUMO options name a file
     of their own) and the result has the network's trips (``extra["network"]``,
@@ -143,6 +145,8 @@ def run_network(
         if lights == "max-pressure":
             ids = dict.fromkeys(light_of(ls, x) for x in inters)
             pressure = MaxPressure(ls, ids)
+        elif lights == "preempt":
+            pressure = CorridorPreemption(ls, list(dict.fromkeys(light_of(ls, x) for x in inters)))
         try:
             while True:
                 if pressure is not None:
@@ -179,8 +183,10 @@ def run_network(
         result = world.result({} if cluster else merged_requests(drivers), cmd)
         if cluster is not None:
             cluster.finish(world, result)
-        if pressure is not None:
+        if isinstance(pressure, MaxPressure):
             result.extra["max_pressure_switches"] = pressure.switches
+        elif pressure is not None:
+            result.extra["preemption"] = pressure.summary()
         if len(drivers) > 1:
             for j, d in zip(world.junctions, drivers, strict=True):
                 result.extra["junctions"][j.inter.junction_id]["requests"] = d.requests()

@@ -63,6 +63,9 @@ def ev_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple]:
         out = d / name
         p = _network(out, *ARTERIAL, "--ev-prob", "0.1", "--algorithm", algo)
         runs[name] = (p, out)
+    for control in ("static", "preempt"):  # the same fixed-time lights, without and with
+        out = d / control
+        runs[control] = (_network(out, *ARTERIAL, "--ev-prob", "0.1", "--control", control), out)
     routes = d / "rdica" / "od.rou.xml"
     out = d / "file"
     p = _network(out, "--layout", "corridor", "--routes", str(routes), "--duration", "180",
@@ -71,7 +74,7 @@ def ev_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple]:
     return runs
 
 
-@pytest.mark.parametrize("name", ["dica", "rdica", "file"])
+@pytest.mark.parametrize("name", ["dica", "rdica", "file", "static", "preempt"])
 def test_emergency_vehicles_cross_the_corridor_safely_and_are_measured_apart(ev_runs, name):
     p, out = ev_runs[name]
     assert p.returncode == 0, p.stderr
@@ -79,20 +82,24 @@ def test_emergency_vehicles_cross_the_corridor_safely_and_are_measured_apart(ev_
     drawn = _vehicles(ev_runs["rdica"][1] / "od.rou.xml")
     ev_ids = {i for i, k, _, _ in drawn if k == "emergency"}
     assert len(ev_ids) >= 8
-    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["stood_inside"] == 0
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
+    if name not in ("static", "preempt"):  # a light's permissive turns wait inside
+        assert m["stood_inside"] == 0
     net = m["network"]
     assert net["vehicles"] == net["finished"] == len(drawn)
     ev = net["emergency"]
     assert ev["vehicles"] == ev["finished"] == len(ev_ids)
     assert ev["mean_free_flow_s"] > 20.0  # they crossed the corridor, not a corner of it
-    # no faster than free flow, and not absurdly slower on a corridor this light
-    assert 1.0 - 1e-6 <= ev["mean_travel_to_free_flow"] <= ev["max_travel_to_free_flow"] < 2.0
+    # no faster than free flow; signal-free, not much slower on a corridor this light (a
+    # fixed-time light's red costs an EV a cycle's part)
+    most = 5.0 if name in ("static", "preempt") else 2.0
+    assert 1.0 - 1e-6 <= ev["mean_travel_to_free_flow"] <= ev["max_travel_to_free_flow"] < most
     assert net["normal"]["finished"] == len(drawn) - len(ev_ids)
     with (out / "trips.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert {r["vid"] for r in rows if r["ev"] == "1"} == ev_ids
     assert "emergency vehicles: " in p.stdout
-    if name == "dica":
+    if name != "rdica" and name != "file":
         assert all("reactive" not in j for j in m["junctions"].values())
         return
     # every junction's ICA is reactive DICA, and the EVs started events at them
@@ -109,6 +116,25 @@ def test_reactive_dica_decides_otherwise_than_plain_dica_on_the_same_vehicles(ev
     assert (ev_runs["file"][1] / "vehicles.csv").read_bytes() == (
         ev_runs["rdica"][1] / "vehicles.csv"
     ).read_bytes()
+
+
+def test_pre_empting_lights_serve_the_evs_along_the_corridor(ev_runs):
+    """The same fixed-time lights, the same vehicles: pre-empted 20 s ahead of each EV,
+    they let the EVs through faster and with fewer stops, and serve each light an EV
+    came within reach of."""
+    fixed, pre = (json.loads((ev_runs[c][1] / "metrics.json").read_text()) for c in
+                  ("static", "preempt"))  # fmt: skip
+    a, b = fixed["network"]["emergency"], pre["network"]["emergency"]
+    assert b["mean_travel_time_s"] < 0.9 * a["mean_travel_time_s"]
+    assert b["mean_stops"] < a["mean_stops"]
+    served = pre["preemption"]
+    assert (
+        served["lead_s"] == 20.0
+        and served["served"] == served["extend"] + served["return"] + served["cut"]
+    )
+    assert b["vehicles"] <= served["served"] <= served["calls"]
+    assert served["cut"] > 0  # some EVs came to a red: cut to their green with clearances
+    assert "preemption" not in fixed
 
 
 def test_a_run_without_emergency_vehicles_keeps_its_trip_file_as_it_was(tmp_path):
@@ -131,3 +157,20 @@ def test_a_bad_emergency_option_is_refused_in_one_line(tmp_path, args, says):
     p = _network(tmp_path / "run", "--layout", "corridor", *args)
     assert p.returncode == 2, p.stderr
     assert says in p.stderr and len(p.stderr.strip().splitlines()) == 1, p.stderr
+
+
+def test_the_report_puts_the_evs_beside_the_pre_empting_lights(ev_runs, tmp_path):
+    from dica.tools.network_report import load_network_runs, write_report
+
+    runs = [
+        r for n in ("dica", "rdica", "static", "preempt") for r in load_network_runs(ev_runs[n][1])
+    ]
+    write_report(runs, tmp_path)
+    md = (tmp_path / "networks.md").read_text()
+    table = md[md.index("## Emergency vehicles") :].splitlines()
+    rows = {ln.split(" | ")[2]: ln.rstrip(" |").split(" | ") for ln in table if "EV p 0.1" in ln}
+    assert set(rows) == {"dica", "dica-rdica", "static", "preempt"}  # rdica a control of its own
+    assert rows["preempt"][8] == "1.00"  # the EVs' travel against the pre-empting lights'
+    assert rows["dica"][10] == "1.00"  # the others' delay against plain DICA's
+    fixed = json.loads((ev_runs["static"][1] / "metrics.json").read_text())
+    assert rows["static"][3] == str(fixed["network"]["emergency"]["vehicles"])

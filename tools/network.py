@@ -25,21 +25,24 @@ from pathlib import Path
 from dica.tools import options
 from dica.tools.options import UsageError
 
-CONTROLS = ("dica", "static", "actuated", "coordinated", "max-pressure")
+CONTROLS = ("dica", "static", "actuated", "coordinated", "max-pressure", "preempt")
 # how run_network runs each control's lights (None: signal-free)
 LIGHTS_BY_CONTROL = {"dica": None, "static": "program", "actuated": "program",
-                     "coordinated": "program", "max-pressure": "max-pressure"}  # fmt: skip
+                     "coordinated": "program", "max-pressure": "max-pressure",
+                     "preempt": "preempt"}  # fmt: skip
 # the lights each control's net is built with
 NET_LIGHTS = {"static": "static", "actuated": "actuated", "coordinated": "static",
-              "max-pressure": "static"}  # fmt: skip
+              "max-pressure": "static", "preempt": "static"}  # fmt: skip
 DESCRIPTION = (
     "A network of junctions, every one signal-free under its own ICA (--control dica) or run "
     "by lights with safe clearances: static (fixed-time programs), actuated (SUMO's actuated "
     "lights), coordinated (fixed-time with green-wave offsets for the demand's main flows, "
-    "SUMO's tlsCoordinator) or max-pressure (the standard adaptive network controller). The "
+    "SUMO's tlsCoordinator), max-pressure (the standard adaptive network controller) or "
+    "preempt (fixed-time with emergency-vehicle pre-emption at each light 20 s ahead of the "
+    "EV). The "
     "built-in networks (--layout corridor|grid) are built from the same plain XML for every "
     "control; your net (--net) runs as it is or with its lights rebuilt actuated (its own "
-    "programs for static, coordinated and max-pressure). Vehicles come from "
+    "programs for static, coordinated, max-pressure and preempt). Vehicles come from "
     "--routes, or are drawn: --volume vehicles per hour on every road into the network, "
     "turning by --turns at each junction, for --duration seconds; the run goes on until "
     "every vehicle has left (at most --drain seconds more). Writes metrics.json (network: "
@@ -88,7 +91,9 @@ def parser() -> options.Parser:
                    help="dica: every junction signal-free under its own ICA (default); static: "
                    "fixed-time lights (netconvert's programs, or your net's own); actuated: "
                    "SUMO's actuated lights; coordinated: fixed-time with green-wave offsets; "
-                   "max-pressure: adaptive, junction by junction")  # fmt: skip
+                   "max-pressure: adaptive, junction by junction; preempt: fixed-time, each "
+                   "light pre-empted for an emergency vehicle 20 s before it reaches the "
+                   "line")  # fmt: skip
     p.add_argument(
         "--algorithm",
         default="enhanced",

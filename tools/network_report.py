@@ -6,6 +6,9 @@ and travel time from the scheduled departure (waiting to be inserted included),
 stops, and the share of vehicles that finished. The comparison takes the best of
 the adaptive and coordinated lights (actuated, coordinated fixed-time,
 max-pressure) by mean delay at each demand, as the network issue states it.
+Runs with emergency vehicles (``--ev-prob``) are their own demand, and get a table
+of the EVs' trips against their free flow beside the others' delay; reactive DICA
+is its own control (``dica-rdica``), as are the pre-empting lights (``preempt``).
 """
 
 from __future__ import annotations
@@ -17,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-CONTROL_ORDER = ("dica", "max-pressure", "actuated", "coordinated", "static")
+CONTROL_ORDER = ("dica", "dica-rdica", "max-pressure", "actuated", "coordinated", "static",
+                 "preempt")  # fmt: skip
 BEST_LIGHTS = ("actuated", "coordinated", "max-pressure")
 FIELDS = ("mean_delay_s", "p95_delay_s", "mean_travel_time_s", "mean_stops", "finished_rate")
 
@@ -40,7 +44,18 @@ def demand_label(run: dict) -> str:
     label = f"{run['volume_vph']:g}/h per entry"
     for road, vph in sorted((run.get("entry_vph") or {}).items()):
         label += f", {road} {vph:g}/h"
-    return label + f", {run['demand_s']:g} s"
+    label += f", {run['demand_s']:g} s"
+    if run.get("ev_prob"):
+        label += f", EV p {run['ev_prob']:g}"
+    return label
+
+
+def control_label(run: dict) -> str:
+    """The control, and DICA's variant where it is not the default enhanced one."""
+    algo = run.get("algorithm")
+    if run["control"] == "dica" and algo not in (None, "enhanced"):
+        return f"dica-{algo}"
+    return run["control"]
 
 
 def busiest_vph(demand: str) -> float:
@@ -58,7 +73,7 @@ def aggregate(runs: list[dict]) -> dict[tuple[str, str, str], dict]:
     groups: dict[tuple[str, str, str], list[dict]] = defaultdict(list)
     for r in runs:
         layout = r["run"]["layout"] or Path(r["run"]["net"]).name
-        groups[(layout, demand_label(r["run"]), r["run"]["control"])].append(r)
+        groups[(layout, demand_label(r["run"]), control_label(r["run"]))].append(r)
     out = {}
     for key, rs in groups.items():
         row: dict = {"seeds": sorted(r["run"]["seed"] for r in rs)}
@@ -71,8 +86,24 @@ def aggregate(runs: list[dict]) -> dict[tuple[str, str, str], dict]:
             r["metrics"]["collisions"] + r["metrics"]["sumo_collisions"] for r in rs
         )
         row["stood_inside"] = sum(r["metrics"].get("stood_inside", 0) for r in rs)
+        evs = [r["metrics"]["network"] for r in rs if "emergency" in r["metrics"]["network"]]
+        if evs:
+            row["ev"] = {f: _mean([n["emergency"][f] for n in evs]) for f in EV_FIELDS}
+            row["ev"]["vehicles"] = sum(n["emergency"]["vehicles"] for n in evs)
+            row["ev"]["worst_ratio"] = max(
+                (n["emergency"]["max_travel_to_free_flow"] for n in evs), default=None
+            )
+            row["ev"]["normal_delay_s"] = _mean([n["normal"]["mean_delay_s"] for n in evs])
         out[key] = row
     return out
+
+
+EV_FIELDS = ("mean_travel_time_s", "mean_free_flow_s", "mean_travel_to_free_flow", "mean_stops")
+
+
+def _mean(vals: list) -> float | None:
+    vals = [v for v in vals if v is not None and np.isfinite(v)]
+    return float(np.mean(vals)) if vals else None
 
 
 def _order(control: str) -> int:
@@ -123,9 +154,52 @@ def markdown(agg: dict[tuple[str, str, str], dict], images: list[str]) -> str:
             f"{_f(d['mean_delay_s'])} | {_f(ratio, '{:.2f}')} | "
             f"{_f(d['finished_rate'], '{:.3f}')} / {_f(b['finished_rate'], '{:.3f}')} |"
         )
+    lines += _ev_table(by_case)
     for img in images:
         lines += ["", f"![{img}]({img})"]
     return "\n".join(lines) + "\n"
+
+
+def _ev_table(by_case: dict[tuple[str, str], dict[str, dict]]) -> list[str]:
+    """The emergency vehicles' trips per control, where the runs had any: their travel
+    time against their free flow, and against the pre-empting lights'; the others'
+    delay against plain DICA's."""
+    rows = []
+    for (layout, demand), controls in sorted(by_case.items(), key=lambda kv: _case_key(kv[0])):
+        pre = controls.get("preempt", {}).get("ev")
+        plain = controls.get("dica", {}).get("ev")
+        for c in sorted(controls, key=_order):
+            ev = controls[c].get("ev")
+            if ev is None:
+                continue
+            vs_pre = (
+                ev["mean_travel_time_s"] / pre["mean_travel_time_s"]
+                if pre and ev["mean_travel_time_s"] and pre["mean_travel_time_s"]
+                else None
+            )
+            vs_plain = (
+                ev["normal_delay_s"] / plain["normal_delay_s"]
+                if plain and ev["normal_delay_s"] is not None and plain["normal_delay_s"]
+                else None
+            )
+            rows.append(
+                f"| {layout} | {demand} | {c} | {ev['vehicles']} | "
+                f"{_f(ev['mean_travel_time_s'])} | {_f(ev['mean_free_flow_s'])} | "
+                f"{_f(ev['mean_travel_to_free_flow'], '{:.2f}')} / "
+                f"{_f(ev['worst_ratio'], '{:.2f}')} | {_f(ev['mean_stops'], '{:.2f}')} | "
+                f"{_f(vs_pre, '{:.2f}')} | {_f(ev['normal_delay_s'])} | "
+                f"{_f(vs_plain, '{:.2f}')} |"
+            )
+    if not rows:
+        return []
+    return [
+        "", "## Emergency vehicles", "",
+        "| layout | demand | control | EVs | EV mean travel [s] | EV free flow [s] | "
+        "x free flow (mean / worst) | EV stops | EV travel / preempt's | others' mean delay "
+        "[s] | others' delay / plain DICA's |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+        *rows,
+    ]  # fmt: skip
 
 
 def plots(agg: dict[tuple[str, str, str], dict], out: Path) -> list[str]:

@@ -6,7 +6,11 @@
 # left; then the report (networks.md). Resumable: finished runs are skipped. Two runs at
 # a time; about 40 minutes per seed on 2 cores with an hour of demand (the corridor about
 # 6 of them). SEEDS="12" runs one seed only, LAYOUTS="corridor" one network only.
+# Emergency vehicles: EV_PROB=0.02 draws each vehicle an EV with that probability, and
+# CONTROLS chooses the controls (rdica: every junction under reactive DICA; preempt:
+# fixed-time lights pre-empted for each EV).
 #   bash tools/networks.sh [OUT] [DEMAND]        (default runs/networks 3600)
+#   EV_PROB=0.02 CONTROLS="dica rdica preempt static" bash tools/networks.sh runs/ev
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
@@ -22,13 +26,19 @@ case " ${LAYOUTS:-corridor grid} " in *" corridor "*) ;; *) corridor="" ;; esac
 case " ${LAYOUTS:-corridor grid} " in *" grid "*) ;; *) grid="" ;; esac
 jobs="$out/jobs.txt"
 : > "$jobs"
+ev="${EV_PROB:-0}"
+more=""
+tag=""
+if [ "$ev" != 0 ]; then more="--ev-prob $ev"; tag="-ev$ev"; fi
 for seed in ${SEEDS:-12 21 66}; do
-  for control in dica actuated coordinated max-pressure; do
+  for control in ${CONTROLS:-dica actuated coordinated max-pressure}; do
+    flags="--control $control"
+    [ "$control" = rdica ] && flags="--control dica --algorithm rdica"
     for v in $corridor; do
-      echo "corridor-$v-$control-s$seed --layout corridor --volume 200 --entry-volume W00_J00=$v --entry-volume E30_J30=$v --control $control --seed $seed" >> "$jobs"
+      echo "corridor-$v-$control$tag-s$seed --layout corridor --volume 200 --entry-volume W00_J00=$v --entry-volume E30_J30=$v $flags $more --seed $seed" >> "$jobs"
     done
     for v in $grid; do
-      echo "grid-$v-$control-s$seed --layout grid --volume $v --control $control --seed $seed" >> "$jobs"
+      echo "grid-$v-$control$tag-s$seed --layout grid --volume $v $flags $more --seed $seed" >> "$jobs"
     done
   done
 done
