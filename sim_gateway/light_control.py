@@ -240,6 +240,7 @@ class CorridorPreemption:
         self.evs: list[str] = []  # in SUMO, in the order they departed
         self.queue: dict[str, list[tuple[str, int]]] = {t: [] for t in self.lights}
         self.calls = 0  # EVs that came within reach of a light
+        self.unservable = 0  # calls for a movement no phase of the light's program serves
 
     def step(self, t: float) -> None:
         """Before SUMO's step: note the EVs that departed and left, call each light the
@@ -271,11 +272,14 @@ class CorridorPreemption:
             if light.ev is None:
                 # an EV that left the light's approach before its turn needs it no more
                 queued[:] = [(e, k) for e, k in queued if e in ahead[tls]]
-                if queued:
+                while queued and light.ev is None:
                     ev, link = queued.pop(0)
-                    light.start(t, ev, [link])
+                    try:
+                        light.start(t, ev, [link])
+                    except ValueError:  # no phase of the program ever gives it green
+                        self.unservable += 1
 
     def summary(self) -> dict:
         lights = [x.summary() for x in self.lights.values()]
         out = {k: sum(x[k] for x in lights) for k in ("served", "extend", "return", "cut")}
-        return {"lead_s": self.lead_s, "calls": self.calls, **out}
+        return {"lead_s": self.lead_s, "calls": self.calls, "unservable": self.unservable, **out}

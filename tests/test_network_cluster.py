@@ -178,6 +178,38 @@ def test_lockstep_cluster_of_a_gated_grid_makes_the_embedded_decisions(tmp_path)
     assert m["network_gate"]["peak_share"] >= 0.95 and m["crossed"] > 150
 
 
+def test_a_lockstep_network_cluster_under_reactive_dica_makes_the_embedded_decisions(tmp_path):
+    """Emergency vehicles down the corridor's arterial, every junction's ICA process
+    reactive DICA: the EVs' events are decided in the ICA processes, and lockstep over
+    Zenoh equals the embedded run with the cluster's revocations (drop) byte for byte."""
+    from dica.sim_gateway.network_layouts import build_network
+    from dica.sim_gateway.od_demand import OdDemand, write_od_routes
+
+    g = build_network("corridor", tmp_path / "net")
+    routes = tmp_path / "ev.rou.xml"
+    demand = OdDemand(250.0, 120.0, 12, entry_vph=(("W00_J00", 700.0), ("E30_J30", 700.0)),
+                      ev_prob=0.1)  # fmt: skip
+    write_od_routes(g.net_path, g.junctions, demand, routes)
+    scen = ["--net", str(g.net_path), "--junctions", "all", "--routes", str(routes),
+            "--algorithm", "rdica", "--duration", "120"]  # fmt: skip
+    emb = tmp_path / "emb"
+    e = subprocess.run(
+        [*DICA, "run", *scen, "--revocation", "drop", "--out", str(emb), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert e.returncode == 0, e.stderr
+    out = tmp_path / "cl"
+    p = _cluster(out, *scen, "--rsus", "2", "--no-record")
+    assert p.returncode == 0, p.stdout + p.stderr
+    for name in ("vehicles.csv", "trips.csv"):
+        assert (out / name).read_bytes() == (emb / name).read_bytes(), name
+    m = json.loads((out / "metrics.json").read_text())
+    _safe_and_whole(m)
+    events = {j: r["ica"]["reactive"]["events"] for j, r in m["roles"].items() if "ica" in r}
+    assert set(events) == set(g.junctions) and sum(events.values()) >= 5, events
+    assert m["network"]["emergency"]["vehicles"] >= 5
+
+
 def test_a_real_time_cluster_keeps_the_network_gate(tmp_path):
     """Nine ICAs answering at once, none waiting for the others' answers, on the test
     grid's six heavy streams: a guarded link is promised all of its room and never

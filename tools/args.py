@@ -168,9 +168,12 @@ def _weights(text: str | None) -> tuple[tuple[str, float], ...]:
 
 
 def _ev_prob(args: argparse.Namespace) -> float:
-    """--ev-prob, or the dissertation's 0.02 for the algorithms that act on EVs."""
+    """--ev-prob, or the dissertation's 0.02 for the algorithms that act on EVs (0 with a
+    route file: its EVs are its vehicles of SUMO's emergency class)."""
     if args.ev_prob is not None:
         return args.ev_prob
+    if getattr(args, "routes", None):
+        return 0.0
     return 0.02 if args.algorithm in ("rdica", "reactive-light") else 0.0
 
 

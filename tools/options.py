@@ -303,7 +303,8 @@ OPTIONS: dict[str, Option] = {
         Option(
             "--ev-prob",
             "probability that an arriving vehicle is an emergency vehicle, at most one in the "
-            "region at a time (default 0.02 for rdica and reactive-light, else 0)",
+            "region at a time (default 0.02 for rdica and reactive-light, else 0; with "
+            "--routes, the file's vehicles of the emergency vClass are its EVs)",
             float,
             limit=LIMITS["ev_prob"],
         ),
