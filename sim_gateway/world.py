@@ -78,6 +78,9 @@ class World:
         self.t = 0.0
         self.sumo_collisions = 0  # SUMO's reports on the junction's own lanes
         self.sumo_collisions_elsewhere = 0
+        # the first of SUMO's reports in full (who, where, what kind): a count alone
+        # does not say where to look
+        self.sumo_collision_log: list[dict] = []
         self._last_sample = -1.0
         self._taken: set[str] = set()  # inserted this step and taken back out (insertion)
         self._t_wall = time.perf_counter()
@@ -188,6 +191,15 @@ class World:
         t = self.t = ls.simulation.getTime()
         people = self.walkers.people if self.walkers is not None else {}
         for hit in ls.simulation.getCollisions():
+            if len(self.sumo_collision_log) < 50:
+                self.sumo_collision_log.append(
+                    {
+                        "t": round(t, 2), "collider": hit.collider, "victim": hit.victim,
+                        "type": hit.type, "lane": hit.lane, "pos": round(hit.pos, 1),
+                        "collider_mps": round(hit.colliderSpeed, 2),
+                        "victim_mps": round(hit.victimSpeed, 2),
+                    }
+                )  # fmt: skip
             if hit.victim in people or hit.collider in people:
                 self.sumo_person_collisions += 1
             elif any(j.covers(hit.lane) for j in self.junctions):
@@ -413,6 +425,8 @@ class World:
             "timing": self.actuator.timing.as_dict(),
             "accounted": {k: sum(a[k] for a in accounted) for k in accounted[0]},
         }
+        if self.sumo_collision_log:
+            extra["sumo_collision_log"] = self.sumo_collision_log
         if self.hold is not None:
             extra["rerouted"] = self.traffic.rerouted
             extra["insertions_held"] = self.hold.holds
