@@ -23,7 +23,7 @@ let in by a junction.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 from dica.ica.core.gridlock import QUEUE_GAP_M
@@ -78,12 +78,16 @@ class InsertionHold:
                     out.add(route_edges(c.route)[1])
         return out
 
-    def before_step(self, junctions: Iterable[Junction]) -> None:
+    def before_step(
+        self, junctions: Iterable[Junction], in_flight: Mapping[str, float] | None = None
+    ) -> None:
         """Put back who may be inserted now; take out who waits for a threatened road or
-        for room in the network."""
+        for room in the network (less ``in_flight``: per room, what vehicles whose ICA's
+        answer may be travelling could be taking of it)."""
         self.roads = roads = self.threatened(junctions)
         gate = self.gate
-        taken: dict[str, float] = {}  # of the gate's rooms, by those let go this step
+        # of the gate's rooms, by those let go this step and those perhaps let in now
+        taken: dict[str, float] = dict(in_flight or {})
         keep = []
         for h in self.held:
             if h.edges[0] in roads:
@@ -125,7 +129,9 @@ class InsertionHold:
             taken[r] = taken.get(r, 0.0) + cost_m
         return True
 
-    def after_step(self, departed: Iterable[str]) -> set[str]:
+    def after_step(
+        self, departed: Iterable[str], in_flight: Mapping[str, float] | None = None
+    ) -> set[str]:
         """Take back who SUMO has just inserted at the start of a threatened road (it does
         not look for vehicles inside the junction), or onto a link of a network with no
         room left for it (one due this very step was never pending); return them."""
@@ -133,7 +139,7 @@ class InsertionHold:
         gate = self.gate
         if not self.roads and gate is None:
             return taken
-        room: dict[str, float] = {}
+        room: dict[str, float] = dict(in_flight or {})
         v = self.ls.vehicle
         for vid in departed:
             road = v.getRoadID(vid)

@@ -14,7 +14,10 @@ together with the one before: the run equals the embedded one. In real time ever
 junction's states go out first and the answers are taken as they come; since no
 junction then knows what the others are letting in, each tells its vehicles
 entering the network the gate's room less every other vehicle asking to enter
-anywhere (:meth:`~sim_gateway.world.World.pending_network_m`).
+anywhere, room by room (:meth:`~sim_gateway.world.World.pending_network`), and a
+route file's insertion onto a guarded link leaves the room of every vehicle whose
+answer may still be on its way (:meth:`~sim_gateway.world.World.in_flight_rooms`):
+a vehicle holds its room from the moment it may ask, not once its yes arrives.
 """
 
 from __future__ import annotations
@@ -79,7 +82,8 @@ class Cluster:
                 entering = entering or enters
             self._collect(world, asked)
             return
-        pending = world.pending_network_m(each)
+        world.answers_in_flight = True
+        pending = world.pending_network(each)
         for j, d, seen in pairs:
             world.refresh_network_room(j, seen, pending)
             d.send(world.t, seen)

@@ -184,17 +184,31 @@ class NetworkGate:
             n = self._length[vid] = ls.vehicle.getLength(vid)
         return n + QUEUE_GAP_M
 
-    def pending_m(self, ls, cars: Iterable[Car]) -> float:
-        """The queue length of the vehicles among ``cars`` entering the network and not
-        counted yet: any of them may be being let in right now by an ICA whose answer
-        has not come."""
+    def pending_rooms(self, ls, cars: Iterable[Car]) -> dict[str, float]:
+        """Per room, the queue length of the vehicles among ``cars`` entering the network
+        and not counted yet: where answers travel while the world moves on (the real-time
+        cluster), any of them may be being let in right now by an ICA whose answer has not
+        come, so each holds its room from the moment it may ask, not once it is told yes."""
+        out: dict[str, float] = {}
         if not self.closes:
-            return 0.0
-        return sum(
-            self.need_m(ls, c.sumo)
-            for c in cars
-            if c.sumo not in self.counted and not c.exited and self.entering(c)
-        )
+            return out
+        for c in cars:
+            if c.sumo in self.counted or c.exited or not self.entering(c):
+                continue
+            n = self.need_m(ls, c.sumo)
+            for r in self.rooms_of(ls, c.sumo, edge_of(c.route.out_lane)):
+                out[r] = out.get(r, 0.0) + n
+        return out
+
+    def room_besides(self, ls, c: Car, pending: Mapping[str, float]) -> float:
+        """The room left for ``c`` entering the network, less what the other vehicles in
+        ``pending`` (:meth:`pending_rooms`, ``c`` among them or not) may be taking now."""
+        rooms = self.rooms_of(ls, c.sumo, edge_of(c.route.out_lane))
+        if not pending:
+            return self.room_on(rooms)
+        own = 0.0 if c.sumo in self.counted or c.exited else self.need_m(ls, c.sumo)
+        others = {r: max(pending.get(r, 0.0) - own, 0.0) for r in rooms}
+        return self.room_on(rooms, others)
 
     def _count(self, ls, vid: str, road: str) -> None:
         self.counted.add(vid)

@@ -26,7 +26,7 @@ from __future__ import annotations
 import bisect
 import math
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -90,6 +90,9 @@ class World:
         # a route file's net of several junctions: how much queue its links may hold
         self.gate: NetworkGate | None = None
         self.gate_holds = 0  # steps a vehicle at a region's head waited for the gate's room
+        # whether the ICAs' answers may arrive steps after their vehicles asked (the
+        # real-time cluster): then an insertion onto a guarded link leaves their room
+        self.answers_in_flight = False
         rf = None
         if cfg.routes_path:
             rf = read_route_file(Path(cfg.routes_path))
@@ -182,10 +185,10 @@ class World:
             j.forget_gone()
         fresh = self.traffic.insert_due(first, self.t)
         if self.hold is not None:
-            self.hold.before_step(self.junctions)
+            self.hold.before_step(self.junctions, self.in_flight_rooms())
         ls.simulation.step()
         departed = ls.simulation.getDepartedIDList()
-        taken = self.hold.after_step(departed) if self.hold else set()
+        taken = self.hold.after_step(departed, self.in_flight_rooms()) if self.hold else set()
         self._taken = taken
         self.traffic.note_blocked(first, fresh)
         t = self.t = ls.simulation.getTime()
@@ -319,18 +322,19 @@ class World:
             return math.inf
         return g.room_for(self.ls, c)
 
-    def refresh_network_room(self, j: Junction, seen: list[Seen], pending_m: float = 0.0) -> None:
+    def refresh_network_room(
+        self, j: Junction, seen: list[Seen], pending: Mapping[str, float] | None = None
+    ) -> None:
         """Before ``j``'s vehicles ask: tell the ones entering the network what room the
-        junctions that answered before it this step have left, less ``pending_m`` (what
-        ICAs answering at the same time may be letting in, :meth:`pending_network_m`;
-        a vehicle's own length is not held against it)."""
+        junctions that answered before it this step have left, less ``pending`` (per
+        room, what ICAs answering at the same time may be letting in,
+        :meth:`pending_network`; a vehicle's own length is not held against it)."""
         g = self.gate
         if g is None or not g.closes:
             return
         for s in seen:
             if g.entering(s.car):
-                others = pending_m - g.pending_m(self.ls, (s.car,)) if pending_m else 0.0
-                room = g.room_for(self.ls, s.car) - others
+                room = g.room_besides(self.ls, s.car, pending or {})
                 s.obs = replace(s.obs, network_room_m=room)
                 if s.obs.may_ask and s.car.plan_s is None and room < g.need_m(self.ls, s.car.sumo):
                     self.gate_holds += 1  # it may ask, and will be told no_room
@@ -341,15 +345,25 @@ class World:
         g = self.gate
         return g is not None and g.closes and any(g.entering(s.car) for s in seen)
 
-    def pending_network_m(self, each: Sequence[Sequence[Seen]]) -> float:
-        """The queue length of every vehicle now asking to enter the network and not let
-        in yet, at every junction: where the junctions' ICAs answer at the same time (the
-        real-time cluster), each tells its vehicles the room less all of these, so that
-        together they cannot let in more than the gate holds."""
+    def pending_network(self, each: Sequence[Sequence[Seen]]) -> dict[str, float]:
+        """Per room of the gate, the queue length of every vehicle now asking to enter the
+        network and not let in yet, at every junction: where the junctions' ICAs answer
+        at the same time (the real-time cluster), each tells its vehicles the room less
+        all of these, so that together they cannot let in more than the gate holds."""
         g = self.gate
         if g is None or not g.closes:
-            return 0.0
-        return g.pending_m(self.ls, (s.car for seen in each for s in seen))
+            return {}
+        return g.pending_rooms(self.ls, (s.car for seen in each for s in seen))
+
+    def in_flight_rooms(self) -> dict[str, float]:
+        """Per room of the gate, what vehicles whose answer may still be travelling could
+        take of it: every vehicle at any junction entering the network and not let in
+        yet (only where answers travel while the world steps on: ``answers_in_flight``).
+        A route file's insertion onto a guarded link waits for room less these."""
+        g = self.gate
+        if not self.answers_in_flight or g is None or not g.closes:
+            return {}
+        return g.pending_rooms(self.ls, (c for j in self.junctions for c in j.active))
 
     def counted_confirmed(self, j: Junction) -> None:
         """After ``j``'s ICA answered: the vehicles it let into the network take room."""
