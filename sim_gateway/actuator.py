@@ -162,11 +162,13 @@ class Actuator:
         back to SUMO's driver."""
         if abs(t - c.plan_t0_s) < 1e-6 and (
             abs(c.s_m - c.plan_s[0]) > START_TOL_M
-            or (c.ahead is not None and not _flying(c.ahead, t))
+            or (c.ahead is not None and not self._clear_behind(c, c.ahead, t))
         ):
-            # not where the plan starts (a leader held it back during the lead),
-            # or a platoon's leader is not flying the plan this one follows:
-            # a reservation it cannot keep is not flown; it stops and asks again
+            # not where the plan starts (a leader held it back during the lead), or
+            # the vehicle ahead is not flying a plan that stays ahead of this one (a
+            # leader whose plan was never flown and was made again since, behind
+            # this one's): a reservation it cannot keep is not flown; it stops and
+            # asks again
             c.refused_seq, c.plan_seq, c.plan_s = c.plan_seq, NO_PLAN, None
             self.timing.off_start += 1
             self.timing.refused += 1
@@ -205,6 +207,12 @@ class Actuator:
                 else:
                     v.setDecel(c.sumo, c.decel_mps2)
             c.speed_mode = mode
+
+    def _clear_behind(self, c: Car, lead: Car, t: float) -> bool:
+        """``c`` may start its plan behind ``lead``: the vehicle ahead on its lane flies
+        a plan of its own (it has begun to, or begins now) that stays ahead of ``c``'s
+        for as long as both are on the lane."""
+        return _flying(lead, t) and _clear_of(lead, c, t, self.h)
 
     def release(self, c: Car) -> None:
         """Hand ``c`` to SUMO's driver for good (a signalised junction: the light decides)."""
@@ -360,6 +368,22 @@ class Actuator:
         cap = min(c.entry_speed_mps, c.speed_mps) if self.asks(c) else c.entry_speed_mps
         room = min(-c.s_m - kin.stop_gap_m, rear_ahead_m - c.s_m - MIN_GAP_M)
         return stop_speed(room, c.speed_mps, cap, self.h, kin.accel_mps2, kin.decel_mps2)
+
+
+def _clear_of(lead: Car, c: Car, t: float, h: float) -> bool:
+    """Whether ``c``'s plan, from ``t`` on, keeps its front behind the rear of ``lead``
+    as ``lead``'s plan has it, while that rear is on their common incoming lane (short
+    of the entry line; beyond it their routes may part, and the ICA's reservations
+    keep them apart). Both plans are route positions [m] per step of ``h``."""
+    assert c.plan_s is not None and lead.plan_s is not None
+    k_c = max(round((t - c.plan_t0_s) / h), 0)
+    k_l = max(round((t - lead.plan_t0_s) / h), 0)
+    n = min(len(c.plan_s) - k_c, len(lead.plan_s) - k_l)
+    if n <= 0:
+        return True
+    rear = lead.plan_s[k_l : k_l + n] - lead.length_m
+    on_lane = rear < 0.0
+    return bool(np.all(c.plan_s[k_c : k_c + n][on_lane] <= rear[on_lane] + 1e-6))
 
 
 def _flying(c: Car, t: float) -> bool:

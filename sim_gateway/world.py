@@ -201,6 +201,8 @@ class World:
                         "type": hit.type, "lane": hit.lane, "pos": round(hit.pos, 1),
                         "collider_mps": round(hit.colliderSpeed, 2),
                         "victim_mps": round(hit.victimSpeed, 2),
+                        "collider_state": self._state_of(hit.collider),
+                        "victim_state": self._state_of(hit.victim),
                     }
                 )  # fmt: skip
             if hit.victim in people or hit.collider in people:
@@ -313,6 +315,30 @@ class World:
             network_room_m=self.network_room(c),
         )
         return Seen(c, obs)
+
+    def _state_of(self, sumo_id: str) -> list[dict]:
+        """Each junction's record of a vehicle SUMO reports in a collision: what the
+        roadside had it doing, with its plan's positions about now (for the collision
+        log, never for a decision)."""
+        out = []
+        for j in self.junctions:
+            for c in j.cars.values():
+                if c.sumo != sumo_id:
+                    continue
+                plan_now = None
+                if c.plan_s is not None:
+                    k = round((self.t - c.plan_t0_s) / self.h)
+                    plan_now = [round(float(x), 2) for x in c.plan_s[max(k - 2, 0) : k + 3]]
+                out.append(
+                    {
+                        "junction": j.inter.junction_id, "vin": c.vin, "mode": c.speed_mode,
+                        "head": c.head, "ahead": c.ahead.vin if c.ahead else None,
+                        "entered": c.entered, "exited": c.exited, "s_m": _finite(c.s_m),
+                        "seq": c.plan_seq, "refused": c.refused_seq, "kept": c.kept_seq,
+                        "plan_t0_s": _finite(c.plan_t0_s), "plan_now": plan_now,
+                    }
+                )  # fmt: skip
+        return out
 
     def network_room(self, c: Car) -> float:
         """The room the network gate has left for ``c`` (inf: its crossing does not take
@@ -500,3 +526,8 @@ class World:
             extra=extra,
             persons=persons,
         )
+
+
+def _finite(x: float) -> float | None:
+    """``x`` rounded for a JSON log, or None when it is not a number (no NaN in JSON)."""
+    return round(x, 2) if math.isfinite(x) else None

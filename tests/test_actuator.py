@@ -180,3 +180,35 @@ def test_a_revoked_plan_not_yet_begun_is_dropped_and_the_vehicle_stops_short(ch4
             rig.step()
             assert c.s_m < 0.0 and not math.isnan(c.s_m)
         assert c.speed_mps == 0.0
+
+
+def test_a_plan_that_runs_into_the_vehicle_ahead_is_not_flown(ch45_net, ch45):
+    """The head flies a plan that stands at the line (a slot far ahead); the one behind
+    is handed a plan through where the head stands (made behind a plan of the head's
+    that was never flown): at its start it is refused, the vehicle stops behind the head
+    and nothing touches; a plan that stays behind the head is flown."""
+    with open_sumo(ch45_net.net_path) as ls:
+        rig = Rig(ls, ch45_net, ch45)
+        kin = rig.ica_cfg.kinematics
+        head = rig.insert("head", kin.stop_gap_m, 0.0)
+        back = rig.insert("back", kin.stop_gap_m + LENGTH + MIN_GAP_M, 0.0)
+        rig.step()
+        rig.step([Actuation("head", seq=1, t0_s=rig.t + 0.5, s_m=np.full(400, head.s_m))])
+        t0 = rig.t + 1.0
+        rig.step([Actuation("back", seq=2, t0_s=t0, s_m=back.s_m + 3.0 * rig.h * np.arange(200))])
+        assert back.plan_seq == 2  # taken: only its start can tell
+        while rig.t < t0 + 5.0:
+            rig.step()
+            assert back.s_m <= head.s_m - LENGTH - 1.0
+            assert not ls.simulation.getCollisions()
+        assert head.plan_seq == 1 and ls.vehicle.getSpeedMode("head") == MODE_CONFIRMED
+        assert back.plan_s is None and back.refused_seq == 2
+        assert rig.act.timing.off_start == 1
+        t1 = rig.t + 0.5
+        creep = back.s_m + np.minimum(1.0 * rig.h * np.arange(200), 1.5)
+        rig.step([Actuation("back", seq=3, t0_s=t1, s_m=creep)])
+        while rig.t < t1 + 3.0:
+            rig.step()
+            assert back.s_m <= head.s_m - LENGTH - 0.9
+        assert back.plan_seq == 3 and ls.vehicle.getSpeedMode("back") == MODE_CONFIRMED
+        assert rig.act.timing.off_start == 1

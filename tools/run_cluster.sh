@@ -277,6 +277,14 @@ fi
 
 out="${out:-runs/cluster-$(date +%Y%m%d-%H%M%S)}"
 mkdir -p "$out/logs" "$out/pids"
+# an ICA restarted within a run replays its journal; one left in --out by an earlier run
+# would fill this run's ICAs with that run's reservations: kept aside, never replayed
+for jf in "$out/ica-journal.msgpack" "$out"/ica/*/ica-journal.msgpack; do
+  if [ -f "$jf" ]; then
+    mv -f "$jf" "$jf.prev"
+    echo "run_cluster: $out holds an earlier run; its ICA journal is kept as $jf.prev, not replayed" >&2
+  fi
+done
 free_port() { "$py" -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'; }
 [ -n "$port" ] || port="$(free_port)"
 # roadside units: RSU k's router on rsu_port[k]; a single junction has one
