@@ -87,11 +87,18 @@ def _same_decisions(cl_dir: Path, emb_dir: Path) -> None:
 
 
 def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
+    """Into an --out an earlier run has used: its ICA journal is kept aside, not
+    replayed (its reservations would fill this run's ICA)."""
     port = _free_port()
     common = ["--volume", "500", "--duration", "90", "--seed", "12"]
+    earlier = _cluster(tmp_path / "cl", "--agents", "1", "--no-record", "--volume", "300",
+                       "--duration", "30", "--seed", "3")  # fmt: skip
+    assert earlier.returncode == 0, earlier.stdout + earlier.stderr
     p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), *common)
     assert p.returncode == 0, p.stdout + p.stderr
     assert "metrics" in p.stdout and "spacetime.rrd" in p.stdout
+    assert "its ICA journal is kept as" in p.stderr
+    assert (tmp_path / "cl" / "ica-journal.msgpack.prev").is_file()
     _no_leftovers(port)
     _embedded(tmp_path / "emb", common)
 
@@ -101,7 +108,7 @@ def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
     assert m["crossed"] > 40
     ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
     assert ica["confirmed"] >= m["crossed"]
-    assert ica["bad_messages"] == 0
+    assert ica["bad_messages"] == 0 and ica["journal_replays"] == 0
     _same_decisions(tmp_path / "cl", tmp_path / "emb")
 
 
