@@ -109,6 +109,7 @@ def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
     ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
     assert ica["confirmed"] >= m["crossed"]
     assert ica["bad_messages"] == 0 and ica["journal_replays"] == 0
+    assert len(ica["incarnations"]) == 1  # the earlier run's ICA is not one of its lives
     _same_decisions(tmp_path / "cl", tmp_path / "emb")
 
 

@@ -277,11 +277,13 @@ fi
 
 out="${out:-runs/cluster-$(date +%Y%m%d-%H%M%S)}"
 mkdir -p "$out/logs" "$out/pids"
-# an ICA restarted within a run replays its journal; one left in --out by an earlier run
-# would fill this run's ICAs with that run's reservations: kept aside, never replayed
+# an ICA restarted within a run replays its journal and adds to its figures; those left
+# in --out by an earlier run would fill this run's ICAs with that run's reservations and
+# count its ICA as one of this run's lives: kept aside, never replayed
 for jf in "$out/ica-journal.msgpack" "$out"/ica/*/ica-journal.msgpack; do
   if [ -f "$jf" ]; then
     mv -f "$jf" "$jf.prev"
+    [ -f "${jf%/*}/ica.json" ] && mv -f "${jf%/*}/ica.json" "${jf%/*}/ica.json.prev"
     echo "run_cluster: $out holds an earlier run; its ICA journal is kept as $jf.prev, not replayed" >&2
   fi
 done
