@@ -20,9 +20,12 @@ every one confirmed onto a link from outside at its length plus
 Either way the ICAs let a vehicle in from outside only while it fits
 (``Observation.network_room_m``, the least room on what it would hold), and a
 route file's vehicles that would start on a link wait out of SUMO until they
-fit (:class:`~sim_gateway.insertion.InsertionHold`). Moving from link to link,
-a vehicle takes no room it did not hold already, so the bound holds for the
-whole run (``docs/architecture.md``, "Gridlock").
+fit (:class:`~sim_gateway.insertion.InsertionHold`). Moving from link to link
+along its route, a vehicle takes no room it did not hold already; one sent round
+to its destination from a lane that does not go its way takes the rooms of its
+new way it did not hold, and is let across only while they have room too
+(:meth:`NetworkGate.takes`). So the bound holds for the whole run
+(``docs/architecture.md``, "Gridlock").
 """
 
 from __future__ import annotations
@@ -78,6 +81,9 @@ class NetworkGate:
         self.peak_m = 0.0  # the most queue the network held at once
         self.peak_share = 0.0  # the most any room was held, as a share of its capacity
         self.counted: set[str] = set()  # SUMO ids inside the network this step
+        # crossings sent round whose new rooms are counted this step (their vin)
+        self.counted_more: set[str] = set()
+        self._takes: dict[str, tuple[str, ...]] = {}  # per crossing: the rooms it takes
         self._length: dict[str, float] = {}
         self._enters: dict[tuple[str, str], bool] = {}  # per (in, out) lane: it enters
         self._runs: dict[str, dict[str, tuple[str, ...]]] = {}  # vehicle -> road -> rooms
@@ -132,8 +138,37 @@ class NetworkGate:
         return run
 
     def room_for(self, ls, c: Car) -> float:
-        """The room left for ``c``, entering the network: the least on what it would hold."""
-        return self.room_on(self.rooms_of(ls, c.sumo, edge_of(c.route.out_lane)))
+        """The room left for ``c``'s crossing: the least on the rooms it would take."""
+        return self.room_on(self.takes(ls, c))
+
+    def takes(self, ls, c: Car) -> tuple[str, ...]:
+        """The rooms ``c``'s crossing adds to what it holds: entering from outside, every
+        room of its run from the road it crosses onto; crossing from a link onto one off
+        its route (a vehicle in a lane that does not go its way, sent round to its
+        destination, ``Car.reroute_to``), the rooms of its new way it did not hold. A
+        vehicle moving from link to link along its route takes nothing new. Worked out
+        once per crossing."""
+        got = self._takes.get(c.vin)
+        if got is not None:
+            return got
+        out = edge_of(c.route.out_lane)
+        if self.entering(c):
+            got = self.rooms_of(ls, c.sumo, out)
+        elif c.reroute_to is not None and out in self.links:
+            way = tuple(ls.simulation.findRoute(out, c.reroute_to).edges) or (out,)
+            new = self.rooms(way, 0)
+            # the run it holds from here on, and the one it will hold once sent round
+            old = self.rooms_of(ls, c.sumo, edge_of(c.route.in_lane))
+            self._runs.setdefault(c.sumo, {})[out] = new
+            got = tuple(r for r in new if r not in old)
+        else:
+            got = ()
+        self._takes[c.vin] = got
+        return got
+
+    def holds(self, c: Car) -> bool:
+        """Whether what ``c``'s crossing takes is counted this step."""
+        return c.sumo in self.counted if self.entering(c) else c.vin in self.counted_more
 
     def entering(self, c: Car) -> bool:
         """Whether ``c``'s crossing takes it into the network from outside."""
@@ -152,6 +187,7 @@ class NetworkGate:
         if not self.closes:
             return
         self.counted = set()
+        self.counted_more = set()
         self.held_m = {}
         self.used_m = 0.0
         for e in self.links:
@@ -168,12 +204,22 @@ class NetworkGate:
             return
         more = False
         for c in j.active:
-            if c.plan_s is None or c.exited or c.sumo in self.counted:
+            if c.plan_s is None or c.exited or c.sumo not in j.present:
                 continue
             road = edge_of(c.route.out_lane)
-            if road in self.links and c.sumo in j.present:
+            if road not in self.links:
+                continue
+            if c.sumo not in self.counted:
                 self._count(ls, c.sumo, road)
                 more = True
+            elif c.reroute_to is not None and c.vin not in self.counted_more:
+                extra = self.takes(ls, c)  # on a link already: its new rooms on top
+                if extra:
+                    self.counted_more.add(c.vin)
+                    n = self.need_m(ls, c.sumo)
+                    for r in extra:
+                        self.held_m[r] = self.held_m.get(r, 0.0) + n
+                    more = True
         if more:
             self._peaks()
 
@@ -193,20 +239,22 @@ class NetworkGate:
         if not self.closes:
             return out
         for c in cars:
-            if c.sumo in self.counted or c.exited or not self.entering(c):
+            if c.exited or self.holds(c):
                 continue
-            n = self.need_m(ls, c.sumo)
-            for r in self.rooms_of(ls, c.sumo, edge_of(c.route.out_lane)):
-                out[r] = out.get(r, 0.0) + n
+            rooms = self.takes(ls, c)
+            if rooms:
+                n = self.need_m(ls, c.sumo)
+                for r in rooms:
+                    out[r] = out.get(r, 0.0) + n
         return out
 
     def room_besides(self, ls, c: Car, pending: Mapping[str, float]) -> float:
         """The room left for ``c`` entering the network, less what the other vehicles in
         ``pending`` (:meth:`pending_rooms`, ``c`` among them or not) may be taking now."""
-        rooms = self.rooms_of(ls, c.sumo, edge_of(c.route.out_lane))
+        rooms = self.takes(ls, c)
         if not pending:
             return self.room_on(rooms)
-        own = 0.0 if c.sumo in self.counted or c.exited else self.need_m(ls, c.sumo)
+        own = 0.0 if c.exited or self.holds(c) else self.need_m(ls, c.sumo)
         others = {r: max(pending.get(r, 0.0) - own, 0.0) for r in rooms}
         return self.room_on(rooms, others)
 
@@ -229,3 +277,5 @@ class NetworkGate:
         for vid in gone:
             self._length.pop(vid, None)
             self._runs.pop(vid, None)
+        if len(self._takes) > 4096:  # crossings long over: worked out again if ever asked
+            self._takes.clear()

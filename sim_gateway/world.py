@@ -344,7 +344,7 @@ class World:
         """The room the network gate has left for ``c`` (inf: its crossing does not take
         it into a network of junctions whose links form a cycle)."""
         g = self.gate
-        if g is None or not g.closes or not g.entering(c):
+        if g is None or not g.closes or not g.takes(self.ls, c):
             return math.inf
         return g.room_for(self.ls, c)
 
@@ -359,7 +359,7 @@ class World:
         if g is None or not g.closes:
             return
         for s in seen:
-            if g.entering(s.car):
+            if g.takes(self.ls, s.car):
                 room = g.room_besides(self.ls, s.car, pending or {})
                 s.obs = replace(s.obs, network_room_m=room)
                 if s.obs.may_ask and s.car.plan_s is None and room < g.need_m(self.ls, s.car.sumo):
@@ -369,7 +369,7 @@ class World:
         """Whether any of these vehicles' crossings takes it into a network the gate
         guards (its junction's answers may change the room the next one is told)."""
         g = self.gate
-        return g is not None and g.closes and any(g.entering(s.car) for s in seen)
+        return g is not None and g.closes and any(g.takes(self.ls, s.car) for s in seen)
 
     def pending_network(self, each: Sequence[Sequence[Seen]]) -> dict[str, float]:
         """Per room of the gate, the queue length of every vehicle now asking to enter the

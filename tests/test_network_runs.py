@@ -97,14 +97,14 @@ CONTROLS = ("dica", "static", "actuated", "coordinated", "max-pressure")
 @pytest.fixture(scope="module")
 def corridor_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple]:
     """The corridor under every control, the same vehicles (an arterial at 700 an hour each
-    way, the side roads at 250), for 180 s."""
+    way, the side roads at 250), for 120 s."""
     d = tmp_path_factory.mktemp("corridor")
     runs = {}
     for control in CONTROLS:
         runs[control] = _network(
             d / control, "--layout", "corridor", "--control", control, "--volume", "250",
             "--entry-volume", "W00_J00=700", "--entry-volume", "E30_J30=700",
-            "--duration", "180",
+            "--duration", "120",
         )  # fmt: skip
     return runs
 
