@@ -167,7 +167,7 @@ def test_the_report_puts_the_signal_free_network_beside_the_best_light(corridor_
     md = (tmp_path / "networks.md").read_text()
     for control in CONTROLS:
         assert (
-            f"| corridor | 250/h per entry, E30_J30 700/h, W00_J00 700/h, 180 s | {control} |" in md
+            f"| corridor | 250/h per entry, E30_J30 700/h, W00_J00 700/h, 120 s | {control} |" in md
         )
     best = [ln for ln in md.splitlines() if ln.startswith("| corridor |") and "/ " in ln]
     assert len(best) == 1  # one comparison row: DICA against the best of the three lights

@@ -11,4 +11,5 @@ bash tools/setup.sh
 # two workers, a test file each at a time: the real-time cluster tests mostly wait on
 # the clock while the SUMO tests keep a core busy. Extra arguments go to pytest
 # (-n 0 runs everything in this process).
-exec .venv/bin/python -m pytest -n 2 --dist loadfile "$@"
+# (the slowest 30 are listed at the end: where the suite's time goes)
+exec .venv/bin/python -m pytest -n 2 --dist loadfile --durations=30 "$@"
