@@ -184,11 +184,13 @@ class World:
         for j in self.junctions:
             j.forget_gone()
         fresh = self.traffic.insert_due(first, self.t)
+        # what answers in flight may take: nothing counted changes until the next measure
+        in_flight = self.in_flight_rooms() if self.hold is not None else {}
         if self.hold is not None:
-            self.hold.before_step(self.junctions, self.in_flight_rooms())
+            self.hold.before_step(self.junctions, in_flight)
         ls.simulation.step()
         departed = ls.simulation.getDepartedIDList()
-        taken = self.hold.after_step(departed, self.in_flight_rooms()) if self.hold else set()
+        taken = self.hold.after_step(departed, in_flight) if self.hold else set()
         self._taken = taken
         self.traffic.note_blocked(first, fresh)
         t = self.t = ls.simulation.getTime()
