@@ -10,6 +10,8 @@
 # others meanwhile) and the run goes on; the run ends when the gateway does.
 # Ctrl-C stops everything.
 set -euo pipefail
+# [s] after the run's end, how long a role may take to stop on its own before it is told
+END_GRACE_S=10
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 here="$PWD"  # the caller's: relative paths given on the command line are read from here
 cd "$root"
@@ -593,10 +595,24 @@ if [ "$complete" != True ]; then  # exit 1 with complete metrics: the run finish
   fi
   exit "$status"
 fi
-# the run is over: the ICA, the agents and the observer stop on the clock's end
-deadline=$((SECONDS + 120))
+# the run is over: the ICA, the agents and the observer stop on the clock's end. One
+# restarted after the end went out never hears it (it cannot tell a run that is over
+# from a gateway not up yet): after END_GRACE_S it is told to stop (SIGTERM, the same
+# clean stop), and every role then has up to 120 s to write what it holds
+end_grace=$((SECONDS + END_GRACE_S))
 for name in "${order[@]}"; do
   case "$name" in router|router-*|link) continue ;; esac  # these go last
+  pid="${pid_of[$name]}"
+  [ -n "$pid" ] || continue
+  while alive "$pid" && [ "$SECONDS" -lt "$end_grace" ]; do sleep 0.2; done
+  if alive "$pid"; then
+    echo "run_cluster: $name had not stopped ${END_GRACE_S} s after the run's end; stopping it" >&2
+    kill -TERM -- "-$pid" 2>/dev/null || true
+  fi
+done
+deadline=$((SECONDS + 120))
+for name in "${order[@]}"; do
+  case "$name" in router|router-*|link) continue ;; esac
   pid="${pid_of[$name]}"
   [ -n "$pid" ] || continue
   while alive "$pid" && [ "$SECONDS" -lt "$deadline" ]; do sleep 0.2; done
