@@ -8,7 +8,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "dica.tools.cli"]
-DURATION = "90"
+DURATION = "60"
 
 
 def corridor_and_its_embedded_run(d: Path) -> dict:

@@ -1,7 +1,7 @@
 """The cluster end to end: real Zenoh on loopback, real SUMO, separate processes.
 
-* lockstep with one agent makes exactly the embedded run's decisions;
-* with three agents too (the lockstep gateway keeps the order of ICA contacts);
+* lockstep with three agents, then one, makes exactly the embedded run's decisions
+  (the lockstep gateway keeps the order of ICA contacts);
 * lockstep waits for the agents only on steps where one must talk to the ICA;
 * garbage sent to the ICA's keys is refused or dropped and the ICA keeps serving;
 * reactive DICA revokes over Zenoh, and the observer's recording shows EVs in
@@ -86,60 +86,45 @@ def _same_decisions(cl_dir: Path, emb_dir: Path) -> None:
         assert m[k] == me[k], k
 
 
-def test_lockstep_cluster_makes_the_embedded_decisions(tmp_path):
-    """Into an --out an earlier run has used: its ICA journal is kept aside, not
-    replayed (its reservations would fill this run's ICA)."""
+def test_lockstep_clusters_make_the_embedded_decisions(tmp_path):
+    """Three agents, then one agent into the same --out: each run makes exactly the
+    embedded run's decisions (with several agents, waves keep the ICA's order), and the
+    second starts its ICA empty: the first run's journal is kept aside, not replayed
+    (its reservations would fill this run's ICA)."""
+    out = tmp_path / "cl"
+    _three_agents(out, tmp_path / "emb3")
     port = _free_port()
     common = ["--volume", "500", "--duration", "90", "--seed", "12"]
-    earlier = _cluster(tmp_path / "cl", "--agents", "1", "--no-record", "--volume", "300",
-                       "--duration", "30", "--seed", "3")  # fmt: skip
-    assert earlier.returncode == 0, earlier.stdout + earlier.stderr
-    p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), *common)
+    p = _cluster(out, "--agents", "1", "--port", str(port), *common)
     assert p.returncode == 0, p.stdout + p.stderr
     assert "metrics" in p.stdout and "spacetime.rrd" in p.stdout
     assert "its ICA journal is kept as" in p.stderr
-    assert (tmp_path / "cl" / "ica-journal.msgpack.prev").is_file()
+    assert (out / "ica-journal.msgpack.prev").is_file()
     _no_leftovers(port)
     _embedded(tmp_path / "emb", common)
 
-    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
+    m = json.loads((out / "metrics.json").read_text())
     assert m["mode"] == "cluster" and m["clock"] == "lockstep"
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
     assert m["crossed"] > 40
-    ica = json.loads((tmp_path / "cl" / "ica.json").read_text())
+    ica = json.loads((out / "ica.json").read_text())
     assert ica["confirmed"] >= m["crossed"]
     assert ica["bad_messages"] == 0 and ica["journal_replays"] == 0
     assert len(ica["incarnations"]) == 1  # the earlier run's ICA is not one of its lives
-    _same_decisions(tmp_path / "cl", tmp_path / "emb")
+    _same_decisions(out, tmp_path / "emb")
 
 
-@pytest.mark.parametrize("flag", ["--no-run-up", "--no-exit-spacing"])
-def test_a_planning_rule_off_reaches_the_clusters_ica(tmp_path, flag):
-    """--no-run-up and --no-exit-spacing are the ICA's (run_cluster.sh hands them over):
-    the cluster then makes the embedded run's decisions under the earlier rule, which
-    differ from the default's."""
+def _three_agents(out: Path, emb: Path) -> None:
+    """Three agents, recorded: the embedded decisions, every agent hosting vehicles, the
+    recording holding every confirmation, and lockstep waiting only when it must."""
     port = _free_port()
-    common = ["--volume", "500", "--duration", "60", "--seed", "12"]
-    p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), "--no-record",
-                 flag, *common)  # fmt: skip
-    assert p.returncode == 0, p.stdout + p.stderr
-    _no_leftovers(port)
-    _embedded(tmp_path / "emb", [*common, flag])
-    _same_decisions(tmp_path / "cl", tmp_path / "emb")
-    _embedded(tmp_path / "default", common)
-    assert _rows(tmp_path / "emb" / "vehicles.csv") != _rows(tmp_path / "default" / "vehicles.csv")
-
-
-def test_three_agents_make_the_same_decisions_and_the_recording_holds_them(tmp_path):
-    port = _free_port()
-    out = tmp_path / "cl"
     common = ["--volume", "500", "--duration", "60", "--seed", "66"]  # waves happen here
     p = _cluster(out, *("--agents", "3", "--per-agent", "40", "--port", str(port)), *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)
     # several agents: still exactly the embedded decisions (waves keep the ICA's order)
-    _embedded(tmp_path / "emb", common)
-    _same_decisions(out, tmp_path / "emb")
+    _embedded(emb, common)
+    _same_decisions(out, emb)
     m = json.loads((out / "metrics.json").read_text())
     assert m["multi_wave_steps"] > 0  # the case the waves exist for did happen
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
@@ -168,6 +153,26 @@ def test_three_agents_make_the_same_decisions_and_the_recording_holds_them(tmp_p
     # the agents were asked only when a vehicle had to talk to the ICA, not every step
     assert m["lockstep_waits"] < 0.2 * 60 / 0.05
     assert m["lockstep_waits"] >= sum(m["agents"].values())  # at least each DETECT
+
+
+def test_the_planning_rules_off_reach_the_clusters_ica(tmp_path):
+    """--no-run-up and --no-exit-spacing are the ICA's (run_cluster.sh hands them over):
+    the cluster then makes the embedded run's decisions under the earlier rules. Each
+    rule alone decides otherwise than both together, so a rule lost on its way to the
+    ICA process would show."""
+    port = _free_port()
+    common = ["--volume", "500", "--duration", "60", "--seed", "12"]
+    both = ["--no-run-up", "--no-exit-spacing"]
+    p = _cluster(tmp_path / "cl", "--agents", "1", "--port", str(port), "--no-record",
+                 *both, *common)  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    _no_leftovers(port)
+    _embedded(tmp_path / "emb", [*common, *both])
+    _same_decisions(tmp_path / "cl", tmp_path / "emb")
+    decided = _rows(tmp_path / "emb" / "vehicles.csv")
+    for name, rules in (("default", []), ("run-up", both[:1]), ("spacing", both[1:])):
+        _embedded(tmp_path / name, [*common, *rules])
+        assert _rows(tmp_path / name / "vehicles.csv") != decided, name
 
 
 # -- the ICA under bad input -------------------------------------------------------
@@ -364,11 +369,13 @@ def _revoked_at(reorders: list[tuple[float, str]]) -> dict[str, float]:
 def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_path):
     """Two agents: an EV on one revokes vehicles of the other, whose agent gets no STATE
     while they fly; the gateway wakes it in the same step (revoke_waves). Before it did,
-    one REVOKE waited 5 s for the agent to idle and its plan expired unanswered."""
+    one REVOKE waited 5 s for the agent to idle and its plan expired unanswered. The
+    observer's recording shows the EVs in their colour, each reordering, and withdraws
+    exactly the plans that were dropped."""
     port = _free_port()
     common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90",
               "--max-added-delay", "inf"]  # (no bound: every reordering revokes)  # fmt: skip
-    p = _cluster(tmp_path / "cl", "--agents", "2", "--port", str(port), "--no-record", *common)
+    p = _cluster(tmp_path / "cl", "--agents", "2", "--port", str(port), *common)
     assert p.returncode == 0, p.stdout + p.stderr
     _no_leftovers(port)
     _embedded(tmp_path / "emb", [*common, "--revocation", "drop"])
@@ -385,6 +392,17 @@ def test_lockstep_rdica_cluster_revokes_over_zenoh_as_dica_run_drop_does(tmp_pat
     config = json.loads((tmp_path / "cl" / "config.json").read_text())
     assert config["run"]["revocation"] == "drop"
     _same_decisions(tmp_path / "cl", tmp_path / "emb")
+
+    rec = _reactive_recording(tmp_path / "cl" / "spacetime.rrd")
+    assert rec["ev_top"] and rec["ev_charts"]  # EVs in their colour, top view and charts
+    assert rec["marks"] >= 1 and len(rec["reorders"]) == reactive["events"]
+    # withdrawn: exactly the plans the actuators dropped (the gateway's own count) and the
+    # ICA heard dropped, each after its REVOKE went out; the plans kept stay drawn
+    withdrawn = rec["withdrawn"]
+    assert len(withdrawn) == m["timing"]["plans_dropped"] == reactive["acknowledged"]
+    assert len(rec["kept"]) == reactive["restored"] + reactive["expired"]
+    revoked = _revoked_at(rec["reorders"])
+    assert all(vin in revoked and t > revoked[vin] for t, vin in withdrawn)
 
 
 def test_an_rdica_cluster_under_a_bound_checks_orders_on_a_copy_and_answers_every_revocation(
@@ -407,32 +425,6 @@ def test_an_rdica_cluster_under_a_bound_checks_orders_on_a_copy_and_answers_ever
     assert reactive["bound_trials"] >= 1 and reactive["revoked"] >= 1  # both happened
     assert reactive["acknowledged"] + reactive["restored"] == reactive["revoked"]
     assert reactive["pending"] == 0 and ica["revoke_acks"] >= 1
-
-
-def test_the_observer_records_evs_reorderings_and_only_the_dropped_plans(tmp_path):
-    port = _free_port()
-    out = tmp_path / "cl"
-    common = ["--algorithm", "rdica", "--ev-prob", "0.2", "--volume", "400", "--duration", "90",
-              "--max-added-delay", "inf"]  # (no bound: every reordering revokes)  # fmt: skip
-    p = _cluster(out, "--agents", "1", "--port", str(port), *common)
-    assert p.returncode == 0, p.stdout + p.stderr
-    _no_leftovers(port)
-    m = json.loads((out / "metrics.json").read_text())
-    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
-    ica = json.loads((out / "ica.json").read_text())["incarnations"][0]
-    reactive = ica["reactive"]
-    assert ica["revoke_acks"] >= 1
-
-    rec = _reactive_recording(out / "spacetime.rrd")
-    assert rec["ev_top"] and rec["ev_charts"]  # EVs in their colour, top view and charts
-    assert rec["marks"] >= 1 and len(rec["reorders"]) == reactive["events"]
-    # withdrawn: exactly the plans the actuators dropped (the gateway's own count) and the
-    # ICA heard dropped, each after its REVOKE went out; the plans kept stay drawn
-    withdrawn = rec["withdrawn"]
-    assert len(withdrawn) == m["timing"]["plans_dropped"] == reactive["acknowledged"]
-    assert len(rec["kept"]) == reactive["restored"] + reactive["expired"]
-    revoked = _revoked_at(rec["reorders"])
-    assert all(vin in revoked and t > revoked[vin] for t, vin in withdrawn)
 
 
 def test_two_agents_revoke_safely_and_the_recording_withdraws_only_dropped_plans(tmp_path):

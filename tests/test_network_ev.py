@@ -18,7 +18,7 @@ from dica.sim_gateway.od_demand import DemandError, OdDemand, write_od_routes
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTERIAL = ("--layout", "corridor", "--volume", "250", "--entry-volume", "W00_J00=700",
-            "--entry-volume", "E30_J30=700", "--duration", "180")  # fmt: skip
+            "--entry-volume", "E30_J30=700", "--duration", "120")  # fmt: skip
 
 
 def _vehicles(path: Path) -> list[tuple[str, str, str, str]]:
@@ -55,7 +55,7 @@ def _network(out: Path, *args: str) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def ev_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple]:
-    """The corridor's arterial with one vehicle in ten an EV, for 180 s: plain enhanced
+    """The corridor's arterial with one vehicle in ten an EV, for 120 s: plain enhanced
     DICA, reactive DICA, and reactive DICA on the drawn demand given as a route file."""
     d = tmp_path_factory.mktemp("ev")
     runs = {}
@@ -68,7 +68,7 @@ def ev_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple]:
         runs[control] = (_network(out, *ARTERIAL, "--ev-prob", "0.1", "--control", control), out)
     routes = d / "rdica" / "od.rou.xml"
     out = d / "file"
-    p = _network(out, "--layout", "corridor", "--routes", str(routes), "--duration", "180",
+    p = _network(out, "--layout", "corridor", "--routes", str(routes), "--duration", "120",
                  "--algorithm", "rdica")  # fmt: skip
     runs["file"] = (p, out)
     return runs

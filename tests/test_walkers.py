@@ -102,9 +102,9 @@ def test_people_cross_a_network_of_signal_free_junctions(tmp_path):
              if j.get("type") not in ("internal", "dead_end")]  # fmt: skip
     assert len(inner) == 4
     routes = tmp_path / "od.rou.xml"
-    write_od_routes(net, inner, OdDemand(300, 150, 12), routes)
+    write_od_routes(net, inner, OdDemand(300, 100, 12), routes)
     m = _run(tmp_path / "r", "--net", str(net), "--routes", str(routes), "--junctions", "all",
-             "--peds", "300", "--duration", "200", "--seed", "21", "--record")  # fmt: skip
+             "--peds", "300", "--duration", "120", "--seed", "21", "--record")  # fmt: skip
     w = m["walkers"]
     parts = ("crossed", "at_kerb_at_end", "on_crossing_at_end", "not_at_a_kerb_yet",
              "walked_elsewhere")  # fmt: skip
