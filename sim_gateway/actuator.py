@@ -180,7 +180,11 @@ class Actuator:
             if c.adopted_lcm is not None:  # on along its own route, as SUMO drives it
                 self.ls.vehicle.setLaneChangeMode(c.sumo, c.adopted_lcm)
             if c.reroute_to is not None:
-                self.ls.vehicle.changeTarget(c.sumo, c.reroute_to)
+                way = c.reroute_way
+                if way is not None and self.ls.vehicle.getRoadID(c.sumo) == way[0]:
+                    self.ls.vehicle.setRoute(c.sumo, list(way))  # the rooms it was let in for
+                else:
+                    self.ls.vehicle.changeTarget(c.sumo, c.reroute_to)
             c.released = True
             return
         if c.speed_mode != MODE_CONFIRMED:

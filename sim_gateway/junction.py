@@ -60,6 +60,9 @@ class Car:
     # is given back once it is out of the junction
     adopted_lcm: int | None = None
     reroute_to: str | None = None  # beyond the junction, SUMO routes it on to this edge
+    # the way on to ``reroute_to`` whose rooms the network gate took for it: driven as is
+    # (a route SUMO chose later may pass a guarded link it never had room on)
+    reroute_way: tuple[str, ...] | None = None
     # its id in SUMO; ``vin`` names this crossing to the ICA, the agents and the trip log
     # and differs only for a route-file vehicle's second and later pass (``<id>+2``, ...)
     # or an id that cannot be a key chunk (:func:`sim_gateway.traffic.crossing_name`)

@@ -80,7 +80,8 @@ class NetworkGate:
         self.used_m = 0.0  # the queue length inside the network (every vehicle once)
         self.peak_m = 0.0  # the most queue the network held at once
         self.peak_share = 0.0  # the most any room was held, as a share of its capacity
-        self.counted: set[str] = set()  # SUMO ids inside the network this step
+        # SUMO ids inside the network this step, each with the road it was counted from
+        self.counted: dict[str, str] = {}
         # crossings sent round whose new rooms are counted this step (their vin)
         self.counted_more: set[str] = set()
         self._takes: dict[str, tuple[str, ...]] = {}  # per crossing: the rooms it takes
@@ -146,29 +147,52 @@ class NetworkGate:
         room of its run from the road it crosses onto; crossing from a link onto one off
         its route (a vehicle in a lane that does not go its way, sent round to its
         destination, ``Car.reroute_to``), the rooms of its new way it did not hold. A
-        vehicle moving from link to link along its route takes nothing new. Worked out
-        once per crossing."""
+        vehicle sent round holds the rooms of the way it is then sent on
+        (``Car.reroute_way``), whether it came from outside or from a link. One moving
+        from link to link along its route takes nothing new. Worked out once per
+        crossing."""
         got = self._takes.get(c.vin)
         if got is not None:
             return got
         out = edge_of(c.route.out_lane)
+        way = self._way_round(ls, c, out)
+        if way is not None:  # its run from ``out`` on is the way it is sent
+            self._runs.setdefault(c.sumo, {})[out] = self.rooms(way, 0)
         if self.entering(c):
             got = self.rooms_of(ls, c.sumo, out)
-        elif c.reroute_to is not None and out in self.links:
-            way = tuple(ls.simulation.findRoute(out, c.reroute_to).edges) or (out,)
-            new = self.rooms(way, 0)
+        elif way is not None:
+            new = self.rooms_of(ls, c.sumo, out)
             # the run it holds from here on, and the one it will hold once sent round
             old = self.rooms_of(ls, c.sumo, edge_of(c.route.in_lane))
-            self._runs.setdefault(c.sumo, {})[out] = new
             got = tuple(r for r in new if r not in old)
         else:
             got = ()
         self._takes[c.vin] = got
         return got
 
+    @staticmethod
+    def _way_round(ls, c: Car, out: str) -> tuple[str, ...] | None:
+        """The way from ``out`` to the destination of a vehicle sent round onto a link
+        (None for any other crossing), chosen once and kept on the car, which is sent
+        on exactly that way once it is out (``Actuator``): a way SUMO found later
+        might pass a guarded link it was never given room on."""
+        if c.reroute_to is None:
+            return None
+        if c.reroute_way is None:
+            way = tuple(ls.simulation.findRoute(out, c.reroute_to).edges)
+            if not way or way[0] != out:  # no way on from here: SUMO's own, as before
+                return (out,)
+            c.reroute_way = way
+        return c.reroute_way
+
     def holds(self, c: Car) -> bool:
-        """Whether what ``c``'s crossing takes is counted this step."""
-        return c.sumo in self.counted if self.entering(c) else c.vin in self.counted_more
+        """Whether what ``c``'s crossing takes is counted this step: entering, once it
+        is counted at all; sent round from a link, once its new rooms are counted on
+        top of its old run, or it is counted from the road it crosses onto (whose run
+        is its new way)."""
+        if self.entering(c):
+            return c.sumo in self.counted
+        return c.vin in self.counted_more or self.counted.get(c.sumo) == edge_of(c.route.out_lane)
 
     def entering(self, c: Car) -> bool:
         """Whether ``c``'s crossing takes it into the network from outside."""
@@ -186,7 +210,7 @@ class NetworkGate:
         onto one that are not on it yet."""
         if not self.closes:
             return
-        self.counted = set()
+        self.counted = {}
         self.counted_more = set()
         self.held_m = {}
         self.used_m = 0.0
@@ -212,7 +236,11 @@ class NetworkGate:
             if c.sumo not in self.counted:
                 self._count(ls, c.sumo, road)
                 more = True
-            elif c.reroute_to is not None and c.vin not in self.counted_more:
+            elif (
+                c.reroute_to is not None
+                and c.vin not in self.counted_more
+                and self.counted[c.sumo] != road  # from its old run, not its new way's
+            ):
                 extra = self.takes(ls, c)  # on a link already: its new rooms on top
                 if extra:
                     self.counted_more.add(c.vin)
@@ -259,7 +287,7 @@ class NetworkGate:
         return self.room_on(rooms, others)
 
     def _count(self, ls, vid: str, road: str) -> None:
-        self.counted.add(vid)
+        self.counted[vid] = road
         n = self.need_m(ls, vid)
         self.used_m += n
         held = self.held_m
