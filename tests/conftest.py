@@ -39,10 +39,14 @@ FILE_TIER = {
     "test_network_runs.py": "sumo",
     "test_signals.py": "sumo",
     "test_walkers.py": "sumo",
+    "test_network_ev.py": "sumo",
     "test_attack.py": "cluster",
     "test_cluster.py": "cluster",
     "test_handlers.py": "cluster",
     "test_secure.py": "cluster",
+    "test_network_cluster.py": "cluster",
+    "test_network_secure.py": "cluster",
+    "test_network_observer.py": "cluster",
     "test_timing.py": "timing",
 }  # every other test file: core
 

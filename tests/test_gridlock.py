@@ -153,7 +153,9 @@ SENT_ROUND = (
 )
 
 
-@pytest.mark.parametrize(("rule", "demand"), [("cycle", HEAVY), ("route", SENT_ROUND)])
+@pytest.mark.parametrize(
+    ("rule", "demand"), [("cycle", HEAVY), ("route", SENT_ROUND)], ids=["cycle", "route-sent-round"]
+)
 def test_the_gate_keeps_the_grids_queue_within_its_bound(nets, tmp_path, rule, demand):
     """The grid's heavy streams close the gate, and it holds; under the route rule with
     hundreds of vehicles sent round, each counted once and sent on the way whose rooms
