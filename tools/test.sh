@@ -4,6 +4,10 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 bash tools/setup.sh
+# pytest keeps its rewritten test modules, and each worker loads them instead of
+# rewriting all of them again (on a machine that sets PYTHONDONTWRITEBYTECODE, about
+# 10 s of each worker's start)
+unset PYTHONDONTWRITEBYTECODE
 .venv/bin/ruff check .
 .venv/bin/ruff format --check .
 # the compiled core into numba's cache once, on both cores, before the workers race to
