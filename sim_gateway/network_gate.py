@@ -236,12 +236,8 @@ class NetworkGate:
             if c.sumo not in self.counted:
                 self._count(ls, c.sumo, road)
                 more = True
-            elif (
-                c.reroute_to is not None
-                and c.vin not in self.counted_more
-                and self.counted[c.sumo] != road  # from its old run, not its new way's
-            ):
-                extra = self.takes(ls, c)  # on a link already: its new rooms on top
+            elif c.reroute_to is not None and not self.holds(c):
+                extra = self.takes(ls, c)  # counted from its old run: its new rooms on top
                 if extra:
                     self.counted_more.add(c.vin)
                     n = self.need_m(ls, c.sumo)
