@@ -71,6 +71,15 @@ from dica.ica.core.ev_event import (
     event_log,
     lane_candidates,
 )
+from dica.ica.core.ev_notice import (
+    CLEAR_HEADWAY_S,
+    CLEAR_MARGIN_S,
+    CLEAR_MOST,
+    LEAD_S,
+    EvNotice,
+    Notices,
+    edge_of,
+)
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.ordering import (
     OrderingError,
@@ -79,7 +88,7 @@ from dica.ica.core.ordering import (
     solve,
 )
 from dica.ica.core.planner import Planner
-from dica.ica.core.request import Confirmation, Reason, Request, RequestError
+from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from dica.ica.core.revocation import DROPPED, EXPIRED, KEPT, Answer, Reorder
 from dica.ica.core.route import Route
 from dica.ica.core.separation import SeparationModel
@@ -158,6 +167,10 @@ class ReactiveDica(Dica):
         self._outbox: list[Reorder] = []
         self._answers: list[Answer] = []
         self.events: list[EvEvent] = []
+        # EVs on their way from upstream (ica.core.ev_notice): their lanes are cleared early
+        self.notices = Notices()
+        self._notice_routes: dict[frozenset[str], tuple[Route, ...]] = {}
+        self._no_room: set[str] = set()  # last refused for room beyond the junction
 
     def prepare(self) -> None:
         """Measure every separation the EV ordering can ask for (see
@@ -374,6 +387,9 @@ class ReactiveDica(Dica):
             # measured on the plans: the most a revoked vehicle's new plan entered later
             "replanned_later_max_s": round(self.replanned_later_s, 3),
             "bound_trials": self.trials,
+            # EVs' notices from upstream: received, and requests held for them
+            "notices": self.notices.received,
+            "notice_held": self.notices.held,
         }
         if events:
             out["events_log"] = [event_log(e) for e in self.events]
@@ -403,6 +419,7 @@ class ReactiveDica(Dica):
             "answers": [self.acknowledged, self.restored, self.expired],
             "added": dict(self._added),
             "revoked_entry": dict(self._revoked_entry),
+            "notices": self.notices.snapshot(),
         }  # fmt: skip
 
     def restore_snapshot(self, snap: dict) -> None:
@@ -443,6 +460,7 @@ class ReactiveDica(Dica):
         self.acknowledged, self.restored, self.expired = (int(x) for x in snap["answers"])
         self._added = {str(v): float(a) for v, a in snap.get("added", {}).items()}
         self._revoked_entry = {str(v): float(t) for v, t in snap.get("revoked_entry", {}).items()}
+        self.notices.restore(snap.get("notices", {}))
 
     def _replan_of(self, row: list) -> Replan | None:
         vin, seq, rid, length, width, t0, dist, speed = row
@@ -484,6 +502,7 @@ class ReactiveDica(Dica):
     def advance(self, now_s: float) -> list[str]:
         self._now = now_s
         gone = super().advance(now_s)
+        self.notices.advance(now_s)
         for key in gone:
             if key.endswith(_ASIDE):
                 vin = key[: -len(_ASIDE)]
@@ -501,6 +520,7 @@ class ReactiveDica(Dica):
                         self._forget_confirmed(vin)
                 continue
             self._detected.pop(key, None)
+            self._no_room.discard(key)
             self._added.pop(key, None)
             self._revoked_entry.pop(key, None)
             for lst in self._lane_confirmed.values():
@@ -569,11 +589,19 @@ class ReactiveDica(Dica):
             raise RequestError(
                 Reason.HELD, f"{req.vin} waits: emergency vehicle {ev.ev} crosses first"
             )
+        if self.notices and well_typed and req.vin not in self._confirmed:
+            coming = self._notice_held(req, now_s)
+            if coming is not None:
+                self.notices.held += 1
+                raise RequestError(
+                    Reason.HELD, f"{req.vin} waits: emergency vehicle {coming} is on its way"
+                )
         known = req.vin in self._confirmed if well_typed else True
         conf = super()._handle(req, now_s)
         if not known:
             self._lane_confirmed[req.in_lane].append(req.vin)
             self._measure(conf)
+            self.notices.served(req.vin, now_s)
         if ev is not None and req.vin == ev.ev and ev.ev_confirmed_s is None:
             ev.ev_confirmed_s = now_s
             ev.ev_entry_s = conf.entry_time_s
@@ -584,6 +612,74 @@ class ReactiveDica(Dica):
                 self._before, self._after = [], []
                 self._late += self._replan(waiting)
         return conf
+
+    # -- EVs on their way -----------------------------------------------------------
+    def ev_coming(self, notice: EvNotice, now_s: float) -> bool:
+        """EV ``notice.ev`` is on its way here (:mod:`ica.core.ev_notice`): from a lead
+        before its arrival, vehicles that could take its lanes' room are held. False if
+        the notice is stale (the EV is confirmed here already); a notice of a way this
+        junction does not have is refused."""
+        if not (isinstance(notice.ev, str) and math.isfinite(notice.eta_s)):
+            raise RequestError(Reason.BAD_STATE, "an EV notice needs an id and a finite arrival")
+        lanes = frozenset(
+            r.in_lane
+            for r in self.intersection.routes
+            if edge_of(r.in_lane) == notice.in_edge and edge_of(r.out_lane) == notice.out_edge
+        )
+        if not lanes:
+            raise RequestError(
+                Reason.UNKNOWN_ROUTE,
+                f"no way from {notice.in_edge} to {notice.out_edge} through "
+                f"{self.intersection.junction_id}",
+            )
+        if notice.ev in self._confirmed:
+            self.notices.served(notice.ev, now_s)
+            return False
+        return self.notices.take(lanes, notice, now_s)
+
+    def _notice_held(self, req: Request, now_s: float) -> str | None:
+        """The EV on its way that ``req`` must wait for (None: none): its way here could
+        take the room of a way from the EV's lanes, and it is not in one of them."""
+        if req.vin in self.notices or any(w[0] == req.vin for w in self._waiting_evs):
+            return None  # an EV itself is never held for another's notice
+        route = self.intersection.route(req.in_lane, req.out_lane)
+        if route is None:
+            return None  # let DICA reject it with its own reason
+        sh = Shape.of(req.length_m, req.width_m) if _sized(req) else self._shape
+        for n in self.notices.holding(now_s):
+            if req.in_lane in n.lanes:
+                continue  # in the EV's lanes: it clears them
+            waiting = self._waiting_in(n.lanes)
+            lead = min(LEAD_S, CLEAR_MARGIN_S + waiting * CLEAR_HEADWAY_S)
+            if not 0 < waiting <= CLEAR_MOST or now_s < n.eta_s - lead:
+                continue  # nothing to clear away (or too much), or not yet
+            theirs = self._notice_routes.get(n.lanes)
+            if theirs is None:
+                theirs = tuple(r for r in self.intersection.routes if r.in_lane in n.lanes)
+                self._notice_routes[n.lanes] = theirs
+            if not all(self.tables.compatible(route, sh, r, self._shape) for r in theirs):
+                return n.ev
+        return None
+
+    def _waiting_in(self, lanes: frozenset[str]) -> int:
+        """The most vehicles detected in one of ``lanes`` that wait for their plans (the
+        queue the EV would meet; 0: its lanes flow). A lane whose first vehicle waiting
+        was last refused for room beyond the junction counts none: holding the traffic
+        across would not move it."""
+        most = 0
+        for lane in lanes:
+            waiting = [v for v in self.queue(lane) if v not in self._confirmed]
+            if waiting and waiting[0] not in self._no_room:
+                most = max(most, len(waiting))
+        return most
+
+    def handle(self, req: Request, now_s: float) -> Confirmation | Rejection:
+        got = super().handle(req, now_s)
+        if isinstance(got, Rejection) and got.reason is Reason.NO_ROOM:
+            self._no_room.add(got.vin)
+        elif self._no_room:
+            self._no_room.discard(req.vin)
+        return got
 
     # -- the event ----------------------------------------------------------------------
     def _held(self, req: Request, ev: EvEvent) -> bool:
