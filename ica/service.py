@@ -59,6 +59,7 @@ from dica.ica.convert import (
 from dica.ica.core import reactive
 from dica.ica.core.controller import Controller
 from dica.ica.core.envelope import human_limits
+from dica.ica.core.ev_notice import EvNotice
 from dica.ica.core.request import Confirmation, Reason, Rejection, RequestError
 from dica.ica.journal import Journal, Replayed, replay
 from dica.schemas import keys
@@ -76,6 +77,7 @@ from dica.schemas.messages import (
     Cancel,
     Clock,
     Detect,
+    EvComing,
     Lit,
     Place,
     Reject,
@@ -112,6 +114,7 @@ class ServiceStats:
     cancels: int = 0
     walks: int = 0  # walkers given a slot on a crossing
     humans: int = 0  # human drivers the roadside told of
+    notices: int = 0  # emergency vehicles' notices the roadside gave
     greens: int = 0  # greens given them (sooner ones included)
     shrunk: int = 0  # their reservations shrunk to where they were seen
     bad_messages: int = 0
@@ -138,6 +141,7 @@ class ServiceStats:
             "cancels": self.cancels,
             "walks": self.walks,
             "humans": self.humans,
+            "notices": self.notices,
             "greens": self.greens,
             "shrunk": self.shrunk,
             "bad_messages": self.bad_messages,
@@ -238,6 +242,7 @@ class IcaService:
             self.session.declare_queryable(keys.cancel(j), self.inbox.query_cb("cancel")),
             self.session.declare_queryable(keys.walk(j), self.inbox.query_cb("walk")),
             self.session.declare_queryable(keys.human(j), self.inbox.query_cb("human")),
+            self.session.declare_queryable(keys.ev(j), self.inbox.query_cb("ev")),
             self.session.declare_queryable(keys.ica_stats(j), self.inbox.query_cb("stats")),
             self.session.declare_subscriber(self._clock_key, self.inbox.sample_cb("clock")),
             self.session.declare_subscriber(keys.ack(j), self.inbox.sample_cb("ack")),
@@ -298,6 +303,8 @@ class IcaService:
             self._on_walk(item)
         elif item.what == "human":
             self._on_human(item)
+        elif item.what == "ev":
+            self._on_ev(item)
         elif item.what == "stats":
             self.note_reactive()
             body = json.dumps(self.stats.as_dict())
@@ -427,6 +434,8 @@ class IcaService:
         for since, h in held:
             if h.what == "human":
                 self._on_human(h, since)
+            elif h.what == "ev":
+                self._on_ev(h, since)
             else:
                 self._on_request(h, since)
         self.ended = clock.end
@@ -648,6 +657,24 @@ class IcaService:
             self._count(Rejection(msg.vin, -1, e.reason, e.detail))
             self._reject(item.query, msg.vin, -1, e.reason, e.detail)
 
+    def _on_ev(self, item: Item, since: float | None = None) -> None:
+        """An emergency vehicle on its way, told by the roadside (EVCOMING): kept at the
+        roadside's step time, as the embedded run gives it before the step's requests."""
+        msg = self._from_roadside(item, (EvComing,), "notices", "emergency vehicles' notices")
+        if msg is None:
+            return
+        if msg.t_s > self.now_s + HUMAN_AHEAD_S:  # the CLOCKs before it first (_on_human)
+            self._held.append((since if since is not None else time.monotonic(), item))
+            return
+        notice = EvNotice(msg.ev, msg.in_edge, msg.out_edge, msg.eta_s, msg.t_s)
+        try:
+            self.ica.ev_coming(notice, max(msg.t_s, self.now_s))
+        except RequestError as e:
+            self._reject(item.query, msg.ev, -1, e.reason, e.detail)
+            return
+        self.stats.notices += 1
+        reply(item.query, item.key, encode(Ack(msg.ev, -1, EvComing.KIND, now_ns())))
+
     # -- helpers -------------------------------------------------------------
     def _from_roadside(self, item: Item, kinds: tuple[type, ...], served: str, what: str):
         """The roadside's message of one of ``kinds`` on its own key (``gateway``), or
@@ -656,7 +683,7 @@ class IcaService:
         msg = self._asked(item, *kinds)
         if msg is None:
             return None
-        who = getattr(msg, "person", None) or msg.vin
+        who = getattr(msg, "person", None) or getattr(msg, "ev", None) or msg.vin
         if keys.last(item.key) != "gateway":
             self.stats.not_theirs += 1
             self._reject(item.query, who, -1, Reason.BAD_STATE, "only the roadside asks")
@@ -747,8 +774,8 @@ def write_stats(path: Path, stats: ServiceStats) -> None:
     runs.append(mine)
     total: dict = {"incarnations": runs}
     for k in ("requests", "confirmed", "repeated", "superseded", "detects", "cancels",
-              "walks", "humans", "greens", "shrunk", "bad_messages", "acks", "ignored_clocks",
-              "not_theirs", "handovers"):  # fmt: skip
+              "walks", "humans", "notices", "greens", "shrunk", "bad_messages", "acks",
+              "ignored_clocks", "not_theirs", "handovers"):  # fmt: skip
         total[k] = sum(int(r.get(k, 0)) for r in runs)
     rej: dict[str, int] = {}
     for r in runs:

@@ -54,6 +54,12 @@ def human(junction: str, asker: str = "*") -> str:
     return f"dica/{chunk(junction)}/human/{_one(asker)}"
 
 
+def ev(junction: str, asker: str = "*") -> str:
+    """Queryable (ICA): the roadside tells of an emergency vehicle on its way (EVCOMING),
+    through ``asker``."""
+    return f"dica/{chunk(junction)}/ev/{_one(asker)}"
+
+
 def greens(junction: str, vin: str = "*") -> str:
     """The ICA publishes each green it gives a human driver (LIT), for observers."""
     return f"dica/{chunk(junction)}/greens/{_one(vin)}"
@@ -154,7 +160,7 @@ def writer_of(key: str, action: str) -> str | None:
         if kind == "stats" and name:
             return {"query": "gateway", "reply": name}.get(action)
     elif space == "dica":
-        if kind in ("request", "detect", "cancel", "walk", "human") and name:
+        if kind in ("request", "detect", "cancel", "walk", "human", "ev") and name:
             return {"query": name, "reply": "ica"}.get(action)
         if kind == "ack" and name:
             return name if action == "put" else None

@@ -28,7 +28,7 @@ import numpy as np
 # REORDER; 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev``
 # and ``kept_seq``, a setpoint ``drop``, and REVOKE exists (2 had no revocations; 1 had
 # open-loop speed commands)
-VERSION = 10
+VERSION = 11
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
@@ -224,6 +224,22 @@ class Sighting:
     lane: str = lim(n=MAX_TEXT)
     s_m: float = lim(-BIG, BIG)
     speed_mps: float = lim(0.0, 200.0)
+    sent_ns: int = lim(0, 2**63 - 1)
+
+
+@dataclass(frozen=True, slots=True)
+class EvComing:
+    """Emergency vehicle ``ev`` is on its way to the junction: in by edge ``in_edge``,
+    out by ``out_edge``, its front at the entry line at sim time ``eta_s`` at the
+    earliest (free flow from where it was at ``t_s``). Sent by the roadside every few
+    seconds while the EV drives on (ica.core.ev_notice); answered with an ACK."""
+
+    KIND: ClassVar[str] = "evcoming"
+    ev: str = lim(n=MAX_TEXT)
+    in_edge: str = lim(n=MAX_TEXT)
+    out_edge: str = lim(n=MAX_TEXT)
+    eta_s: float = lim(*TIME)
+    t_s: float = lim(*TIME)
     sent_ns: int = lim(0, 2**63 - 1)
 
 
@@ -490,6 +506,7 @@ MESSAGES: tuple[type, ...] = (
     Lit,
     Sighting,
     Shrunk,
+    EvComing,
     Ack,
     Revoke,
     Reorder,

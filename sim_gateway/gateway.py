@@ -52,6 +52,7 @@ from dica.deploy.transport import (
     refused,
     reply_body,
 )
+from dica.ica.core.ev_notice import EvNotice
 from dica.schemas import keys
 from dica.schemas.codec import DecodeError, decode, encode, now_ns
 from dica.schemas.messages import BIG as WIRE_BIG
@@ -62,6 +63,7 @@ from dica.schemas.messages import (
     AskGreen,
     Clock,
     Command,
+    EvComing,
     Go,
     Lit,
     People,
@@ -165,6 +167,7 @@ class ZenohDrivers:
         self.dropped_setpoints = 0
         self.walks_unanswered = 0  # WALKs the ICA did not answer with a GO (asked again)
         self.humans_unanswered = 0  # human drivers' questions the ICA did not answer
+        self.notices_unanswered = 0  # EVs' notices the ICA did not answer
         self.green_refused: dict[str, int] = {}  # greens asked too soon, by reason
         self._human_states: tuple[VehicleState, ...] = ()  # this step's, for observers
         self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
@@ -359,6 +362,19 @@ class ZenohDrivers:
         got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Shrunk, Ack))
         self.humans_unanswered += got is None
         return got.routes if isinstance(got, Shrunk) else None
+
+    # -- the roadside's word of an emergency vehicle on its way (ica.core.ev_notice) -------
+    def ev_coming(self, notice: EvNotice, t_s: float) -> bool:
+        """Tell the ICA that an EV is on its way at step time ``t_s`` (the notice's own);
+        False if it did not take the notice (as the core's ``ev_coming``)."""
+        msg = EvComing(notice.ev, notice.in_edge, notice.out_edge, notice.eta_s,
+                       notice.sent_s, now_ns())  # fmt: skip
+        got = self._ask_ica(keys.ev(self.junction, "gateway"), msg, (Ack,))
+        if isinstance(got, Ack):
+            return True
+        self.notices_unanswered += got is None
+        self.log.warning("EVCOMING %s: %s", notice.ev, "no answer" if got is None else got.detail)
+        return False
 
     def _ask_ica(self, key: str, msg, kinds: tuple[type, ...]):
         """One query to the ICA, waited for: its answer of one of ``kinds`` or a REJECT,
@@ -754,6 +770,7 @@ class ZenohDrivers:
             "clock": self.clock,
             "walks_unanswered": self.walks_unanswered,
             "humans_unanswered": self.humans_unanswered,
+            "notices_unanswered": self.notices_unanswered,
             "green_refused": dict(sorted(self.green_refused.items())),
             "speed": self.speed if self.clock == "realtime" else None,
             "agents": dict(sorted(self.fleet.hosted.items())),

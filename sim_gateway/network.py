@@ -22,6 +22,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from dica.ica.core.config import REACTIVE
 from dica.ica.core.controller import build_controller
 from dica.ica.core.gridlock import QUEUE_GAP_M
 from dica.ica.core.intersection import Intersection
@@ -32,6 +33,7 @@ from dica.sim_gateway.embedded import (
     record_step,
     request_figures,
 )
+from dica.sim_gateway.ev_corridor import EvCorridor
 from dica.sim_gateway.light_control import CorridorPreemption, light_of
 from dica.sim_gateway.max_pressure import MaxPressure
 from dica.sim_gateway.network_trips import read_trips, summarize_trips
@@ -134,6 +136,15 @@ def run_network(
                 file=sys.stderr,
             )
         drivers = [LocalDrivers(ica, cfg) for ica in icas]
+        # EVs tell the junctions ahead of them that they are coming (reactive DICA's)
+        corridor, by_junction = None, {}
+        if spec.algorithm in REACTIVE and cfg.ev_notices and not light:
+            corridor = EvCorridor(ls, inters, spec.config.step_s)
+            # who takes each junction's notices: its core in process, or its ICA over Zenoh
+            takers = cluster.drivers if cluster is not None else icas
+            by_junction = {
+                j.inter.junction_id: x for j, x in zip(world.junctions, takers, strict=True)
+            }
         if world.walkers is not None and (cluster is not None or light):
             raise RunError(
                 "--peds in a network runs embedded and signal-free for now (dica run "
@@ -152,6 +163,9 @@ def run_network(
                 if pressure is not None:
                     pressure.step(world.t)
                 each = world.step_each()
+                if corridor is not None and corridor.due():  # before the step's requests
+                    for jid, notice in corridor.notices(world.t):
+                        by_junction[jid].ev_coming(notice, world.t)
                 if cluster is not None:
                     cluster.decide(world, each)
                 if world.walkers is not None:  # the roadside asks first, each its own ICA

@@ -129,6 +129,10 @@ class RunConfig:
     # nothing bounds it (and a cycle of full links may stand still for ever)
     network_gate: bool = True
     network_gate_rule: str = "route"  # one of GATE_RULES
+    # several junctions under reactive DICA: each EV tells the junctions ahead on its route
+    # that it is coming (sim_gateway/ev_corridor.py, ica/core/ev_notice.py); off by default,
+    # since near saturation on the grid it cost more than it gained (docs/results.md)
+    ev_notices: bool = False
     # [persons/h] people crossing at every crossing of the junctions (sim_gateway/walkers.py)
     peds_per_h: float = 0.0
     # the share of connected automated vehicles in the random demand; the others are driven

@@ -180,8 +180,9 @@ def test_lockstep_cluster_of_a_gated_grid_makes_the_embedded_decisions(tmp_path)
 
 def test_a_lockstep_network_cluster_under_reactive_dica_makes_the_embedded_decisions(tmp_path):
     """Emergency vehicles down the corridor's arterial, every junction's ICA process
-    reactive DICA: the EVs' events are decided in the ICA processes, and lockstep over
-    Zenoh equals the embedded run with the cluster's revocations (drop) byte for byte."""
+    reactive DICA: the EVs' events and their notices ahead are decided in the ICA
+    processes, and lockstep over Zenoh equals the embedded run with the cluster's
+    revocations (drop) byte for byte."""
     from dica.sim_gateway.network_layouts import build_network
     from dica.sim_gateway.od_demand import OdDemand, write_od_routes
 
@@ -194,12 +195,12 @@ def test_a_lockstep_network_cluster_under_reactive_dica_makes_the_embedded_decis
             "--algorithm", "rdica", "--duration", "90"]  # fmt: skip
     emb = tmp_path / "emb"
     e = subprocess.run(
-        [*DICA, "run", *scen, "--revocation", "drop", "--out", str(emb), "--quiet"],
+        [*DICA, "run", *scen, "--revocation", "drop", "--ev-notices", "--out", str(emb), "--quiet"],
         capture_output=True, text=True, cwd=ROOT, timeout=300,
     )  # fmt: skip
     assert e.returncode == 0, e.stderr
     out = tmp_path / "cl"
-    p = _cluster(out, *scen, "--rsus", "2", "--no-record")
+    p = _cluster(out, *scen, "--rsus", "2", "--no-record", "--", "--ev-notices")
     assert p.returncode == 0, p.stdout + p.stderr
     for name in ("vehicles.csv", "trips.csv"):
         assert (out / name).read_bytes() == (emb / name).read_bytes(), name
@@ -208,6 +209,10 @@ def test_a_lockstep_network_cluster_under_reactive_dica_makes_the_embedded_decis
     events = {j: r["ica"]["reactive"]["events"] for j, r in m["roles"].items() if "ica" in r}
     assert set(events) == set(g.junctions) and sum(events.values()) >= 5, events
     assert m["network"]["emergency"]["vehicles"] >= 5
+    # the EVs' notices to the junctions ahead went over Zenoh (EVCOMING), each taken
+    notices = {j: r["ica"]["notices"] for j, r in m["roles"].items() if "ica" in r}
+    assert all(n > 0 for n in notices.values()), notices
+    assert all(r["cluster"]["notices_unanswered"] == 0 for r in m["junctions"].values())
 
 
 def test_a_real_time_cluster_keeps_the_network_gate(tmp_path):

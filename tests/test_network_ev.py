@@ -56,12 +56,17 @@ def _network(out: Path, *args: str) -> subprocess.CompletedProcess:
 @pytest.fixture(scope="module")
 def ev_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple]:
     """The corridor's arterial with one vehicle in ten an EV, for 120 s: plain enhanced
-    DICA, reactive DICA, and reactive DICA on the drawn demand given as a route file."""
+    DICA, reactive DICA without and with the EVs' notices ahead, and reactive DICA on the
+    drawn demand given as a route file."""
     d = tmp_path_factory.mktemp("ev")
     runs = {}
-    for name, algo in (("dica", "enhanced"), ("rdica", "rdica")):
+    for name, algo, more in (
+        ("dica", "enhanced", ()),
+        ("rdica", "rdica", ()),
+        ("rdica-ahead", "rdica", ("--ev-notices",)),  # each EV tells the junctions ahead
+    ):
         out = d / name
-        p = _network(out, *ARTERIAL, "--ev-prob", "0.1", "--algorithm", algo)
+        p = _network(out, *ARTERIAL, "--ev-prob", "0.1", "--algorithm", algo, *more)
         runs[name] = (p, out)
     for control in ("static", "preempt"):  # the same fixed-time lights, without and with
         out = d / control
@@ -74,7 +79,7 @@ def ev_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, tuple]:
     return runs
 
 
-@pytest.mark.parametrize("name", ["dica", "rdica", "file", "static", "preempt"])
+@pytest.mark.parametrize("name", ["dica", "rdica", "rdica-ahead", "file", "static", "preempt"])
 def test_emergency_vehicles_cross_the_corridor_safely_and_are_measured_apart(ev_runs, name):
     p, out = ev_runs[name]
     assert p.returncode == 0, p.stderr
@@ -99,7 +104,7 @@ def test_emergency_vehicles_cross_the_corridor_safely_and_are_measured_apart(ev_
         rows = list(csv.DictReader(f))
     assert {r["vid"] for r in rows if r["ev"] == "1"} == ev_ids
     assert "emergency vehicles: " in p.stdout
-    if name != "rdica" and name != "file":
+    if name not in ("rdica", "rdica-ahead", "file"):
         assert all("reactive" not in j for j in m["junctions"].values())
         return
     # every junction's ICA is reactive DICA, and the EVs started events at them
@@ -107,6 +112,11 @@ def test_emergency_vehicles_cross_the_corridor_safely_and_are_measured_apart(ev_
     assert set(reactive) == {"J00", "J10", "J20", "J30"}
     assert sum(r["events"] for r in reactive.values()) >= len(ev_ids)
     assert all(r["added_delay_max_s"] <= r["max_added_delay_s"] + 1e-6 for r in reactive.values())
+    notices = sum(r["notices"] for r in reactive.values())
+    if name == "rdica-ahead":  # every EV told each junction ahead, every 2 s
+        assert notices >= 2 * len(ev_ids)
+    else:
+        assert notices == 0
 
 
 def test_reactive_dica_decides_otherwise_than_plain_dica_on_the_same_vehicles(ev_runs):
@@ -115,6 +125,18 @@ def test_reactive_dica_decides_otherwise_than_plain_dica_on_the_same_vehicles(ev
     assert (ev_runs["rdica"][1] / "vehicles.csv").read_bytes() != plain
     assert (ev_runs["file"][1] / "vehicles.csv").read_bytes() == (
         ev_runs["rdica"][1] / "vehicles.csv"
+    ).read_bytes()
+
+
+def test_the_evs_notices_ahead_clear_their_lanes_at_the_junctions_ahead(ev_runs):
+    """The same vehicles with and without the EVs' notices ahead: with them, junctions
+    held vehicles across an EV's way before the EV reached their regions, and so decided
+    otherwise."""
+    m = json.loads((ev_runs["rdica-ahead"][1] / "metrics.json").read_text())
+    held = {k: j["reactive"]["notice_held"] for k, j in m["junctions"].items()}
+    assert sum(held.values()) > 0, held
+    assert (ev_runs["rdica"][1] / "vehicles.csv").read_bytes() != (
+        ev_runs["rdica-ahead"][1] / "vehicles.csv"
     ).read_bytes()
 
 

@@ -300,6 +300,8 @@ def _uses() -> tuple[Use, ...]:
             f"dica/{J}/walk/*"),
         Use("queryable", f"dica/{J}/human/gateway", ("ica",), "gateway", "", "ica",
             f"dica/{J}/human/*"),
+        Use("queryable", f"dica/{J}/ev/gateway", ("ica",), "gateway", "", "ica",
+            f"dica/{J}/ev/*"),
         # queries: the owner asks, the witness serves
         *(Use("query", f"dica/{J}/{k}/{A}", (A,), "ica", f"dica/{J}/{k}/*", A, "")
           for k in ("request", "detect", "cancel")),
@@ -307,6 +309,8 @@ def _uses() -> tuple[Use, ...]:
         Use("query", f"dica/{J}/walk/gateway", ("gateway",), "ica", f"dica/{J}/walk/*",
             "gateway", ""),
         Use("query", f"dica/{J}/human/gateway", ("gateway",), "ica", f"dica/{J}/human/*",
+            "gateway", ""),
+        Use("query", f"dica/{J}/ev/gateway", ("gateway",), "ica", f"dica/{J}/ev/*",
             "gateway", ""),
         Use("query", stats, ("gateway",), A, "", "gateway", f"sim/{J}/stats/*"),
         # replies travel back on the asked key: answering on another is refused

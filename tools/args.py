@@ -85,6 +85,7 @@ def run_config(args: argparse.Namespace):
             junction_ids=junctions if len(junctions) > 1 else (),
             network_gate=getattr(args, "network_gate", True),
             network_gate_rule=getattr(args, "network_gate_rule", "route"),
+            ev_notices=getattr(args, "ev_notices", False),
             peds_per_h=getattr(args, "peds", 0.0) or 0.0,
             cav_share=getattr(args, "cav_share", 1.0),
         )

@@ -376,7 +376,8 @@ def parser() -> argparse.ArgumentParser:
     )
     add_run_args(r)
     options.add(
-        r, "--junctions", "--network-gate", "--network-gate-rule", "--run-up", "--exit-spacing",
+        r, "--junctions", "--network-gate", "--network-gate-rule", "--ev-notices", "--run-up",
+        "--exit-spacing",
         "--lead", "--window",
         "--revocation", "--out", "--quiet",
         out={"help": "output directory (default runs/run-ALG-TIMESTAMP)"},

@@ -104,6 +104,12 @@ def parser() -> options.Parser:
                    help="with --control dica: no bound on what the links between the "
                    "junctions hold (by default the network gate bounds it, so the network "
                    "cannot lock)")  # fmt: skip
+    p.add_argument("--ev-notices", action="store_true",
+                   help="with --algorithm rdica: each emergency vehicle tells the junctions "
+                   "ahead on its route that it is coming, and each clears a short queue in the "
+                   "EV's lanes before it arrives (by default each junction reacts once the EV "
+                   "is in its own region; docs/results.md: helps a busy corridor, costs a grid "
+                   "near saturation)")  # fmt: skip
     p.add_argument("--network-gate-rule", choices=options.GATE_RULES, default="route",
                    help="with --control dica: route (default: a vehicle let in holds room on "
                    "each guarded link of its route ahead, the few links every cycle passes, "
@@ -206,6 +212,7 @@ def _main(argv: list[str] | None) -> int:
             junction_ids=junctions if len(junctions) > 1 else (), algorithm=args.algorithm,
             duration_s=args.duration + args.drain, seed=args.seed, sumo_args=extra,
             network_gate=args.network_gate, network_gate_rule=args.network_gate_rule,
+            ev_notices=args.ev_notices,
         )  # fmt: skip
         inters = [load_intersection(str(net), j) for j in junctions]
     except (RunError, NetworkError, ScenarioError, DemandError) as e:
@@ -236,7 +243,7 @@ def _main(argv: list[str] | None) -> int:
         "entry_vph": None if args.routes else dict(args.entry_volume),
         "turns": None if args.routes else list(args.turns), "seed": args.seed,
         "ev_prob": None if args.routes else args.ev_prob,
-        "demand_s": args.duration, "drawn_vehicles": n,
+        "demand_s": args.duration, "drawn_vehicles": n, "ev_notices": cfg.ev_notices,
     }  # fmt: skip
     write_outputs(out, dataclasses.replace(cfg), result)
     if result.net_trips is not None:

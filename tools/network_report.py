@@ -54,7 +54,8 @@ def control_label(run: dict) -> str:
     """The control, and DICA's variant where it is not the default enhanced one."""
     algo = run.get("algorithm")
     if run["control"] == "dica" and algo not in (None, "enhanced"):
-        return f"dica-{algo}"
+        ahead = "-ahead" if run.get("ev_notices") else ""  # the EVs' notices ahead
+        return f"dica-{algo}{ahead}"
     return run["control"]
 
 

@@ -7,8 +7,9 @@
 # a time; about 40 minutes per seed on 2 cores with an hour of demand (the corridor about
 # 6 of them). SEEDS="12" runs one seed only, LAYOUTS="corridor" one network only.
 # Emergency vehicles: EV_PROB=0.02 draws each vehicle an EV with that probability, and
-# CONTROLS chooses the controls (rdica: every junction under reactive DICA; preempt:
-# fixed-time lights pre-empted for each EV).
+# CONTROLS chooses the controls (rdica: every junction under reactive DICA; rdica-ahead: the
+# same with each EV's notices to the junctions ahead; preempt: fixed-time lights pre-empted
+# for each EV).
 #   bash tools/networks.sh [OUT] [DEMAND]        (default runs/networks 3600)
 #   EV_PROB=0.02 CONTROLS="dica rdica preempt static" bash tools/networks.sh runs/ev
 set -euo pipefail
@@ -34,6 +35,7 @@ for seed in ${SEEDS:-12 21 66}; do
   for control in ${CONTROLS:-dica actuated coordinated max-pressure}; do
     flags="--control $control"
     [ "$control" = rdica ] && flags="--control dica --algorithm rdica"
+    [ "$control" = rdica-ahead ] && flags="--control dica --algorithm rdica --ev-notices"
     for v in $corridor; do
       echo "corridor-$v-$control$tag-s$seed --layout corridor --volume 200 --entry-volume W00_J00=$v --entry-volume E30_J30=$v $flags $more --seed $seed" >> "$jobs"
     done

@@ -147,6 +147,15 @@ OPTIONS: dict[str, Option] = {
             default=True,
         ),
         Option(
+            "--ev-notices",
+            "with --junctions and --algorithm rdica: each emergency vehicle tells the junctions "
+            "ahead on its route that it is coming, and each clears a short queue in the EV's "
+            "lanes before it arrives; default off: each junction reacts once the EV is in its "
+            "own region (docs/results.md: helps a busy corridor, costs a grid near saturation)",
+            action=argparse.BooleanOptionalAction,
+            default=False,
+        ),
+        Option(
             "--network-gate-rule",
             "the network gate's bound: route (default: a vehicle let in holds room on each "
             "guarded link of its route ahead, the few links every cycle passes, and none is "

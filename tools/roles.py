@@ -565,7 +565,8 @@ def add_role_parsers(sub) -> None:
     )
     add_run_args(g, algorithm={"help": options.ALGORITHMS_HELP})
     options.add(
-        g, "--junctions", "--network-gate", "--network-gate-rule", "--agents", "--observers",
+        g, "--junctions", "--network-gate", "--network-gate-rule", "--ev-notices", "--agents",
+        "--observers",
         "--per-agent", "--clock",
         "--speed", "--step-timeout",
         "--resend", "--checkpoint-every", "--peers-timeout", "--progress-every", "--out",
