@@ -182,6 +182,8 @@ def _main(argv: list[str] | None) -> int:
         raise UsageError(f"--algorithm is DICA's; --control {args.control} runs lights")
     if args.control != "dica" and args.record:
         raise UsageError("--record draws the ICAs' reservations: it needs --control dica")
+    if args.ev_notices and (args.control != "dica" or args.algorithm != "rdica"):
+        raise UsageError("--ev-notices applies to --control dica --algorithm rdica only")
     layout = args.layout or ("grid" if args.net is None else None)
     stamp = time.strftime("%Y%m%d-%H%M%S")
     out = options.out_dir(

@@ -582,6 +582,13 @@ def check(args: argparse.Namespace) -> None:
                 f"{o.flag} applies to {', '.join(o.only_for)} only; --algorithm {algorithm} "
                 "does not take it"
             )
+    if values.get("ev_notices"):
+        if algorithm is not None and algorithm not in RDICA:
+            raise UsageError(
+                f"--ev-notices applies to rdica only; --algorithm {algorithm} does not take it"
+            )
+        if not values.get("junctions"):
+            raise UsageError("--ev-notices tells the junctions ahead: give a network (--junctions)")
     if values.get("junction") and values.get("net") is None and "layout" in values:
         raise UsageError(
             "--junction names a junction of --net; a built-in --layout has one junction"
