@@ -566,3 +566,50 @@ def test_a_zero_bound_is_a_bound_no_car_is_passed_at_any_cost(ch45):
     assert r.revoked == () and isinstance(ev, Confirmation)
     assert ev.entry_time_s > w1.entry_time_s
     assert ica.summary()["max_added_delay_s"] == 0.0
+
+
+def _where(inter, conf: Confirmation, lanes, t: float) -> float:
+    """How far short of its line a vehicle flying ``conf`` is at ``t``."""
+    k = round((t - conf.tss.t_s[0]) / CFG.step_s)
+    xy = np.array([[conf.tss.x_m[k], conf.tss.y_m[k]]])
+    return -float(inter.route(*lanes).project(xy)[0][0])
+
+
+@pytest.mark.parametrize("first_asks", [True, False])
+def test_revoked_cars_asking_again_go_in_the_order_they_were_given(ch45, first_asks):
+    """Two cars across the EV's way, revoked for it over a link: whichever asks again
+    first, the one the order put second waits for the first to have its plan (for
+    ORDER_WAIT_S at most, should the first never ask), as the bound was checked."""
+    from dica.ica.core.reactive import ORDER_WAIT_S
+
+    east = "E_in_1", "W_out_1"
+    ica = ReactiveDica(ch45, CFG, reactive=ReactiveConfig(replan_revoked=False))
+    w1 = scene(ica, ch45)
+    ica.detect("e1", east[0], 0.0)
+    e1 = ica.handle(request(ch45, "e1", east, 0.0, 30.0, 8.0), 0.0)
+    assert isinstance(e1, Confirmation)
+    r = start_event(ica, ch45)
+    assert set(r.revoked) == {"w1", "e1"}
+    for vin, seq in ica.due_revocations():
+        ica.cancel(vin, seq)
+    assert isinstance(ev_request(ica, ch45, seq=1), Confirmation)
+    first, second = r.revoked  # in the solver's order
+    plans = {"w1": (w1, CROSS), "e1": (e1, east)}
+    t = 0.5
+
+    def again(vin: str, t: float, seq: int):
+        conf, lanes = plans[vin]
+        ica.advance(t)
+        return ica.handle(request(ch45, vin, lanes, t, _where(ch45, conf, lanes, 0.5), 6.0,
+                                  seq=seq), t)  # fmt: skip
+
+    held = again(second, t, 3)
+    assert isinstance(held, Rejection) and held.reason is Reason.HELD
+    assert f"{first} was ordered before it" in held.detail
+    if first_asks:
+        assert isinstance(again(first, t, 3), Confirmation)
+        assert isinstance(again(second, t, 4), Confirmation)
+    else:  # the first never asks: the second goes once it has waited long enough
+        still = again(second, t + ORDER_WAIT_S - 0.5, 4)
+        assert isinstance(still, Rejection) and "ordered before" in still.detail
+        assert isinstance(again(second, t + ORDER_WAIT_S + 0.5, 5), Confirmation)

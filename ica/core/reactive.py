@@ -95,6 +95,9 @@ from dica.ica.core.separation import SeparationModel
 from dica.ica.core.zones import ConflictTables, Shape
 
 STOP_SLACK_STEPS, STOP_SLACK_M = 2, 0.5  # room kept beyond the stopping bound
+# [s] with revoked vehicles asking again (no re-planning here), one is held this long at most
+# for those the order put before it to have their plans
+ORDER_WAIT_S = 3.0
 _ASIDE = "~revoked"  # suffix of a revoked reservation's key while it awaits acknowledgement
 
 
@@ -171,6 +174,10 @@ class ReactiveDica(Dica):
         self.notices = Notices()
         self._notice_routes: dict[frozenset[str], tuple[Route, ...]] = {}
         self._no_room: set[str] = set()  # last refused for room beyond the junction
+        # revoked vehicles to ask again (``replan_revoked`` off), in the order the solver put
+        # them, and since when each was held for those before it
+        self._re_ask: list[str] = []
+        self._order_since: dict[str, float] = {}
 
     def prepare(self) -> None:
         """Measure every separation the EV ordering can ask for (see
@@ -263,6 +270,7 @@ class ReactiveDica(Dica):
                 self._answered(v, DROPPED)
                 continue
             self._restore_aside(v, key)
+            self._done_re_asking(v)  # it flies its plan: it will not ask again
             self._revoked_entry.pop(v, None)  # it flies its plan: nothing was added
             self.restored += 1
             self._answered(v, KEPT)
@@ -420,6 +428,8 @@ class ReactiveDica(Dica):
             "added": dict(self._added),
             "revoked_entry": dict(self._revoked_entry),
             "notices": self.notices.snapshot(),
+            "re_ask": list(self._re_ask),
+            "order_since": dict(self._order_since),
         }  # fmt: skip
 
     def restore_snapshot(self, snap: dict) -> None:
@@ -461,6 +471,8 @@ class ReactiveDica(Dica):
         self._added = {str(v): float(a) for v, a in snap.get("added", {}).items()}
         self._revoked_entry = {str(v): float(t) for v, t in snap.get("revoked_entry", {}).items()}
         self.notices.restore(snap.get("notices", {}))
+        self._re_ask = [str(v) for v in snap.get("re_ask", [])]
+        self._order_since = {str(v): float(t) for v, t in snap.get("order_since", {}).items()}
 
     def _replan_of(self, row: list) -> Replan | None:
         vin, seq, rid, length, width, t0, dist, speed = row
@@ -511,6 +523,7 @@ class ReactiveDica(Dica):
                     self.expired += 1
                     self._answered(vin, EXPIRED)
                     if vin not in self._confirmed:
+                        self._done_re_asking(vin)
                         # flown, or dropped with the answer lost: either way it leaves its
                         # lane's queue (one still short of the line is told NOT_DETECTED
                         # when it asks, and announces itself again in its place)
@@ -521,6 +534,8 @@ class ReactiveDica(Dica):
                 continue
             self._detected.pop(key, None)
             self._no_room.discard(key)
+            if key in self._re_ask or key in self._order_since:
+                self._done_re_asking(key)
             self._added.pop(key, None)
             self._revoked_entry.pop(key, None)
             for lst in self._lane_confirmed.values():
@@ -589,6 +604,10 @@ class ReactiveDica(Dica):
             raise RequestError(
                 Reason.HELD, f"{req.vin} waits: emergency vehicle {ev.ev} crosses first"
             )
+        if self._re_ask and well_typed and req.vin not in self._confirmed:
+            first = self._ordered_before(req.vin, now_s)
+            if first is not None:
+                raise RequestError(Reason.HELD, f"{req.vin} waits: {first} was ordered before it")
         if self.notices and well_typed and req.vin not in self._confirmed:
             coming = self._notice_held(req, now_s)
             if coming is not None:
@@ -602,6 +621,8 @@ class ReactiveDica(Dica):
             self._lane_confirmed[req.in_lane].append(req.vin)
             self._measure(conf)
             self.notices.served(req.vin, now_s)
+            if req.vin in self._order_since or req.vin in self._re_ask:
+                self._done_re_asking(req.vin)
         if ev is not None and req.vin == ev.ev and ev.ev_confirmed_s is None:
             ev.ev_confirmed_s = now_s
             ev.ev_entry_s = conf.entry_time_s
@@ -660,6 +681,24 @@ class ReactiveDica(Dica):
             if not all(self.tables.compatible(route, sh, r, self._shape) for r in theirs):
                 return n.ev
         return None
+
+    def _ordered_before(self, vin: str, now_s: float) -> str | None:
+        """A revoked vehicle asking again waits for those the order put before it to have
+        their plans (they re-ask in their own order otherwise, and the bound checked on
+        the order would not hold), ORDER_WAIT_S at most. The first it waits for, or None."""
+        if vin not in self._re_ask:
+            return None
+        ahead = self._re_ask[: self._re_ask.index(vin)]
+        first = next((v for v in ahead if v not in self._confirmed and v in self._lane_of), None)
+        if first is None:
+            return None
+        since = self._order_since.setdefault(vin, now_s)
+        return first if now_s - since <= ORDER_WAIT_S else None
+
+    def _done_re_asking(self, vin: str) -> None:
+        if vin in self._re_ask:
+            self._re_ask.remove(vin)
+        self._order_since.pop(vin, None)
 
     def _waiting_in(self, lanes: frozenset[str]) -> int:
         """The most vehicles detected in one of ``lanes`` that wait for their plans (the
@@ -775,6 +814,8 @@ class ReactiveDica(Dica):
                 self._set_aside(c.vin, key)
                 self._pending[c.vin] = key
                 revoked.append(c.vin)
+            if not replan:
+                self._re_ask = [v for v in self._re_ask if v in self._lane_of] + revoked
             for vin in revoked:  # front to back in each lane, by detection
                 lane = self._lane_of[vin]
                 lst = [v for v in self._lane_revoked.get(lane, []) if v in self._pending]
