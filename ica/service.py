@@ -254,6 +254,8 @@ class IcaService:
         """Serve until SIGTERM, the run's end on the clock, or ``idle_exit_s`` of silence."""
         last = time.monotonic()
         written = time.monotonic()
+        if stats_path is not None:  # at once: one killed within STATS_EVERY_S is on record too
+            write_stats(stats_path, self.stats)
         while not self.inbox.stopping.is_set() and not self.ended:
             item = self.inbox.get(timeout=0.1)
             self._expire_held()
