@@ -713,6 +713,8 @@ class ReactiveDica(Dica):
         return most
 
     def handle(self, req: Request, now_s: float) -> Confirmation | Rejection:
+        """DICA's answer, noting who waits for room beyond the junction (:meth:`_waiting_in`
+        does not clear a lane for an EV whose first vehicle waits for that)."""
         got = super().handle(req, now_s)
         if isinstance(got, Rejection) and got.reason is Reason.NO_ROOM:
             self._no_room.add(got.vin)
