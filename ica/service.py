@@ -433,13 +433,8 @@ class IcaService:
             self.now_s = clock.t_s
             self.ica.advance(self.now_s)
         held, self._held = self._held, []
-        for since, h in held:
-            if h.what == "human":
-                self._on_human(h, since)
-            elif h.what == "ev":
-                self._on_ev(h, since)
-            else:
-                self._on_request(h, since)
+        for since, h in held:  # each by its kind: a roadside's word, or a REQUEST
+            {"human": self._on_human, "ev": self._on_ev}.get(h.what, self._on_request)(h, since)
         self.ended = clock.end
 
     def _on_vehicles(self, item: Item) -> None:

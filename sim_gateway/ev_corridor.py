@@ -34,7 +34,6 @@ class EvCorridor:
         self._step = 0
         self._class: dict[str, bool] = {}  # vehicle -> whether an EV (read once)
         self._edge: dict[str, tuple[float, float]] = {}  # edge -> (length, speed limit)
-        self.sent = 0
 
     def due(self) -> bool:
         """Whether this step's notices are due (call once a step)."""
@@ -55,7 +54,6 @@ class EvCorridor:
         out = []
         for vid in sorted(x for x in present if known[x]):
             out += self._ahead(vid, t_s)
-        self.sent += len(out)
         return out
 
     def _ahead(self, vid: str, t_s: float) -> list[tuple[str, EvNotice]]:

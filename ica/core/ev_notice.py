@@ -64,11 +64,9 @@ class Notice:
     first_hold_s: float  # when its hold first began (inf: not yet)
 
     def holding(self, now_s: float) -> bool:
-        start = self.eta_s - LEAD_S
-        if now_s < start or now_s > self.eta_s + GRACE_S:
+        if now_s < self.eta_s - LEAD_S or now_s > self.eta_s + GRACE_S:
             return False
-        first = min(self.first_hold_s, max(start, now_s))
-        return now_s <= first + MAX_HOLD_S
+        return now_s <= min(self.first_hold_s, now_s) + MAX_HOLD_S
 
 
 def edge_of(lane: str) -> str:

@@ -534,8 +534,7 @@ class ReactiveDica(Dica):
                 continue
             self._detected.pop(key, None)
             self._no_room.discard(key)
-            if key in self._re_ask or key in self._order_since:
-                self._done_re_asking(key)
+            self._done_re_asking(key)
             self._added.pop(key, None)
             self._revoked_entry.pop(key, None)
             for lst in self._lane_confirmed.values():
@@ -621,8 +620,7 @@ class ReactiveDica(Dica):
             self._lane_confirmed[req.in_lane].append(req.vin)
             self._measure(conf)
             self.notices.served(req.vin, now_s)
-            if req.vin in self._order_since or req.vin in self._re_ask:
-                self._done_re_asking(req.vin)
+            self._done_re_asking(req.vin)
         if ev is not None and req.vin == ev.ev and ev.ev_confirmed_s is None:
             ev.ev_confirmed_s = now_s
             ev.ev_entry_s = conf.entry_time_s
