@@ -167,3 +167,18 @@ def test_a_queue_holding_nobody_back_or_too_long_to_clear_holds_nobody(ch45):
             ica.detect(f"q{k}", EV_LANES[0], 0.0)
         got = ask(ica, ch45, "w1", CROSS, 19.0)
         assert isinstance(got, Rejection) == held, waiting
+
+
+def test_a_notice_late_or_twice_changes_nothing(ch45):
+    """Over a link a notice may come twice, or after a newer one: the newest sent holds."""
+    ica = ReactiveDica(ch45, CFG)
+    ica.advance(0.0)
+    queue_up(ica, 0.0)
+    assert ica.ev_coming(notice(eta_s=30.0, sent_s=2.0), 2.0)
+    assert ica.ev_coming(notice(eta_s=30.0, sent_s=2.0), 2.0)  # twice: the same
+    assert not ica.ev_coming(notice(eta_s=12.0, sent_s=0.0), 2.0)  # sent before: stale
+    # the EV is still 30 s away by the newest word: nobody is held yet
+    assert isinstance(ask(ica, ch45, "w1", CROSS, 12.0 - ONE + 0.5), Confirmation)
+    again = ReactiveDica(ch45, CFG)  # a restarted ICA knows which was newest too
+    again.restore_snapshot(ica.snapshot())
+    assert not again.ev_coming(notice(eta_s=12.0, sent_s=0.0), 2.5)

@@ -62,6 +62,7 @@ class Notice:
     lanes: frozenset[str]
     eta_s: float
     first_hold_s: float  # when its hold first began (inf: not yet)
+    sent_s: float = -math.inf  # when the notice kept was sent (a late older one is stale)
 
     def holding(self, now_s: float) -> bool:
         if now_s < self.eta_s - LEAD_S or now_s > self.eta_s + GRACE_S:
@@ -95,10 +96,12 @@ class Notices:
         if notice.ev in self._served:
             return False
         old = self._by_ev.get(notice.ev)
+        if old is not None and notice.sent_s < old.sent_s:
+            return False  # overtaken on its way by a newer one
         if old is not None and old.lanes == lanes and notice.eta_s == old.eta_s:
             return True
         first = old.first_hold_s if old is not None else self._first.get(notice.ev, math.inf)
-        n = self._by_ev[notice.ev] = Notice(notice.ev, lanes, notice.eta_s, first)
+        n = self._by_ev[notice.ev] = Notice(notice.ev, lanes, notice.eta_s, first, notice.sent_s)
         if n.holding(now_s):
             n.first_hold_s = min(first, now_s)
         return True
@@ -135,7 +138,7 @@ class Notices:
     def snapshot(self) -> dict:
         return {
             "notices": [
-                [n.ev, sorted(n.lanes), n.eta_s, _finite(n.first_hold_s)]
+                [n.ev, sorted(n.lanes), n.eta_s, _finite(n.first_hold_s), _finite(n.sent_s)]
                 for n in self._by_ev.values()
             ],
             "served": dict(self._served),
@@ -145,10 +148,11 @@ class Notices:
     def restore(self, snap: dict) -> None:
         self._by_ev = {
             str(ev): Notice(
-                str(ev), frozenset(lanes), float(eta), math.inf if first is None else first
+                str(ev), frozenset(lanes), float(eta), math.inf if first is None else first,
+                -math.inf if sent is None else sent,
             )
-            for ev, lanes, eta, first in snap.get("notices", [])
-        }
+            for ev, lanes, eta, first, sent in snap.get("notices", [])
+        }  # fmt: skip
         self._served = {str(v): float(t) for v, t in snap.get("served", {}).items()}
         self._first = {str(v): float(t) for v, t in snap.get("first", {}).items()}
 
