@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
+from tests.dica_cli import DICA, dica_run
+
 ROOT = Path(__file__).resolve().parents[1]
-DICA = [sys.executable, "-m", "dica.tools.cli"]
 DURATION = "60"
 
 
@@ -23,7 +22,7 @@ def corridor_and_its_embedded_run(d: Path) -> dict:
     write_od_routes(built.net_path, built.junctions, OdDemand(500, 80, 12), routes)
     scen = ["--net", str(built.net_path), "--routes", str(routes), "--junctions", "all"]
     emb = d / "embedded"
-    p = subprocess.run(
+    p = dica_run(
         [*DICA, "run", *scen, "--duration", DURATION, "--out", str(emb), "--quiet"],
         capture_output=True, text=True, cwd=ROOT, timeout=300,
     )  # fmt: skip

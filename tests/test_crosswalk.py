@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -16,6 +14,7 @@ from dica.ica.core.crosswalk import Crosswalk, span, spans
 from dica.ica.core.limits import SpeedCaps, Turn
 from dica.ica.core.route import build_route
 from dica.ica.netfile import load_intersection
+from tests.dica_cli import DICA, dica_run
 from tests.user_nets import make, tool
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -117,8 +116,8 @@ def test_a_net_without_crossings_has_none(tmp_path):
 
 
 def test_geometry_lists_the_crossings(walk_net):
-    p = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "geometry", "--net", str(walk_net),
+    p = dica_run(
+        [*DICA, "geometry", "--net", str(walk_net),
          "--junction", "B1", "--json"],
         capture_output=True, text=True, cwd=ROOT, timeout=60,
     )  # fmt: skip

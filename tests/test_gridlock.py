@@ -23,6 +23,7 @@ from dica.ica.core.gridlock import (
 from dica.ica.netfile import crossing_junctions, load_intersection
 from dica.sim_gateway.network import run_network
 from dica.sim_gateway.runconfig import RunConfig
+from tests.dica_cli import DICA, dica_run
 from tests.user_nets import build_nets, build_ring, ring_routes
 
 RING = ("R0", "R1", "R2", "R3")
@@ -279,12 +280,10 @@ def test_a_run_says_how_long_the_gate_held_vehicles_back(tmp_path):
     reach their bound within 200 s, and heads of lanes are refused room for it; the
     run says for how many vehicle-seconds."""
     import json
-    import subprocess
-    import sys
 
     out = tmp_path / "cycle"
-    p = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "network", "--layout", "grid", "--volume",
+    p = dica_run(
+        [*DICA, "network", "--layout", "grid", "--volume",
          "650", "--seed", "12", "--duration", "200", "--drain", "0",
          "--network-gate-rule", "cycle", "--out", str(out), "--quiet"],
         capture_output=True, text=True, timeout=300,

@@ -36,9 +36,9 @@ from dica.ica.core.occupancy import footprints, overlap_matrix
 from dica.ica.core.proposal import propose
 from dica.ica.core.request import Confirmation, Reason, RequestError
 from dica.ica.core.zones import Shape
+from tests.dica_cli import DICA, dica_run
 
 ROOT = Path(__file__).resolve().parents[1]
-DICA = [sys.executable, "-m", "dica.tools.cli"]
 STEP = 0.05
 LIMITS = DriverLimits()
 
@@ -481,7 +481,7 @@ def test_a_crossing_human_seen_ahead_frees_what_it_no_longer_needs(ch45):
 
 # -- mixed runs in SUMO --------------------------------------------------------------
 def _run(out: Path, *args: str, code: int = 0) -> dict:
-    p = subprocess.run([*DICA, "run", "--out", str(out), "--quiet", *args],
+    p = dica_run([*DICA, "run", "--out", str(out), "--quiet", *args],
                        capture_output=True, text=True, cwd=ROOT, timeout=600)  # fmt: skip
     assert p.returncode == code, p.stderr
     return json.loads((out / "metrics.json").read_text())
@@ -668,7 +668,7 @@ def test_the_all_way_stop_baseline(tmp_path):
     ],
 )
 def test_mixed_traffic_it_cannot_serve_is_refused_in_one_line(tmp_path, args):
-    p = subprocess.run([*DICA, "run", "--layout", "ch45", "--cav-share", "0.5", *args,
+    p = dica_run([*DICA, "run", "--layout", "ch45", "--cav-share", "0.5", *args,
                         "--out", str(tmp_path / "x"), "--duration", "10"],
                        capture_output=True, text=True, cwd=ROOT, timeout=120)  # fmt: skip
     assert p.returncode == 2, p.stderr

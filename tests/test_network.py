@@ -5,8 +5,6 @@ accounted for, and a link too short to stop on refused before the run."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import xml.etree.ElementTree as ET
 from dataclasses import replace
 from pathlib import Path
@@ -21,6 +19,7 @@ from dica.sim_gateway.network import run_network
 from dica.sim_gateway.runconfig import RunConfig, RunError
 from dica.sim_gateway.sumo_io import import_libsumo, start_sumo
 from dica.sim_gateway.world import World
+from tests.dica_cli import DICA, dica_run
 from tests.user_nets import build_nets
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -224,8 +223,8 @@ def test_the_command_line_refuses_what_several_junctions_cannot_serve(nets, tmp_
     routes = tmp_path / "across.rou.xml"
     routes.write_text(ACROSS)
     args = [str(routes) if a == "ROUTES" else a for a in extra]
-    p = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "run", "--net", str(nets["grid"]), *args,
+    p = dica_run(
+        [*DICA, "run", "--net", str(nets["grid"]), *args,
          "--duration", "10", "--out", str(tmp_path / "run")],
         capture_output=True, text=True, cwd=ROOT, timeout=300,
     )  # fmt: skip
@@ -237,8 +236,8 @@ def test_the_command_line_refuses_what_several_junctions_cannot_serve(nets, tmp_
 def test_the_command_line_runs_every_junction_of_a_grid(nets, tmp_path):
     routes = tmp_path / "across.rou.xml"
     routes.write_text(ACROSS)
-    p = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "run", "--net", str(nets["grid"]),
+    p = dica_run(
+        [*DICA, "run", "--net", str(nets["grid"]),
          "--junctions", "all", "--routes", str(routes), "--duration", "60", "--quiet",
          "--out", str(tmp_path / "run")],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
@@ -252,8 +251,8 @@ def test_the_command_line_runs_every_junction_of_a_grid(nets, tmp_path):
     assert metrics["network_gate"]["links"] == 24  # the grid's links form cycles: gated
     assert metrics["network"]["vehicles"] > 0  # each vehicle's whole trip, from SUMO's records
     assert (tmp_path / "run" / "trips.csv").is_file()
-    q = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "run", "--net", str(nets["grid"]),
+    q = dica_run(
+        [*DICA, "run", "--net", str(nets["grid"]),
          "--junctions", "all", "--routes", str(routes), "--duration", "20", "--quiet",
          "--no-network-gate", "--out", str(tmp_path / "free")],
         capture_output=True, text=True, cwd=ROOT, timeout=600,

@@ -7,7 +7,6 @@ from __future__ import annotations
 import csv
 import json
 import subprocess
-import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import pytest
 
 from dica.sim_gateway.network_layouts import build_network
 from dica.sim_gateway.od_demand import DemandError, OdDemand, write_od_routes
+from tests.dica_cli import DICA, dica_run
 
 ROOT = Path(__file__).resolve().parents[1]
 ARTERIAL = ("--layout", "corridor", "--volume", "250", "--entry-volume", "W00_J00=700",
@@ -47,8 +47,8 @@ def test_emergency_vehicles_are_drawn_apart_and_move_no_other_vehicle(tmp_path):
 
 
 def _network(out: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "network", *args, "--out", str(out), "--quiet"],
+    return dica_run(
+        [*DICA, "network", *args, "--out", str(out), "--quiet"],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )  # fmt: skip
 

@@ -8,7 +8,6 @@ import csv
 import itertools
 import json
 import subprocess
-import sys
 import xml.etree.ElementTree as ET
 from collections import Counter
 from pathlib import Path
@@ -18,6 +17,7 @@ import pytest
 from dica.ica.netfile import crossing_junctions
 from dica.sim_gateway.network_layouts import build_network
 from dica.sim_gateway.od_demand import OdDemand, read_turns, write_od_routes
+from tests.dica_cli import DICA, dica_run
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -84,8 +84,8 @@ def test_the_same_seed_draws_the_same_vehicles(built, tmp_path):
 
 def _network(tmp_path: Path, *args: str) -> tuple[subprocess.CompletedProcess, Path]:
     out = tmp_path / "run"
-    p = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "network", *args, "--out", str(out), "--quiet"],
+    p = dica_run(
+        [*DICA, "network", *args, "--out", str(out), "--quiet"],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )  # fmt: skip
     return p, out
@@ -158,8 +158,8 @@ def test_the_lights_clear_every_green_with_a_yellow_and_an_all_red(tmp_path):
 
 def test_the_report_puts_the_signal_free_network_beside_the_best_light(corridor_runs, tmp_path):
     root = next(iter(corridor_runs.values()))[1].parent.parent
-    p = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "report", str(root), "--out", str(tmp_path)],
+    p = dica_run(
+        [*DICA, "report", str(root), "--out", str(tmp_path)],
         capture_output=True, text=True, cwd=ROOT, timeout=300,
     )  # fmt: skip
     assert p.returncode == 0, p.stderr

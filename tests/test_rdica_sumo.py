@@ -13,6 +13,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.dica_cli import DICA, dica_run
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # An EV arrives behind a car on the north approach; just before it, two slow cars from the
@@ -62,8 +64,8 @@ def scripted(algorithm: str) -> dict:
 
 
 def dica(*args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", *args],
+    return dica_run(
+        [*DICA, *args],
         capture_output=True,
         text=True,
         cwd=ROOT,

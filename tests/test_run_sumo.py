@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.dica_cli import DICA, dica_run
+
 ROOT = Path(__file__).resolve().parents[1]
 KEYS = {
     "generated",
@@ -30,8 +32,8 @@ KEYS = {
 
 
 def dica(*args: str, timeout: float = 600) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", *args],
+    return dica_run(
+        [*DICA, *args],
         capture_output=True,
         text=True,
         cwd=ROOT,
@@ -291,8 +293,8 @@ def test_unconfirmed_entries_are_counted(tmp_path):
 def test_experiment_writes_a_relative_out_where_the_user_stands(tmp_path):
     """Run from the user's own directory with ``--out grid``: the cells land in that
     directory's ``grid``, not in the project's."""
-    p = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "experiment", "--algorithms", "enhanced",
+    p = dica_run(
+        [*DICA, "experiment", "--algorithms", "enhanced",
          "--volumes", "300", "--seeds", "12", "--duration", "20", "--out", "grid", "--quiet"],
         capture_output=True, text=True, cwd=tmp_path, timeout=300,
     )  # fmt: skip

@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import json
 import math
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -24,6 +22,7 @@ from dica.sim_gateway.signals import (
     with_clearance,
     yellow_time_s,
 )
+from tests.dica_cli import DICA, dica_run
 
 ROOT = Path(__file__).resolve().parents[1]
 STATES = ["GGgr", "yyyr", "rrrG", "rrry"]
@@ -117,8 +116,8 @@ def test_lights_never_collide_on_junctions_signalised_by_netconvert(
     out = tmp_path / "run"
     args = ["--net", str(net), "--junction", "J", "--algorithm", algorithm, "--volume", "500"]
     args += ["--duration", "180", "--seed", "12", "--out", str(out), "--quiet"]
-    p = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "run", *args],
+    p = dica_run(
+        [*DICA, "run", *args],
         capture_output=True,
         text=True,
         cwd=ROOT,

@@ -7,8 +7,6 @@ limit by SUMO's own record of speeds.
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -20,6 +18,7 @@ from dica.sim_gateway import embedded
 from dica.sim_gateway.demand import unserved
 from dica.sim_gateway.runconfig import RunConfig
 from dica.sim_gateway.scenario import light_id
+from tests.dica_cli import DICA, dica_run
 from tests.user_nets import BUS_ROUTES, CITY_MPS, JAM_ROUTES, ROUTES, SLOW_MPS, build_nets
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -114,8 +113,8 @@ def test_a_user_net_runs_collision_free_within_its_limits(
 
 
 def test_the_command_line_runs_a_city_grid_without_a_traceback(nets, tmp_path):
-    p = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "run", "--net", str(nets["twins"]),
+    p = dica_run(
+        [*DICA, "run", "--net", str(nets["twins"]),
          "--junction", "A", "--duration", "30", "--out", str(tmp_path / "run")],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )  # fmt: skip
@@ -197,8 +196,8 @@ def test_the_command_line_refuses_a_route_file_with_status_2(nets, tmp_path):
         (["--net", str(nets["grid"]), "--junction", "B1", "--routes", str(unknown)],
          "'NOPE' within the route for trip 't' is not known. The route"),  # SUMO's, one line
     ):  # fmt: skip
-        p = subprocess.run(
-            [sys.executable, "-m", "dica.tools.cli", "run", *args, "--duration", "10",
+        p = dica_run(
+            [*DICA, "run", *args, "--duration", "10",
              "--out", str(tmp_path / "run")],
             capture_output=True, text=True, cwd=ROOT, timeout=300,
         )  # fmt: skip

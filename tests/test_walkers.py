@@ -5,8 +5,6 @@ from __future__ import annotations
 
 import csv
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,14 +13,14 @@ import pytest
 from dica.ica.core.walk import WAIT_BOUND_S
 from dica.sim_gateway.recording.style import rgba
 from dica.sim_gateway.safety import PersonCheck
+from tests.dica_cli import DICA, dica_run
 from tests.test_recording import _read, _rows
 
 ROOT = Path(__file__).resolve().parents[1]
-DICA = [sys.executable, "-m", "dica.tools.cli"]
 
 
 def _run(out: Path, *args: str) -> dict:
-    p = subprocess.run(
+    p = dica_run(
         [*DICA, "run", "--out", str(out), "--quiet", *args],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )  # fmt: skip
@@ -157,7 +155,7 @@ def test_a_route_files_people_are_held_where_they_come_and_cross_untouched(tmp_p
     riders = tmp_path / "riders.rou.xml"
     riders.write_text(ROUTES_WITH_PEOPLE.replace(
         '<walk from="A1B1" to="B1A1"/>', '<ride from="A1B1" to="B1A1" lines="ANY"/>'))  # fmt: skip
-    p = subprocess.run(
+    p = dica_run(
         [*DICA, "run", "--net", str(net), "--junction", "B1", "--routes", str(riders),
          "--duration", "10", "--out", str(tmp_path / "x")],
         capture_output=True, text=True, cwd=ROOT, timeout=120,
@@ -196,7 +194,7 @@ def test_a_body_touching_a_car_is_a_hit():
     ],
 )
 def test_people_where_the_junction_cannot_have_them_is_one_clear_line(tmp_path, args, says):
-    p = subprocess.run(
+    p = dica_run(
         [*DICA, "run", "--out", str(tmp_path / "x"), "--duration", "10", *args],
         capture_output=True, text=True, cwd=ROOT, timeout=120,
     )  # fmt: skip

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import pytest
 
@@ -14,6 +12,7 @@ from dica.ica.core.proposal import propose
 from dica.ica.core.request import Confirmation
 from dica.ica.core.window import WindowOrder
 from dica.sim_gateway.audit import conflicts
+from tests.dica_cli import DICA, dica_run
 from tests.test_reactive import flown
 from tests.test_run_sumo import ROOT
 
@@ -83,8 +82,8 @@ def test_a_lane_s_order_is_kept_and_unknown_requests_come_last(ch45):
 @pytest.mark.sumo
 def test_a_windowed_run_in_sumo_is_safe_and_reorders(tmp_path):
     out = tmp_path / "w"
-    p = subprocess.run(
-        [sys.executable, "-m", "dica.tools.cli", "run", "--volume", "500", "--duration", "150",
+    p = dica_run(
+        [*DICA, "run", "--volume", "500", "--duration", "150",
          "--window", "0.5", "--out", str(out), "--quiet"],
         capture_output=True, text=True, cwd=ROOT, timeout=600,
     )  # fmt: skip

@@ -239,7 +239,6 @@ py=.venv/bin/python
 if [ -z "$net" ]; then
   read -r net junction < <("$py" -c "
 import sys
-import dica.ica.core.dica
 from dica.sim_gateway.scenario import ScenarioError, default_scenario
 try:
     sc = default_scenario(sys.argv[1])
