@@ -89,6 +89,9 @@ from dica.vehicle_agent.actuation import BIG, NO_PLAN, Actuation
 CLOCKS = ("lockstep", "realtime")
 PREDICT_S = 2.0  # [s sim] how far ahead a realtime STATE says where each asker will be
 WALK_TIMEOUT_S = 2.0  # [s wall] how long the roadside waits for the ICA's GO to a WALK
+# [s wall] the same in lockstep, where the step waits anyway and an answer given up on a
+# loaded host would make other decisions than the embedded run (the agents' lockstep wait)
+LOCKSTEP_ASK_S = 5.0
 NOTICE_S = 1.0  # [s sim] how long a realtime STATE keeps naming a vehicle after news about it
 VEHICLES_EVERY = 20  # steps: how often VEHICLES goes out with no news and no observer
 AGE_BINS_MS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)  # command age histogram
@@ -381,7 +384,10 @@ class ZenohDrivers:
         or None."""
         got = None
         for r in self.session.get(
-            key, payload=query_payload(encode(msg)), timeout=WALK_TIMEOUT_S, **every_answer()
+            key,
+            payload=query_payload(encode(msg)),
+            timeout=LOCKSTEP_ASK_S if self.clock == "lockstep" else WALK_TIMEOUT_S,
+            **every_answer(),
         ):
             body = reply_body(r, key) if r.ok is not None else None
             if got is None and body is not None:

@@ -74,7 +74,11 @@ LAG_WARN_S = 0.5  # [s wall] a STATE older than this when acted on is worth a wa
 FORGET_S = 60.0  # [s wall] a vehicle no STATE has named for this long is forgotten
 LEAD_MIN_S = 0.25  # [s sim] shortest automatic lead in real time
 MIN_TIMEOUT_S, MAX_TIMEOUT_S = 0.2, 3.0  # [s wall] bounds of the adaptive query timeout
-LOCKSTEP_TIMEOUT_S = 2.0  # [s wall] the least a lockstep query waits
+# [s wall] what a lockstep query waits: the gateway waits for the answer anyway, and one
+# given up early makes other decisions than the embedded run. 2 s was seen running out
+# on a loaded host (an ICA answering a stolen log-in's flood, two cores shared by a
+# dozen processes); only a dead ICA should time out
+LOCKSTEP_TIMEOUT_S = 5.0
 BACKOFF_MAX = 4.0  # the most the timeout is stretched while queries go unanswered
 
 
@@ -255,15 +259,16 @@ class ZenohLink:
         return response_to_core(msg)
 
     def adapt(self) -> None:
-        """Query timeouts from the round trips measured lately, never shorter than two
-        of the STATEs' one-way ages (a round trip crosses at least two such links), and
-        longer while queries go unanswered."""
+        """Query timeouts: in lockstep :data:`LOCKSTEP_TIMEOUT_S`; in real time from the
+        round trips measured lately, never shorter than two of the STATEs' one-way ages
+        (a round trip crosses at least two such links), and longer while queries go
+        unanswered."""
+        if self.blocking:
+            self.timeout_s = LOCKSTEP_TIMEOUT_S
+            return
         t = self.timing
         base = max(1.5 * t.q(t.rtt_s, 90, 0.4), 2.5 * t.q(t.state_age_s, 90, 0.0)) + 0.05
-        # in lockstep the gateway waits for the answer anyway, and one given up early
-        # would make other decisions than the embedded run: only a dead ICA times out
-        low = LOCKSTEP_TIMEOUT_S if self.blocking else MIN_TIMEOUT_S
-        self.timeout_s = min(max(base * self.backoff, low), MAX_TIMEOUT_S)
+        self.timeout_s = min(max(base * self.backoff, MIN_TIMEOUT_S), MAX_TIMEOUT_S)
 
 
 class Agent:
