@@ -25,6 +25,7 @@ import pytest
 
 from dica.tools.loopback import free_port
 from tests.cluster_proc import logs_tail, stop_cluster
+from tests.dica_cli import dica_run
 
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "dica.tools.cli"]
@@ -147,7 +148,7 @@ def _secured_run_under_attack(out: Path, router_rules: bool) -> tuple[dict, Atta
 @pytest.fixture(scope="module")
 def embedded(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("emb")
-    p = subprocess.run([*DICA, "run", *COMMON, "--out", str(out), "--quiet"],
+    p = dica_run([*DICA, "run", *COMMON, "--out", str(out), "--quiet"],
                        capture_output=True, text=True, cwd=ROOT, timeout=300)  # fmt: skip
     assert p.returncode == 0, p.stderr
     return out

@@ -26,6 +26,7 @@ import pytest
 
 from dica.tools.loopback import free_port, router_and_ica
 from tests.cluster_proc import logs_tail, stop_cluster
+from tests.dica_cli import dica_run
 from tests.user_nets import ROUTES, build_nets
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -64,7 +65,7 @@ def _no_leftovers(port: int) -> None:
 
 
 def _embedded(out: Path, common: list[str]) -> None:
-    e = subprocess.run(
+    e = dica_run(
         [*DICA, "run", *common, "--out", str(out), "--quiet"],
         capture_output=True,
         text=True,
@@ -74,12 +75,34 @@ def _embedded(out: Path, common: list[str]) -> None:
     assert e.returncode == 0, e.stderr
 
 
+def _lockstep_evidence(cl_dir: Path) -> str:
+    """What may have made a lockstep run leave the embedded run's decisions: a query
+    given up (no_answer), a STATE sent again, a late COMMAND, REVOKEs and the ICA's
+    refusals. Shown with a mismatch, so that a failure on a loaded host says which."""
+    lines = []
+    for log in sorted((cl_dir / "logs").glob("agent-*.log")):
+        for line in log.read_text(errors="replace").splitlines():
+            if "stopped at" in line and "{" in line:
+                a = json.loads(line[line.index("{") :])
+                keep = ("no_answer", "rtt_p99_ms", "max_lag_ms", "revokes_received", "rejections")
+                lines.append(f"{a['agent']}: " + json.dumps({k: a.get(k) for k in keep}))
+    m = json.loads((cl_dir / "metrics.json").read_text())
+    keep = ("resent_states", "stale_commands", "revoke_waves", "step_wait_p99_ms")
+    lines.append("gateway: " + json.dumps({k: m.get(k) for k in keep}))
+    ica = cl_dir / "ica.json"
+    if ica.exists():
+        for inc in json.loads(ica.read_text()).get("incarnations", []):
+            keep = ("revokes_sent", "revoke_acks", "compute_p99_ms", "rejections")
+            lines.append("ica: " + json.dumps({k: inc.get(k) for k in keep}))
+    return "\n".join(lines)
+
+
 def _same_decisions(cl_dir: Path, emb_dir: Path) -> None:
     cl, emb = _rows(cl_dir / "vehicles.csv"), _rows(emb_dir / "vehicles.csv")
-    assert cl.keys() == emb.keys()
+    assert cl.keys() == emb.keys(), _lockstep_evidence(cl_dir)
     for vin, row in emb.items():
         for col in ("entered_s", "confirmed_s", "exited_s", "stopped"):
-            assert cl[vin][col] == row[col], (vin, col)
+            assert cl[vin][col] == row[col], (vin, col, _lockstep_evidence(cl_dir))
     m = json.loads((cl_dir / "metrics.json").read_text())
     me = json.loads((emb_dir / "metrics.json").read_text())
     for k in ("generated", "crossed", "mean_trip_time_s", "stopped_rate", "min_gap_m"):

@@ -25,6 +25,7 @@ import pytest
 
 from dica.tools.loopback import free_port
 from tests.cluster_proc import logs_tail, stop_cluster
+from tests.dica_cli import dica_run
 from tests.network_corridor import DICA, DURATION, corridor_and_its_embedded_run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -163,7 +164,7 @@ def test_lockstep_cluster_of_a_gated_grid_makes_the_embedded_decisions(tmp_path)
     routes.write_text(HEAVY)
     scen = ["--net", str(net), "--junctions", "all", "--routes", str(routes), "--duration", "60"]
     emb = tmp_path / "emb"
-    e = subprocess.run(
+    e = dica_run(
         [*DICA, "run", *scen, "--out", str(emb), "--quiet"],
         capture_output=True, text=True, cwd=ROOT, timeout=300,
     )  # fmt: skip
@@ -194,7 +195,7 @@ def test_a_lockstep_network_cluster_under_reactive_dica_makes_the_embedded_decis
     scen = ["--net", str(g.net_path), "--junctions", "all", "--routes", str(routes),
             "--algorithm", "rdica", "--duration", "90"]  # fmt: skip
     emb = tmp_path / "emb"
-    e = subprocess.run(
+    e = dica_run(
         [*DICA, "run", *scen, "--revocation", "drop", "--ev-notices", "--out", str(emb), "--quiet"],
         capture_output=True, text=True, cwd=ROOT, timeout=300,
     )  # fmt: skip

@@ -30,6 +30,7 @@ import zenoh
 
 from dica.tools.loopback import free_port
 from tests.cluster_proc import logs_tail, stop_cluster
+from tests.dica_cli import dica_run
 
 ROOT = Path(__file__).resolve().parents[1]
 DICA = [sys.executable, "-m", "dica.tools.cli"]
@@ -414,7 +415,7 @@ def test_lockstep_under_delay_is_exact_and_waits_only_when_an_agent_must_act(tmp
     )
     stdout, stderr = _finish(proc, out)
     assert proc.returncode == 0, stdout + stderr
-    e = subprocess.run(
+    e = dica_run(
         [*DICA, "run", *common, "--out", str(tmp_path / "emb"), "--quiet"],
         capture_output=True,
         text=True,
