@@ -93,9 +93,9 @@ from dica.schemas.messages import (
 )
 
 HOLD_S = 2.0  # [s wall] longest a request may wait for the clock to reach its time
-# [s sim] how far ahead of its last CLOCK the roadside may ask about a human driver: it
-# asks at the start of its step, before that step's CLOCK
-HUMAN_AHEAD_S = 1.0
+# [s sim] how far ahead of its last CLOCK the roadside may ask (a human driver's green, a
+# sighting, an EV's notice): it asks at the start of its step, before that step's CLOCK
+ROADSIDE_AHEAD_S = 1.0
 HUMAN_OWNER = "gateway"  # who speaks for a human driver: the roadside, no agent
 REVOKE_EVERY_S = 0.5  # [s wall] an unanswered REVOKE goes out again this often
 STATS_EVERY_S = 5.0  # [s wall] how often the statistics file is rewritten
@@ -599,7 +599,7 @@ class IcaService:
         if not _is_chunk(msg.vin):
             self._reject(item.query, "?", -1, Reason.BAD_STATE, "VIN has key characters")
             return
-        if msg.t_s > self.now_s + HUMAN_AHEAD_S:
+        if msg.t_s > self.now_s + ROADSIDE_AHEAD_S:
             # the CLOCKs sent before it may not have been taken yet (the session hands
             # samples and queries over on threads of its own): wait for them, as a REQUEST
             # observed ahead of the clock does; refused if they never come (HOLD_S)
@@ -660,7 +660,7 @@ class IcaService:
         msg = self._from_roadside(item, (EvComing,), "notices", "emergency vehicles' notices")
         if msg is None:
             return
-        if msg.t_s > self.now_s + HUMAN_AHEAD_S:  # the CLOCKs before it first (_on_human)
+        if msg.t_s > self.now_s + ROADSIDE_AHEAD_S:  # the CLOCKs before it first (_on_human)
             self._held.append((since if since is not None else time.monotonic(), item))
             return
         notice = EvNotice(msg.ev, msg.in_edge, msg.out_edge, msg.eta_s, msg.t_s)

@@ -173,6 +173,7 @@ class ReactiveDica(Dica):
         # EVs on their way from upstream (ica.core.ev_notice): their lanes are cleared early
         self.notices = Notices()
         self._notice_routes: dict[frozenset[str], tuple[Route, ...]] = {}
+        self._notice_lanes: dict[tuple[str, str], frozenset[str]] = {}  # by (in, out) edge
         self._no_room: set[str] = set()  # last refused for room beyond the junction
         # revoked vehicles to ask again (``replan_revoked`` off), in the order the solver put
         # them, and since when each was held for those before it
@@ -640,11 +641,16 @@ class ReactiveDica(Dica):
         junction does not have is refused."""
         if not (isinstance(notice.ev, str) and math.isfinite(notice.eta_s)):
             raise RequestError(Reason.BAD_STATE, "an EV notice needs an id and a finite arrival")
-        lanes = frozenset(
-            r.in_lane
-            for r in self.intersection.routes
-            if edge_of(r.in_lane) == notice.in_edge and edge_of(r.out_lane) == notice.out_edge
-        )
+        way = (notice.in_edge, notice.out_edge)
+        lanes = self._notice_lanes.get(way)  # an EV is told again every 2 s of its way here
+        if lanes is None:
+            lanes = frozenset(
+                r.in_lane
+                for r in self.intersection.routes
+                if edge_of(r.in_lane) == notice.in_edge and edge_of(r.out_lane) == notice.out_edge
+            )
+            if lanes:  # (a way this junction lacks is not kept: any text may be asked)
+                self._notice_lanes[way] = lanes
         if not lanes:
             raise RequestError(
                 Reason.UNKNOWN_ROUTE,
