@@ -78,22 +78,23 @@ def _embedded(out: Path, common: list[str]) -> None:
 def _lockstep_evidence(cl_dir: Path) -> str:
     """What may have made a lockstep run leave the embedded run's decisions: a query
     given up (no_answer), a STATE sent again, a late COMMAND, REVOKEs and the ICA's
-    refusals. Shown with a mismatch, so that a failure on a loaded host says which."""
-    lines = []
-    for log in sorted((cl_dir / "logs").glob("agent-*.log")):
-        for line in log.read_text(errors="replace").splitlines():
-            if "stopped at" in line and "{" in line:
-                a = json.loads(line[line.index("{") :])
-                keep = ("no_answer", "rtt_p99_ms", "max_lag_ms", "revokes_received", "rejections")
-                lines.append(f"{a['agent']}: " + json.dumps({k: a.get(k) for k in keep}))
+    refusals, from the run's metrics (the gateway's, and the roles' own it gathered).
+    Shown with a mismatch, so that a failure on a loaded host says which."""
     m = json.loads((cl_dir / "metrics.json").read_text())
-    keep = ("resent_states", "stale_commands", "revoke_waves", "step_wait_p99_ms")
-    lines.append("gateway: " + json.dumps({k: m.get(k) for k in keep}))
-    ica = cl_dir / "ica.json"
-    if ica.exists():
-        for inc in json.loads(ica.read_text()).get("incarnations", []):
-            keep = ("revokes_sent", "revoke_acks", "compute_p99_ms", "rejections")
-            lines.append("ica: " + json.dumps({k: inc.get(k) for k in keep}))
+    roles = m.get("roles", {})
+
+    def some(d: dict, *keys: str) -> str:
+        return json.dumps({k: d.get(k) for k in keys})
+
+    lines = [
+        f"{name}: " + some(a, "no_answer", "rtt_p99_ms", "max_lag_ms", "revokes_received",
+                           "rejections")
+        for name, a in sorted(roles.get("agents", {}).items())
+    ]  # fmt: skip
+    lines.append("gateway: " + some(m, "resent_states", "stale_commands", "revoke_waves",
+                                    "step_wait_p99_ms"))  # fmt: skip
+    ica = roles.get("ica") or {}
+    lines.append("ica: " + some(ica, "revokes_sent", "revoke_acks", "compute_p99_ms", "rejections"))
     return "\n".join(lines)
 
 
