@@ -126,10 +126,19 @@ def test_a_notice_not_renewed_ends_and_none_holds_past_its_bound(ch45):
 
 
 def test_a_notice_of_a_way_the_junction_has_not_is_refused(ch45):
+    """Refused every time it comes, before and after a way the junction has was taken
+    (each way's lanes are kept once worked out), and so is a known road in paired with
+    a road out it does not lead to."""
     ica = ReactiveDica(ch45, CFG)
-    with pytest.raises(RequestError) as e:
-        ica.ev_coming(EvNotice("ev", "nowhere", "S_out", 10.0, 0.0), 0.0)
-    assert e.value.reason is Reason.UNKNOWN_ROUTE
+    ica.advance(0.0)
+    nowhere = EvNotice("ev", "nowhere", "S_out", 10.0, 0.0)
+    wrong_out = EvNotice("ev", edge_of(EV_LANES[0]), "nowhere", 10.0, 0.0)
+    for _ in range(2):
+        for bad in (nowhere, wrong_out):
+            with pytest.raises(RequestError) as e:
+                ica.ev_coming(bad, 0.0)
+            assert e.value.reason is Reason.UNKNOWN_ROUTE
+        assert ica.ev_coming(notice(eta_s=30.0), 0.0)
     with pytest.raises(RequestError):
         ica.ev_coming(notice(eta_s=math.nan), 0.0)
 
