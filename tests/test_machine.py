@@ -68,3 +68,18 @@ def test_a_detect_refused_with_no_request_out_is_sent_again(ch45):
     assert v.phase is Phase.APPROACHING and cmd is not None and cmd.wake_s < 0
     v.step(obs(1.05), link)
     assert link.detects == ["w1", "w1"] and not math.isnan(v.next_request_s)
+
+
+def test_a_car_held_for_an_emergency_vehicle_asks_again_the_next_step(ch45):
+    """What a held car waits for (an answer to a revocation, the EV's plan, those ordered
+    before it) comes within a step or two, and it brakes further from what the ICA
+    planned for it every step it waits: it asks again a step later, not a retry later."""
+    v, link = vehicle(ch45), Later()
+    v.step(obs(0.05), link)
+    seq = link.requests[-1]
+    cmd = v.answered(Rejection("w1", seq, Reason.HELD, "w1 waits: ev was ordered before it"), 0.1)
+    assert cmd is not None and 0.1 < cmd.wake_s <= 0.15
+    v.step(obs(0.15), link)
+    assert len(link.requests) == 2
+    cmd = v.answered(Rejection("w1", link.requests[-1], Reason.NO_ROOM, ""), 0.2)
+    assert cmd is not None and math.isclose(cmd.wake_s, 0.2 + v.retry_s)  # others: a retry

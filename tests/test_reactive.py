@@ -613,3 +613,32 @@ def test_revoked_cars_asking_again_go_in_the_order_they_were_given(ch45, first_a
         still = again(second, t + ORDER_WAIT_S - 0.5, 4)
         assert isinstance(still, Rejection) and "ordered before" in still.detail
         assert isinstance(again(second, t + ORDER_WAIT_S + 0.5, 5), Confirmation)
+
+
+def test_a_revoked_car_asking_again_before_the_ev_has_its_plan_waits_for_it(ch45):
+    """Over a link the bound is checked on a copy that plans the EV first and the revoked
+    cars around it: a revoked car that asks again while the EV is still held waits for the
+    EV's plan, whether or not its way crosses the EV's (asking first, one that does not
+    was planned around revoked plans not yet dropped and came out seconds later than the
+    copy said), and the EV, once planned, frees it."""
+    east = "E_in_1", "W_out_1"
+    ica = ReactiveDica(ch45, CFG, reactive=ReactiveConfig(replan_revoked=False))
+    w1 = scene(ica, ch45)
+    ica.detect("e1", east[0], 0.0)
+    e1 = ica.handle(request(ch45, "e1", east, 0.0, 30.0, 8.0), 0.0)
+    assert isinstance(e1, Confirmation)
+    r = start_event(ica, ch45)
+    first = r.revoked[0]
+    assert ica._ordered_before(first, 0.5) == r.ev  # the rule itself, whatever the route
+    for vin, seq in ica.due_revocations():
+        ica.cancel(vin, seq)
+    conf, lanes = {"w1": (w1, CROSS), "e1": (e1, east)}[first]
+    ica.advance(0.55)
+    d = _where(ch45, conf, lanes, 0.55)
+    held = ica.handle(request(ch45, first, lanes, 0.55, d, 6.0, seq=3), 0.55)
+    assert isinstance(held, Rejection) and held.reason is Reason.HELD
+    assert isinstance(ev_request(ica, ch45, seq=1), Confirmation)
+    assert ica._ordered_before(first, 0.6) is None
+    ica.advance(0.6)
+    d = _where(ch45, conf, lanes, 0.6)
+    assert isinstance(ica.handle(request(ch45, first, lanes, 0.6, d, 6.0, seq=4), 0.6), Confirmation)

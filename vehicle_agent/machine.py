@@ -214,6 +214,12 @@ class Vehicle:
             wait = self.config.step_s  # the query has waited its timeout already
         elif answer.reason is Reason.NOT_HEAD:
             wait = self.config.step_s / 2  # the lane's order is about to change
+        elif answer.reason is Reason.HELD:
+            # held for an emergency vehicle's reordering: what it waits for (an answer to a
+            # revocation, the EV's plan, those ordered before it) comes within a step or
+            # two, and every step it waits longer it brakes further from what was planned:
+            # it asks at the next step (half a step on, so no rounding skips one)
+            wait = self.config.step_s / 2
         else:
             wait = self.retry_s
         self.next_request_s = now_s + wait

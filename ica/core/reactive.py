@@ -92,12 +92,14 @@ from dica.ica.core.request import Confirmation, Reason, Rejection, Request, Requ
 from dica.ica.core.revocation import DROPPED, EXPIRED, KEPT, Answer, Reorder
 from dica.ica.core.route import Route
 from dica.ica.core.separation import SeparationModel
+from dica.ica.core.stop_law import predict_stop
 from dica.ica.core.zones import ConflictTables, Shape
 
 STOP_SLACK_STEPS, STOP_SLACK_M = 2, 0.5  # room kept beyond the stopping bound
 # [s] with revoked vehicles asking again (no re-planning here), one is held this long at most
 # for those the order put before it to have their plans
 ORDER_WAIT_S = 3.0
+REASK_STEPS = 2  # a revoked vehicle's new plan: the REVOKE's step, its answer's, then it asks
 _ASIDE = "~revoked"  # suffix of a revoked reservation's key while it awaits acknowledgement
 
 
@@ -687,13 +689,25 @@ class ReactiveDica(Dica):
         return None
 
     def _ordered_before(self, vin: str, now_s: float) -> str | None:
-        """A revoked vehicle asking again waits for those the order put before it to have
-        their plans (they re-ask in their own order otherwise, and the bound checked on
-        the order would not hold), ORDER_WAIT_S at most. The first it waits for, or None."""
+        """A revoked vehicle asking again waits for its event's EV and for those the order
+        put before it to have their plans, ORDER_WAIT_S at most: the bound was checked on
+        a copy that planned them so (the EV first, then the revoked in the order, with
+        every revocation answered). Asking in their own order, or before the EV, they were
+        planned around revoked plans not yet dropped and charged up to 6 s over a 2 s
+        bound. The first it waits for, or None."""
         if vin not in self._re_ask:
             return None
         ahead = self._re_ask[: self._re_ask.index(vin)]
         first = next((v for v in ahead if v not in self._confirmed and v in self._lane_of), None)
+        ev = self._event
+        if (
+            ev is not None
+            and ev.ev_confirmed_s is None
+            and ev.reorder is not None
+            and vin in ev.reorder.revoked
+            and ev.ev in self._lane_of
+        ):
+            first = ev.ev
         if first is None:
             return None
         since = self._order_since.setdefault(vin, now_s)
@@ -925,27 +939,58 @@ class ReactiveDica(Dica):
 
     def _over_bound(self, req: Request, now_s: float, o: _Ordered) -> set[str]:
         """Carry ``o`` out on a copy of this ICA, as it would go with every revocation
-        acknowledged at once: the EV planned by its REQUEST, then the revoked vehicles in
-        the order around its real plan. Returns the revoked vehicles whose new plan would
+        acknowledged: the EV planned by its REQUEST, then the revoked vehicles in the
+        order around its real plan. Returns the revoked vehicles whose new plan would
         enter later than their revoked one by more than what is left of their bound (or
-        that would get no plan at all)."""
-        trial = copy.deepcopy(self, self._shared())
+        that would get no plan at all).
+
+        With ``replan_revoked`` off the revoked vehicles drop their plans and ask again
+        themselves, each once those before it have theirs: from REASK_STEPS steps on,
+        all in one step or each a step after the one before (their requests in one step
+        go in any order). A plan is found among slots, so a start a step off can land in
+        another: the order must keep every bound at both ends."""
         revoked = [o.cands[i] for i in o.revoked()]
         old = {c.vin: self._confirmed[c.vin].confirmation.entry_time_s for c in revoked}
-        for c in revoked:
-            trial._drop(c.vin)
-        trial._event = None
-        try:
-            Dica._handle(trial, req, now_s)
-        except RequestError:
-            return set()  # the EV is not planned now: nothing to measure against
-        new = {conf.vin: conf.entry_time_s for conf in trial._replan([c.state for c in revoked])}
+        states = [c.state for c in revoked]
+        if self.reactive.replan_revoked:
+            cases = [states]
+        else:
+            cases = [
+                [self._re_asked(st, REASK_STEPS) for st in states],
+                [self._re_asked(st, REASK_STEPS + i) for i, st in enumerate(states)],
+            ]
+            if len(states) < 2:
+                cases = cases[:1]
         bound = self.reactive.max_added_delay_s
-        return {
-            vin
-            for vin, t in old.items()
-            if vin not in new or new[vin] - t > bound - self._added.get(vin, 0.0) + 1e-9
-        }
+        over: set[str] = set()
+        for case in cases:
+            trial = copy.deepcopy(self, self._shared())
+            for c in revoked:
+                trial._drop(c.vin)
+            trial._event = None
+            try:
+                Dica._handle(trial, req, now_s)
+            except RequestError:
+                return set()  # the EV is not planned now: nothing to measure against
+            new = {conf.vin: conf.entry_time_s for conf in trial._replan(case)}
+            over |= {
+                vin
+                for vin, t in old.items()
+                if vin not in new or new[vin] - t > bound - self._added.get(vin, 0.0) + 1e-9
+            }
+        return over
+
+    def _re_asked(self, st: Replan, steps: int) -> Replan:
+        """``st`` ``steps`` steps on, the plan dropped: where the vehicle's stop law takes it
+        (a vehicle that may ask does not speed up), from which its new plan starts."""
+        kin, h = self.config.kinematics, self.config.step_s
+        d, v = predict_stop(
+            st.dist_m, st.speed_mps, steps, gap_m=kin.stop_gap_m, cap_mps=st.speed_mps, h=h,
+            accel_mps2=kin.accel_mps2, decel_mps2=kin.decel_mps2,
+        )  # fmt: skip
+        # on the clock's millisecond grid, as the vehicle's own REQUEST will be: the search
+        # can tell a plan starting on the grid from one a rounding error off it
+        return replace(st, t0_s=round(st.t0_s + steps * h, 6), dist_m=d, speed_mps=v)
 
     def _shared(self) -> dict[int, object]:
         """What a trial copy shares with this ICA instead of copying (read-only)."""
