@@ -641,4 +641,5 @@ def test_a_revoked_car_asking_again_before_the_ev_has_its_plan_waits_for_it(ch45
     assert ica._ordered_before(first, 0.6) is None
     ica.advance(0.6)
     d = _where(ch45, conf, lanes, 0.6)
-    assert isinstance(ica.handle(request(ch45, first, lanes, 0.6, d, 6.0, seq=4), 0.6), Confirmation)
+    again = ica.handle(request(ch45, first, lanes, 0.6, d, 6.0, seq=4), 0.6)
+    assert isinstance(again, Confirmation)
