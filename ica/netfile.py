@@ -16,7 +16,7 @@ import sumolib
 
 from dica.ica.core.crosswalk import Crosswalk
 from dica.ica.core.intersection import Intersection
-from dica.ica.core.limits import SpeedCaps, Turn
+from dica.ica.core.limits import Kinematics, SpeedCaps, Turn
 from dica.ica.core.route import Route, Via, build_route, classify_turn
 
 _DIR_TO_TURN = {"l": Turn.LEFT, "L": Turn.LEFT, "r": Turn.RIGHT, "R": Turn.RIGHT, "s": Turn.THROUGH}
@@ -32,6 +32,24 @@ _MAX_VIA_CHAIN = 16  # internal lanes per connection; SUMO uses at most a handfu
 _MARGIN_M = 5.0  # slack beyond the longest vehicle at both ends of a route
 MAX_VEHICLE_LENGTH_M = 12.0  # routes reach this far beyond the region and the exit line
 DEFAULT_CAPS = SpeedCaps()  # frozen, so one shared default is safe
+STOP_SLACK_M = 1.0  # [m] on top of the braking distance: a step's travel, and some
+STEP_S = 0.05  # [s] a vehicle is first seen up to a step's travel inside the region
+
+
+def stop_room_m(v_mps: float, kin: Kinematics = Kinematics()) -> float:
+    """The room a vehicle at ``v_mps`` needs to stop short of a line, braking as hard as
+    the ICA plans a vehicle may (``kin.decel_mps2``): what a region or a link between two
+    junctions must give a vehicle that has no plan yet."""
+    return v_mps * v_mps / (2.0 * kin.decel_mps2) + kin.stop_gap_m + STOP_SLACK_M
+
+
+def region_m(fastest_mps: float, comm_length_m: float, kin: Kinematics = Kinematics()) -> float:
+    """A junction's communication region: ``comm_length_m`` (the dissertation's 50 m), or
+    longer where vehicles come in faster than they could stop within it once first seen
+    (on a 50 m region, faster than about 74 km/h): the region on every approach is as
+    long as what its fastest one needs, in whole metres."""
+    need = stop_room_m(fastest_mps, kin) + fastest_mps * STEP_S
+    return float(max(comm_length_m, math.ceil(need)))
 
 
 class NetworkError(Exception):
@@ -61,6 +79,15 @@ def load_intersection(
             f"junction {junction_id!r} not in {net_path} (known junctions: {shown or 'none'})"
         )
     node = net.getNode(junction_id)
+    incoming = [
+        lane
+        for edge in node.getIncoming()
+        if not edge.isSpecial()
+        for lane in edge.getLanes()
+        if _serves(lane)
+    ]
+    # vehicles come in at the net's limit (a route file's are driven by SUMO until then)
+    comm_length_m = region_m(max((ln.getSpeed() for ln in incoming), default=0.0), comm_length_m)
     approach_m = comm_length_m + max_vehicle_length_m + _MARGIN_M
     tail_m = max_vehicle_length_m + _MARGIN_M
 

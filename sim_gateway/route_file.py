@@ -21,11 +21,10 @@ from pathlib import Path
 
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics
-from dica.ica.netfile import MAX_VEHICLE_LENGTH_M, SERVED_CLASSES
+from dica.ica.netfile import MAX_VEHICLE_LENGTH_M, SERVED_CLASSES, stop_room_m
 from dica.sim_gateway.runconfig import RunError
 
 MAX_LENGTH_M = MAX_VEHICLE_LENGTH_M
-STOP_SLACK_M = 1.0  # [m] on top of the braking distance: a step's travel, and some
 DEFAULT_TYPE = "DEFAULT_VEHTYPE"
 _TRAFFIC = ("vehicle", "trip", "flow")
 _PEOPLE = ("person", "personFlow")
@@ -129,11 +128,11 @@ def check_approaches(inter: Intersection, kin: Kinematics) -> None:
     shorter than the region (the region shrinks to fit), as it enters the lane; from
     there it must be able to stop short of the line at the lane's limit."""
     for r in sorted(inter.routes, key=lambda r: r.id):
-        need = r.road_mps**2 / (2.0 * kin.decel_mps2) + kin.stop_gap_m + STOP_SLACK_M
+        need = stop_room_m(r.arrival_mps, kin)
         if r.in_lane_m < need:
             raise RunError(
                 f"junction {inter.junction_id}: its approach {r.in_lane} is {r.in_lane_m:.0f} m "
-                f"long, and a vehicle at its {r.road_mps * 3.6:.0f} km/h needs {need:.0f} m "
+                f"long, and a vehicle at its {r.arrival_mps * 3.6:.0f} km/h needs {need:.0f} m "
                 "to stop before the line; join the junctions that close into one "
                 "(netconvert --junctions.join) or choose another"
             )
@@ -152,12 +151,12 @@ def check_handovers(inters: Sequence[Intersection], kin: Kinematics) -> list[str
             if before is None or r.in_lane in notes:
                 continue
             room = r.in_lane_m - MAX_LENGTH_M
-            need = r.road_mps**2 / (2.0 * kin.decel_mps2) + kin.stop_gap_m + STOP_SLACK_M
+            need = stop_room_m(r.arrival_mps, kin)
             if room < need:
                 raise RunError(
                     f"junctions {before} and {x.junction_id}: the link {r.in_lane} between "
                     f"them is {r.in_lane_m:.0f} m long, and a vehicle out of {before} at "
-                    f"{r.road_mps * 3.6:.0f} km/h needs {need + MAX_LENGTH_M:.0f} m to stop "
+                    f"{r.arrival_mps * 3.6:.0f} km/h needs {need + MAX_LENGTH_M:.0f} m to stop "
                     f"before {x.junction_id}'s line; join the two (netconvert "
                     "--junctions.join) or leave one out"
                 )

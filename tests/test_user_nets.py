@@ -12,14 +12,23 @@ from pathlib import Path
 
 import pytest
 
-from dica.ica.core.limits import SpeedCaps, Turn
-from dica.ica.netfile import load_intersection
+from dica.ica.core.limits import Kinematics, SpeedCaps, Turn
+from dica.ica.netfile import load_intersection, stop_room_m
 from dica.sim_gateway import embedded
 from dica.sim_gateway.demand import unserved
 from dica.sim_gateway.runconfig import RunConfig
 from dica.sim_gateway.scenario import light_id
 from tests.dica_cli import DICA, dica_run
-from tests.user_nets import BUS_ROUTES, CITY_MPS, JAM_ROUTES, ROUTES, SLOW_MPS, build_nets
+from tests.user_nets import (
+    BUS_ROUTES,
+    CITY_MPS,
+    JAM_ROUTES,
+    ROUTES,
+    SLOW_MPS,
+    build_nets,
+    make,
+    tool,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -268,3 +277,46 @@ def test_a_collision_counts_against_the_junction_on_its_own_lanes_only(nets):
     assert j.covers(r.in_lane) and j.covers(r.out_lane) and j.covers(":B1_0_0")
     assert all(j.covers(v) for v in r.via_lanes)
     assert not j.covers("A1A2_0") and not j.covers(":A1_0_0") and not j.covers(":B11_0_0")
+
+
+FAST_NODES = """<nodes><node id="T" x="0" y="0" type="priority"/><node id="w" x="-300" y="0"/>
+ <node id="e" x="300" y="0"/><node id="s" x="0" y="-300"/></nodes>"""
+FAST_EDGES = """<edges>
+ <edge id="wi" from="w" to="T" numLanes="1" speed="22.22"/>
+ <edge id="wo" from="T" to="w" numLanes="1" speed="22.22"/>
+ <edge id="ei" from="e" to="T" numLanes="1" speed="25.00"/>
+ <edge id="eo" from="T" to="e" numLanes="1" speed="25.00"/>
+ <edge id="si" from="s" to="T" numLanes="1" speed="13.89"/>
+ <edge id="so" from="T" to="s" numLanes="1" speed="13.89"/>
+</edges>"""
+FAST_ROUTES = """<routes>
+ <flow id="we" begin="0" end="150" period="4" from="wi" to="eo" departSpeed="max"/>
+ <flow id="ew" begin="1" end="150" period="5" from="ei" to="wo" departSpeed="max"/>
+ <flow id="ws" begin="2" end="150" period="6" from="wi" to="so" departSpeed="max"/>
+ <flow id="es" begin="0" end="150" period="7" from="ei" to="so" departSpeed="max"/>
+ <flow id="sw" begin="3" end="150" period="6" from="si" to="wo" departSpeed="max"/>
+ <flow id="se" begin="0" end="150" period="5" from="si" to="eo" departSpeed="max"/>
+</routes>"""
+
+
+def test_a_fast_road_gets_a_region_long_enough_to_stop_in(tmp_path):
+    """On roads faster than about 74 km/h a vehicle SUMO brings to a 50 m region at the
+    limit cannot stop short of the line there: the region grows to what the fastest
+    approach needs (90 km/h: 73 m), and a route file's vehicles at 80 and 90 km/h cross
+    a busy T junction with no plan missed and nothing touched."""
+    (tmp_path / "t.nod.xml").write_text(FAST_NODES)
+    (tmp_path / "t.edg.xml").write_text(FAST_EDGES)
+    net = tmp_path / "t.net.xml"
+    make([tool("netconvert"), "-n", str(tmp_path / "t.nod.xml"), "-e", str(tmp_path / "t.edg.xml"),
+          "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    inter = load_intersection(net, "T")
+    assert inter.comm_length_m >= stop_room_m(25.0, Kinematics()) + 25.0 * 0.05
+    assert max(r.arrival_mps for r in inter.routes) == pytest.approx(25.0)
+    routes = tmp_path / "t.rou.xml"
+    routes.write_text(FAST_ROUTES)
+    cfg = RunConfig(net_path=str(net), junction_id="T", routes_path=str(routes), duration_s=180.0)
+    res = embedded.run(cfg, inter, run_dir=tmp_path)
+    assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
+    assert res.extra["unconfirmed_entries"] == 0
+    acc = res.extra["accounted"]
+    assert acc["lost"] == 0 and acc["crossed"] >= 80

@@ -54,6 +54,15 @@ class Route:
     # [m/s] the lowest limit the net sets on the lanes inside the junction (SUMO's turn
     # speed): a human driver slows to it, whatever the plans' caps (inf: none known)
     via_mps: float = math.inf
+    # [m/s] the net's own limit on the incoming lane, however high (None: not known): SUMO's
+    # drivers bring vehicles to the region at it, so the room to stop is counted from it
+    in_limit_mps: float | None = None
+
+    @property
+    def arrival_mps(self) -> float:
+        """The fastest a vehicle comes into the region on this route's lane: the net's
+        limit there, or the road speed the ICA plans with where the net sets none."""
+        return max(self.road_mps, self.in_limit_mps or 0.0)
 
     @property
     def s_min(self) -> float:
@@ -253,4 +262,5 @@ def build_route(
         exit_mps=net_limit(caps.road_mps, out_limit_mps),
         in_lane_m=in_lane_m,
         out_lane_m=out_lane_m,
+        in_limit_mps=None if in_limit_mps is None else float(in_limit_mps),
     )
