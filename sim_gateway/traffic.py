@@ -227,6 +227,14 @@ class Traffic:
                     j.tails[c.route.in_lane] = (pos, vw.getSpeed(c.sumo))
 
     def add(self, j: Junction, c: Car, pos_m: float, speed_mps: float) -> None:
+        """Put ``c`` into SUMO on its incoming lane, bound for its route's outgoing lane.
+
+        The route SUMO is given names roads, not lanes; where the incoming lane has
+        several links onto the outgoing road (a multi-lane grid's through lanes), SUMO
+        would take one of its own choosing, across the internal lane of another route
+        the ICA never reserved. Its arrival lane on that road, the last of its route,
+        makes SUMO take the link the ICA plans for.
+        """
         self.ls.vehicle.add(
             c.vin,
             j.edge_routes[route_edges(c.route)],
@@ -235,6 +243,7 @@ class Traffic:
             departLane=str(c.lane_index),
             departPos=str(pos_m),
             departSpeed=str(speed_mps),
+            arrivalLane=str(lane_index(c.route.out_lane)),
         )
 
     def join_queue(self, j: Junction, c: Car) -> None:
