@@ -150,8 +150,9 @@ class Traffic:
         Its way through is the connection SUMO's driver has chosen from its lane (its
         next link, onto the lane its route continues on). A vehicle whose route ends
         before the junction passes by; one in a lane that does not lead where its route
-        goes takes the lane's first way through and is sent on to its destination
-        from beyond it (SUMO reroutes it), rather than wait for a gap it cannot have.
+        goes takes the road of the lane's first way through, over the link SUMO takes
+        onto it, and is sent on to its destination from beyond it (SUMO reroutes it),
+        rather than wait for a gap it cannot have.
         One that another junction ``held`` still drives is taken once it lets go.
         """
         ls, comm = self.ls, j.inter.comm_length_m
@@ -214,7 +215,11 @@ class Traffic:
         here, beyond = route_edges(route)
         ls.vehicle.setRoute(vin, [here, beyond])
         self.rerouted += 1
-        return route
+        # the route names roads: where the lane has several links onto ``beyond``, SUMO
+        # takes one of its own choosing, and that is the one the ICA must plan
+        links = ls.vehicle.getNextLinks(vin)
+        taken = j.inter.route(lane, links[0][0]) if links else None
+        return route if taken is None else taken
 
     def note_tails(self, j: Junction, vw: Reads, present: set[str]) -> None:
         """Per incoming lane, where its rearmost car is and how fast (for join_queue)."""
