@@ -221,6 +221,27 @@ def light_id(net_path: Path, junction_id: str) -> str:
     return junction_id
 
 
+def unlit(net_path: Path, junction_ids: Sequence[str]) -> list[str]:
+    """Those of ``junction_ids`` that no light controls: none of their incoming
+    connections names one (``tl``)."""
+    import xml.etree.ElementTree as ET
+
+    into: dict[str, str] = {}  # incoming edge -> junction
+    lit: set[str] = set()
+    wanted = set(junction_ids)
+    try:
+        for _, el in ET.iterparse(net_path, events=("end",)):
+            if el.tag == "edge" and el.get("to") in wanted:
+                into[el.get("id", "")] = el.get("to", "")
+            elif el.tag == "connection" and el.get("from") in into and el.get("tl"):
+                lit.add(into[el.get("from", "")])
+            if el.tag in ("edge", "junction", "connection"):
+                el.clear()
+    except (OSError, ET.ParseError) as exc:
+        raise ScenarioError(f"cannot read {net_path}: {exc}") from exc
+    return [j for j in junction_ids if j not in lit]
+
+
 def light_net(net_path: Path, junction_id: str, tls: str, out_dir: Path) -> tuple[Path, str | None]:
     """A net whose ``junction_id`` carries a ``tls`` light (static or actuated), and a
     line saying what was built, or None when the net already has one.

@@ -236,3 +236,28 @@ def test_max_pressure_keeps_green_where_the_vehicles_are(tmp_path):
     assert runs["max-pressure"]["max_pressure_switches"] <= 4  # one per junction at most
     delay = {c: m["network"]["mean_delay_s"] for c, m in runs.items()}
     assert delay["max-pressure"] < 0.5 * delay["static"], delay
+
+
+def test_the_lights_of_a_net_without_lights_are_refused_and_missing_ones_named(tmp_path):
+    """A control by lights on a user's net runs the net's own lights: a net with none at
+    the chosen junctions is refused in one line (it ran signal-less under the lights'
+    name before), and where only some junctions have lights the others are named, as
+    keeping the net's right of way; max-pressure needs a light at each."""
+    from tests.user_nets import make, tool
+
+    net = tmp_path / "g.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "2", "--grid.length", "200",
+          "--grid.attach-length", "150", "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    for control in ("static", "coordinated", "actuated", "max-pressure"):
+        p, _ = _network(tmp_path / control, "--net", str(net), "--control", control)
+        assert p.returncode == 2, p.stderr
+        assert "4 of the 4 chosen junctions have none" in p.stderr, p.stderr
+        assert len(p.stderr.strip().splitlines()) == 1 and "Traceback" not in p.stderr
+    half = tmp_path / "half.net.xml"
+    make([tool("netconvert"), "-s", str(net), "--tls.set", "A0,B1", "-o", str(half)])
+    p, _ = _network(tmp_path / "mp", "--net", str(half), "--control", "max-pressure")
+    assert p.returncode == 2 and "2 of the 4 chosen junctions have none (A1, B0)" in p.stderr
+    p, _ = _network(tmp_path / "half", "--net", str(half), "--control", "static",
+                      "--duration", "20", "--drain", "0")  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "note: 2 of the 4 junctions have no light in half.net.xml (A1, B0)" in p.stderr

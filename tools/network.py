@@ -31,6 +31,9 @@ LIGHTS_BY_CONTROL = {"dica": None, "static": "program", "actuated": "program",
                      "coordinated": "program", "max-pressure": "max-pressure",
                      "preempt": "preempt"}  # fmt: skip
 # the lights each control's net is built with
+# controls that drive every chosen junction's light (the others run the net's lights as
+# they are, and its unsignalised junctions by the net's own right of way)
+LIGHTS_EACH = ("max-pressure", "preempt")
 NET_LIGHTS = {"static": "static", "actuated": "actuated", "coordinated": "static",
               "max-pressure": "static", "preempt": "static"}  # fmt: skip
 DESCRIPTION = (
@@ -268,6 +271,25 @@ def _nets(args, layout: str | None, out: Path) -> tuple[Path, Path, tuple[str, .
     if not args.net.is_file():
         raise UsageError(f"network file not found: {args.net}")
     junctions = chosen_junctions(args.net, args.junctions)
+    if args.control != "dica":
+        from dica.sim_gateway.scenario import unlit
+
+        dark = unlit(args.net, junctions)
+        shown = ", ".join(dark[:6]) + (", ..." if len(dark) > 6 else "")
+        if dark and (len(dark) == len(junctions) or args.control in LIGHTS_EACH):
+            raise UsageError(
+                f"--control {args.control} runs the lights of {args.net.name}, and "
+                f"{len(dark)} of the {len(junctions)} chosen junctions have none ({shown}): "
+                "give the net lights (netconvert --tls.guess, or --tls.set with their ids) "
+                "or choose the junctions that have them with --junctions"
+            )
+        if dark:
+            print(
+                f"note: {len(dark)} of the {len(junctions)} junctions have no light in "
+                f"{args.net.name} ({shown}); under --control {args.control} they keep the "
+                "net's own right of way",
+                file=sys.stderr,
+            )
     if args.control == "actuated":
         return _actuated(args.net, out / "net"), args.net, junctions
     return args.net, args.net, junctions
