@@ -210,7 +210,7 @@ def run_network(
                 result.extra["junctions"][j.inter.junction_id]["reactive"] = summary
             elif summary is not None:
                 result.extra["reactive"] = summary
-        waiting = world.waiting_to_enter()
+        waiting = world.waiting_ids()
         scheduled = dict(world.hold.scheduled) if world.hold is not None else {}
         end = world.t
         vt = ls.vehicletype
@@ -218,9 +218,9 @@ def run_network(
         ls.close()
         closed = True
         if info is not None:  # SUMO writes the unfinished trips as it closes
-            trips = read_trips(info, scheduled, end, ev_types)
+            trips = read_trips(info, scheduled, end, ev_types, waiting)
             result.net_trips = trips
-            result.extra["network"] = summarize_trips(trips, waiting)
+            result.extra["network"] = summarize_trips(trips, len(waiting))
         return result
     finally:
         if not closed:

@@ -442,8 +442,12 @@ class World:
 
     def waiting_to_enter(self) -> int:
         """Vehicles due that SUMO has not inserted yet (or the hold keeps out)."""
-        held = len(self.hold.held) if self.hold is not None else 0
-        return len(self.ls.simulation.getPendingVehicles()) + held
+        return len(self.waiting_ids())
+
+    def waiting_ids(self) -> set[str]:
+        """The ids of :meth:`waiting_to_enter`'s vehicles."""
+        held = {h.vid for h in self.hold.held} if self.hold is not None else set()
+        return set(self.ls.simulation.getPendingVehicles()) | held
 
     def done(self) -> bool:
         scheduled = len(self.junction.schedule)

@@ -329,9 +329,17 @@ def _report(out: Path, result, control: str) -> int:
     def f(x: float | None, d: int = 1) -> str:
         return "n/a" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:.{d}f}"
 
+    left = ""  # the unfinished, by where they were at the end
+    parts = [
+        (n.get("in_net_at_end", 0), "still in the net"),
+        (n.get("waiting_to_enter_at_end", 0), "waiting to enter"),
+        (n.get("removed_on_the_way", 0), "taken out by SUMO"),
+    ]
+    if any(k for k, _ in parts):
+        left = " (" + ", ".join(f"{k} {what}" for k, what in parts if k) + "); over the finished:"
     print(
         f"{run['layout'] or Path(run['net']).name}, {control}: {n.get('vehicles', 0)} vehicles, "
-        f"{n.get('finished', 0)} finished; mean delay {f(n.get('mean_delay_s'))} s "
+        f"{n.get('finished', 0)} finished{left or ';'} mean delay {f(n.get('mean_delay_s'))} s "
         f"(p95 {f(n.get('p95_delay_s'))} s), mean travel time {f(n.get('mean_travel_time_s'))} s, "
         f"{f(n.get('mean_stops'), 2)} stops per vehicle"
     )
