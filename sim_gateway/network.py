@@ -82,9 +82,9 @@ def run_network(
     spec = cfg.controller_spec()
     for inter in inters:
         schedule_for(cfg, inter, spec.config.step_s)  # each approach checked before SUMO
-    if not light:
-        for line in check_handovers(inters, spec.config.kinematics):
-            print(f"note: {line}", file=sys.stderr)
+    # refused here, said once SUMO has the vehicle types and the links are found long
+    # enough for them (World)
+    notes = [] if light else check_handovers(inters, spec.config.kinematics)
     icas = [] if light or cluster else [build_controller(spec, inter) for inter in inters]
     for ica in icas:
         ica.prepare()
@@ -116,6 +116,8 @@ def run_network(
             predict_s=cluster.predict_s if cluster else cfg.plan_lead_s,
             more=tuple(inters[1:]), signalised=light,
         )  # fmt: skip
+        for line in notes:
+            print(f"note: {line}", file=sys.stderr)
         gate = world.gate
         if gate is not None and gate.closes and gate.rule == "cycle":
             print(

@@ -19,6 +19,16 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from dica.ica.core.dica import ROOM_GAP_M, ROOM_SLACK_M
+from dica.ica.core.gridlock import (
+    LINE_GAP_M,
+    QUEUE_GAP_M,
+    edge_of,
+    full_need_m,
+    link_arcs,
+    link_length_m,
+    on_cycles,
+)
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics
 from dica.ica.netfile import MAX_VEHICLE_LENGTH_M, SERVED_CLASSES, stop_room_m
@@ -167,6 +177,51 @@ def check_handovers(inters: Sequence[Intersection], kin: Kinematics) -> list[str
                     f"{room:.0f} m (it takes each vehicle as {before} lets go)"
                 )
     return list(notes.values())
+
+
+def check_link_room(inters: Sequence[Intersection], longest_m: float, decel_mps2: float) -> None:
+    """Refuse links between the chosen junctions that cannot hold a vehicle beyond the
+    junction: the downstream-space rule (:meth:`DicaIca._check_room`) confirms a crossing
+    onto a link only with room for the vehicle (``longest_m``), its gaps, one car more
+    and its braking at the crossing's cap, so on a shorter link no vehicle is ever let
+    on; and a link some cycle of links passes must keep that room with one more vehicle
+    standing at its end (where it waits for the next junction), else one vehicle on each
+    link of the cycle locks it for good (and the network gate, which lets in only what
+    the links' capacity holds, lets no vehicle onto it)."""
+    if len(inters) < 2:
+        return
+    need = full_need_m(inters, longest_m, decel_mps2, ROOM_GAP_M, ROOM_SLACK_M)
+    length = link_length_m(inters)
+    cycled = on_cycles(link_arcs(inters, length))
+    ends = {edge_of(r.out_lane): x.junction_id for x in inters for r in x.routes}
+    starts = {edge_of(r.in_lane): x.junction_id for x in inters for r in x.routes}
+    short = []
+    for e in sorted(length):
+        want = need[e] + (LINE_GAP_M + longest_m + QUEUE_GAP_M if e in cycled else 0.0)
+        if length[e] < want:
+            short.append((e, want))
+    if not short:
+        return
+    e, want = short[0]
+    cap = max(r.speed_cap_mps for x in inters for r in x.routes if edge_of(r.out_lane) == e)
+    why = (
+        f"room beyond {ends[e]} for a {longest_m:g} m vehicle let on at {cap * 3.6:.0f} km/h "
+        "to stop in"
+    )
+    if e in cycled:
+        why = f"a link on a cycle of links needs {want:.0f} m ({why}, and one more standing "
+        why += "at its end)"
+    else:
+        why = f"it needs {want:.0f} m ({why})"
+    more = ""
+    if len(short) > 1:
+        named = ", ".join(x for x, _ in short[1:4]) + (", ..." if len(short) > 4 else "")
+        more = f"; {len(short) - 1} more links are too short ({named})"
+    raise RunError(
+        f"junctions {ends[e]} and {starts[e]}: the link {e} between them is {length[e]:.0f} m "
+        f"long, and {why} to be served signal-free{more}; choose fewer junctions with "
+        "--junctions, leaving the others to the net's own control"
+    )
 
 
 def check_types(ls, rf: RouteFile, kin: Kinematics) -> None:

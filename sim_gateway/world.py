@@ -40,7 +40,12 @@ from dica.sim_gateway.insertion import InsertionHold
 from dica.sim_gateway.junction import Car, Junction, Seen
 from dica.sim_gateway.metrics import TripLog, summarize
 from dica.sim_gateway.network_gate import NetworkGate
-from dica.sim_gateway.route_file import MAX_LENGTH_M, check_types, read_route_file
+from dica.sim_gateway.route_file import (
+    MAX_LENGTH_M,
+    check_link_room,
+    check_types,
+    read_route_file,
+)
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.safety import PersonCheck, merge_reports
 from dica.sim_gateway.sumo_io import People, Reads
@@ -97,8 +102,10 @@ class World:
         if cfg.routes_path:
             rf = read_route_file(Path(cfg.routes_path))
             check_types(ls, rf, ica_cfg.kinematics)
+            longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
+            if not signalised:  # each link between the junctions must hold a vehicle
+                check_link_room((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
             if not signalised and cfg.network_gate:  # lights hold no vehicle for room
-                longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
                 self.gate = NetworkGate(
                     (inter, *more), longest, ica_cfg.kinematics.decel_mps2, cfg.network_gate_rule
                 )

@@ -48,3 +48,36 @@ def test_vehicles_still_in_the_net_at_the_end_count_as_generated_and_unfinished(
     line = p.stdout.splitlines()[0]
     assert f"{drawn} vehicles, {net['finished']} finished (" in line, line
     assert f"{net['in_net_at_end']} still in the net" in line, line
+
+
+def _grid(d: Path, length: int, lanes: int = 1) -> Path:
+    net = d / f"g{length}x{lanes}.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", str(length),
+          "--grid.attach-length", "100", "-L", str(lanes), "--no-turnarounds", "true",
+          "-o", str(net)])  # fmt: skip
+    return net
+
+
+@pytest.mark.parametrize("gate", [[], ["--no-network-gate"]])
+def test_a_grid_whose_links_cannot_hold_a_car_beyond_the_junction_is_refused(tmp_path, gate):
+    """50 m blocks leave 36 m links: the room rule never lets a vehicle crossing at 50 km/h
+    onto one, and a link on a cycle must keep that room with a car standing at its end
+    (48 m), with the gate or without. Refused in one line before the run, naming a link
+    and the way out."""
+    net = _grid(tmp_path, 50)
+    p = dica_run(["network", "--net", net, "--duration", "20", "--quiet",
+                  "--out", tmp_path / "run", *gate])  # fmt: skip
+    assert p.returncode == 2, p.stderr
+    assert len(p.stderr.strip().splitlines()) == 1, p.stderr
+    assert "the link" in p.stderr and "36 m long" in p.stderr and "needs 48 m" in p.stderr
+    assert "--junctions" in p.stderr and "Traceback" not in p.stderr
+    assert not (tmp_path / "run" / "metrics.json").exists()
+
+
+def test_a_grid_whose_links_hold_cars_beyond_the_junctions_runs(tmp_path):
+    net = _grid(tmp_path, 80)  # 66 m links: about three cars each beyond the room rule's
+    p = dica_run(["network", "--net", net, "--duration", "20", "--quiet",
+                  "--out", tmp_path / "run"])  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "too short" not in p.stderr
+

@@ -67,6 +67,12 @@ def link_capacity_m(inters: Sequence[Intersection], need_m: dict[str, float]) ->
     """Per link, the least queue (vehicle lengths plus :data:`QUEUE_GAP_M` each) that can
     leave it with less room than ``need_m``: its shortest lane, less the need and
     where the first vehicle stands short of the line (never below zero)."""
+    length = link_length_m(inters)
+    return {e: max(0.0, m - need_m.get(e, 0.0) - LINE_GAP_M) for e, m in length.items()}
+
+
+def link_length_m(inters: Sequence[Intersection]) -> dict[str, float]:
+    """Per link, its shortest lane (as the junctions' routes measure it)."""
     links = internal_roads(inters)
     length: dict[str, float] = {}
     for x in inters:
@@ -75,7 +81,24 @@ def link_capacity_m(inters: Sequence[Intersection], need_m: dict[str, float]) ->
                 e = edge_of(lane)
                 if e in links and math.isfinite(m):
                     length[e] = min(length.get(e, math.inf), m)
-    return {e: max(0.0, length[e] - need_m.get(e, 0.0) - LINE_GAP_M) for e in links if e in length}
+    return length
+
+
+def on_cycles(arcs: dict[str, set[str]]) -> frozenset[str]:
+    """The links some cycle of links passes through (a vehicle can drive round from it
+    back onto it)."""
+    found = set()
+    for start in arcs:
+        seen, todo = set(), list(arcs[start])
+        while todo:
+            e = todo.pop()
+            if e == start:
+                found.add(start)
+                break
+            if e not in seen:
+                seen.add(e)
+                todo.extend(arcs.get(e, ()))
+    return frozenset(found)
 
 
 def cycle_capacity_m(inters: Sequence[Intersection], capacity_m: dict[str, float]) -> float:
