@@ -81,3 +81,9 @@ def test_a_grid_whose_links_hold_cars_beyond_the_junctions_runs(tmp_path):
     assert p.returncode == 0, p.stderr
     assert "too short" not in p.stderr
 
+
+def test_a_junction_the_net_lacks_is_named(grid2, tmp_path):
+    p = dica_run(["network", "--net", grid2, "--junctions", "NOPE", "--quiet",
+                  "--out", tmp_path / "run"])  # fmt: skip
+    assert p.returncode == 2, p.stderr
+    assert "junction 'NOPE' not in" in p.stderr and "Traceback" not in p.stderr

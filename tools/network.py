@@ -194,6 +194,8 @@ def _main(argv: list[str] | None) -> int:
     )
     try:
         net, free_net, junctions = _nets(args, layout, out)
+        # each junction read first: one the net lacks is named as such, before the demand
+        inters = [load_intersection(str(net), j) for j in junctions]
         routes = args.routes
         n = None
         if routes is None:
@@ -219,7 +221,6 @@ def _main(argv: list[str] | None) -> int:
             network_gate=args.network_gate, network_gate_rule=args.network_gate_rule,
             ev_notices=args.ev_notices,
         )  # fmt: skip
-        inters = [load_intersection(str(net), j) for j in junctions]
     except (RunError, NetworkError, ScenarioError, DemandError) as e:
         raise UsageError(str(e)) from None
     total = cfg.duration_s
