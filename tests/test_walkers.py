@@ -166,10 +166,19 @@ def test_a_route_files_people_are_held_where_they_come_and_cross_untouched(tmp_p
 def test_the_person_check_sees_what_a_light_lets_happen(tmp_path):
     """The check is not blind: under SUMO's own actuated light, whose drivers yield to
     walkers only by SUMO's model, turning cars brush walkers at the corners and the
-    check counts it (SUMO's own, which looks at crossings only, does not)."""
-    m = _run(tmp_path / "a", "--layout", "ch45-walk", "--algorithm", "actuated",
-             "--volume", "150", "--peds", "200", "--duration", "400", "--seed", "21")  # fmt: skip
+    check counts it (SUMO's own, which looks at crossings only, does not), says so on
+    its own line, and the run ends with status 1 as for any collision."""
+    out = tmp_path / "a"
+    p = dica_run(
+        [*DICA, "run", "--out", str(out), "--layout", "ch45-walk", "--algorithm", "actuated",
+         "--volume", "150", "--peds", "200", "--duration", "400", "--seed", "21"],
+        capture_output=True, text=True, cwd=ROOT, timeout=600,
+    )  # fmt: skip
+    m = json.loads((out / "metrics.json").read_text())
     assert m["walkers"]["person_hits"] > 0 and m["walkers"]["crossed"] > 40
+    assert p.returncode == 1, p.stderr
+    said = f"people: {m['walkers']['person_hits']} steps a vehicle touched a person"
+    assert said in p.stdout, p.stdout
 
 
 def test_a_body_touching_a_car_is_a_hit():

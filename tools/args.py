@@ -135,7 +135,8 @@ def intersections(cfg) -> list:
 
 
 def report_run(out: Path, result) -> int:
-    """Print a run's headline figures; exit status 1 if anything collided."""
+    """Print a run's headline figures; exit status 1 if anything collided (vehicles with
+    each other, or with people)."""
     m = result.metrics
     print(
         f"{m['generated']} generated, {m['crossed']} crossed (rho {m['throughput']:.3f}), "
@@ -151,8 +152,19 @@ def report_run(out: Path, result) -> int:
         f"{result.sumo_collisions} SUMO collisions{beyond}, "
         f"min gap {_num(result.safety['min_gap_m'])} m, {unconfirmed} unconfirmed entries"
     )
+    touched = 0
+    walkers = result.extra.get("walkers")
+    if walkers:  # a vehicle touching a person is a collision like any other
+        hits, sumo_hits = walkers["person_hits"], walkers["sumo_person_collisions"]
+        touched = hits + sumo_hits
+        print(
+            f"people: {hits} steps a vehicle touched a person (independent check), "
+            f"{sumo_hits} SUMO person collisions, closest "
+            f"{_num(walkers['min_person_gap_m'])} m"
+        )
     print(f"{result.sim_time_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json")
-    return 1 if result.safety["overlaps"] or result.sumo_collisions or unconfirmed else 0
+    collided = result.safety["overlaps"] or result.sumo_collisions or unconfirmed or touched
+    return 1 if collided else 0
 
 
 def _weights(text: str | None) -> tuple[tuple[str, float], ...]:

@@ -372,7 +372,7 @@ def parser() -> argparse.ArgumentParser:
         "x the net's lower limit), or come from a SUMO route file (--routes), request when head "
         "of their lane and fly their confirmed trajectory in SUMO. Writes "
         "metrics.json, vehicles.csv, timeseries.csv and config.json. Exit status 1 if any "
-        "collision was seen.",
+        "collision was seen (vehicles with each other, or with people: --peds).",
     )
     add_run_args(r)
     options.add(
