@@ -210,6 +210,11 @@ class Actuator:
                     v.setDecel(c.sumo, FLYING_DECEL_MPS2)
                 else:
                     v.setDecel(c.sumo, c.decel_mps2)
+                # a vehicle's own limits make SUMO give it a type of its own, and with it its
+                # type's speed factor again: a route file's type may drive 1.5 x the limit
+                # (SUMO's emergency class does), and a connected vehicle keeps the limit
+                if v.getSpeedFactor(c.sumo) > 1.0:
+                    v.setSpeedFactor(c.sumo, 1.0)
             c.speed_mode = mode
 
     def _clear_behind(self, c: Car, lead: Car, t: float) -> bool:

@@ -7,6 +7,8 @@ limit by SUMO's own record of speeds.
 
 from __future__ import annotations
 
+import csv
+import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -320,3 +322,35 @@ def test_a_fast_road_gets_a_region_long_enough_to_stop_in(tmp_path):
     assert res.extra["unconfirmed_entries"] == 0
     acc = res.extra["accounted"]
     assert acc["lost"] == 0 and acc["crossed"] >= 80
+
+
+def test_a_route_files_fast_type_keeps_the_limit_once_flown_through_a_junction(tmp_path):
+    """SUMO's emergency class drives 1.5 x the limit. A route file's vehicle keeps the
+    limit from its departure, but a vehicle flown through a junction gets limits of its
+    own, and with them SUMO gave it its type's speed factor back: between junctions it
+    then drove half again the limit and reached the next region too fast to be planned
+    (on this 60 km/h grid: unconfirmed entries, and a lane it could not leave, so it
+    looped round the grid)."""
+    net = tmp_path / "g.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
+          "--grid.attach-length", "150", "--default.lanenumber", "3", "--default.speed",
+          "16.67", "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    routes = tmp_path / "amb.rou.xml"
+    routes.write_text(
+        '<routes><vType id="amb" vClass="emergency" speedFactor="1.5"/>'
+        '<flow id="e" type="amb" begin="0" end="60" period="12" departSpeed="max">'
+        '<route edges="left1A1 A1A2 A2B2 B2top1"/></flow></routes>'
+    )
+    out = tmp_path / "run"
+    p = dica_run(
+        [*DICA, "run", "--net", str(net), "--junctions", "all", "--routes", str(routes),
+         "--duration", "150", "--out", str(out), "--quiet"],
+        capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["unconfirmed_entries"] == 0 and m["accounted"]["lost"] == 0
+    rows = list(csv.DictReader((out / "vehicles.csv").open()))
+    assert rows and all(r["confirmed_s"] for r in rows)
+    assert not [r for r in rows if r["vin"].endswith("+4")]  # three crossings, none round again
+    assert {r["route"].split(">")[0].rsplit("_", 1)[0] for r in rows} == {"left1A1", "A1A2", "A2B2"}
