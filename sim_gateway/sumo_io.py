@@ -62,7 +62,15 @@ def sumo_command(net_path: str, step_s: float, extra: tuple[str, ...]) -> list[s
 
 
 def start_sumo(ls, cfg: RunConfig, step_s: float) -> list[str]:
-    demand = ("-r", cfg.routes_path, "--begin", str(cfg.begin_s)) if cfg.routes_path else ()
+    # the whole file at once: SUMO otherwise reads a route file a few minutes ahead at a
+    # time, so the vehicle types a file defines at their first use (duarouter writes them
+    # so) are unknown when the run checks them, and an element out of departure order is
+    # dropped with only a warning
+    demand = (
+        ("-r", cfg.routes_path, "--begin", str(cfg.begin_s), "--route-steps", "0")
+        if cfg.routes_path
+        else ()
+    )
     cmd = sumo_command(cfg.net_path, step_s, (*demand, *cfg.sumo_args))
     try:
         ls.start(cmd)
