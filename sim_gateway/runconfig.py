@@ -233,7 +233,7 @@ class RunResult:
     safety: dict
     requests: dict
     sumo_collisions: int
-    sim_time_s: float
+    sim_time_s: float  # SUMO's clock at the end (a route file's --begin plus the run)
     wall_s: float
     sumo_command: list[str] = field(default_factory=list)
     signal: dict | None = None
@@ -241,3 +241,9 @@ class RunResult:
     # a network's trips from SUMO's records (sim_gateway/network_trips.py), if kept
     net_trips: list | None = None
     persons: list[dict] | None = None  # one row per walker (sim_gateway/walkers.py)
+    begin_s: float = 0.0  # SUMO's clock at the start (--begin)
+
+    @property
+    def simulated_s(self) -> float:
+        """The span the run simulated: the clock at the end less the clock at its start."""
+        return self.sim_time_s - self.begin_s

@@ -162,7 +162,9 @@ def report_run(out: Path, result) -> int:
             f"{sumo_hits} SUMO person collisions, closest "
             f"{_num(walkers['min_person_gap_m'])} m"
         )
-    print(f"{result.sim_time_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json")
+    print(
+        f"{result.simulated_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json"
+    )
     collided = result.safety["overlaps"] or result.sumo_collisions or unconfirmed or touched
     return 1 if collided else 0
 

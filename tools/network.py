@@ -373,7 +373,9 @@ def _report(out: Path, result, control: str) -> int:
                 f"network gate: the fullest link was promised {gate['peak_share']:.0%} of its "
                 f"capacity at most (the queue on the links peaked at {gate['peak_m']:.0f} m)"
             )
-    print(f"{result.sim_time_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json")
+    print(
+        f"{result.simulated_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json"
+    )
     bad = result.safety["overlaps"] or result.sumo_collisions or unconfirmed
     if control == "dica":
         bad = bad or stood
