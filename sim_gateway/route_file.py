@@ -56,6 +56,8 @@ class RouteFile:
     # None if it carries more than a route (stops, parameters), which a hold would lose
     departs: dict[str, dict[str, str] | None] = field(default_factory=dict)
     people: int = 0  # persons and person flows (on foot only)
+    # per vehicle, trip or flow id with an arrivalPos: its last edge and that arrivalPos
+    arrivals: dict[str, tuple[str, str]] = field(default_factory=dict)
 
 
 def read_route_file(path: Path) -> RouteFile:
@@ -72,6 +74,9 @@ def read_route_file(path: Path) -> RouteFile:
     goods = 0
     open_dist: list[str] = []
     departs: dict[str, dict[str, str] | None] = {}
+    ids: list[tuple[str, str]] = []
+    named_routes: dict[str, str] = {}  # a top-level route's id: its last edge
+    arrivals: dict[str, tuple[str, str]] = {}
     try:
         for event, el in ET.iterparse(path, events=("start", "end")):
             tag = el.tag
@@ -87,6 +92,11 @@ def read_route_file(path: Path) -> RouteFile:
                 open_dist.pop()
             elif tag in _TRAFFIC:
                 traffic += 1
+                ids.append((tag, el.get("id", "")))
+                if el.get("arrivalPos") is not None:
+                    last = _last_edge(el, named_routes)
+                    if last:
+                        arrivals[el.get("id", "")] = (last, el.get("arrivalPos", ""))
                 used.add(el.get("type", DEFAULT_TYPE))
                 plain = all(child.tag == "route" for child in el)
                 departs[el.get("id", "")] = (
@@ -98,6 +108,8 @@ def read_route_file(path: Path) -> RouteFile:
                     riders.append(el.get("id", "?"))
             elif tag in _GOODS:
                 goods += 1
+            if tag == "route" and el.get("id") and el.get("edges"):
+                named_routes[el.get("id", "")] = el.get("edges", "").split()[-1]
             if tag in (*_TRAFFIC, *_PEOPLE, *_GOODS, "route"):
                 el.clear()
     except (OSError, ET.ParseError) as exc:
@@ -115,10 +127,75 @@ def read_route_file(path: Path) -> RouteFile:
         )
     if not traffic:
         raise RunError(f"route file {path} has no vehicle, trip or flow")
+    _check_ids(path, ids)
     types: set[str] = set()
     for t in used:
         types |= distributions.get(t, {t})
-    return RouteFile(path, frozenset(types), traffic, departs, people)
+    return RouteFile(path, frozenset(types), traffic, departs, people, arrivals)
+
+
+def _last_edge(el: ET.Element, named_routes: dict[str, str]) -> str | None:
+    """The edge a vehicle, trip or flow ends on, if the file says it plainly."""
+    for child in el:
+        if child.tag == "route" and child.get("edges"):
+            return child.get("edges", "").split()[-1]
+    if el.get("route") in named_routes:
+        return named_routes[el.get("route", "")]
+    return el.get("to")
+
+
+# how far past the rear-out point an arrivalPos must be: a step's travel at up to 200 km/h
+# (a vehicle that passes both in one step is gone before it is seen out)
+ARRIVAL_MARGIN_M = 3.0
+
+
+def check_arrivals(ls, rf: RouteFile, inters: Sequence[Intersection]) -> None:
+    """Refuse a vehicle that would leave SUMO (its arrivalPos) on a junction's exit before
+    its rear is out of the junction: the world lets a vehicle go once its rear is past
+    the exit line, so one that vanishes sooner would be lost to the count and to the
+    links' room it was given."""
+    need = MAX_LENGTH_M + ARRIVAL_MARGIN_M
+    exits: dict[str, tuple[str, float]] = {}
+    for x in inters:
+        for r in x.routes:
+            edge = edge_of(r.out_lane)
+            length = ls.lane.getLength(r.out_lane)
+            if edge not in exits or length < exits[edge][1]:
+                exits[edge] = (x.junction_id, length)
+    for vid, (edge, pos) in sorted(rf.arrivals.items()):
+        if edge not in exits:
+            continue
+        junction, length = exits[edge]
+        try:
+            at = float(pos)
+        except ValueError:
+            at = None if pos == "random" else length  # "max" (or SUMO's own refusal)
+        else:
+            at = length + at if at < 0 else at
+        if at is None or at < min(need, length):
+            where = "a random arrivalPos" if at is None else f"arrivalPos {pos}"
+            raise RunError(
+                f"route file {rf.path}: {vid!r} has {where} on {edge}, the exit of junction "
+                f"{junction}: it would leave before its rear is out of the junction; give "
+                f"an arrivalPos of at least {need:g} m there, or none"
+            )
+
+
+def _check_ids(path: Path, ids: list[tuple[str, str]]) -> None:
+    """Refuse two vehicles, trips or flows of one id, or a vehicle or trip named like one a
+    flow makes (``<flow id>.<k>``): SUMO stops the whole run when it meets the second."""
+    seen: set[str] = set()
+    flows = {i for tag, i in ids if tag == "flow"}
+    for tag, i in ids:
+        if i in seen:
+            raise RunError(f"route file {path}: the id {i!r} is used twice; ids must be unique")
+        seen.add(i)
+        head, dot, k = i.rpartition(".")
+        if tag != "flow" and dot and k.isdigit() and head in flows:
+            raise RunError(
+                f"route file {path}: the {tag} {i!r} has an id flow {head!r} gives its "
+                f"vehicles ({head}.0, {head}.1, ...); ids must be unique, rename it"
+            )
 
 
 def _on_foot(el: ET.Element) -> bool:

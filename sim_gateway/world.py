@@ -42,6 +42,7 @@ from dica.sim_gateway.metrics import TripLog, summarize
 from dica.sim_gateway.network_gate import NetworkGate
 from dica.sim_gateway.route_file import (
     MAX_LENGTH_M,
+    check_arrivals,
     check_link_room,
     check_types,
     read_route_file,
@@ -102,6 +103,7 @@ class World:
         if cfg.routes_path:
             rf = read_route_file(Path(cfg.routes_path))
             check_types(ls, rf, ica_cfg.kinematics)
+            check_arrivals(ls, rf, (inter, *more))
             longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
             if not signalised:  # each link between the junctions must hold a vehicle
                 check_link_room((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
@@ -195,7 +197,10 @@ class World:
         in_flight = self.in_flight_rooms() if self.hold is not None else {}
         if self.hold is not None:
             self.hold.before_step(self.junctions, in_flight)
-        ls.simulation.step()
+        try:
+            ls.simulation.step()
+        except ls.FatalTraCIError as e:  # SUMO cannot go on (a route file's clash it meets)
+            raise RunError(f"SUMO stopped at {self.t:g} s: {' '.join(str(e).split())}") from None
         departed = ls.simulation.getDepartedIDList()
         taken = self.hold.after_step(departed, in_flight) if self.hold else set()
         self._taken = taken
@@ -534,6 +539,7 @@ class World:
             requests=requests,
             sumo_collisions=self.sumo_collisions,
             sim_time_s=self.t,
+            begin_s=self.cfg.begin_s,
             wall_s=time.perf_counter() - self._t_wall,
             sumo_command=cmd,
             extra=extra,

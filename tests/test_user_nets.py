@@ -161,9 +161,26 @@ def test_a_route_files_vehicles_are_taken_over_in_the_region_and_kept_safe(nets,
 
 def test_a_route_file_can_start_later(nets, tmp_path):
     res = _routes_run(nets, tmp_path, duration_s=120.0, begin_s=200.0)
-    assert res.sim_time_s == pytest.approx(320.0)
+    assert res.sim_time_s == pytest.approx(320.0)  # SUMO's clock at the end
+    assert res.simulated_s == pytest.approx(120.0)  # the span run: what "simulated" says
     assert min(t.depart_s for t in res.trips.trips.values()) >= 200.0
     assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
+
+
+def test_a_type_defined_late_in_the_file_is_known_and_unsorted_departures_are_kept(nets, tmp_path):
+    text = """<routes>
+  <flow id="b" begin="1" end="30" period="5" from="B2B1" to="B1A1"/>
+  <flow id="w" begin="0" end="30" period="5" from="A1B1" to="B1C1"/>
+  <vehicle id="late" depart="20"><route edges="C1B1 B1B0"/></vehicle>
+  <vType id="amb" vClass="emergency"/>
+  <vehicle id="early" type="amb" depart="5"><route edges="B0B1 B1B2"/></vehicle>
+</routes>"""
+    res = _routes_run(nets, tmp_path, text=text, duration_s=60.0)
+    trips = res.trips.trips
+    # SUMO reading the file ahead in steps drops what is out of departure order, and
+    # knows a type only once it reaches it: neither may be lost or refused
+    assert [v for v in trips if v.startswith("w.")] and "early" in trips
+    assert res.extra["accounted"]["lost"] == 0
 
 
 @pytest.mark.parametrize(
@@ -180,6 +197,20 @@ def test_a_route_file_can_start_later(nets, tmp_path):
         ('<routes><container id="c" depart="0"><transport from="A1B1" to="B1C1"/>'
          '</container><trip id="t" depart="0" from="A1B1" to="B1C1"/></routes>', "containers"),
         ("<routes></routes>", "no vehicle, trip or flow"),
+        # a vehicle leaving SUMO before its rear is out of the junction would be lost
+        ('<routes><flow id="f" begin="0" end="9" number="2" from="A1B1" to="B1C1" '
+         'arrivalPos="3"/></routes>', "arrivalPos 3 on B1C1"),
+        # SUMO stops the whole run when it meets the second of one id
+        ('<routes><vehicle id="x.1" depart="0"><route edges="A1B1 B1C1"/></vehicle>'
+         '<flow id="x" begin="1" end="9" number="2" from="A1B1" to="B1C1"/></routes>',
+         "ids must be unique"),
+        ('<routes><flow id="x" begin="0" end="9" number="2" from="A1B1" to="B1C1"/>'
+         '<trip id="x" depart="1" from="A1B1" to="B1C1"/></routes>', "used twice"),
+        # a type defined at its first use late in the file (duarouter writes them so) is
+        # checked like the others
+        ('<routes><trip id="t" depart="0" from="A1B1" to="B1C1"/><vType id="bike" '
+         'vClass="bicycle"/><trip id="u" type="bike" depart="400" from="A1B1" to="B1C1"/>'
+         '</routes>', "is a bicycle"),
         ("<routes><trip id=", "cannot read route file"),
     ],
 )  # fmt: skip
