@@ -12,6 +12,9 @@ from __future__ import annotations
 
 import contextlib
 import io
+import os
+import sys
+import tempfile
 from collections.abc import Collection
 from dataclasses import dataclass, field
 
@@ -72,11 +75,26 @@ def start_sumo(ls, cfg: RunConfig, step_s: float) -> list[str]:
         else ()
     )
     cmd = sumo_command(cfg.net_path, step_s, (*demand, *cfg.sumo_args))
-    try:
-        ls.start(cmd)
-    except Exception as e:  # libsumo raises its own TraCIException or a plain error
-        raise RunError(f"SUMO would not start: {' '.join(str(e).split())}") from None
-    return cmd
+    # SUMO's own words on what it could not load: libsumo raises only "Process Error"
+    # and SUMO prints the reason on the process's stderr, so that is kept while it loads
+    with tempfile.TemporaryFile() as err:
+        saved = os.dup(2)
+        os.dup2(err.fileno(), 2)
+        try:
+            ls.start(cmd)
+            failed = None
+        except Exception as e:  # libsumo raises its own TraCIException or a plain error
+            failed = " ".join(str(e).split())
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        err.seek(0)
+        said = err.read().decode(errors="replace")
+    if failed is None:
+        sys.stderr.write(said)  # what a loading SUMO says is the user's to see
+        return cmd
+    lines = [ln.removeprefix("Error: ").strip() for ln in said.splitlines() if ln.strip()]
+    raise RunError(f"SUMO would not start: {' '.join(lines[:3]) or failed}")
 
 
 class Reads:
