@@ -58,6 +58,13 @@ class RouteFile:
     people: int = 0  # persons and person flows (on foot only)
     # per vehicle, trip or flow id with an arrivalPos: its last edge and that arrivalPos
     arrivals: dict[str, tuple[str, str]] = field(default_factory=dict)
+    # each stop the file gives (on a vehicle, trip, flow or route): who makes it, its
+    # attributes (lane or edge and positions, or the stopping place it names) and the
+    # roads its maker may start on
+    stops: list[tuple[str, dict[str, str], frozenset[str]]] = field(default_factory=list)
+    # each vehicle, trip or flow: who it is, where it starts on its first road
+    # (departPos, departSpeed) and the roads it may start on
+    starts: list[tuple[str, dict[str, str], frozenset[str]]] = field(default_factory=list)
 
 
 def read_route_file(path: Path) -> RouteFile:
@@ -77,10 +84,19 @@ def read_route_file(path: Path) -> RouteFile:
     ids: list[tuple[str, str]] = []
     named_routes: dict[str, str] = {}  # a top-level route's id: its last edge
     arrivals: dict[str, tuple[str, str]] = {}
+    stops: list[tuple[str, dict[str, str], frozenset[str]]] = []
+    starts: list[tuple[str, dict[str, str], frozenset[str]]] = []
+    first: dict[str, set[str]] = {}  # a route's or route distribution's first roads
+    open_routes: list[str] = []  # route distributions open
+    owner: list[tuple[str, set[str]]] = []  # the vehicle, trip or flow open: its own route
     try:
         for event, el in ET.iterparse(path, events=("start", "end")):
             tag = el.tag
             if event == "start":
+                if tag in _TRAFFIC:
+                    owner.append((f"{tag} {el.get('id', '?')!r}", set()))
+                elif tag == "routeDistribution":
+                    open_routes.append(el.get("id", ""))
                 if tag == "vTypeDistribution":
                     open_dist.append(el.get("id", ""))
                     members = el.get("vTypes", "").split()
@@ -90,7 +106,38 @@ def read_route_file(path: Path) -> RouteFile:
                 continue
             if tag == "vTypeDistribution":
                 open_dist.pop()
-            elif tag in _TRAFFIC:
+            elif tag == "routeDistribution":
+                open_routes.pop()
+            elif tag == "stop":
+                who = owner[-1][0] if owner else "a stop outside any vehicle"
+                stops.append((who, dict(el.attrib), frozenset()))
+            elif tag == "route":
+                edges = el.get("edges", "").split()
+                heads = {edges[0]} if edges else set(first.get(el.get("refId", ""), ()))
+                if owner:  # its vehicle's own
+                    owner[-1][1].update(heads)
+                else:
+                    rid = el.get("id", "")
+                    first.setdefault(rid, set()).update(heads)
+                    if open_routes:
+                        first.setdefault(open_routes[-1], set()).update(heads)
+                    for k in range(len(stops) - 1, -1, -1):  # its stops, read before it ended
+                        if stops[k][0] != "a stop outside any vehicle":
+                            break
+                        stops[k] = (f"route {rid!r}", stops[k][1], frozenset(heads))
+            if tag in _TRAFFIC:
+                who, own = owner.pop()
+                heads = set(own)
+                if el.get("from"):
+                    heads.add(el.get("from"))
+                if el.get("route"):
+                    heads |= first.get(el.get("route"), set())
+                starts.append((who, {k: el.get(k) for k in ("departPos", "departSpeed")
+                                     if el.get(k) is not None}, frozenset(heads)))  # fmt: skip
+                for k in range(len(stops) - 1, -1, -1):  # its own stops
+                    if stops[k][0] != who:
+                        break
+                    stops[k] = (who, stops[k][1], frozenset(heads))
                 traffic += 1
                 ids.append((tag, el.get("id", "")))
                 if el.get("arrivalPos") is not None:
@@ -131,7 +178,7 @@ def read_route_file(path: Path) -> RouteFile:
     types: set[str] = set()
     for t in used:
         types |= distributions.get(t, {t})
-    return RouteFile(path, frozenset(types), traffic, departs, people, arrivals)
+    return RouteFile(path, frozenset(types), traffic, departs, people, arrivals, stops, starts)
 
 
 def _last_edge(el: ET.Element, named_routes: dict[str, str]) -> str | None:
@@ -325,3 +372,131 @@ def check_types(ls, rf: RouteFile, kin: Kinematics) -> None:
             raise RunError(
                 f"route file {rf.path}: vehicle type {t!r} {why}: it could not fly its plans"
             )
+
+
+# stopping places SUMO can say the lane and extent of, by the domain that knows them
+_PLACES = {"busStop": "busstop", "trainStop": "busstop", "parkingArea": "parkingarea",
+           "chargingStation": "chargingstation"}  # fmt: skip
+_UNPLACED = ("containerStop",)  # no libsumo domain says where these are
+# departPos values that may put a vehicle anywhere on its first road
+_ANYWHERE = ("random", "random_free", "free", "last")
+
+
+def _pos(value: str | None, lane_m: float, default: float) -> float:
+    """A stop's or departure's position on a lane (negative counts from its end)."""
+    if value is None:
+        return default
+    p = float(value)
+    return lane_m + p if p < 0 else p
+
+
+def exit_room_m(cap_mps: float, longest_m: float, kin: Kinematics) -> float:
+    """How far past a junction a vehicle may stand (a stop) on an exit lane: the world lets
+    a vehicle go once its rear is out (its front up to ``longest_m`` in), and a follower
+    planned at the crossing's cap behind it flies its plan until its own rear is out; so
+    the one standing must have its rear beyond a released follower's front, its braking
+    from the cap and SUMO's standstill gap."""
+    return 2.0 * longest_m + stop_room_m(cap_mps, kin) + ROOM_GAP_M
+
+
+def check_stops_and_starts(
+    ls, rf: RouteFile, inters: Sequence[Intersection], longest_m: float, kin: Kinematics
+) -> None:
+    """Refuse, in one line, a stop (parking too) or a departure at speed where the
+    junctions' plans would run into it. On an approach the world takes each vehicle
+    over in the region and flies it by its plan: a vehicle there halting for its stop,
+    or inserted there at speed (adopted unplanned, in the middle of others' plans), is
+    run into; so no stop within the region, the longest vehicle and the room to stop
+    before it, and no departure inside the region at any speed but 0. Past the line a
+    follower flies its plan behind a leader let go at speed: no stop nearer than
+    :func:`exit_room_m`. Departures on an exit road are held back by the insertion hold
+    (sim_gateway/insertion.py) while a vehicle is about to come out onto it."""
+    approach: dict[str, tuple[float, float, str]] = {}  # lane: (length, danger from, J)
+    exits: dict[str, tuple[float, str]] = {}  # lane: (room needed, J)
+    for x in inters:
+        for r in x.routes:
+            region = min(x.comm_length_m, r.in_lane_m)
+            start = r.in_lane_m - region - longest_m - stop_room_m(r.arrival_mps, kin)
+            old = approach.get(r.in_lane)
+            if old is None or start < old[1]:
+                approach[r.in_lane] = (r.in_lane_m, start, x.junction_id)
+            room = exit_room_m(r.speed_cap_mps, longest_m, kin)
+            if r.out_lane not in exits or room > exits[r.out_lane][0]:
+                exits[r.out_lane] = (room, x.junction_id)
+    lanes_of: dict[str, list[str]] = {}
+    for lane in (*approach, *exits):
+        lanes_of.setdefault(edge_of(lane), []).append(lane)
+    where = f"route file {rf.path}"
+    for who, st, heads in rf.stops:
+        place = next((k for k in (*_PLACES, *_UNPLACED) if st.get(k)), None)
+        what = f"{place} {st[place]!r}" if place else "stop"
+        at = f"at {what} " if place else ""
+        if place in _UNPLACED:
+            raise RunError(
+                f"{where}: {who} stops at {what}, which cannot be placed on the net before "
+                "the run; give its stop a lane and position instead"
+            )
+        if place is not None:
+            dom = getattr(ls, _PLACES[place])
+            try:
+                lanes = [dom.getLaneID(st[place])]
+                spans = [(dom.getStartPos(st[place]), dom.getEndPos(st[place]))]
+            except Exception:  # not in the additional files SUMO loaded
+                raise RunError(f"{where}: {who} stops at unknown {what}") from None
+        else:
+            lanes = [st["lane"]] if st.get("lane") else lanes_of.get(st.get("edge", ""), [])
+            spans = []
+            for lane in lanes:
+                n = ls.lane.getLength(lane) if lane in approach or lane in exits else 0.0
+                end = _pos(st.get("endPos"), n, n)
+                spans.append((_pos(st.get("startPos"), n, end - 0.2), end))
+        for lane, (a, b) in zip(lanes, spans, strict=True):
+            if lane in approach and b > approach[lane][1]:
+                n, start, j = approach[lane]
+                raise RunError(
+                    f"{where}: {who} stops {at}on {lane} {n - b:.0f} m before junction {j}'s "
+                    f"line, where {j} flies its vehicles by plan (a stop must be at least "
+                    f"{n - start:.0f} m before it); move the stop"
+                )
+            # one that starts on the exit road (standing: departSpeed 0 or not) does not
+            # come out of the junction ahead of the vehicles let go there, and the
+            # downstream-space rule sees it standing
+            if lane in exits and a < exits[lane][0] and edge_of(lane) not in heads:
+                room, j = exits[lane]
+                raise RunError(
+                    f"{where}: {who} stops {at}on {lane} {a:.0f} m past junction {j}, where "
+                    f"the vehicles {j} lets go behind it come at speed (a stop must be at "
+                    f"least {room:.0f} m past it); move the stop"
+                )
+    for who, dep, heads in rf.starts:
+        speed = dep.get("departSpeed", "0").strip()
+        if _is_zero(speed):
+            continue  # a standing start: the world plans it from where it stands
+        pos = dep.get("departPos", "base").strip()
+        for lane in sorted(ln for e in heads for ln in lanes_of.get(e, []) if ln in approach):
+            n, _, j = approach[lane]
+            line = n - min(next(x for x in inters if x.junction_id == j).comm_length_m, n)
+            if pos in _ANYWHERE:
+                inside = "may start"
+            elif _is_number(pos) and _pos(pos, n, 0.0) > line:
+                inside = "starts"
+            else:
+                continue
+            raise RunError(
+                f"{where}: {who} {inside} inside junction {j}'s region on {lane} "
+                f"(departPos {pos!r}) at departSpeed {speed!r}, where {j} plans its vehicles "
+                f"before they are in it; start it before the last {n - line:.0f} m of the "
+                "lane or at departSpeed 0"
+            )
+
+
+def _is_number(s: str) -> bool:
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+def _is_zero(s: str) -> bool:
+    return _is_number(s) and float(s) == 0.0

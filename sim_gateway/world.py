@@ -44,6 +44,7 @@ from dica.sim_gateway.route_file import (
     MAX_LENGTH_M,
     check_arrivals,
     check_link_room,
+    check_stops_and_starts,
     check_types,
     read_route_file,
 )
@@ -105,6 +106,8 @@ class World:
             check_types(ls, rf, ica_cfg.kinematics)
             check_arrivals(ls, rf, (inter, *more))
             longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
+            if not signalised:  # stops and starts where the plans would run into them
+                check_stops_and_starts(ls, rf, (inter, *more), longest, ica_cfg.kinematics)
             if not signalised:  # each link between the junctions must hold a vehicle
                 check_link_room((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
             if not signalised and cfg.network_gate:  # lights hold no vehicle for room

@@ -196,6 +196,24 @@ def test_a_type_defined_late_in_the_file_is_known_and_unsorted_departures_are_ke
          '</person><trip id="t" depart="0" from="A1B1" to="B1C1"/></routes>', "more than walk"),
         ('<routes><container id="c" depart="0"><transport from="A1B1" to="B1C1"/>'
          '</container><trip id="t" depart="0" from="A1B1" to="B1C1"/></routes>', "containers"),
+        # a stop (parking too) inside the region, or just past the line where the vehicles
+        # let go behind it come at speed; on a vehicle's own route or a shared one
+        ('<routes><flow id="f" begin="0" end="9" number="2" from="A1B1" to="B1C1">'
+         '<stop lane="A1B1_0" endPos="-20" duration="5"/></flow></routes>',
+         "flow 'f' stops on A1B1_0 20 m before junction B1's line"),
+        ('<routes><route id="r" edges="A1B1 B1C1"><stop lane="B1C1_1" endPos="10" '
+         'parking="true" duration="5"/></route><vehicle id="v" depart="0" route="r"/></routes>',
+         "route 'r' stops on B1C1_1 10 m past junction B1"),
+        ('<routes><vehicle id="v" depart="0"><route edges="A1B1 B1C1"/>'
+         '<stop edge="A1B1" endPos="-5" duration="5"/></vehicle></routes>',
+         "vehicle 'v' stops on A1B1_0 5 m before"),
+        # a departure at speed inside the region, or where it may land inside it
+        ('<routes><flow id="b" begin="0" end="9" number="2" from="A1B1" to="B1C1" '
+         'departPos="-10" departSpeed="max"/></routes>', "flow 'b' starts inside junction B1's"),
+        ('<routes><trip id="t" depart="0" from="A1B1" to="B1C1" departPos="random" '
+         'departSpeed="desired"/></routes>', "trip 't' may start inside junction B1's"),
+        ('<routes><route id="r" edges="A1B1 B1C1"/><vehicle id="v" depart="0" route="r" '
+         'departPos="last" departSpeed="5"/></routes>', "vehicle 'v' may start inside"),
         ("<routes></routes>", "no vehicle, trip or flow"),
         # a vehicle leaving SUMO before its rear is out of the junction would be lost
         ('<routes><flow id="f" begin="0" end="9" number="2" from="A1B1" to="B1C1" '
@@ -222,6 +240,22 @@ def test_a_route_file_the_ica_cannot_serve_is_refused_in_one_line(nets, tmp_path
     assert "\n" not in str(e.value)
 
 
+def test_stops_and_standing_starts_clear_of_the_plans_still_run(nets, tmp_path):
+    """A stop well before the region or well past the line, and a start inside the region
+    standing (departSpeed 0, SUMO's default), are the file's own and run safe."""
+    text = (
+        '<routes><flow id="s" begin="0" end="60" period="6" from="A1B1" to="B1C1">'
+        '<stop lane="A1B1_0" endPos="30" duration="3"/><stop lane="B1C1_0" endPos="-20" '
+        'duration="3"/></flow><flow id="d" begin="1" end="60" period="7" from="B2B1" '
+        'to="B1B0" departPos="-10"/><flow id="e" begin="2" end="60" period="7" from="C1B1" '
+        'to="B1A1" departPos="-5" departSpeed="0"/></routes>'
+    )
+    res = _routes_run(nets, tmp_path, text=text, duration_s=90.0)
+    assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
+    assert res.extra["unconfirmed_entries"] == 0
+    assert res.extra["accounted"]["crossed"] >= 10
+
+
 def test_the_command_line_refuses_a_route_file_with_status_2(nets, tmp_path):
     bad = tmp_path / "trucks.rou.xml"
     bad.write_text(
@@ -230,6 +264,11 @@ def test_the_command_line_refuses_a_route_file_with_status_2(nets, tmp_path):
     )
     unknown = tmp_path / "unknown.rou.xml"
     unknown.write_text('<routes><trip id="t" depart="0" from="NOPE" to="B1C1"/></routes>')
+    stop = tmp_path / "stop.rou.xml"
+    stop.write_text(
+        '<routes><flow id="f" begin="0" end="9" number="2" from="A1B1" to="B1C1">'
+        '<stop lane="A1B1_0" endPos="-20" duration="5"/></flow></routes>'
+    )
     for args, says in (
         (["--net", str(nets["grid"]), "--junction", "B1", "--routes", str(bad)], "truck"),
         (["--routes", str(bad)], "--routes needs --net"),
@@ -237,6 +276,8 @@ def test_the_command_line_refuses_a_route_file_with_status_2(nets, tmp_path):
          "route file not found"),
         (["--net", str(nets["grid"]), "--junction", "B1", "--routes", str(unknown)],
          "'NOPE' within the route for trip 't' is not known. The route"),  # SUMO's, one line
+        (["--net", str(nets["grid"]), "--junction", "B1", "--routes", str(stop)],
+         "flow 'f' stops on A1B1_0 20 m before junction B1's line"),
     ):  # fmt: skip
         p = dica_run(
             [*DICA, "run", *args, "--duration", "10",
