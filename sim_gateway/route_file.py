@@ -424,7 +424,7 @@ def check_stops_and_starts(
             if r.out_lane not in exits or room > exits[r.out_lane][0]:
                 exits[r.out_lane] = (room, x.junction_id)
     lanes_of: dict[str, list[str]] = {}
-    for lane in (*approach, *exits):
+    for lane in dict.fromkeys((*approach, *exits)):  # a link is both
         lanes_of.setdefault(edge_of(lane), []).append(lane)
     where = f"route file {rf.path}"
     for who, st, heads in rf.stops:
