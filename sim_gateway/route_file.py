@@ -31,6 +31,7 @@ from dica.ica.core.gridlock import (
 )
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics
+from dica.ica.core.occupancy import sweeps_waiting
 from dica.ica.netfile import MAX_VEHICLE_LENGTH_M, SERVED_CLASSES, stop_room_m
 from dica.sim_gateway.runconfig import RunError
 
@@ -243,6 +244,27 @@ def _check_ids(path: Path, ids: list[tuple[str, str]]) -> None:
                 f"route file {path}: the {tag} {i!r} has an id flow {head!r} gives its "
                 f"vehicles ({head}.0, {head}.1, ...); ids must be unique, rename it"
             )
+
+
+def note_sweeps(ls, rf: RouteFile, inters: Sequence[Intersection], kin: Kinematics) -> list[str]:
+    """Say where the file's longest and widest vehicle, turning, sweeps over the place a
+    vehicle waits at another lane's line: the plans do not reserve that place yet, so two
+    such vehicles may touch there (the run's checks count it). One line per junction."""
+    length = max(ls.vehicletype.getLength(t) for t in rf.types)
+    width = max(ls.vehicletype.getWidth(t) for t in rf.types)
+    lines = []
+    for x in inters:
+        hits = sweeps_waiting(x.routes, length, width, kin.stop_gap_m)
+        if hits:
+            shown = ", ".join(f"{r} over {lane}" for r, lane in hits[:3])
+            more = f" and {len(hits) - 3} more" if len(hits) > 3 else ""
+            lines.append(
+                f"junction {x.junction_id}: a {length:g} m x {width:g} m vehicle of "
+                f"{rf.path.name} sweeps over where a vehicle waits at another lane's line "
+                f"({shown}{more}); such pairs may touch: the plans do not reserve that "
+                "place yet"
+            )
+    return lines
 
 
 def _on_foot(el: ET.Element) -> bool:

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import bisect
 import math
+import sys
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
@@ -46,6 +47,7 @@ from dica.sim_gateway.route_file import (
     check_link_room,
     check_stops_and_starts,
     check_types,
+    note_sweeps,
     read_route_file,
 )
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
@@ -110,6 +112,9 @@ class World:
                 check_stops_and_starts(ls, rf, (inter, *more), longest, ica_cfg.kinematics)
             if not signalised:  # each link between the junctions must hold a vehicle
                 check_link_room((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
+            if not signalised:  # once nothing is refused
+                for line in note_sweeps(ls, rf, (inter, *more), ica_cfg.kinematics):
+                    print(f"note: {line}", file=sys.stderr)
             if not signalised and cfg.network_gate:  # lights hold no vehicle for room
                 self.gate = NetworkGate(
                     (inter, *more), longest, ica_cfg.kinematics.decel_mps2, cfg.network_gate_rule

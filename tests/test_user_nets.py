@@ -426,3 +426,19 @@ def test_a_route_files_fast_type_keeps_the_limit_once_flown_through_a_junction(t
     assert rows and all(r["confirmed_s"] for r in rows)
     assert not [r for r in rows if r["vin"].endswith("+4")]  # three crossings, none round again
     assert {r["route"].split(">")[0].rsplit("_", 1)[0] for r in rows} == {"left1A1", "A1A2", "A2B2"}
+
+
+def test_a_long_wide_turner_sweeping_over_a_waiting_place_is_named(nets):
+    """On netgenerate's tight corners an 11 m x 2.55 m vehicle turning right from the
+    kerb lane sweeps over where a vehicle waits at the next lane's line (outside the
+    junction, so outside every reservation: such pairs touched in runs); a car and a
+    7 m van do not. The run says so before it starts."""
+    from dica.ica.core.occupancy import sweeps_waiting
+
+    grid = load_intersection(nets["grid"], "B1")
+    assert sweeps_waiting(grid.routes, 5.0, 1.8, 0.5) == []
+    assert sweeps_waiting(grid.routes, 7.0, 2.2, 0.5) == []
+    hits = sweeps_waiting(grid.routes, 11.0, 2.55, 0.5)
+    assert hits and all(grid.route_by_id(r).turn is Turn.RIGHT for r, _ in hits)
+    for r, lane in hits:  # the kerb lane's turner over the waiting place beside it
+        assert lane.rsplit("_", 1)[0] == r.split(">")[0].rsplit("_", 1)[0]
