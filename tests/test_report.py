@@ -78,3 +78,33 @@ def test_the_ev_table_names_the_worst_seed_of_the_normal_vehicles_longest_trips(
     )
     assert "| rdica-exact | 500 | - | - | 1.13 | 1.30 (seed 2) |" in table
     assert mine["added_max"] == 3.0 and mine["replanned_later"] == 3.5
+
+
+def test_runs_apart_in_what_they_ran_are_not_averaged_as_seeds(tmp_path):
+    """Two route files, two junctions or two shares of connected vehicles on one net are
+    different experiments, not seeds of one: each gets its own row."""
+    import json
+
+    from dica.tools.report import aggregate, load_runs
+
+    base = {"net_path": "nets/g3.net.xml", "algorithm": "enhanced", "volume_per_10min": 300.0,
+            "seed": 12, "junction_id": "B1", "duration_s": 60.0, "until_left": True}  # fmt: skip
+    runs = {
+        "a": {},
+        "b": {"routes_path": "/x/trucks.rou.xml"},
+        "c": {"junction_id": "A2"},
+        "d": {"cav_share": 0.3},
+        "e": {"seed": 21},  # a seed of a's
+    }
+    metrics = {"generated": 10, "collisions": 0, "min_gap_m": 1.0}
+    for name, extra in runs.items():
+        d = tmp_path / name
+        d.mkdir()
+        (d / "config.json").write_text(json.dumps({"run": {**base, **extra}}))
+        (d / "metrics.json").write_text(json.dumps(metrics))
+    agg = aggregate(load_runs(tmp_path))
+    assert len(agg) == 4
+    assert sorted(row["seeds"] for row in agg.values()) == [[12], [12], [12], [12, 21]]
+    shapes = sorted(key[1] for key in agg)
+    assert shapes == ["junction A2", "junction B1", "junction B1; connected 0.3",
+                      "junction B1; routes trucks.rou.xml"]  # fmt: skip

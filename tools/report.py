@@ -1,9 +1,10 @@
 """``dica report DIR``: markdown tables and PNG plots from a directory of runs.
 
 Every ``metrics.json`` below DIR (with its ``config.json``) is one run. Runs
-are grouped by layout, algorithm, volume and demand shape and averaged over
-seeds, as the dissertation reports them. Collisions are summed, the minimum
-gap is the smallest seen.
+are grouped by layout, algorithm, volume and demand shape (and, where a run
+sets them, its junctions, route file, start, share of connected vehicles and
+people) and averaged over seeds, as the dissertation reports them. Collisions
+are summed, the minimum gap is the smallest seen.
 
 Beside the dissertation's trip time (from the region's entry line) the
 tables give the time in the system and the delay counted from the scheduled
@@ -80,6 +81,7 @@ def load_runs(root: Path) -> list[dict]:
             shape.append(f"to {cfg['volume_end_per_10min']:g}")
         if cfg.get("ev_prob"):
             shape.append(f"p_EV {cfg['ev_prob']:g}")
+        shape += _settings(cfg)
         layout = Path(cfg["net_path"]).name.split(".")[0].split("-tls")[0]
         algorithm = cfg["algorithm"]
         if algorithm == "rdica":
@@ -100,6 +102,26 @@ def load_runs(root: Path) -> list[dict]:
             }
         )
     return runs
+
+
+def _settings(cfg: dict) -> list[str]:
+    """What else sets runs apart that their seeds must not be averaged across: the
+    junctions, a route file, the share of connected vehicles, people, a later start (a
+    default run of a built-in layout has none of them)."""
+    out = []
+    if cfg.get("junction_ids"):
+        out.append("junctions " + ",".join(cfg["junction_ids"]))
+    elif cfg.get("junction_id") not in (None, "C"):
+        out.append(f"junction {cfg['junction_id']}")
+    if cfg.get("routes_path"):
+        out.append(f"routes {Path(cfg['routes_path']).name}")
+    if cfg.get("begin_s"):
+        out.append(f"from {cfg['begin_s']:g} s")
+    if cfg.get("cav_share", 1.0) != 1.0:
+        out.append(f"connected {cfg['cav_share']:g}")
+    if cfg.get("peds_per_h"):
+        out.append(f"people {cfg['peds_per_h']:g}/h")
+    return out
 
 
 def _settled_throughput(run: Path, cfg: dict) -> float | None:
