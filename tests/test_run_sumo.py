@@ -300,3 +300,25 @@ def test_experiment_writes_a_relative_out_where_the_user_stands(tmp_path):
     )  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
     assert (tmp_path / "grid" / "ch45" / "enhanced" / "v300" / "s12" / "metrics.json").is_file()
+
+
+def test_an_experiment_on_a_users_net_is_named_after_it(tmp_path):
+    """With ``--extra "--net NET --junction J"`` the cells are the user's net's, named
+    after it and its junction (they were filed under the built-in layout's name, whose
+    option every run was also given)."""
+    from tests.user_nets import make, tool
+
+    net = tmp_path / "mine.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "2", "--grid.length", "200",
+          "--grid.attach-length", "150", "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    p = dica_run(
+        [*DICA, "experiment", "--algorithms", "enhanced", "--volumes", "200", "--seeds", "1",
+         "--duration", "20", "--out", str(tmp_path / "grid"), "--quiet",
+         "--extra", f"--net {net} --junction A0"],
+        capture_output=True, text=True, cwd=tmp_path, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    cell = tmp_path / "grid" / "mine-A0" / "enhanced" / "v200" / "s1"
+    run = json.loads((cell / "config.json").read_text())["run"]
+    assert run["junction_id"] == "A0" and Path(run["net_path"]).name == "mine.net.xml"
+    assert not (tmp_path / "grid" / "ch45").exists()

@@ -3,7 +3,8 @@
 Each cell (algorithm x volume x seed) is one ``dica run`` in its own process
 (libsumo runs one simulation per process) writing to
 ``OUT/<layout>/<algorithm>/v<volume>/s<seed>/``; a ramp from volume A to B
-over the run writes to ``.../r<A>-<B>/s<seed>/``. A cell whose
+over the run writes to ``.../r<A>-<B>/s<seed>/``; on a net of the user's
+(``--extra "--net NET --junction J"``) ``<layout>`` is ``<net>-<J>``. A cell whose
 ``metrics.json`` exists is skipped, so an interrupted grid picks up where it
 stopped. Volumes go up to 2000 per 10 minutes; ``dica report`` finds each
 controller's saturation volume in a grid of volumes.
@@ -99,6 +100,27 @@ def parser() -> argparse.ArgumentParser:
     return p
 
 
+def _place(layout: str, extra: list[str]) -> tuple[str, list[str]]:
+    """Where the cells go and the layout's options for each run: a net of the user's
+    (``--net`` in ``--extra``) names them by the net's file and junctions, and then no
+    built-in layout is passed."""
+
+    def after(flag: str) -> str | None:
+        for i, tok in enumerate(extra):
+            if tok == flag and i + 1 < len(extra):
+                return extra[i + 1]
+            if tok.startswith(flag + "="):
+                return tok.split("=", 1)[1]
+        return None
+
+    net = after("--net")
+    if net is None:
+        return layout, ["--layout", layout]
+    name = Path(net).name.split(".")[0]
+    where = after("--junction") or after("--junctions")
+    return (f"{name}-{where.replace(',', '+')}" if where else name), []
+
+
 def _joined_extra(argv: list[str]) -> list[str]:
     """``--extra --no-platoon`` as ``--extra=--no-platoon``: argparse would take a
     lone option-like value for an option of its own."""
@@ -137,18 +159,19 @@ def main(argv: list[str] | None = None) -> int:
         print("dica experiment: --cav-shares must be between 0 and 1", file=sys.stderr)
         return 2
     mixed = args.cav_shares != [1.0]
+    extra = shlex.split(args.extra)
+    place, layout_args = _place(args.layout, extra)
     cells = []
     grid = product(named, args.cav_shares, shapes, args.seeds)
     for (alg, algorithm, solver), share, (name, vol, ramp), seed in grid:
-        under = args.out / args.layout / alg / (f"c{share:g}" if mixed else "")
+        under = args.out / place / alg / (f"c{share:g}" if mixed else "")
         cell = under / name / f"s{seed}"
         cmd = [
             sys.executable,
             "-m",
             "dica.tools.cli",
             "run",
-            "--layout",
-            args.layout,
+            *layout_args,
             "--algorithm",
             algorithm,
             *(["--solver", solver] if solver else []),
@@ -163,12 +186,12 @@ def main(argv: list[str] | None = None) -> int:
             "--quiet",
             *ramp,
             *(["--cav-share", f"{share:g}"] if mixed else []),
-            *shlex.split(args.extra),
+            *extra,
         ]
         cells.append((cell, cmd))
     options.out_dir(args.out)
     (args.out / "experiment.json").write_text(
-        json.dumps({"layout": args.layout, "cells": [c[1][3:] for c in cells]}, indent=2)
+        json.dumps({"layout": place, "cells": [c[1][3:] for c in cells]}, indent=2)
     )
     todo = [(cell, cmd) for cell, cmd in cells if not (cell / "metrics.json").exists()]
     print(f"{len(cells)} cells, {len(cells) - len(todo)} already done, {len(todo)} to run")
