@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import sumolib
 
+from dica.ica.core.config import IcaConfig
 from dica.ica.core.crosswalk import Crosswalk
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics, SpeedCaps, Turn
@@ -33,7 +34,7 @@ _MARGIN_M = 5.0  # slack beyond the longest vehicle at both ends of a route
 MAX_VEHICLE_LENGTH_M = 12.0  # routes reach this far beyond the region and the exit line
 DEFAULT_CAPS = SpeedCaps()  # frozen, so one shared default is safe
 STOP_SLACK_M = 1.0  # [m] on top of the braking distance: a step's travel, and some
-STEP_S = 0.05  # [s] a vehicle is first seen up to a step's travel inside the region
+STEP_S = IcaConfig().step_s  # [s] a vehicle is first seen up to a step's travel in
 
 
 def stop_room_m(v_mps: float, kin: Kinematics = Kinematics()) -> float:

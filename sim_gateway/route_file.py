@@ -433,15 +433,16 @@ def check_stops_and_starts(
     follower flies its plan behind a leader let go at speed: no stop nearer than
     :func:`exit_room_m`. Departures on an exit road are held back by the insertion hold
     (sim_gateway/insertion.py) while a vehicle is about to come out onto it."""
-    approach: dict[str, tuple[float, float, str]] = {}  # lane: (length, danger from, J)
+    # lane: (length, stops refused from, its region from, J)
+    approach: dict[str, tuple[float, float, float, str]] = {}
     exits: dict[str, tuple[float, str]] = {}  # lane: (room needed, J)
     for x in inters:
         for r in x.routes:
-            region = min(x.comm_length_m, r.in_lane_m)
-            start = r.in_lane_m - region - longest_m - stop_room_m(r.arrival_mps, kin)
+            line = r.in_lane_m - min(x.comm_length_m, r.in_lane_m)
+            start = line - longest_m - stop_room_m(r.arrival_mps, kin)
             old = approach.get(r.in_lane)
             if old is None or start < old[1]:
-                approach[r.in_lane] = (r.in_lane_m, start, x.junction_id)
+                approach[r.in_lane] = (r.in_lane_m, start, line, x.junction_id)
             room = exit_room_m(r.speed_cap_mps, longest_m, kin)
             if r.out_lane not in exits or room > exits[r.out_lane][0]:
                 exits[r.out_lane] = (room, x.junction_id)
@@ -474,7 +475,7 @@ def check_stops_and_starts(
                 spans.append((_pos(st.get("startPos"), n, end - 0.2), end))
         for lane, (a, b) in zip(lanes, spans, strict=True):
             if lane in approach and b > approach[lane][1]:
-                n, start, j = approach[lane]
+                n, start, _, j = approach[lane]
                 raise RunError(
                     f"{where}: {who} stops {at}on {lane} {n - b:.0f} m before junction {j}'s "
                     f"line, where {j} flies its vehicles by plan (a stop must be at least "
@@ -496,8 +497,7 @@ def check_stops_and_starts(
             continue  # a standing start: the world plans it from where it stands
         pos = dep.get("departPos", "base").strip()
         for lane in sorted(ln for e in heads for ln in lanes_of.get(e, []) if ln in approach):
-            n, _, j = approach[lane]
-            line = n - min(next(x for x in inters if x.junction_id == j).comm_length_m, n)
+            n, _, line, j = approach[lane]
             if pos in _ANYWHERE:
                 inside = "may start"
             elif _is_number(pos) and _pos(pos, n, 0.0) > line:

@@ -108,11 +108,11 @@ class World:
             check_types(ls, rf, ica_cfg.kinematics)
             check_arrivals(ls, rf, (inter, *more))
             longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
-            if not signalised:  # stops and starts where the plans would run into them
+            if not signalised:
+                # stops and starts where the plans would run into them; links that cannot
+                # hold a vehicle beyond the junction; then, nothing refused, what to know
                 check_stops_and_starts(ls, rf, (inter, *more), longest, ica_cfg.kinematics)
-            if not signalised:  # each link between the junctions must hold a vehicle
                 check_link_room((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
-            if not signalised:  # once nothing is refused
                 for line in note_sweeps(ls, rf, (inter, *more), ica_cfg.kinematics):
                     print(f"note: {line}", file=sys.stderr)
             if not signalised and cfg.network_gate:  # lights hold no vehicle for room

@@ -132,14 +132,9 @@ PAIR_ROUTES = """<routes>
 
 def _pair(tmp_path: Path, dx: int) -> RunConfig:
     """Two priority junctions ``dx`` m apart on a 50 km/h road (the link is dx - 8 m)."""
-    from dica.sim_gateway.scenario import netconvert_binary
-    from tests.user_nets import EDGES, make
+    from tests.user_nets import EDGES, plain_net
 
-    (tmp_path / "p.nod.xml").write_text(PAIR_NODES.format(dx=dx, east=dx + 250))
-    (tmp_path / "p.edg.xml").write_text(EDGES)
-    net = tmp_path / f"pair{dx}.net.xml"
-    make([netconvert_binary(), "-n", str(tmp_path / "p.nod.xml"), "-e",
-          str(tmp_path / "p.edg.xml"), "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    net = plain_net(tmp_path, f"pair{dx}", PAIR_NODES.format(dx=dx, east=dx + 250), EDGES)
     routes = tmp_path / "pair.rou.xml"
     routes.write_text(PAIR_ROUTES)
     return RunConfig(
@@ -290,14 +285,9 @@ def test_vehicles_that_appear_in_the_region_are_queued_in_the_order_they_stand(t
     """Interpolating each one's arrival back to a line it never crossed put the slow one
     first (by seconds): the fast one ahead of it was refused as not the head, and the slow
     one behind it never asked; the lane stood still for ever."""
-    from dica.sim_gateway.scenario import netconvert_binary
-    from tests.user_nets import make
+    from tests.user_nets import plain_net
 
-    (tmp_path / "s.nod.xml").write_text(SHORT_NODES)
-    (tmp_path / "s.edg.xml").write_text(SHORT_EDGES)
-    net = tmp_path / "short.net.xml"
-    make([netconvert_binary(), "-n", str(tmp_path / "s.nod.xml"), "-e",
-          str(tmp_path / "s.edg.xml"), "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    net = plain_net(tmp_path, "short", SHORT_NODES, SHORT_EDGES)
     routes = tmp_path / "short.rou.xml"
     routes.write_text(SHORT_ROUTES)
     info = tmp_path / "tripinfo.xml"

@@ -575,6 +575,23 @@ def _where(inter, conf: Confirmation, lanes, t: float) -> float:
     return -float(inter.route(*lanes).project(xy)[0][0])
 
 
+EAST = "E_in_1", "W_out_1"  # through from the east, across the EV's way too
+
+
+def two_revoked_over_a_link(inter):
+    """Two cars across the EV's way (w1 from the west, e1 from the east), confirmed, then
+    revoked for the EV by an ICA that lets revoked cars ask again (the cluster's way):
+    the ICA, the reorder, and each car's plan and lanes."""
+    ica = ReactiveDica(inter, CFG, reactive=ReactiveConfig(replan_revoked=False))
+    w1 = scene(ica, inter)
+    ica.detect("e1", EAST[0], 0.0)
+    e1 = ica.handle(request(inter, "e1", EAST, 0.0, 30.0, 8.0), 0.0)
+    assert isinstance(e1, Confirmation)
+    r = start_event(ica, inter)
+    assert set(r.revoked) == {"w1", "e1"}
+    return ica, r, {"w1": (w1, CROSS), "e1": (e1, EAST)}
+
+
 @pytest.mark.parametrize("first_asks", [True, False])
 def test_revoked_cars_asking_again_go_in_the_order_they_were_given(ch45, first_asks):
     """Two cars across the EV's way, revoked for it over a link: whichever asks again
@@ -582,19 +599,11 @@ def test_revoked_cars_asking_again_go_in_the_order_they_were_given(ch45, first_a
     ORDER_WAIT_S at most, should the first never ask), as the bound was checked."""
     from dica.ica.core.reactive import ORDER_WAIT_S
 
-    east = "E_in_1", "W_out_1"
-    ica = ReactiveDica(ch45, CFG, reactive=ReactiveConfig(replan_revoked=False))
-    w1 = scene(ica, ch45)
-    ica.detect("e1", east[0], 0.0)
-    e1 = ica.handle(request(ch45, "e1", east, 0.0, 30.0, 8.0), 0.0)
-    assert isinstance(e1, Confirmation)
-    r = start_event(ica, ch45)
-    assert set(r.revoked) == {"w1", "e1"}
+    ica, r, plans = two_revoked_over_a_link(ch45)
     for vin, seq in ica.due_revocations():
         ica.cancel(vin, seq)
     assert isinstance(ev_request(ica, ch45, seq=1), Confirmation)
     first, second = r.revoked  # in the solver's order
-    plans = {"w1": (w1, CROSS), "e1": (e1, east)}
     t = 0.5
 
     def again(vin: str, t: float, seq: int):
@@ -621,18 +630,12 @@ def test_a_revoked_car_asking_again_before_the_ev_has_its_plan_waits_for_it(ch45
     EV's plan, whether or not its way crosses the EV's (asking first, one that does not
     was planned around revoked plans not yet dropped and came out seconds later than the
     copy said), and the EV, once planned, frees it."""
-    east = "E_in_1", "W_out_1"
-    ica = ReactiveDica(ch45, CFG, reactive=ReactiveConfig(replan_revoked=False))
-    w1 = scene(ica, ch45)
-    ica.detect("e1", east[0], 0.0)
-    e1 = ica.handle(request(ch45, "e1", east, 0.0, 30.0, 8.0), 0.0)
-    assert isinstance(e1, Confirmation)
-    r = start_event(ica, ch45)
+    ica, r, plans = two_revoked_over_a_link(ch45)
     first = r.revoked[0]
     assert ica._ordered_before(first, 0.5) == r.ev  # the rule itself, whatever the route
     for vin, seq in ica.due_revocations():
         ica.cancel(vin, seq)
-    conf, lanes = {"w1": (w1, CROSS), "e1": (e1, east)}[first]
+    conf, lanes = plans[first]
     ica.advance(0.55)
     d = _where(ch45, conf, lanes, 0.55)
     held = ica.handle(request(ch45, first, lanes, 0.55, d, 6.0, seq=3), 0.55)

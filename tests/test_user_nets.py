@@ -29,6 +29,7 @@ from tests.user_nets import (
     SLOW_MPS,
     build_nets,
     make,
+    plain_net,
     tool,
 )
 
@@ -378,11 +379,7 @@ def test_a_fast_road_gets_a_region_long_enough_to_stop_in(tmp_path):
     limit cannot stop short of the line there: the region grows to what the fastest
     approach needs (90 km/h: 73 m), and a route file's vehicles at 80 and 90 km/h cross
     a busy T junction with no plan missed and nothing touched."""
-    (tmp_path / "t.nod.xml").write_text(FAST_NODES)
-    (tmp_path / "t.edg.xml").write_text(FAST_EDGES)
-    net = tmp_path / "t.net.xml"
-    make([tool("netconvert"), "-n", str(tmp_path / "t.nod.xml"), "-e", str(tmp_path / "t.edg.xml"),
-          "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
+    net = plain_net(tmp_path, "t", FAST_NODES, FAST_EDGES)
     inter = load_intersection(net, "T")
     assert inter.comm_length_m >= stop_room_m(25.0, Kinematics()) + 25.0 * 0.05
     assert max(r.arrival_mps for r in inter.routes) == pytest.approx(25.0)
@@ -442,3 +439,22 @@ def test_a_long_wide_turner_sweeping_over_a_waiting_place_is_named(nets):
     assert hits and all(grid.route_by_id(r).turn is Turn.RIGHT for r, _ in hits)
     for r, lane in hits:  # the kerb lane's turner over the waiting place beside it
         assert lane.rsplit("_", 1)[0] == r.split(">")[0].rsplit("_", 1)[0]
+
+
+def test_the_region_grows_from_the_first_speed_a_vehicle_could_not_stop_in_50_m():
+    """On either side of the limit: 50 m up to the speed whose room to stop, and a step's
+    travel, fills it; a metre more just past it; a fast road's need in whole metres."""
+    from dica.ica.netfile import STEP_S, region_m
+
+    def need(v: float) -> float:
+        return stop_room_m(v) + v * STEP_S
+
+    lo, hi = 10.0, 30.0  # the speed whose need is exactly 50 m, by bisection
+    for _ in range(60):
+        mid = (lo + hi) / 2
+        lo, hi = (mid, hi) if need(mid) < 50.0 else (lo, mid)
+    assert 73.5 < lo * 3.6 < 75.0  # "about 74 km/h" in the docs
+    assert region_m(lo - 0.01, 50.0) == 50.0
+    assert region_m(lo + 0.01, 50.0) == 51.0
+    assert region_m(22.22, 50.0) == 58.0 and region_m(25.0, 50.0) == 73.0
+    assert region_m(25.0, 80.0) == 80.0  # never shorter than asked

@@ -40,6 +40,18 @@ def make(cmd: list[str]) -> None:
     assert p.returncode == 0, p.stderr
 
 
+def plain_net(d: Path, name: str, nodes: str, edges: str, *flags: str) -> Path:
+    """A net netconvert builds from plain XML (``nodes``, ``edges``; no turnarounds, with
+    ``flags``) as ``d/<name>.net.xml``."""
+    (d / f"{name}.nod.xml").write_text(nodes)
+    (d / f"{name}.edg.xml").write_text(edges)
+    net = d / f"{name}.net.xml"
+    make([netconvert_binary(), "-n", str(d / f"{name}.nod.xml"), "-e",
+          str(d / f"{name}.edg.xml"), "--no-turnarounds", "true", *flags,
+          "-o", str(net)])  # fmt: skip
+    return net
+
+
 def build_nets(d: Path) -> dict[str, Path]:
     """grid: 3 lanes at 50 km/h, 200 m blocks, no lights; walk: 40 km/h, sidewalks, bike
     lanes, lights, 80 m blocks; twins: two junctions 12 m apart under one joined light;
@@ -57,17 +69,9 @@ def build_nets(d: Path) -> dict[str, Path]:
           "--no-turnarounds", "true", "-o", str(out["walk"])])  # fmt: skip
     # two junctions 12 m apart under one joined light (its id is neither's), and the
     # same two joined into one cluster junction
-    (d / "j.nod.xml").write_text(NODES)
-    (d / "j.edg.xml").write_text(EDGES)
-    plain = ["-n", str(d / "j.nod.xml"), "-e", str(d / "j.edg.xml"), "--no-turnarounds", "true"]
-    make([netconvert_binary(), *plain, "--tls.join", "true", "--tls.join-dist", "20",
-          "-o", str(out["twins"])])  # fmt: skip
-    make([netconvert_binary(), *plain, "--junctions.join", "true", "--junctions.join-dist", "15",
-          "-o", str(out["joined"])])  # fmt: skip
-    (d / "b.nod.xml").write_text(BUS_NODES)
-    (d / "b.edg.xml").write_text(BUS_EDGES)
-    make([netconvert_binary(), "-n", str(d / "b.nod.xml"), "-e", str(d / "b.edg.xml"),
-          "--no-turnarounds", "true", "-o", str(out["bus"])])  # fmt: skip
+    plain_net(d, "twins", NODES, EDGES, "--tls.join", "true", "--tls.join-dist", "20")
+    plain_net(d, "joined", NODES, EDGES, "--junctions.join", "true", "--junctions.join-dist", "15")
+    plain_net(d, "bus", BUS_NODES, BUS_EDGES)
     return out
 
 

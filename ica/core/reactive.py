@@ -962,16 +962,17 @@ class ReactiveDica(Dica):
             if len(states) < 2:
                 cases = cases[:1]
         bound = self.reactive.max_added_delay_s
+        base = copy.deepcopy(self, self._shared())
+        for c in revoked:
+            base._drop(c.vin)
+        base._event = None
+        try:
+            Dica._handle(base, req, now_s)
+        except RequestError:
+            return set()  # the EV is not planned now: nothing to measure against
         over: set[str] = set()
-        for case in cases:
-            trial = copy.deepcopy(self, self._shared())
-            for c in revoked:
-                trial._drop(c.vin)
-            trial._event = None
-            try:
-                Dica._handle(trial, req, now_s)
-            except RequestError:
-                return set()  # the EV is not planned now: nothing to measure against
+        for k, case in enumerate(cases):  # the EV's plan made once, each case on a copy
+            trial = base if k == len(cases) - 1 else copy.deepcopy(base, self._shared())
             new = {conf.vin: conf.entry_time_s for conf in trial._replan(case)}
             over |= {
                 vin
