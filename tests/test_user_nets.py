@@ -458,3 +458,34 @@ def test_the_region_grows_from_the_first_speed_a_vehicle_could_not_stop_in_50_m(
     assert region_m(lo + 0.01, 50.0) == 51.0
     assert region_m(22.22, 50.0) == 58.0 and region_m(25.0, 50.0) == 73.0
     assert region_m(25.0, 80.0) == 80.0  # never shorter than asked
+
+
+@pytest.mark.parametrize("lane", ["A1B1_0", "B1C1_0"])  # B1's approach, B1's exit
+def test_a_stop_a_metre_either_side_of_its_limit_is_refused_or_served(nets, tmp_path, lane):
+    """The refusal names the nearest a stop may be to the junction; a metre nearer is
+    refused as well, a metre farther is the file's own (the run starts and is safe)."""
+    import re
+
+    from dica.sim_gateway.runconfig import RunError
+
+    inter = load_intersection(nets["grid"], "B1")
+    approach = any(r.in_lane == lane for r in inter.routes)
+    n = next(r.in_lane_m if approach else r.out_lane_m for r in inter.routes
+             if lane in (r.in_lane, r.out_lane))  # fmt: skip
+
+    def run(from_line_m: float):
+        end = n - from_line_m if approach else from_line_m + 0.2  # (a stop is 0.2 m long)
+        d = tmp_path / f"{from_line_m:g}"
+        d.mkdir()
+        text = (
+            '<routes><flow id="s" begin="0" end="20" period="10" from="A1B1" to="B1C1">'
+            f'<stop lane="{lane}" endPos="{end:.2f}" duration="1"/></flow></routes>'
+        )
+        return _routes_run(nets, d, text=text, duration_s=5.0)
+
+    with pytest.raises(RunError) as near:
+        run(1.0)
+    limit = float(re.search(r"at least (\d+) m", str(near.value)).group(1))
+    with pytest.raises(RunError, match="move the stop"):
+        run(limit - 1.0)
+    assert run(limit + 1.0).safety["overlaps"] == 0
