@@ -112,6 +112,7 @@ def test_lockstep_network_cluster_makes_the_embedded_decisions(tmp_path, corrido
 @needs_netns
 def test_roadside_units_on_hosts_of_their_own(tmp_path, corridor):
     out = tmp_path / "ns"
+    before = set(_namespaces())  # (another run's on this host are not this one's to clean)
     p = _cluster(out, *corridor["scen"], "--duration", DURATION, "--netns", "--no-record")
     assert p.returncode == 0, p.stdout + p.stderr
     _same_as_embedded(out, corridor)
@@ -123,7 +124,8 @@ def test_roadside_units_on_hosts_of_their_own(tmp_path, corridor):
         )
     agent = (out / "logs" / "agent-2.log").read_text()
     assert all(f"stopped at {j}" in agent for j in corridor["junctions"])
-    assert not [n for n in _namespaces() if n.startswith("dica")], "namespaces left behind"
+    left = [n for n in _namespaces() if n.startswith("dica") and n not in before]
+    assert not left, f"namespaces left behind: {left}"
 
     # secured: each roadside unit's router its own certificate, logging in to the ones
     # before it across the LAN; the same decisions
