@@ -19,6 +19,7 @@ from dica.ica.core.crosswalk import Crosswalk
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics, SpeedCaps, Turn
 from dica.ica.core.route import Route, Via, build_route, classify_turn
+from dica.ica.core.waiting import line_backs
 
 _DIR_TO_TURN = {"l": Turn.LEFT, "L": Turn.LEFT, "r": Turn.RIGHT, "R": Turn.RIGHT, "s": Turn.THROUGH}
 _VEHICLE_CLASS = "passenger"  # the random demand's
@@ -64,6 +65,8 @@ def load_intersection(
     comm_length_m: float = 50.0,
     caps: SpeedCaps = DEFAULT_CAPS,
     max_vehicle_length_m: float = MAX_VEHICLE_LENGTH_M,
+    fleet: tuple[float, float] | None = None,
+    kin: Kinematics = Kinematics(),
 ) -> Intersection:
     """Routes of ``junction_id``: one per (incoming lane, outgoing lane) connection.
 
@@ -71,6 +74,10 @@ def load_intersection(
     through (on priority junctions a left turn may use two) and the outgoing
     lane. The polyline reaches ``comm_length_m`` plus a vehicle length upstream
     of the entry line so any accepted vehicle can be placed on it.
+
+    ``fleet`` is the longest and the widest vehicle the run may bring (None: cars).
+    Where one that size turning from another lane would sweep over the place a vehicle
+    waits at a lane's end, that lane's line moves back (:mod:`ica.core.waiting`).
     """
     net = _read(Path(net_path))
     if not net.hasNode(junction_id):
@@ -110,10 +117,27 @@ def load_intersection(
             f"junction {junction_id!r} in {net_path} has no crossing routes for road vehicles"
         )
     routes.sort(key=lambda r: r.id)
+    region = _region(node, routes)
+    backs = line_backs(tuple(routes), *fleet, kin.stop_gap_m) if fleet else {}
+    if backs:  # rebuilt to reach as far upstream of the moved line as of the lane's end
+        conns = {
+            f"{c.getFromLane().getID()}>{c.getToLane().getID()}": c
+            for e in node.getIncoming()
+            for ln in e.getLanes()
+            for c in ln.getOutgoing()
+        }
+        routes = [
+            r
+            if r.in_lane not in backs
+            else _route(
+                net, conns[r.id], caps, approach_m + backs[r.in_lane], tail_m, r.cars
+            ).moved_back(backs[r.in_lane])
+            for r in routes
+        ]
     return Intersection(
         junction_id=junction_id,
         routes=tuple(routes),
-        region=_region(node, routes),
+        region=region,
         comm_length_m=comm_length_m,
         crosswalks=_crosswalks(net, junction_id),
     )

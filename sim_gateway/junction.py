@@ -150,7 +150,7 @@ class Junction:
     schedule: list[Arrival]  # its vehicles in arrival order at the region's entry line
     cars: dict[str, Car]
     edge_routes: dict[tuple[str, str], str]  # (in edge, out edge): SUMO's route id
-    lane_len_m: dict[str, float]  # each incoming lane's length
+    lane_len_m: dict[str, float]  # where each incoming lane's line stands on it [m]
     monitor: SafetyMonitor  # the collision check over its region
     watch: Watch  # the monitor's feed
     person_check: PersonCheck | None = None  # vehicles touching people (with --peds)
@@ -239,7 +239,10 @@ class Junction:
             if key not in edge_routes:
                 edge_routes[key] = f"r_{key[0]}_{key[1]}"
                 ls.route.add(edge_routes[key], list(key))
-        lane_len = {lane: ls.lane.getLength(lane) for lane in inter.in_lanes}
+        # where each incoming lane's line stands on it: its end, or further back where a long
+        # vehicle turning from another lane sweeps over the place one waits (Route.line_back_m)
+        back = {r.in_lane: r.line_back_m for r in inter.routes}
+        lane_len = {lane: ls.lane.getLength(lane) - back[lane] for lane in inter.in_lanes}
         if not signalised:
             # inside the junction vehicles fly their plans (speed mode 32), which hold the
             # turn caps; SUMO's own lower turn speed limits would only make a vehicle that

@@ -31,7 +31,7 @@ from dica.ica.core.gridlock import (
 )
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics
-from dica.ica.core.occupancy import sweeps_waiting
+from dica.ica.core.waiting import line_backs
 from dica.ica.netfile import MAX_VEHICLE_LENGTH_M, SERVED_CLASSES, stop_room_m
 from dica.sim_gateway.runconfig import RunError
 
@@ -66,6 +66,36 @@ class RouteFile:
     # each vehicle, trip or flow: who it is, where it starts on its first road
     # (departPos, departSpeed) and the roads it may start on
     starts: list[tuple[str, dict[str, str], frozenset[str]]] = field(default_factory=list)
+
+
+# SUMO's own length and width [m] per vehicle class (a vType that sets neither takes its
+# class's); the world checks them against SUMO's when it has loaded the file
+CLASS_SIZES: dict[str, tuple[float, float]] = {
+    "bus": (12.0, 2.5), "coach": (14.0, 2.6), "delivery": (6.5, 2.16),
+    "emergency": (6.5, 2.16), "moped": (2.1, 0.78), "motorcycle": (2.2, 0.9),
+    "trailer": (16.5, 2.55), "truck": (7.1, 2.4),
+}  # fmt: skip
+CAR_SIZE = (5.0, 1.8)  # every other class served, and a vehicle without a type
+
+
+def fleet_size(path: Path) -> tuple[float, float]:
+    """The longest and the widest vehicle [m] a route file's types may bring (every
+    type it defines, and SUMO's default car), the length no more than the routes allow:
+    where such a vehicle turning sweeps over a waiting place, that lane's line moves back
+    (:mod:`ica.core.waiting`). A file that cannot be read is refused in one line."""
+    if not Path(path).is_file():
+        raise RunError(f"route file not found: {path}")
+    length, width = CAR_SIZE
+    try:
+        for _, el in ET.iterparse(Path(path)):
+            if el.tag == "vType":
+                own = CLASS_SIZES.get(el.get("vClass", "passenger"), CAR_SIZE)
+                length = max(length, float(el.get("length", own[0])))
+                width = max(width, float(el.get("width", own[1])))
+            el.clear()
+    except (OSError, ET.ParseError, ValueError) as e:
+        raise RunError(f"route file {path}: cannot be read ({e})") from None
+    return min(length, MAX_LENGTH_M), width
 
 
 def read_route_file(path: Path) -> RouteFile:
@@ -246,23 +276,31 @@ def _check_ids(path: Path, ids: list[tuple[str, str]]) -> None:
             )
 
 
-def note_sweeps(ls, rf: RouteFile, inters: Sequence[Intersection], kin: Kinematics) -> list[str]:
-    """Say where the file's longest and widest vehicle, turning, sweeps over the place a
-    vehicle waits at another lane's line: the plans do not reserve that place yet, so two
-    such vehicles may touch there (the run's checks count it). One line per junction."""
-    length = max(ls.vehicletype.getLength(t) for t in rf.types)
-    width = max(ls.vehicletype.getWidth(t) for t in rf.types)
+def note_moved_lines(
+    ls, rf: RouteFile, inters: Sequence[Intersection], kin: Kinematics
+) -> list[str]:
+    """Check that the lanes' lines, as placed, keep every waiting place clear of the
+    file's longest, widest vehicle as SUMO has it (:func:`fleet_size` read it from the
+    file before SUMO ran); then say, one line per junction, which lines moved back."""
+    types = {*rf.types, DEFAULT_TYPE}
+    length = max(ls.vehicletype.getLength(t) for t in types)
+    width = max(ls.vehicletype.getWidth(t) for t in types)
     lines = []
     for x in inters:
-        hits = sweeps_waiting(x.routes, length, width, kin.stop_gap_m)
-        if hits:
-            shown = ", ".join(f"{r} over {lane}" for r, lane in hits[:3])
-            more = f" and {len(hits) - 3} more" if len(hits) > 3 else ""
-            lines.append(
+        swept = line_backs(x.routes, length, width, kin.stop_gap_m)
+        if swept:
+            raise RunError(
                 f"junction {x.junction_id}: a {length:g} m x {width:g} m vehicle of "
-                f"{rf.path.name} sweeps over where a vehicle waits at another lane's line "
-                f"({shown}{more}); such pairs may touch: the plans do not reserve that "
-                "place yet"
+                f"{rf.path.name} turning would sweep over where a vehicle waits at "
+                f"{', '.join(sorted(swept))}: the lines there were placed for a smaller one"
+            )
+        moved = {r.in_lane: r.line_back_m for r in x.routes if r.line_back_m > 0.0}
+        if moved:
+            shown = ", ".join(f"{lane} {m:g} m" for lane, m in sorted(moved.items()))
+            lines.append(
+                f"junction {x.junction_id}: lines moved back ({shown}) so that a {length:g} m "
+                f"x {width:g} m vehicle of {rf.path.name} turning does not sweep over the "
+                "place a vehicle waits"
             )
     return lines
 

@@ -47,7 +47,7 @@ from dica.sim_gateway.route_file import (
     check_link_room,
     check_stops_and_starts,
     check_types,
-    note_sweeps,
+    note_moved_lines,
     read_route_file,
 )
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
@@ -113,7 +113,7 @@ class World:
                 # hold a vehicle beyond the junction; then, nothing refused, what to know
                 check_stops_and_starts(ls, rf, (inter, *more), longest, ica_cfg.kinematics)
                 check_link_room((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
-                for line in note_sweeps(ls, rf, (inter, *more), ica_cfg.kinematics):
+                for line in note_moved_lines(ls, rf, (inter, *more), ica_cfg.kinematics):
                     print(f"note: {line}", file=sys.stderr)
             if not signalised and cfg.network_gate:  # lights hold no vehicle for room
                 self.gate = NetworkGate(
@@ -305,12 +305,15 @@ class World:
         odo = vw.getDistance(c.sumo)
         lane_pos = vw.getLanePosition(c.sumo) if on_approach else math.nan
         c.locate(lane, lane_pos, j.lane_len_m[c.route.in_lane], odo)
+        d = j.lane_len_m[c.route.in_lane] - vw.getLanePosition(c.sumo)
+        # past a line moved back (Route.line_back_m) a vehicle is in the junction, though
+        # SUMO still has it on its incoming lane
+        on_approach = on_approach and (d >= 0.0 or c.route.line_back_m == 0.0)
         c.speed_mps = speed
         if not c.entered and not on_approach:
             self._entered(j, c, t)
         self.traffic.note_speed(j, c, speed)
         self.traffic.left_junction(j, vw, c, t)
-        d = j.lane_len_m[c.route.in_lane] - vw.getLanePosition(c.sumo)
         # behind a vehicle that is not the junction's, a vehicle neither asks nor follows
         clear = not (j.strangers and j.stranger_ahead(c))
         c.head = on_approach and c.ahead is None and clear

@@ -12,13 +12,14 @@ import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from dica.ica.core.limits import Kinematics, SpeedCaps, Turn
 from dica.ica.netfile import load_intersection, stop_room_m
 from dica.sim_gateway import embedded
 from dica.sim_gateway.demand import unserved
-from dica.sim_gateway.runconfig import RunConfig
+from dica.sim_gateway.runconfig import RunConfig, RunError
 from dica.sim_gateway.scenario import light_id
 from tests.dica_cli import DICA, dica_run
 from tests.user_nets import (
@@ -425,20 +426,75 @@ def test_a_route_files_fast_type_keeps_the_limit_once_flown_through_a_junction(t
     assert {r["route"].split(">")[0].rsplit("_", 1)[0] for r in rows} == {"left1A1", "A1A2", "A2B2"}
 
 
-def test_a_long_wide_turner_sweeping_over_a_waiting_place_is_named(nets):
-    """On netgenerate's tight corners an 11 m x 2.55 m vehicle turning right from the
-    kerb lane sweeps over where a vehicle waits at the next lane's line (outside the
-    junction, so outside every reservation: such pairs touched in runs); a car and a
-    7 m van do not. The run says so before it starts."""
-    from dica.ica.core.occupancy import sweeps_waiting
+def test_a_long_wide_turner_moves_back_the_line_of_the_lane_it_sweeps(nets):
+    """On netgenerate's tight corners a 12 m x 2.55 m vehicle turning right from the kerb
+    lane sweeps over where a vehicle waits at the line of the lane beside it (outside the
+    junction, so outside every reservation); a car and a 7 m van do not. Loaded for such
+    a fleet, that lane's line moves back until nothing swept reaches a vehicle waiting
+    behind it: the stretch in between is the crossing's, in every route from the lane."""
+    from dica.ica.core.waiting import line_backs
 
     grid = load_intersection(nets["grid"], "B1")
-    assert sweeps_waiting(grid.routes, 5.0, 1.8, 0.5) == []
-    assert sweeps_waiting(grid.routes, 7.0, 2.2, 0.5) == []
-    hits = sweeps_waiting(grid.routes, 11.0, 2.55, 0.5)
-    assert hits and all(grid.route_by_id(r).turn is Turn.RIGHT for r, _ in hits)
-    for r, lane in hits:  # the kerb lane's turner over the waiting place beside it
-        assert lane.rsplit("_", 1)[0] == r.split(">")[0].rsplit("_", 1)[0]
+    assert line_backs(grid.routes, 5.0, 1.8, 0.5) == {}
+    assert line_backs(grid.routes, 7.0, 2.2, 0.5) == {}
+    backs = line_backs(grid.routes, 12.0, 2.55, 0.5)
+    assert backs and all(lane.endswith("_1") for lane in backs)  # beside the kerb lane
+    moved = load_intersection(nets["grid"], "B1", fleet=(12.0, 2.55))
+    assert line_backs(moved.routes, 12.0, 2.55, 0.5) == {}  # half a metre short of it: not
+    assert line_backs(moved.routes, 12.0, 2.55, 0.0)  # less room than the stop gap: swept
+    for r, m in zip(grid.routes, moved.routes, strict=True):
+        back = backs.get(r.in_lane, 0.0)
+        assert m.line_back_m == back
+        assert m.cross_length_m == pytest.approx(r.cross_length_m + back)
+        assert m.in_lane_m == pytest.approx(r.in_lane_m - back)
+        # the same place on the ground, the polyline reaching as far up the new line
+        assert np.allclose(m.points(np.array([back, m.cross_length_m])),
+                           r.points(np.array([0.0, r.cross_length_m])))  # fmt: skip
+        assert m.s_min <= r.s_min + back + 1e-9
+    cars = load_intersection(nets["grid"], "B1", fleet=(5.0, 1.8))
+    assert all(r.line_back_m == 0.0 for r in cars.routes)
+
+
+TRUCKS = """<routes>
+  <vType id="car" accel="2.6" decel="4.5" length="4.5" width="1.8" sigma="0.5"/>
+  <vType id="truck" vClass="truck" accel="2.6" decel="4.5" length="12" width="2.55"/>
+  <flow id="t1" type="truck" begin="0" end="150" vehsPerHour="240" from="A1B1" to="B1B0"
+        departLane="0"/>
+  <flow id="t2" type="truck" begin="0" end="150" vehsPerHour="240" from="C1B1" to="B1B2"
+        departLane="0"/>
+  <flow id="c1" type="car" begin="0" end="150" vehsPerHour="900" from="A1B1" to="B1C1"
+        departLane="1"/>
+  <flow id="c2" type="car" begin="0" end="150" vehsPerHour="900" from="C1B1" to="B1A1"
+        departLane="1"/>
+  <flow id="c3" type="car" begin="0" end="150" vehsPerHour="900" from="B0B1" to="B1B2"
+        departLane="1"/>
+  <flow id="c4" type="car" begin="0" end="150" vehsPerHour="900" from="B2B1" to="B1B0"
+        departLane="1"/>
+</routes>"""
+
+
+def test_trucks_turning_beside_waiting_cars_touch_none(nets, tmp_path):
+    """12 m trucks turning right from the kerb lane while cars wait beside them: with the
+    lines where such a fleet needs them, neither check counts a touch; lines placed for
+    cars alone are refused in one line before the run, never run into touches."""
+    routes = tmp_path / "trucks.rou.xml"
+    routes.write_text(TRUCKS)
+    p = dica_run(
+        [*DICA, "run", "--net", str(nets["grid"]), "--junction", "B1", "--routes", str(routes),
+         "--duration", "150", "--out", str(tmp_path / "run"), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=600,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "junction B1: lines moved back (A1B1_1 4 m" in p.stderr
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    assert m["accounted"]["lost"] == 0 and m["accounted"]["crossed"] > 100
+    rows = list(csv.DictReader((tmp_path / "run" / "vehicles.csv").open()))
+    assert any(r["vin"].startswith("t1") for r in rows)
+    cfg = RunConfig(net_path=str(nets["grid"]), junction_id="B1", routes_path=str(routes),
+                    duration_s=10.0)  # fmt: skip
+    with pytest.raises(RunError, match="would sweep over where a vehicle waits at A1B1_1"):
+        embedded.run(cfg, load_intersection(cfg.net_path, "B1"), run_dir=tmp_path / "cars")
 
 
 def test_the_region_grows_from_the_first_speed_a_vehicle_could_not_stop_in_50_m():

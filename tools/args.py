@@ -17,13 +17,29 @@ from dica.tools import options
 from dica.tools.options import UsageError
 
 
+def fleet(routes, algorithm: str | None) -> tuple[float, float] | None:
+    """The longest and the widest vehicle a route file may bring to the ICA's plans
+    (None: the drawn demand's cars, or lights, which plan nothing): where one that size
+    sweeps over a waiting place as it turns, that lane's line moves back."""
+    from dica.sim_gateway.route_file import fleet_size
+    from dica.sim_gateway.runconfig import LIGHTS, RunError
+
+    if not routes or algorithm in LIGHTS:
+        return None
+    try:
+        return fleet_size(Path(routes))
+    except RunError as e:
+        raise UsageError(str(e)) from None
+
+
 def intersection(args: argparse.Namespace):
     from dica.ica.netfile import NetworkError, load_intersection
     from dica.sim_gateway.scenario import ScenarioError, default_scenario
 
     try:
         if args.net:
-            return load_intersection(args.net, args.junction)
+            sized = fleet(getattr(args, "routes", None), getattr(args, "algorithm", None))
+            return load_intersection(args.net, args.junction, fleet=sized)
         sc = default_scenario(args.layout)
         return load_intersection(sc.net_path, sc.junction_id)
     except (NetworkError, ScenarioError) as e:
@@ -129,7 +145,8 @@ def intersections(cfg) -> list:
     from dica.ica.netfile import NetworkError, load_intersection
 
     try:
-        return [load_intersection(cfg.net_path, j) for j in cfg.junction_ids]
+        sized = fleet(cfg.routes_path, cfg.algorithm)
+        return [load_intersection(cfg.net_path, j, fleet=sized) for j in cfg.junction_ids]
     except NetworkError as e:
         raise UsageError(str(e)) from None
 

@@ -167,6 +167,7 @@ def _main(argv: list[str] | None) -> int:
     from dica.sim_gateway.outputs import write_outputs
     from dica.sim_gateway.runconfig import RunConfig, RunError
     from dica.sim_gateway.scenario import ScenarioError
+    from dica.tools.args import fleet
 
     args = parser().parse_args(argv)
     for name in ("volume", "duration", "drain"):
@@ -195,7 +196,8 @@ def _main(argv: list[str] | None) -> int:
     try:
         net, free_net, junctions = _nets(args, layout, out)
         # each junction read first: one the net lacks is named as such, before the demand
-        inters = [load_intersection(str(net), j) for j in junctions]
+        sized = fleet(args.routes, None) if args.control == "dica" else None
+        inters = [load_intersection(str(net), j, fleet=sized) for j in junctions]
         routes = args.routes
         n = None
         if routes is None:

@@ -488,7 +488,10 @@ def add_role_parsers(sub) -> None:
     options.add(
         i, *options.NET, "--algorithm", "--solver", "--max-added-delay", "--seed", *options.PLAN,
         "--max-age",
-        "--tile-size", "--out", "--idle-exit",
+        "--tile-size", "--out", "--idle-exit", "--routes",
+        routes={"help": "the run's route file (give every role the gateway's): where its "
+                "longest, widest vehicle type turning sweeps over the place a vehicle waits "
+                "at a lane's line, that line moves back, for every role alike"},
         algorithm={"help": options.ALGORITHMS_HELP + " (revoked vehicles drop their plans "
                    "and ask again)"},
         seed={"help": "rdica's GA seed (the run's seed; default 12)"},
@@ -519,7 +522,10 @@ def add_role_parsers(sub) -> None:
     )
     a.add_argument("--id", required=True, help="this agent's name (letters, digits, _.:-+)")
     options.add(
-        a, *options.NET, "--junctions", "--margin", "--retry", "--lead",
+        a, *options.NET, "--junctions", "--margin", "--retry", "--lead", "--routes",
+        routes={"help": "the run's route file (give every role the gateway's): where its "
+                "longest, widest vehicle type turning sweeps over the place a vehicle waits "
+                "at a lane's line, that line moves back, for every role alike"},
         junctions={"help": "serve several junctions of --net (J1,J2,... or all, as the "
                    "gateway's --junctions): the agent keeps each vehicle it hosts from one "
                    "junction to the next"},
@@ -540,7 +546,10 @@ def add_role_parsers(sub) -> None:
         "run's end or on SIGTERM.",
     )
     options.add(
-        o, *options.NET, "--junctions", "--margin", "--time-pad",
+        o, *options.NET, "--junctions", "--margin", "--time-pad", "--routes",
+        routes={"help": "the run's route file (give every role the gateway's): where its "
+                "longest, widest vehicle type turning sweeps over the place a vehicle waits "
+                "at a lane's line, that line moves back, for every role alike"},
         junctions={"help": "instead of --junction: the network of these junctions of --net "
                    "(J1,J2,... or all) from above, every junction's vehicles and confirmed "
                    "plans in one recording (run_cluster.sh writes it as network.rrd)",

@@ -494,7 +494,10 @@ link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to
     if [ -f "$out/zenoh/$2.seal" ]; then role_link+=(--seal "$out/zenoh/$2.seal"); fi
   fi
 }
-ica_args=(--algorithm "$algorithm" --time-pad "$time_pad" --max-age "$max_age" --seed "$seed"
+# a route file's vehicle types set where lanes' lines stand: every role reads them alike
+fleet=()
+for k in "${!demand[@]}"; do [ "${demand[$k]}" = --routes ] && fleet=(--routes "${demand[$((k + 1))]}"); done
+ica_args=("${fleet[@]}" --algorithm "$algorithm" --time-pad "$time_pad" --max-age "$max_age" --seed "$seed"
   "${solver_args[@]}" "${platoon[@]}" "${run_up[@]}" "${exit_spacing[@]}")
 if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal in ica/J/)
   first=1
@@ -509,7 +512,7 @@ if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal 
       link_for "observer-$j" observer
       one=(); [ "${#ids[@]}" = 1 ] && one=("${live[@]}")  # several: the top view is live
       start "observer-$j" "${in_ns[@]}" "$dica" observer --net "$net" --junction "$j" --rrd "$rrd" \
-        --time-pad "$time_pad" "${one[@]}" "${role_link[@]}"
+        --time-pad "$time_pad" "${fleet[@]}" "${one[@]}" "${role_link[@]}"
     fi
     first=0
   done
@@ -517,7 +520,7 @@ if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal 
     link_for observer-network observer
     in_ns_of "$(host_ns 1)"
     start observer-network "${in_ns[@]}" "$dica" observer --rrd "$out/network.rrd" --net "$net" \
-      --junctions "$(IFS=,; echo "${ids[*]}")" "${live[@]}" "${role_link[@]}"
+      --junctions "$(IFS=,; echo "${ids[*]}")" "${fleet[@]}" "${live[@]}" "${role_link[@]}"
   fi
 else
   link_for ica ica
@@ -526,13 +529,14 @@ else
   if [ "$record" = 1 ]; then
     link_for observer observer
     start observer "${in_ns[@]}" "$dica" observer "${scen[@]}" --rrd "$out/spacetime.rrd" --time-pad "$time_pad" \
-      "${live[@]}" "${role_link[@]}"
+      "${fleet[@]}" "${live[@]}" "${role_link[@]}"
   fi
 fi
 for i in $(seq "$agents"); do
   link_for "agent-$i" "agent-$i"
   in_ns_of "$vehicles"
-  start "agent-$i" "${in_ns[@]}" "$dica" agent --id "agent-$i" "${scen[@]}" --lead "$lead" "${role_link[@]}"
+  start "agent-$i" "${in_ns[@]}" "$dica" agent --id "agent-$i" "${scen[@]}" --lead "$lead" "${fleet[@]}" \
+    "${role_link[@]}"
 done
 observers=$((record + top))  # per junction: its own observer, and the top view's
 link_for gateway gateway

@@ -119,31 +119,3 @@ def overlap_pairs(a: Rects, ia: np.ndarray, b: Rects, ib: np.ndarray) -> np.ndar
         b.half_length,
         b.half_width,
     )
-
-
-def sweeps_waiting(
-    routes: tuple[Route, ...], length_m: float, width_m: float, gap_m: float, step_m: float = 0.25
-) -> list[tuple[str, str]]:
-    """Where a vehicle ``length_m`` x ``width_m`` on one route, from its front at the entry
-    line until its rear is out, touches one of the same size standing ``gap_m`` short of
-    another lane's line: (route id, that lane). A long, wide vehicle turning on a tight
-    corner sweeps over the next lane's waiting place, which is outside the junction and
-    so outside every reservation."""
-    standing: dict[str, Rects] = {}
-    for r in routes:
-        if r.in_lane not in standing:
-            standing[r.in_lane] = footprints(r, np.array([-gap_m]), length_m, width_m)
-    out = []
-    for r in routes:
-        moving = footprints(r, np.arange(0.0, r.cross_length_m + length_m + step_m, step_m),
-                            length_m, width_m)  # fmt: skip
-        for lane, st in standing.items():
-            if lane == r.in_lane:
-                continue
-            d = st.centre[0] - moving.centre
-            apart = separated(d[:, 0], d[:, 1], moving.heading, st.heading[0],
-                              moving.half_length, moving.half_width, st.half_length,
-                              st.half_width)  # fmt: skip
-            if not np.all(apart):
-                out.append((r.id, lane))
-    return out

@@ -12,7 +12,7 @@ when occupancies are drawn as rectangles.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import NamedTuple
 
 import numpy as np
@@ -57,6 +57,24 @@ class Route:
     # [m/s] the net's own limit on the incoming lane, however high (None: not known): SUMO's
     # drivers bring vehicles to the region at it, so the room to stop is counted from it
     in_limit_mps: float | None = None
+    # [m] how far back of the incoming lane's end its entry line stands: 0 but where a
+    # long vehicle turning from another lane sweeps over the place a vehicle waits at the
+    # lane's end (:mod:`ica.core.waiting`); ``in_lane_m`` then counts up to the line
+    line_back_m: float = 0.0
+
+    def moved_back(self, back_m: float) -> Route:
+        """This route with its entry line ``back_m`` further up the incoming lane: the
+        stretch in between is part of the crossing. The polyline must reach far enough
+        upstream for the new line (built with ``approach_m`` grown by ``back_m``)."""
+        if back_m <= 0.0:
+            return self
+        return replace(
+            self,
+            cross_length_m=self.cross_length_m + back_m,
+            s=self.s + back_m,
+            in_lane_m=self.in_lane_m - back_m,
+            line_back_m=self.line_back_m + back_m,
+        )
 
     @property
     def arrival_mps(self) -> float:

@@ -1,0 +1,59 @@
+"""Waiting places: how far back of a lane's line its vehicles must wait.
+
+A vehicle waits ``stop_gap_m`` short of its lane's entry line, outside the
+junction and so outside every reservation. A long, wide vehicle turning from
+another lane on a tight corner swings its body over that place (its rear cuts
+the corner while its front is already turned). Where it does, the lane's line
+is moved back (:meth:`Route.moved_back`) until nothing swept reaches a vehicle
+waiting behind it: the stretch in between becomes part of the junction, so the
+reservations cover whoever passes over it and nobody waits on it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from dica.ica.core.occupancy import footprints, overlap_matrix
+from dica.ica.core.route import Route
+
+STEP_M = 0.5  # [m] how finely the lines move back (and where a waiting front is tried)
+
+
+def line_backs(
+    routes: tuple[Route, ...], length_m: float, width_m: float, gap_m: float
+) -> dict[str, float]:
+    """Per incoming lane, how far [m] its line must move back so that a vehicle
+    ``length_m`` x ``width_m`` standing ``gap_m`` short of it, or anywhere behind,
+    touches none of the same size crossing from another lane (from its front at that
+    lane's line until its rear is out). Only lanes that need it are listed."""
+    moving = {
+        r.id: footprints(
+            r, np.arange(0.0, r.cross_length_m + length_m + 0.25, 0.25), length_m, width_m
+        )
+        for r in routes
+    }
+    reach = max(r.cross_length_m for r in routes) + 3.0 * length_m + 10.0
+    fronts = -gap_m - np.arange(0.0, reach, STEP_M)
+    backs: dict[str, float] = {}
+    by_lane = {r.in_lane: r for r in routes}
+    for lane, r in by_lane.items():
+        standing = footprints(r, fronts, length_m, width_m)
+        lo, hi = _box(standing.corners().reshape(-1, 2))
+        deepest = -1
+        for other in routes:
+            if other.in_lane == lane:
+                continue
+            m = moving[other.id]
+            mlo, mhi = _box(m.corners().reshape(-1, 2))
+            if np.any(mhi < lo) or np.any(hi < mlo):
+                continue
+            hit = overlap_matrix(m, standing).any(axis=0)
+            if hit.any():
+                deepest = max(deepest, int(np.flatnonzero(hit).max()))
+        if deepest >= 0:
+            backs[lane] = (deepest + 1) * STEP_M
+    return backs
+
+
+def _box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return points.min(axis=0), points.max(axis=0)
