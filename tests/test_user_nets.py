@@ -303,12 +303,16 @@ def test_a_crossing_name_is_a_key_chunk_and_never_anothers():
 
 
 def test_buses_on_their_own_lanes_are_planned_like_cars(nets, tmp_path):
-    inter = load_intersection(nets["bus"], "X")
+    from dica.sim_gateway.route_file import fleet_size
+
+    routes = tmp_path / "buses.rou.xml"
+    routes.write_text(BUS_ROUTES)
+    # a 12 m bus turning would sweep over waiting places: the lines are placed for it
+    inter = load_intersection(nets["bus"], "X", fleet=fleet_size(routes))
+    assert any(r.line_back_m > 0.0 for r in inter.routes)
     bus_lane = [r for r in inter.routes if r.in_lane == "WX_0"]
     assert bus_lane and not any(r.cars for r in bus_lane)  # covered, but no car's
     assert all("not for cars" in unserved(inter, 5.0)[r.id] for r in bus_lane)
-    routes = tmp_path / "buses.rou.xml"
-    routes.write_text(BUS_ROUTES)
     cfg = RunConfig(
         net_path=str(nets["bus"]), junction_id="X", routes_path=str(routes), duration_s=330.0
     )
@@ -453,6 +457,45 @@ def test_a_long_wide_turner_moves_back_the_line_of_the_lane_it_sweeps(nets):
         assert m.s_min <= r.s_min + back + 1e-9
     cars = load_intersection(nets["grid"], "B1", fleet=(5.0, 1.8))
     assert all(r.line_back_m == 0.0 for r in cars.routes)
+
+
+def test_no_built_in_layout_moves_a_line_for_its_cars():
+    """The drawn demand's cars sweep over no waiting place on the built-in layouts, so
+    their lines stand at the lanes' ends and every built-in result is as it was."""
+    from dica.sim_gateway.route_file import CAR_SIZE
+    from dica.sim_gateway.scenario import LAYOUTS, default_scenario
+
+    for layout in LAYOUTS:
+        sc = default_scenario(layout)
+        inter = load_intersection(sc.net_path, sc.junction_id, fleet=CAR_SIZE)
+        assert all(r.line_back_m == 0.0 for r in inter.routes), layout
+
+
+def test_the_ica_refuses_a_turner_its_lines_were_not_placed_for(nets):
+    """An ICA whose lines stand where cars need them (a role not told the run's route
+    file) refuses a 12 m truck on a turn that would sweep over a waiting place, and only
+    there; one whose lines were placed for trucks confirms it."""
+    from dica.ica.core.config import IcaConfig
+    from dica.ica.core.dica import Dica
+    from dica.ica.core.proposal import propose
+    from dica.ica.core.request import Confirmation, Reason
+
+    def ask(inter, route_id: str, length: float, width: float):
+        ica = Dica(inter, IcaConfig())
+        route = inter.route_by_id(route_id)
+        ica.detect("v", route.in_lane, 0.0)
+        req = propose(route, vin="v", seq=0, t0_s=0.0, dist_to_entry_m=40.0, speed_mps=10.0,
+                      length_m=length, width_m=width)  # fmt: skip
+        return ica.handle(req, 0.0)
+
+    cars = load_intersection(nets["grid"], "B1", fleet=(5.0, 1.8))
+    turn, straight = "A1B1_0>B1B0_0", "A1B1_1>B1C1_1"
+    refused = ask(cars, turn, 12.0, 2.55)
+    assert refused.reason == Reason.TOO_LARGE and "sweep" in refused.detail
+    assert isinstance(ask(cars, turn, 5.0, 1.8), Confirmation)
+    assert isinstance(ask(cars, straight, 12.0, 2.55), Confirmation)
+    trucks = load_intersection(nets["grid"], "B1", fleet=(12.0, 2.55))
+    assert isinstance(ask(trucks, turn, 12.0, 2.55), Confirmation)
 
 
 TRUCKS = """<routes>

@@ -18,14 +18,17 @@ from dica.tools.options import UsageError
 
 
 def fleet(routes, algorithm: str | None) -> tuple[float, float] | None:
-    """The longest and the widest vehicle a route file may bring to the ICA's plans
-    (None: the drawn demand's cars, or lights, which plan nothing): where one that size
-    sweeps over a waiting place as it turns, that lane's line moves back."""
-    from dica.sim_gateway.route_file import fleet_size
+    """The longest and the widest vehicle the ICA's plans may meet: a route file's largest
+    type, or the drawn demand's car (None under lights, which plan nothing). Where one that
+    size turning sweeps over the place a vehicle waits at a lane's line, that line moves
+    back (:mod:`ica.core.waiting`)."""
+    from dica.sim_gateway.route_file import CAR_SIZE, fleet_size
     from dica.sim_gateway.runconfig import LIGHTS, RunError
 
-    if not routes or algorithm in LIGHTS:
+    if algorithm in LIGHTS:
         return None
+    if not routes:
+        return CAR_SIZE
     try:
         return fleet_size(Path(routes))
     except RunError as e:
@@ -36,12 +39,12 @@ def intersection(args: argparse.Namespace):
     from dica.ica.netfile import NetworkError, load_intersection
     from dica.sim_gateway.scenario import ScenarioError, default_scenario
 
+    sized = fleet(getattr(args, "routes", None), getattr(args, "algorithm", None))
     try:
         if args.net:
-            sized = fleet(getattr(args, "routes", None), getattr(args, "algorithm", None))
             return load_intersection(args.net, args.junction, fleet=sized)
         sc = default_scenario(args.layout)
-        return load_intersection(sc.net_path, sc.junction_id)
+        return load_intersection(sc.net_path, sc.junction_id, fleet=sized)
     except (NetworkError, ScenarioError) as e:
         raise UsageError(str(e)) from None
 

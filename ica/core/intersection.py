@@ -9,6 +9,7 @@ import numpy as np
 
 from dica.ica.core.crosswalk import Crosswalk
 from dica.ica.core.route import Route
+from dica.ica.core.waiting import sweeping
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -30,6 +31,7 @@ class Intersection:
     _by_id: Mapping[str, Route] = field(init=False, repr=False)
     _in_lanes: tuple[str, ...] = field(init=False, repr=False)
     _out_lanes: tuple[str, ...] = field(init=False, repr=False)
+    _sweeping: dict[tuple[float, float, float], frozenset[str]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         by_lanes = {(r.in_lane, r.out_lane): r for r in self.routes}
@@ -39,6 +41,7 @@ class Intersection:
         object.__setattr__(self, "_by_id", {r.id: r for r in self.routes})
         object.__setattr__(self, "_in_lanes", tuple(sorted({r.in_lane for r in self.routes})))
         object.__setattr__(self, "_out_lanes", tuple(sorted({r.out_lane for r in self.routes})))
+        object.__setattr__(self, "_sweeping", {})
 
     @property
     def in_lanes(self) -> tuple[str, ...]:
@@ -47,6 +50,15 @@ class Intersection:
     @property
     def out_lanes(self) -> tuple[str, ...]:
         return self._out_lanes
+
+    def sweeping(self, length_m: float, width_m: float, gap_m: float) -> frozenset[str]:
+        """The routes on which a vehicle this size would sweep over the place one waits,
+        ``gap_m`` short of another lane's line or behind it (none: the lines as placed
+        keep it clear; see :mod:`ica.core.waiting`). Worked out once per size."""
+        key = (length_m, width_m, gap_m)
+        if key not in self._sweeping:
+            self._sweeping[key] = sweeping(self.routes, length_m, width_m, gap_m)
+        return self._sweeping[key]
 
     def route(self, in_lane: str, out_lane: str) -> Route | None:
         return self._by_lanes.get((in_lane, out_lane))

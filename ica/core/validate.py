@@ -58,6 +58,12 @@ def check_request(
             Reason.UNKNOWN_ROUTE,
             f"no route from {req.in_lane!r} to {req.out_lane!r} through this junction",
         )
+    if route.id in inter.sweeping(req.length_m, req.width_m, cfg.kinematics.stop_gap_m):
+        raise RequestError(
+            Reason.TOO_LARGE,
+            f"vehicle {req.length_m} x {req.width_m} m on {route.id} would sweep over where "
+            "a vehicle waits at another lane's line: the lines were placed for smaller ones",
+        )
     if req.dist_to_entry_m < -cfg.on_route_tol_m or req.dist_to_entry_m > inter.comm_length_m + 1.0:
         raise RequestError(
             Reason.BAD_STATE,

@@ -26,6 +26,26 @@ def line_backs(
     ``length_m`` x ``width_m`` standing ``gap_m`` short of it, or anywhere behind,
     touches none of the same size crossing from another lane (from its front at that
     lane's line until its rear is out). Only lanes that need it are listed."""
+    backs: dict[str, float] = {}
+    for lane, _, deepest in _sweeps(routes, length_m, width_m, gap_m):
+        backs[lane] = max(backs.get(lane, 0.0), (deepest + 1) * STEP_M)
+    return backs
+
+
+def sweeping(
+    routes: tuple[Route, ...], length_m: float, width_m: float, gap_m: float
+) -> frozenset[str]:
+    """The routes on which a vehicle ``length_m`` x ``width_m`` would sweep over a place
+    where one of its size waits, ``gap_m`` short of another lane's line or behind it:
+    the ICA confirms no such crossing (the lines as placed were meant for smaller ones)."""
+    return frozenset(r for _, r, _ in _sweeps(routes, length_m, width_m, gap_m))
+
+
+def _sweeps(
+    routes: tuple[Route, ...], length_m: float, width_m: float, gap_m: float
+) -> list[tuple[str, str, int]]:
+    """(waiting lane, sweeping route, how deep the touch reaches: the index of the
+    furthest waiting front touched, fronts ``STEP_M`` apart from ``gap_m`` back)."""
     moving = {
         r.id: footprints(
             r, np.arange(0.0, r.cross_length_m + length_m + 0.25, 0.25), length_m, width_m
@@ -34,12 +54,11 @@ def line_backs(
     }
     reach = max(r.cross_length_m for r in routes) + 3.0 * length_m + 10.0
     fronts = -gap_m - np.arange(0.0, reach, STEP_M)
-    backs: dict[str, float] = {}
+    out = []
     by_lane = {r.in_lane: r for r in routes}
     for lane, r in by_lane.items():
         standing = footprints(r, fronts, length_m, width_m)
         lo, hi = _box(standing.corners().reshape(-1, 2))
-        deepest = -1
         for other in routes:
             if other.in_lane == lane:
                 continue
@@ -49,10 +68,8 @@ def line_backs(
                 continue
             hit = overlap_matrix(m, standing).any(axis=0)
             if hit.any():
-                deepest = max(deepest, int(np.flatnonzero(hit).max()))
-        if deepest >= 0:
-            backs[lane] = (deepest + 1) * STEP_M
-    return backs
+                out.append((lane, other.id, int(np.flatnonzero(hit).max())))
+    return out
 
 
 def _box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
