@@ -152,6 +152,14 @@ def test_a_route_files_people_are_held_where_they_come_and_cross_untouched(tmp_p
     assert w["crossed"] > 20 and w["overran_slot"] == 0 and w["mean_wait_s"] is not None
     assert w["person_hits"] == 0 and w["sumo_person_collisions"] == 0
     assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["crossed"] > 60
+    # dica network says how the people fared too (and a touch would end it with status 1)
+    p = dica_run(
+        [*DICA, "network", "--net", str(net), "--junctions", "B1", "--routes", str(routes),
+         "--duration", "60", "--out", str(tmp_path / "n"), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stderr
+    assert "people: 0 steps a vehicle touched a person" in p.stdout
     riders = tmp_path / "riders.rou.xml"
     riders.write_text(ROUTES_WITH_PEOPLE.replace(
         '<walk from="A1B1" to="B1A1"/>', '<ride from="A1B1" to="B1A1" lines="ANY"/>'))  # fmt: skip

@@ -172,21 +172,26 @@ def report_run(out: Path, result) -> int:
         f"{result.sumo_collisions} SUMO collisions{beyond}, "
         f"min gap {_num(result.safety['min_gap_m'])} m, {unconfirmed} unconfirmed entries"
     )
-    touched = 0
-    walkers = result.extra.get("walkers")
-    if walkers:  # a vehicle touching a person is a collision like any other
-        hits, sumo_hits = walkers["person_hits"], walkers["sumo_person_collisions"]
-        touched = hits + sumo_hits
-        print(
-            f"people: {hits} steps a vehicle touched a person (independent check), "
-            f"{sumo_hits} SUMO person collisions, closest "
-            f"{_num(walkers['min_person_gap_m'])} m"
-        )
+    touched = report_people(result)
     print(
         f"{result.simulated_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json"
     )
     collided = result.safety["overlaps"] or result.sumo_collisions or unconfirmed or touched
     return 1 if collided else 0
+
+
+def report_people(result) -> int:
+    """Print the people's safety line, if the run had people on foot; how many touches
+    either check counted (a vehicle touching a person is a collision like any other)."""
+    walkers = result.extra.get("walkers")
+    if not walkers:
+        return 0
+    hits, sumo_hits = walkers["person_hits"], walkers["sumo_person_collisions"]
+    print(
+        f"people: {hits} steps a vehicle touched a person (independent check), "
+        f"{sumo_hits} SUMO person collisions, closest {_num(walkers['min_person_gap_m'])} m"
+    )
+    return hits + sumo_hits
 
 
 def _weights(text: str | None) -> tuple[tuple[str, float], ...]:

@@ -326,6 +326,8 @@ def _actuated(net: Path, out_dir: Path) -> Path:
 
 
 def _report(out: Path, result, control: str) -> int:
+    from dica.tools.args import report_people
+
     n = result.extra.get("network", {})
     run = result.extra["network_run"]
 
@@ -362,6 +364,7 @@ def _report(out: Path, result, control: str) -> int:
         f"({result.extra.get('sumo_collisions_elsewhere', 0)} elsewhere), "
         f"{stood} vehicles stood inside a junction, {unconfirmed} unconfirmed entries"
     )
+    touched = report_people(result)
     still = result.extra.get("longest_standstill_s", 0.0)
     if still >= 60.0:
         print(f"note: for {still:.0f} s vehicles waited and none crossed (a network locked?)")
@@ -378,7 +381,7 @@ def _report(out: Path, result, control: str) -> int:
     print(
         f"{result.simulated_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json"
     )
-    bad = result.safety["overlaps"] or result.sumo_collisions or unconfirmed
+    bad = result.safety["overlaps"] or result.sumo_collisions or unconfirmed or touched
     if control == "dica":
         bad = bad or stood
     return 1 if bad else 0
