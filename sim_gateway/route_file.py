@@ -163,6 +163,8 @@ def read_route_file(path: Path) -> RouteFile:
                     heads.add(el.get("from"))
                 if el.get("route"):
                     heads |= first.get(el.get("route"), set())
+                if not heads:  # from a TAZ or a junction, or a route of another file
+                    heads.add(ANY_ROAD)
                 starts.append((who, {k: el.get(k) for k in ("departPos", "departSpeed")
                                      if el.get(k) is not None}, frozenset(heads)))  # fmt: skip
                 for k in range(len(stops) - 1, -1, -1):  # its own stops
@@ -438,6 +440,8 @@ def check_types(ls, rf: RouteFile, kin: Kinematics) -> None:
 _PLACES = {"busStop": "busstop", "trainStop": "busstop", "parkingArea": "parkingarea",
            "chargingStation": "chargingstation"}  # fmt: skip
 _UNPLACED = ("containerStop",)  # no libsumo domain says where these are
+# a start road the file does not name (fromTaz, fromJunction, a route of another file)
+ANY_ROAD = "*"
 # departPos values that may put a vehicle anywhere on its first road
 _ANYWHERE = ("random", "random_free", "free", "last")
 
@@ -534,7 +538,9 @@ def check_stops_and_starts(
         if _is_zero(speed):
             continue  # a standing start: the world plans it from where it stands
         pos = dep.get("departPos", "base").strip()
-        for lane in sorted(ln for e in heads for ln in lanes_of.get(e, []) if ln in approach):
+        lanes = approach if ANY_ROAD in heads else {
+            ln for e in heads for ln in lanes_of.get(e, []) if ln in approach}  # fmt: skip
+        for lane in sorted(lanes):
             n, _, line, j = approach[lane]
             if pos in _ANYWHERE:
                 inside = "may start"
@@ -542,8 +548,10 @@ def check_stops_and_starts(
                 inside = "starts"
             else:
                 continue
+            unnamed = (" (its first road is not in the file: a TAZ, a junction or a route "
+                       "of another file, so any road)") if ANY_ROAD in heads else ""  # fmt: skip
             raise RunError(
-                f"{where}: {who} {inside} inside junction {j}'s region on {lane} "
+                f"{where}: {who} {inside} inside junction {j}'s region on {lane}{unnamed} "
                 f"(departPos {pos!r}) at departSpeed {speed!r}, where {j} plans its vehicles "
                 f"before they are in it; start it before the last {n - line:.0f} m of the "
                 "lane or at departSpeed 0"

@@ -242,6 +242,21 @@ def test_a_route_file_the_ica_cannot_serve_is_refused_in_one_line(nets, tmp_path
     assert "\n" not in str(e.value)
 
 
+def test_a_start_the_file_does_not_place_counts_as_any_road(nets, tmp_path):
+    """A trip from a junction (or a TAZ, or on a route of another file) starts on a road
+    the file does not name: at speed, anywhere on it, it is refused as if it could start
+    on any approach; standing, the same trip runs."""
+    from dica.sim_gateway.runconfig import RunError
+
+    trip = '<routes><trip id="j" depart="0" fromJunction="A1" toJunction="C1"{}/></routes>'
+    taz = ("--junction-taz",)
+    with pytest.raises(RunError, match=r"trip 'j' may start .*\(its first road is not in the file"):
+        _routes_run(nets, tmp_path, text=trip.format(' departPos="random" departSpeed="max"'),
+                    duration_s=10.0, sumo_args=taz)  # fmt: skip
+    res = _routes_run(nets, tmp_path, text=trip.format(""), duration_s=30.0, sumo_args=taz)
+    assert res.extra["accounted"]["crossed"] == 1 and res.safety["overlaps"] == 0
+
+
 def test_stops_and_standing_starts_clear_of_the_plans_still_run(nets, tmp_path):
     """A stop well before the region or well past the line, and a start inside the region
     standing (departSpeed 0, SUMO's default), are the file's own and run safe."""
