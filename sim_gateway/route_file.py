@@ -28,6 +28,7 @@ from dica.ica.core.gridlock import (
     link_arcs,
     link_length_m,
     on_cycles,
+    short_exits,
 )
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics
@@ -373,7 +374,23 @@ def check_link_room(inters: Sequence[Intersection], longest_m: float, decel_mps2
     on; and a link some cycle of links passes must keep that room with one more vehicle
     standing at its end (where it waits for the next junction), else one vehicle on each
     link of the cycle locks it for good (and the network gate, which lets in only what
-    the links' capacity holds, lets no vehicle onto it)."""
+    the links' capacity holds, lets no vehicle onto it). An exit road of any chosen
+    junction as short is refused too: those bound for it would wait at the line for good."""
+    between = link_length_m(inters) if len(inters) > 1 else {}  # checked below, cycles too
+    for x in inters:
+        short_out = [
+            s
+            for s in short_exits(x, longest_m, decel_mps2, ROOM_GAP_M, ROOM_SLACK_M)
+            if s[0] not in between
+        ]
+        if short_out:
+            e, m, want = short_out[0]
+            raise RunError(
+                f"junction {x.junction_id}: its exit {e} is {m:.0f} m long, and a "
+                f"{longest_m:g} m vehicle let onto it needs {want:.0f} m of room beyond the "
+                "junction to stop in: none could ever be let on, and those bound for it "
+                "would wait for good; leave the junction to the net's own control"
+            )
     if len(inters) < 2:
         return
     need = full_need_m(inters, longest_m, decel_mps2, ROOM_GAP_M, ROOM_SLACK_M)

@@ -257,6 +257,47 @@ def test_a_start_the_file_does_not_place_counts_as_any_road(nets, tmp_path):
     assert res.extra["accounted"]["crossed"] == 1 and res.safety["overlaps"] == 0
 
 
+_RB_NODES = """<nodes>
+  <node id="r0" x="20" y="0"/><node id="r1" x="0" y="20"/><node id="r2" x="-20" y="0"/>
+  <node id="r3" x="0" y="-20"/><node id="e" x="200" y="0"/><node id="n" x="0" y="200"/>
+  <node id="w" x="-200" y="0"/><node id="s" x="0" y="-200"/>
+</nodes>"""
+_RB_EDGES = """<edges>
+  <edge id="c01" from="r0" to="r1" speed="8.33" shape="20,0 14.1,14.1 0,20"/>
+  <edge id="c12" from="r1" to="r2" speed="8.33" shape="0,20 -14.1,14.1 -20,0"/>
+  <edge id="c23" from="r2" to="r3" speed="8.33" shape="-20,0 -14.1,-14.1 0,-20"/>
+  <edge id="c30" from="r3" to="r0" speed="8.33" shape="0,-20 14.1,-14.1 20,0"/>
+  <edge id="ei" from="e" to="r0" speed="13.89"/><edge id="eo" from="r0" to="e" speed="13.89"/>
+  <edge id="ni" from="n" to="r1" speed="13.89"/><edge id="no" from="r1" to="n" speed="13.89"/>
+  <edge id="wi" from="w" to="r2" speed="13.89"/><edge id="wo" from="r2" to="w" speed="13.89"/>
+  <edge id="si" from="s" to="r3" speed="13.89"/><edge id="so" from="r3" to="s" speed="13.89"/>
+</edges>"""
+
+
+def test_a_junction_whose_exit_is_too_short_to_let_a_vehicle_on_is_not_served(tmp_path):
+    """A roundabout's 22 m ring links: a car let onto one at the ring's 30 km/h needs 23 m
+    of room beyond the junction to stop in, so none would ever be let on and those bound
+    for it would wait at the line for good (they did: 20 of 30 stood for 300 s). Named
+    in one line; ``all`` leaves every such junction to the net, with a note each."""
+    net = plain_net(tmp_path, "rb", _RB_NODES, _RB_EDGES, "--roundabouts.guess", "true")
+    routes = tmp_path / "rb.rou.xml"
+    routes.write_text('<routes><flow id="f" begin="0" end="60" number="5" from="ei" '
+                      'to="wo"/></routes>')  # fmt: skip
+    for where in (["--junction", "r0"], ["--junctions", "r0,r2"], ["--junctions", "all"]):
+        p = dica_run(
+            [*DICA, "run", "--net", str(net), *where, "--routes", str(routes),
+             "--duration", "30", "--out", str(tmp_path / "x"), "--quiet"],
+            capture_output=True, text=True, cwd=ROOT, timeout=300,
+        )  # fmt: skip
+        assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+        if where[1] == "all":
+            assert p.stderr.count("stays as the net has it: its exit c") == 4
+            assert "can serve none of its junctions" in p.stderr
+        else:
+            assert "junction r0: its exit c01 is 22 m long" in p.stderr
+            assert "needs 23 m of room beyond the junction" in p.stderr
+
+
 def test_stops_and_standing_starts_clear_of_the_plans_still_run(nets, tmp_path):
     """A stop well before the region or well past the line, and a start inside the region
     standing (departSpeed 0, SUMO's default), are the file's own and run safe."""

@@ -57,7 +57,7 @@ def run_config(args: argparse.Namespace):
 
     junctions: tuple[str, ...] = ()
     if getattr(args, "junctions", None):
-        junctions = chosen_junctions(args.net, args.junctions)
+        junctions = chosen_junctions(args.net, args.junctions, getattr(args, "routes", None))
         args.junction = junctions[0]
     if args.net:
         net, junction = str(args.net), args.junction
@@ -113,10 +113,14 @@ def run_config(args: argparse.Namespace):
     return cfg, inter
 
 
-def chosen_junctions(net: Path, text: str) -> tuple[str, ...]:
+def chosen_junctions(net: Path, text: str, routes=None) -> tuple[str, ...]:
     """--junctions: the ids it names, or every junction of ``net`` where two roads or
     more come in (``all``) that the ICA can serve; each one it cannot is left to the net's
-    own control, with a note saying why."""
+    own control, with a note saying why: one it cannot read, or one with an exit road too
+    short to let the route file's longest vehicle onto (``routes``: the route file)."""
+    from dica.ica.core.dica import ROOM_GAP_M, ROOM_SLACK_M
+    from dica.ica.core.gridlock import short_exits
+    from dica.ica.core.limits import Kinematics
     from dica.ica.netfile import NetworkError, crossing_junctions, load_intersection
 
     if text.strip() == "all":
@@ -126,14 +130,22 @@ def chosen_junctions(net: Path, text: str) -> tuple[str, ...]:
             raise UsageError(str(e)) from None
         if not found:
             raise UsageError(f"{net} has no junction where two roads or more come in")
+        longest = fleet(routes, None)[0]  # never None: no light's algorithm is named
         served = []
         for j in found:
             try:
-                load_intersection(net, j)
+                inter = load_intersection(net, j)
             except NetworkError as e:
                 print(f"note: junction {j} stays as the net has it: {e}", file=sys.stderr)
-            else:
-                served.append(j)
+                continue
+            short = short_exits(inter, longest, Kinematics().decel_mps2, ROOM_GAP_M, ROOM_SLACK_M)
+            if short:
+                e, m, want = short[0]
+                print(f"note: junction {j} stays as the net has it: its exit {e} is {m:.0f} m "
+                      f"long, and a {longest:g} m vehicle let onto it needs {want:.0f} m of "
+                      "room beyond the junction", file=sys.stderr)  # fmt: skip
+                continue
+            served.append(j)
         if not served:
             raise UsageError(f"{net}: the ICA can serve none of its junctions")
         return tuple(served)

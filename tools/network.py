@@ -273,7 +273,7 @@ def _nets(args, layout: str | None, out: Path) -> tuple[Path, Path, tuple[str, .
         return lit.net_path, free.net_path, free.junctions
     if not args.net.is_file():
         raise UsageError(f"network file not found: {args.net}")
-    junctions = chosen_junctions(args.net, args.junctions)
+    junctions = chosen_junctions(args.net, args.junctions, args.routes)
     if args.control != "dica":
         from dica.sim_gateway.scenario import unlit
 

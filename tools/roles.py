@@ -242,7 +242,7 @@ def cmd_agent(args: argparse.Namespace) -> int:
     if args.junctions:
         from dica.tools.args import chosen_junctions
 
-        ids = chosen_junctions(args.net, args.junctions)
+        ids = chosen_junctions(args.net, args.junctions, args.routes)
         inters = [intersection(argparse.Namespace(**{**vars(args), "junction": j})) for j in ids]
     else:
         inters = [intersection(args)]
@@ -440,7 +440,7 @@ def _network_observer(args: argparse.Namespace) -> int:
 
     if not args.net:
         raise UsageError("--junctions needs --net")
-    ids = chosen_junctions(args.net, args.junctions)
+    ids = chosen_junctions(args.net, args.junctions, args.routes)
     inters = [intersection(argparse.Namespace(**{**vars(args), "junction": j})) for j in ids]
     shapes = lane_shapes(args.net, route_lanes(inters))
     live = args.grpc_port if args.live else None

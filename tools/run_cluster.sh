@@ -247,6 +247,8 @@ except ScenarioError as e:
 print(sc.net_path, sc.junction_id)" "$layout") || exit 2
 fi
 [ -f "$net" ] || die "no net file $net"
+routes_file=""  # the route file, if any: its longest vehicle decides which junctions "all" serves
+for k in "${!demand[@]}"; do [ "${demand[$k]}" = --routes ] && routes_file="${demand[$((k + 1))]}"; done
 ids=()  # a network's junctions (one ICA and one observer each)
 if [ -n "$junctions" ]; then
   [ -z "$junction" ] || die "--junction names one junction, --junctions several: give one"
@@ -258,12 +260,12 @@ from dica.tools.args import chosen_junctions
 from dica.tools.options import UsageError
 from pathlib import Path
 try:
-    ids = chosen_junctions(Path(sys.argv[1]), sys.argv[2])
+    ids = chosen_junctions(Path(sys.argv[1]), sys.argv[2], sys.argv[3] or None)
     for j in ids:  # each one the ICA can serve, before any role starts
         load_intersection(sys.argv[1], j)
 except (UsageError, NetworkError) as e:
     sys.exit(f'run_cluster: {e}')
-print(' '.join(ids))" "$net" "$junctions") || exit 2
+print(' '.join(ids))" "$net" "$junctions" "$routes_file") || exit 2
   [ -n "$rsus" ] || rsus=${#ids[@]}
   [[ "$rsus" =~ ^[0-9]+$ ]] && [ "$rsus" -ge 1 ] && [ "$rsus" -le "${#ids[@]}" ] ||
     die "--rsus wants 1 to ${#ids[@]} (the junctions), got '$rsus'"
@@ -496,7 +498,7 @@ link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to
 }
 # a route file's vehicle types set where lanes' lines stand: every role reads them alike
 fleet=()
-for k in "${!demand[@]}"; do [ "${demand[$k]}" = --routes ] && fleet=(--routes "${demand[$((k + 1))]}"); done
+[ -z "$routes_file" ] || fleet=(--routes "$routes_file")
 ica_args=("${fleet[@]}" --algorithm "$algorithm" --time-pad "$time_pad" --max-age "$max_age" --seed "$seed"
   "${solver_args[@]}" "${platoon[@]}" "${run_up[@]}" "${exit_spacing[@]}")
 if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal in ica/J/)

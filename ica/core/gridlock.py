@@ -63,6 +63,21 @@ def full_need_m(
     return need
 
 
+def short_exits(
+    inter: Intersection, max_length_m: float, decel_mps2: float, gap_m: float, slack_m: float
+) -> list[tuple[str, float, float]]:
+    """The junction's exit roads shorter than the room the downstream-space rule needs
+    to let a vehicle onto them (:func:`full_need_m`): (road, its shortest lane, the
+    need). Where the room beyond is measured, no vehicle is ever let onto such a road,
+    and those bound for it wait at the line for good."""
+    need = full_need_m([inter], max_length_m, decel_mps2, gap_m, slack_m)
+    length: dict[str, float] = {}
+    for r in inter.routes:
+        e = edge_of(r.out_lane)
+        length[e] = min(length.get(e, math.inf), r.out_lane_m)
+    return sorted((e, m, need[e]) for e, m in length.items() if m < need[e])
+
+
 def link_capacity_m(inters: Sequence[Intersection], need_m: dict[str, float]) -> dict[str, float]:
     """Per link, the least queue (vehicle lengths plus :data:`QUEUE_GAP_M` each) that can
     leave it with less room than ``need_m``: its shortest lane, less the need and
