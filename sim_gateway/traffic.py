@@ -83,6 +83,9 @@ class Traffic:
         self.length_m = length_m
         self.log = log
         self.rerouted = 0  # route-file vehicles sent another way (see adopt)
+        # of those, the ones with no way on to their destination from the road their lane
+        # led to: they leave the net at that road's end
+        self.ended_short = 0
         # route-file vehicles by SUMO id: how many crossings each has begun, at any of the
         # run's junctions (a route may loop back, or go on to the next junction)
         self.passes: dict[str, int] = {}
@@ -178,8 +181,12 @@ class Traffic:
                     length_m=ls.vehicle.getLength(vin), width_m=ls.vehicle.getWidth(vin),
                     adopted_lcm=ls.vehicle.getLaneChangeMode(vin), sumo=vin,
                 )  # fmt: skip
-                if route_edges(route)[1] != dest and ls.vehicle.getRoute(vin)[-1] != dest:
-                    c.reroute_to = dest
+                beyond = route_edges(route)[1]
+                if beyond != dest and ls.vehicle.getRoute(vin)[-1] != dest:
+                    if self._reaches(beyond, dest):
+                        c.reroute_to = dest
+                    else:  # no way back from beyond: it leaves the net at that road's end
+                        self.ended_short += 1
                 # of SUMO's emergency class: an EV to the junction, unless one is in its
                 # region already (one at a time, as the random demand has them)
                 c.ev = ls.vehicle.getVehicleClass(vin) == "emergency" and not any(
@@ -211,7 +218,8 @@ class Traffic:
         ways = sorted(j.inter.routes_from(lane), key=lambda r: r.id)
         if not ways:
             return None
-        route = ways[0]
+        # the first way from which SUMO can route it on to its destination, if any
+        route = next((r for r in ways if self._reaches(route_edges(r)[1], edges[-1])), ways[0])
         here, beyond = route_edges(route)
         ls.vehicle.setRoute(vin, [here, beyond])
         self.rerouted += 1
@@ -220,6 +228,11 @@ class Traffic:
         links = ls.vehicle.getNextLinks(vin)
         taken = j.inter.route(lane, links[0][0]) if links else None
         return route if taken is None else taken
+
+    def _reaches(self, edge: str, dest: str) -> bool:
+        """Whether SUMO finds a way from ``edge`` to ``dest`` (a net without turnarounds
+        may have none back from a road that leads away)."""
+        return edge == dest or bool(self.ls.simulation.findRoute(edge, dest).edges)
 
     def note_tails(self, j: Junction, vw: Reads, present: set[str]) -> None:
         """Per incoming lane, where its rearmost car is and how fast (for join_queue)."""

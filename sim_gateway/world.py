@@ -498,6 +498,7 @@ class World:
             extra["sumo_collision_log"] = self.sumo_collision_log
         if self.hold is not None:
             extra["rerouted"] = self.traffic.rerouted
+            extra["ended_short"] = self.traffic.ended_short
             extra["insertions_held"] = self.hold.holds
             extra["insertions_not_held"] = self.hold.unheld
             extra["sumo_collisions_elsewhere"] = self.sumo_collisions_elsewhere

@@ -298,6 +298,45 @@ def test_a_junction_whose_exit_is_too_short_to_let_a_vehicle_on_is_not_served(tm
             assert "needs 23 m of room beyond the junction" in p.stderr
 
 
+def test_a_vehicle_with_no_way_back_to_its_destination_leaves_at_the_road_s_end(tmp_path):
+    """A star of five dead-end arms without turnarounds: a vehicle that will not change
+    lanes, on a lane that does not lead where its route goes, crosses from where it is;
+    no road beyond leads back to its destination (SUMO's rerouting raised and the run
+    ended in a traceback), so it leaves the net at the end of the road it took, and the
+    run says how many did."""
+    import math
+
+    nodes = ['<node id="C" x="0" y="0"/>'] + [
+        f'<node id="o{k}" x="{250 * math.cos(1.2566 * k + 0.3):.1f}" '
+        f'y="{250 * math.sin(1.2566 * k + 0.3):.1f}"/>'
+        for k in range(5)
+    ]
+    edges = []
+    for k in range(5):
+        for a, f, t in (("i", f"o{k}", "C"), ("x", "C", f"o{k}")):
+            edges.append(f'<edge id="{a}{k}" from="{f}" to="{t}" numLanes="2" speed="13.89"/>')
+    net = plain_net(tmp_path, "star", f"<nodes>{''.join(nodes)}</nodes>",
+                    f"<edges>{''.join(edges)}</edges>")  # fmt: skip
+    lanes = {r.in_lane for r in load_intersection(net, "C").routes if r.out_lane == "x4_1"}
+    wrong = ({"i0_0", "i0_1"} - lanes).pop()  # i0's lane with no way onto x4
+    routes = tmp_path / "star.rou.xml"
+    routes.write_text(
+        '<routes><vType id="stubborn" accel="2.6" decel="4.5" lcStrategic="-1"/>'
+        f'<flow id="f" type="stubborn" begin="0" end="60" number="4" from="i0" to="x4" '
+        f'departLane="{wrong[-1]}"/></routes>'
+    )
+    p = dica_run(
+        [*DICA, "run", "--net", str(net), "--junction", "C", "--routes", str(routes),
+         "--duration", "120", "--out", str(tmp_path / "run"), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0 and "Traceback" not in p.stderr, p.stderr
+    assert "note: 4 vehicles had no way on to their destination" in p.stdout
+    m = json.loads((tmp_path / "run" / "metrics.json").read_text())
+    assert m["accounted"]["crossed"] == 4 and m["accounted"]["lost"] == 0
+    assert m["collisions"] == 0 and m["unconfirmed_entries"] == 0
+
+
 def test_stops_and_standing_starts_clear_of_the_plans_still_run(nets, tmp_path):
     """A stop well before the region or well past the line, and a start inside the region
     standing (departSpeed 0, SUMO's default), are the file's own and run safe."""

@@ -185,6 +185,12 @@ def report_run(out: Path, result) -> int:
         f"min gap {_num(result.safety['min_gap_m'])} m, {unconfirmed} unconfirmed entries"
     )
     touched = report_people(result)
+    if result.extra.get("ended_short"):
+        print(
+            f"note: {result.extra['ended_short']} vehicles had no way on to their destination "
+            "from the road their lane led to (the net has no turnarounds there) and left the "
+            "net at that road's end"
+        )
     print(
         f"{result.simulated_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json"
     )
