@@ -386,8 +386,8 @@ def check_link_room(inters: Sequence[Intersection], longest_m: float, decel_mps2
         if short_out:
             e, m, want = short_out[0]
             raise RunError(
-                f"junction {x.junction_id}: its exit {e} is {m:.0f} m long, and a "
-                f"{longest_m:g} m vehicle let onto it needs {want:.0f} m of room beyond the "
+                f"junction {x.junction_id}: its exit {e} is {m:.1f} m long, and a "
+                f"{longest_m:g} m vehicle let onto it needs {want:.1f} m of room beyond the "
                 "junction to stop in: none could ever be let on, and those bound for it "
                 "would wait for good; leave the junction to the net's own control"
             )

@@ -61,15 +61,24 @@ def _grid(d: Path, length: int, lanes: int = 1) -> Path:
 @pytest.mark.parametrize("gate", [[], ["--no-network-gate"]])
 def test_a_grid_whose_links_cannot_hold_a_car_beyond_the_junction_is_refused(tmp_path, gate):
     """50 m blocks leave 36 m links: the room rule never lets a vehicle crossing at 50 km/h
-    onto one, and a link on a cycle must keep that room with a car standing at its end
-    (48 m), with the gate or without. Refused in one line before the run, naming a link
-    and the way out."""
+    onto one (36.4 m), so no junction can be served, alone or with others, with the gate
+    or without; 60 m blocks leave 46 m, but a link on a cycle must keep that room with a
+    car standing at its end (48 m). Refused in one line before the run, naming a link and
+    its need."""
     net = _grid(tmp_path, 50)
     p = dica_run(["network", "--net", net, "--duration", "20", "--quiet",
                   "--out", tmp_path / "run", *gate])  # fmt: skip
     assert p.returncode == 2, p.stderr
     assert len(p.stderr.strip().splitlines()) == 1, p.stderr
-    assert "the link" in p.stderr and "36 m long" in p.stderr and "needs 48 m" in p.stderr
+    assert "can serve none of its junctions" in p.stderr
+    assert "35.6 m long" in p.stderr and "needs 36.4 m" in p.stderr
+    assert "Traceback" not in p.stderr
+    assert not (tmp_path / "run" / "metrics.json").exists()
+    # 60 m blocks: 46 m links take a vehicle, but not on a cycle with one standing at the end
+    p = dica_run(["network", "--net", _grid(tmp_path, 60), "--duration", "20", "--quiet",
+                  "--out", tmp_path / "run", *gate])  # fmt: skip
+    assert p.returncode == 2 and len(p.stderr.strip().splitlines()) == 1, p.stderr
+    assert "the link" in p.stderr and "46 m long" in p.stderr and "needs 48 m" in p.stderr
     assert "--junctions" in p.stderr and "Traceback" not in p.stderr
     assert not (tmp_path / "run" / "metrics.json").exists()
 

@@ -131,23 +131,26 @@ def chosen_junctions(net: Path, text: str, routes=None) -> tuple[str, ...]:
         if not found:
             raise UsageError(f"{net} has no junction where two roads or more come in")
         longest = fleet(routes, None)[0]  # never None: no light's algorithm is named
-        served = []
+        served, notes = [], []
         for j in found:
             try:
                 inter = load_intersection(net, j)
             except NetworkError as e:
-                print(f"note: junction {j} stays as the net has it: {e}", file=sys.stderr)
+                notes.append(f"junction {j} stays as the net has it: {e}")
                 continue
             short = short_exits(inter, longest, Kinematics().decel_mps2, ROOM_GAP_M, ROOM_SLACK_M)
             if short:
                 e, m, want = short[0]
-                print(f"note: junction {j} stays as the net has it: its exit {e} is {m:.0f} m "
-                      f"long, and a {longest:g} m vehicle let onto it needs {want:.0f} m of "
-                      "room beyond the junction", file=sys.stderr)  # fmt: skip
+                notes.append(f"junction {j} stays as the net has it: its exit {e} is {m:.1f} m "
+                             f"long, and a {longest:g} m vehicle let onto it needs {want:.1f} m "
+                             "of room beyond the junction")  # fmt: skip
                 continue
             served.append(j)
-        if not served:
-            raise UsageError(f"{net}: the ICA can serve none of its junctions")
+        if not served:  # one line: the first reason
+            why = notes[0].replace(" stays as the net has it", "") if notes else ""
+            raise UsageError(f"{net}: the ICA can serve none of its junctions ({why})")
+        for line in notes:
+            print(f"note: {line}", file=sys.stderr)
         return tuple(served)
     ids = tuple(x.strip() for x in text.split(","))
     if not all(ids):
