@@ -134,13 +134,16 @@ def load_intersection(
             ).moved_back(backs[r.in_lane])
             for r in routes
         ]
-    return Intersection(
+    inter = Intersection(
         junction_id=junction_id,
         routes=tuple(routes),
         region=region,
         comm_length_m=comm_length_m,
         crosswalks=_crosswalks(net, junction_id),
     )
+    if fleet:  # worked out now, not in the first such vehicle's request
+        inter.sweeping(*fleet, kin.stop_gap_m)
+    return inter
 
 
 def is_crossing_of(edge_id: str, junction_id: str) -> bool:
