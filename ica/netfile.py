@@ -18,6 +18,7 @@ from dica.ica.core.config import IcaConfig
 from dica.ica.core.crosswalk import Crosswalk
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics, SpeedCaps, Turn
+from dica.ica.core.occupancy import Rects
 from dica.ica.core.route import Route, Via, build_route, classify_turn
 from dica.ica.core.waiting import line_backs
 
@@ -327,3 +328,31 @@ def lane_shapes(net_path: str | Path, lanes: list[str]) -> list[np.ndarray]:
         except (KeyError, IndexError, ValueError):
             continue
     return out
+
+
+def sidewalks(net_path: str | Path, junction_id: str) -> tuple[tuple[str, Rects], ...]:
+    """The lanes only people may use on the roads into and out of ``junction_id``, each
+    as rectangles (one per segment of its shape, as wide as the lane): where people walk
+    that no crossing's reservation covers."""
+    net = _read(Path(net_path))
+    node = net.getNode(junction_id)
+    out = []
+    for edge in [*node.getIncoming(), *node.getOutgoing()]:
+        if edge.isSpecial():  # its crossings and walking areas: the reservations cover them
+            continue
+        for lane in edge.getLanes():
+            if not lane.allows("pedestrian") or lane.allows(_VEHICLE_CLASS):
+                continue
+            xy = _distinct(_xy(lane.getShape()))
+            if len(xy) < 2:
+                continue
+            d = np.diff(xy, axis=0)
+            n = np.linalg.norm(d, axis=1)
+            keep = n > 1e-6
+            heading = d[keep] / n[keep, None]
+            centre = (xy[:-1][keep] + xy[1:][keep]) / 2.0
+            half = n[keep] / 2.0
+            # one Rects per segment: their half lengths differ
+            for c, h, m in zip(centre, heading, half, strict=True):
+                out.append((lane.getID(), Rects(c[None], h[None], float(m), lane.getWidth() / 2)))
+    return tuple(out)

@@ -27,11 +27,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from dica.ica.core.crosswalk import CORNER_GROW_M, CORNER_M
 from dica.ica.core.intersection import Intersection
+from dica.ica.core.waiting import sidewalk_sweeps
+from dica.ica.netfile import sidewalks
+from dica.sim_gateway.runconfig import RunError
 
 WALK_IN_M = 40.0  # [m] walkers start and end this far along the sidewalks from the junction
 KERB_REACH_M = 8.0  # [m] a sidewalk's end this close to a crossing's end is at that kerb
@@ -48,6 +52,24 @@ WALK_TYPE = "DEFAULT_PEDTYPE"
 ASK_AGAIN_S = 1.0  # [s] a WALK unanswered (a lost link, a restarting ICA) is asked again
 KERB_WAIT_S = 1e6  # [s] a held walker's waiting stage: until the roadside ends it
 PED_STREAM = 0x9ED  # the demand's random stream, apart from the vehicles'
+
+
+def check_sidewalks(net_path: Path, inter: Intersection, length_m: float, width_m: float) -> None:
+    """Refuse, in one line, a run with people whose largest vehicle, turning at ``inter``,
+    reaches over a sidewalk (a 7 m truck on a tight corner cuts it): people walk there
+    outside every crossing's reservation, and such a truck touched them (a test grid's
+    B1 with trucks and people: 792 steps in 400 s)."""
+    swept = sidewalk_sweeps(inter.routes, sidewalks(net_path, inter.junction_id), length_m,
+                            width_m)  # fmt: skip
+    if swept:
+        route, lane = swept[0]
+        more = f" (and {len(swept) - 1} more)" if len(swept) > 1 else ""
+        raise RunError(
+            f"junction {inter.junction_id}: a {length_m:g} m x {width_m:g} m vehicle turning "
+            f"on {route} reaches over the sidewalk {lane}{more}, where people walk outside "
+            "every crossing's reservation: run such vehicles without people on foot, or "
+            "people without them"
+        )
 
 
 @dataclass(frozen=True, slots=True)

@@ -42,6 +42,7 @@ from dica.sim_gateway.junction import Car, Junction, Seen
 from dica.sim_gateway.metrics import TripLog, summarize
 from dica.sim_gateway.network_gate import NetworkGate
 from dica.sim_gateway.route_file import (
+    DEFAULT_TYPE,
     MAX_LENGTH_M,
     check_arrivals,
     check_link_room,
@@ -53,8 +54,8 @@ from dica.sim_gateway.route_file import (
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.safety import PersonCheck, merge_reports
 from dica.sim_gateway.sumo_io import People, Reads
-from dica.sim_gateway.traffic import Traffic, define_vehicle_types
-from dica.sim_gateway.walkers import Walkers, draw_legs, kerbs
+from dica.sim_gateway.traffic import VTYPE, Traffic, define_vehicle_types
+from dica.sim_gateway.walkers import Walkers, check_sidewalks, draw_legs, kerbs
 from dica.vehicle_agent.actuation import MODE_CONFIRMED, Actuation
 from dica.vehicle_agent.machine import Observation
 
@@ -154,6 +155,12 @@ class World:
                 "serve walkers not yet; give one --junction, or leave them out"
             )
         if cfg.peds_per_h > 0 or people:
+            if not signalised:
+                types = {*rf.types, DEFAULT_TYPE} if rf is not None else {VTYPE}
+                size = (max(ls.vehicletype.getLength(t) for t in types),
+                        max(ls.vehicletype.getWidth(t) for t in types))  # fmt: skip
+                for j in self.junctions:
+                    check_sidewalks(Path(cfg.net_path), j.inter, *size)
             self.walkers = self._walkers(signalised, schedule)
         # how far ahead [s] each vehicle that may ask is told where its own control law will
         # take it (Observation.intent_m): as far as its agents plan ahead (their lead)

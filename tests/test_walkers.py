@@ -169,6 +169,37 @@ def test_a_route_files_people_are_held_where_they_come_and_cross_untouched(tmp_p
         capture_output=True, text=True, cwd=ROOT, timeout=120,
     )  # fmt: skip
     assert p.returncode == 2 and "do more than walk" in p.stderr and "Traceback" not in p.stderr
+    # a 12 m truck turning right cuts the corner over the sidewalk, where people walk
+    # outside every reservation (792 steps of touches in 400 s): refused with people
+    trucks = tmp_path / "trucks.rou.xml"
+    trucks.write_text(ROUTES_WITH_PEOPLE.replace("<routes>", (
+        '<routes><vType id="truck" vClass="truck" accel="2.6" decel="4.5" length="12" '
+        'width="2.55"/><flow id="tr" type="truck" begin="0" end="300" vehsPerHour="200" '
+        'from="B2B1" to="B1A1"/>'), 1))  # fmt: skip
+    p = dica_run(
+        [*DICA, "run", "--net", str(net), "--junction", "B1", "--routes", str(trucks),
+         "--duration", "10", "--out", str(tmp_path / "t")],
+        capture_output=True, text=True, cwd=ROOT, timeout=120,
+    )  # fmt: skip
+    assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
+    assert "12 m x 2.55 m vehicle turning on" in p.stderr
+    assert "reaches over the sidewalk" in p.stderr
+
+
+def test_the_built_in_layouts_cars_keep_off_the_sidewalks():
+    """Where people walk along the roads, outside every crossing's reservation, no car
+    of the drawn demand reaches, on any turn of the -walk layouts; a 12 m truck does."""
+    from dica.ica.core.waiting import sidewalk_sweeps
+    from dica.ica.netfile import load_intersection, sidewalks
+    from dica.sim_gateway.scenario import LAYOUTS, default_scenario
+
+    for layout in (x for x in LAYOUTS if x.endswith("-walk")):
+        sc = default_scenario(layout)
+        inter = load_intersection(sc.net_path, sc.junction_id)
+        walks = sidewalks(sc.net_path, sc.junction_id)
+        assert len(walks) >= 6, layout  # every arm's two sidewalks, a segment or more each
+        assert sidewalk_sweeps(inter.routes, walks, 5.0, 1.8) == [], layout
+        assert sidewalk_sweeps(inter.routes, walks, 12.0, 2.55), layout
 
 
 def test_the_person_check_sees_what_a_light_lets_happen(tmp_path):

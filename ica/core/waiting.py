@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from dica.ica.core.occupancy import footprints, overlap_matrix
+from dica.ica.core.occupancy import Rects, footprints, overlap_matrix
 from dica.ica.core.route import Route
 
 STEP_M = 0.5  # [m] how finely the lines move back (and where a waiting front is tried)
@@ -69,6 +69,25 @@ def _sweeps(
             hit = overlap_matrix(m, standing).any(axis=0)
             if hit.any():
                 out.append((lane, other.id, int(np.flatnonzero(hit).max())))
+    return out
+
+
+def sidewalk_sweeps(
+    routes: tuple[Route, ...],
+    sidewalks: tuple[tuple[str, Rects], ...],
+    length_m: float,
+    width_m: float,
+) -> list[tuple[str, str]]:
+    """(route, sidewalk lane) where a vehicle ``length_m`` x ``width_m`` crossing on the
+    route (from its front at the line until its rear is out) reaches over a lane only
+    people use: a long vehicle turning on a tight corner cuts it. No reservation covers
+    people walking there, so they may be touched."""
+    out = []
+    for r in routes:
+        m = footprints(r, np.arange(0.0, r.cross_length_m + length_m + 0.25, 0.25),
+                       length_m, width_m)  # fmt: skip
+        lanes = {lane for lane, walk in sidewalks if overlap_matrix(m, walk).any()}
+        out += [(r.id, lane) for lane in sorted(lanes)]
     return out
 
 
