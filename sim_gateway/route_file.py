@@ -279,15 +279,22 @@ def _check_ids(path: Path, ids: list[tuple[str, str]]) -> None:
             )
 
 
+def loaded_size(ls, rf: RouteFile) -> tuple[float, float]:
+    """The longest and the widest vehicle [m] of the file's types as SUMO has loaded them
+    (SUMO's default car among them)."""
+    types = {*rf.types, DEFAULT_TYPE}
+    return (max(ls.vehicletype.getLength(t) for t in types),
+            max(ls.vehicletype.getWidth(t) for t in types))  # fmt: skip
+
+
 def note_moved_lines(
-    ls, rf: RouteFile, inters: Sequence[Intersection], kin: Kinematics
+    rf: RouteFile, inters: Sequence[Intersection], size: tuple[float, float], kin: Kinematics
 ) -> list[str]:
     """Check that the lanes' lines, as placed, keep every waiting place clear of the
-    file's longest, widest vehicle as SUMO has it (:func:`fleet_size` read it from the
-    file before SUMO ran); then say, one line per junction, which lines moved back."""
-    types = {*rf.types, DEFAULT_TYPE}
-    length = max(ls.vehicletype.getLength(t) for t in types)
-    width = max(ls.vehicletype.getWidth(t) for t in types)
+    file's longest, widest vehicle as SUMO has it (``size``: :func:`fleet_size` read it
+    from the file before SUMO ran); then say, one line per junction, which lines moved
+    back."""
+    length, width = size
     lines = []
     for x in inters:
         swept = line_backs(x.routes, length, width, kin.stop_gap_m)

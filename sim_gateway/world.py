@@ -42,19 +42,19 @@ from dica.sim_gateway.junction import Car, Junction, Seen
 from dica.sim_gateway.metrics import TripLog, summarize
 from dica.sim_gateway.network_gate import NetworkGate
 from dica.sim_gateway.route_file import (
-    DEFAULT_TYPE,
     MAX_LENGTH_M,
     check_arrivals,
     check_link_room,
     check_stops_and_starts,
     check_types,
+    loaded_size,
     note_moved_lines,
     read_route_file,
 )
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.safety import PersonCheck, merge_reports
 from dica.sim_gateway.sumo_io import People, Reads
-from dica.sim_gateway.traffic import VTYPE, Traffic, define_vehicle_types
+from dica.sim_gateway.traffic import Traffic, define_vehicle_types
 from dica.sim_gateway.walkers import Walkers, check_sidewalks, draw_legs, kerbs
 from dica.vehicle_agent.actuation import MODE_CONFIRMED, Actuation
 from dica.vehicle_agent.machine import Observation
@@ -108,13 +108,14 @@ class World:
             rf = read_route_file(Path(cfg.routes_path))
             check_types(ls, rf, ica_cfg.kinematics)
             check_arrivals(ls, rf, (inter, *more))
-            longest = max(ls.vehicletype.getLength(t) for t in {*rf.types, "DEFAULT_VEHTYPE"})
+            size = loaded_size(ls, rf)
+            longest = size[0]
             if not signalised:
                 # stops and starts where the plans would run into them; links that cannot
                 # hold a vehicle beyond the junction; then, nothing refused, what to know
                 check_stops_and_starts(ls, rf, (inter, *more), longest, ica_cfg.kinematics)
                 check_link_room((inter, *more), longest, ica_cfg.kinematics.decel_mps2)
-                for line in note_moved_lines(ls, rf, (inter, *more), ica_cfg.kinematics):
+                for line in note_moved_lines(rf, (inter, *more), size, ica_cfg.kinematics):
                     print(f"note: {line}", file=sys.stderr)
             if not signalised and cfg.network_gate:  # lights hold no vehicle for room
                 self.gate = NetworkGate(
@@ -156,9 +157,7 @@ class World:
             )
         if cfg.peds_per_h > 0 or people:
             if not signalised:
-                types = {*rf.types, DEFAULT_TYPE} if rf is not None else {VTYPE}
-                size = (max(ls.vehicletype.getLength(t) for t in types),
-                        max(ls.vehicletype.getWidth(t) for t in types))  # fmt: skip
+                size = loaded_size(ls, rf) if rf is not None else (cfg.length_m, cfg.width_m)
                 for j in self.junctions:
                     check_sidewalks(Path(cfg.net_path), j.inter, *size)
             self.walkers = self._walkers(signalised, schedule)

@@ -27,6 +27,13 @@ from dica.tools.args import (
 )
 from dica.tools.options import UsageError
 
+# the roles that place the lanes' lines: each must place them as the gateway does
+ROUTES_HELP = (
+    "the run's route file (give every role the gateway's): where its longest, widest "
+    "vehicle type turning sweeps over the place a vehicle waits at a lane's line, that "
+    "line moves back, for every role alike"
+)
+
 
 def _add_link_args(p: argparse.ArgumentParser) -> None:
     p.add_argument(
@@ -489,9 +496,7 @@ def add_role_parsers(sub) -> None:
         i, *options.NET, "--algorithm", "--solver", "--max-added-delay", "--seed", *options.PLAN,
         "--max-age",
         "--tile-size", "--out", "--idle-exit", "--routes",
-        routes={"help": "the run's route file (give every role the gateway's): where its "
-                "longest, widest vehicle type turning sweeps over the place a vehicle waits "
-                "at a lane's line, that line moves back, for every role alike"},
+        routes={"help": ROUTES_HELP},
         algorithm={"help": options.ALGORITHMS_HELP + " (revoked vehicles drop their plans "
                    "and ask again)"},
         seed={"help": "rdica's GA seed (the run's seed; default 12)"},
@@ -523,9 +528,7 @@ def add_role_parsers(sub) -> None:
     a.add_argument("--id", required=True, help="this agent's name (letters, digits, _.:-+)")
     options.add(
         a, *options.NET, "--junctions", "--margin", "--retry", "--lead", "--routes",
-        routes={"help": "the run's route file (give every role the gateway's): where its "
-                "longest, widest vehicle type turning sweeps over the place a vehicle waits "
-                "at a lane's line, that line moves back, for every role alike"},
+        routes={"help": ROUTES_HELP},
         junctions={"help": "serve several junctions of --net (J1,J2,... or all, as the "
                    "gateway's --junctions): the agent keeps each vehicle it hosts from one "
                    "junction to the next"},
@@ -547,9 +550,7 @@ def add_role_parsers(sub) -> None:
     )
     options.add(
         o, *options.NET, "--junctions", "--margin", "--time-pad", "--routes",
-        routes={"help": "the run's route file (give every role the gateway's): where its "
-                "longest, widest vehicle type turning sweeps over the place a vehicle waits "
-                "at a lane's line, that line moves back, for every role alike"},
+        routes={"help": ROUTES_HELP},
         junctions={"help": "instead of --junction: the network of these junctions of --net "
                    "(J1,J2,... or all) from above, every junction's vehicles and confirmed "
                    "plans in one recording (run_cluster.sh writes it as network.rrd)",

@@ -46,12 +46,7 @@ def _sweeps(
 ) -> list[tuple[str, str, int]]:
     """(waiting lane, sweeping route, how deep the touch reaches: the index of the
     furthest waiting front touched, fronts ``STEP_M`` apart from ``gap_m`` back)."""
-    moving = {
-        r.id: footprints(
-            r, np.arange(0.0, r.cross_length_m + length_m + 0.25, 0.25), length_m, width_m
-        )
-        for r in routes
-    }
+    moving = {r.id: _crossing(r, length_m, width_m) for r in routes}
     reach = max(r.cross_length_m for r in routes) + 3.0 * length_m + 10.0
     fronts = -gap_m - np.arange(0.0, reach, STEP_M)
     out = []
@@ -84,11 +79,17 @@ def sidewalk_sweeps(
     people walking there, so they may be touched."""
     out = []
     for r in routes:
-        m = footprints(r, np.arange(0.0, r.cross_length_m + length_m + 0.25, 0.25),
-                       length_m, width_m)  # fmt: skip
+        m = _crossing(r, length_m, width_m)
         lanes = {lane for lane, walk in sidewalks if overlap_matrix(m, walk).any()}
         out += [(r.id, lane) for lane in sorted(lanes)]
     return out
+
+
+def _crossing(r: Route, length_m: float, width_m: float) -> Rects:
+    """A vehicle's footprints on ``r`` every 0.25 m, from its front at the line until its
+    rear is out."""
+    return footprints(r, np.arange(0.0, r.cross_length_m + length_m + 0.25, 0.25), length_m,
+                      width_m)  # fmt: skip
 
 
 def _box(points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
