@@ -499,7 +499,8 @@ def check_stops_and_starts(
     follower flies its plan behind a leader let go at speed: no stop nearer than
     :func:`exit_room_m`. Departures on an exit road are held back by the insertion hold
     (sim_gateway/insertion.py) while a vehicle is about to come out onto it."""
-    # lane: (length, stops refused from, its region from, J)
+    # lane: (its length, stops refused from, its region from, J), from the lane's start (a
+    # line moved back, Route.line_back_m, stands short of its end)
     approach: dict[str, tuple[float, float, float, str]] = {}
     exits: dict[str, tuple[float, str]] = {}  # lane: (room needed, J)
     for x in inters:
@@ -507,8 +508,8 @@ def check_stops_and_starts(
             line = r.in_lane_m - min(x.comm_length_m, r.in_lane_m)
             start = line - longest_m - stop_room_m(r.arrival_mps, kin)
             old = approach.get(r.in_lane)
-            if old is None or start < old[1]:
-                approach[r.in_lane] = (r.in_lane_m, start, line, x.junction_id)
+            if old is None or start < old[1]:  # the lane's own length: positions count on it
+                approach[r.in_lane] = (r.in_lane_m + r.line_back_m, start, line, x.junction_id)
             room = exit_room_m(r.speed_cap_mps, longest_m, kin)
             if r.out_lane not in exits or room > exits[r.out_lane][0]:
                 exits[r.out_lane] = (room, x.junction_id)

@@ -565,6 +565,30 @@ def test_no_built_in_layout_moves_a_line_for_its_cars():
         assert all(r.line_back_m == 0.0 for r in inter.routes), layout
 
 
+def test_a_start_inside_a_region_grown_by_a_moved_line_is_refused(nets, tmp_path):
+    """With the lines placed for the trucks, A1B1_1's line stands 4 m short of the lane's
+    end and its region begins 54 m before that end: a car put in 52 m before the end at
+    speed starts inside it (counted from the lane's end, a departPos must be measured on
+    the lane's own length, not up to the moved line); 56 m before the end it does not."""
+    for pos, refused in (("-52", True), ("-56", False)):
+        routes = tmp_path / f"start{pos}.rou.xml"
+        routes.write_text(TRUCKS.replace("</routes>", (
+            f'<flow id="in" type="car" begin="0" end="20" number="2" from="A1B1" to="B1C1" '
+            f'departLane="1" departPos="{pos}" departSpeed="max"/></routes>')))  # fmt: skip
+        p = dica_run(
+            [*DICA, "run", "--net", str(nets["grid"]), "--junction", "B1", "--routes",
+             str(routes), "--duration", "20", "--out", str(tmp_path / pos), "--quiet"],
+            capture_output=True, text=True, cwd=ROOT, timeout=300,
+        )  # fmt: skip
+        assert "Traceback" not in p.stderr, p.stderr
+        if refused:
+            assert p.returncode == 2, p.stderr
+            assert "flow 'in' starts inside junction B1's region on A1B1_1" in p.stderr
+            assert "before the last 54 m of the lane" in p.stderr
+        else:
+            assert p.returncode == 0, p.stderr
+
+
 def test_the_ica_refuses_a_turner_its_lines_were_not_placed_for(nets):
     """An ICA whose lines stand where cars need them (a role not told the run's route
     file) refuses a 12 m truck on a turn that would sweep over a waiting place, and only
