@@ -143,7 +143,13 @@ def load_intersection(
         crosswalks=_crosswalks(net, junction_id),
     )
     if fleet:  # worked out now, not in the first such vehicle's request
-        inter.sweeping(*fleet, kin.stop_gap_m)
+        swept = inter.sweeping(*fleet, kin.stop_gap_m, kin.decel_mps2)
+        if swept:  # the lines moved back for the entries: an exit's queue is in reach
+            raise NetworkError(
+                f"junction {junction_id!r}: a {fleet[0]:g} m x {fleet[1]:g} m vehicle turning "
+                f"on {min(swept)} would sweep over the end of a queue on another exit lane "
+                "(the room rule keeps it only its braking distance past the exit line)"
+            )
     return inter
 
 

@@ -32,7 +32,7 @@ from dica.ica.core.gridlock import (
 )
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics
-from dica.ica.core.waiting import line_backs
+from dica.ica.core.waiting import exit_sweeps, line_backs
 from dica.ica.netfile import MAX_VEHICLE_LENGTH_M, SERVED_CLASSES, stop_room_m
 from dica.sim_gateway.runconfig import RunError
 
@@ -291,7 +291,8 @@ def note_moved_lines(
     rf: RouteFile, inters: Sequence[Intersection], size: tuple[float, float], kin: Kinematics
 ) -> list[str]:
     """Check that the lanes' lines, as placed, keep every waiting place clear of the
-    file's longest, widest vehicle as SUMO has it (``size``: :func:`fleet_size` read it
+    file's longest, widest vehicle as SUMO has it, and the room rule every queue's end
+    beyond an exit line (``size``: :func:`fleet_size` read it
     from the file before SUMO ran); then say, one line per junction, which lines moved
     back."""
     length, width = size
@@ -303,6 +304,14 @@ def note_moved_lines(
                 f"junction {x.junction_id}: a {length:g} m x {width:g} m vehicle of "
                 f"{rf.path.name} turning would sweep over where a vehicle waits at "
                 f"{', '.join(sorted(swept))}: the lines there were placed for a smaller one"
+            )
+        deep = exit_sweeps(x.routes, length, width, kin.decel_mps2)
+        if deep:
+            lane, route, clear = deep[0]
+            raise RunError(
+                f"junction {x.junction_id}: a {length:g} m x {width:g} m vehicle of "
+                f"{rf.path.name} turning on {route} would sweep over {lane} more than "
+                f"{clear:.1f} m past its exit line, where the last of a queue may stand"
             )
         moved = {r.in_lane: r.line_back_m for r in x.routes if r.line_back_m > 0.0}
         if moved:

@@ -553,6 +553,31 @@ def test_a_long_wide_turner_moves_back_the_line_of_the_lane_it_sweeps(nets):
     assert all(r.line_back_m == 0.0 for r in cars.routes)
 
 
+def test_the_room_rule_keeps_a_queue_clear_of_a_long_turner_s_sweep(nets):
+    """On the tight 2-arm corner A0 a 12 m x 2.55 m vehicle turning sweeps up to 4 m
+    over the first metres of the exit lane beside its own. No line moves there: a queue's
+    last vehicle stands at least its route's braking distance from the cap past the exit
+    line (5.4 m at 25 km/h), since the room rule lets none on with less; so nothing is
+    refused. With a gentler braking (a queue that may reach nearer the line) the same
+    sweep reaches a standing vehicle, and those turns are refused."""
+    from dica.ica.core.waiting import exit_clearance_m, exit_sweeps
+
+    corner = load_intersection(nets["grid"], "A0", fleet=(12.0, 2.55))  # entry lines moved
+    clear = exit_clearance_m(corner.routes, 4.5)
+    assert min(clear.values()) == pytest.approx(6.94**2 / 9.0, abs=0.05)
+    assert exit_sweeps(corner.routes, 12.0, 2.55, 4.5) == []
+    assert corner.sweeping(12.0, 2.55, 0.5, 4.5) == frozenset()
+    soft = exit_sweeps(corner.routes, 12.0, 2.55, 12.0)  # 2 m clear: the 4 m sweep reaches
+    assert ("A0A1_0", "B0A0_1>A0A1_1") in {(lane, r) for lane, r, _ in soft}
+    assert {r for _, r, _ in soft} <= corner.sweeping(12.0, 2.55, 0.5, 12.0)
+    assert exit_sweeps(corner.routes, 5.0, 1.8, 12.0) == []  # a car's sweep is shallower
+    from dica.ica.core.limits import Kinematics
+    from dica.ica.netfile import NetworkError
+
+    with pytest.raises(NetworkError, match="would sweep over the end of a queue on another exit"):
+        load_intersection(nets["grid"], "A0", fleet=(12.0, 2.55), kin=Kinematics(decel_mps2=12.0))
+
+
 def test_no_built_in_layout_moves_a_line_for_its_cars():
     """The drawn demand's cars sweep over no waiting place on the built-in layouts, so
     their lines stand at the lanes' ends and every built-in result is as it was."""

@@ -31,7 +31,7 @@ class Intersection:
     _by_id: Mapping[str, Route] = field(init=False, repr=False)
     _in_lanes: tuple[str, ...] = field(init=False, repr=False)
     _out_lanes: tuple[str, ...] = field(init=False, repr=False)
-    _sweeping: dict[tuple[float, float, float], frozenset[str]] = field(init=False, repr=False)
+    _sweeping: dict[tuple[float, ...], frozenset[str]] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         by_lanes = {(r.in_lane, r.out_lane): r for r in self.routes}
@@ -51,13 +51,16 @@ class Intersection:
     def out_lanes(self) -> tuple[str, ...]:
         return self._out_lanes
 
-    def sweeping(self, length_m: float, width_m: float, gap_m: float) -> frozenset[str]:
+    def sweeping(
+        self, length_m: float, width_m: float, gap_m: float, decel_mps2: float
+    ) -> frozenset[str]:
         """The routes on which a vehicle this size would sweep over the place one waits,
-        ``gap_m`` short of another lane's line or behind it (none: the lines as placed
-        keep it clear; see :mod:`ica.core.waiting`). Worked out once per size."""
-        key = (length_m, width_m, gap_m)
+        ``gap_m`` short of another lane's line or behind it, or over the last of a queue
+        on another exit lane (none: the lines as placed and the room rule keep them
+        clear; see :mod:`ica.core.waiting`). Worked out once per size."""
+        key = (length_m, width_m, gap_m, decel_mps2)
         if key not in self._sweeping:
-            self._sweeping[key] = sweeping(self.routes, length_m, width_m, gap_m)
+            self._sweeping[key] = sweeping(self.routes, length_m, width_m, gap_m, decel_mps2)
         return self._sweeping[key]
 
     def route(self, in_lane: str, out_lane: str) -> Route | None:

@@ -58,11 +58,13 @@ def check_request(
             Reason.UNKNOWN_ROUTE,
             f"no route from {req.in_lane!r} to {req.out_lane!r} through this junction",
         )
-    if route.id in inter.sweeping(req.length_m, req.width_m, cfg.kinematics.stop_gap_m):
+    kin = cfg.kinematics
+    if route.id in inter.sweeping(req.length_m, req.width_m, kin.stop_gap_m, kin.decel_mps2):
         raise RequestError(
             Reason.TOO_LARGE,
             f"vehicle {req.length_m} x {req.width_m} m on {route.id} would sweep over where "
-            "a vehicle waits at another lane's line: the lines were placed for smaller ones",
+            "a vehicle waits at another lane's line or stands on another exit lane: the "
+            "lines were placed for smaller ones",
         )
     if req.dist_to_entry_m < -cfg.on_route_tol_m or req.dist_to_entry_m > inter.comm_length_m + 1.0:
         raise RequestError(
