@@ -121,6 +121,8 @@ def read_route_file(path: Path) -> RouteFile:
     first: dict[str, set[str]] = {}  # a route's or route distribution's first roads
     open_routes: list[str] = []  # route distributions open
     owner: list[tuple[str, set[str]]] = []  # the vehicle, trip or flow open: its own route
+    type_speed: dict[str, str] = {}  # a vType's departSpeed: its vehicles' unless they set one
+    start_types: list[str] = []  # each start's type
     try:
         for event, el in ET.iterparse(path, events=("start", "end")):
             tag = el.tag
@@ -136,6 +138,8 @@ def read_route_file(path: Path) -> RouteFile:
                 elif tag == "vType" and open_dist:
                     distributions[open_dist[-1]].add(el.get("id", ""))
                 continue
+            if tag == "vType" and el.get("departSpeed") is not None:
+                type_speed[el.get("id", "")] = el.get("departSpeed", "")
             if tag == "vTypeDistribution":
                 open_dist.pop()
             elif tag == "routeDistribution":
@@ -168,6 +172,7 @@ def read_route_file(path: Path) -> RouteFile:
                     heads.add(ANY_ROAD)
                 starts.append((who, {k: el.get(k) for k in ("departPos", "departSpeed")
                                      if el.get(k) is not None}, frozenset(heads)))  # fmt: skip
+                start_types.append(el.get("type", DEFAULT_TYPE))
                 for k in range(len(stops) - 1, -1, -1):  # its own stops
                     if stops[k][0] != who:
                         break
@@ -212,6 +217,12 @@ def read_route_file(path: Path) -> RouteFile:
     types: set[str] = set()
     for t in used:
         types |= distributions.get(t, {t})
+    for (_, dep, _), t in zip(starts, start_types, strict=True):
+        if "departSpeed" not in dep:  # a moving start its type gives (any of a distribution's)
+            given = (type_speed.get(m, "0").strip() for m in sorted(distributions.get(t, {t})))
+            moving = [v for v in given if not _is_zero(v)]
+            if moving:
+                dep["departSpeed"], dep["speedOf"] = moving[0], t
     return RouteFile(path, frozenset(types), traffic, departs, people, arrivals, stops, starts)
 
 
@@ -582,11 +593,12 @@ def check_stops_and_starts(
                 inside = "starts"
             else:
                 continue
+            of = f" (from its type {dep['speedOf']!r})" if "speedOf" in dep else ""
             unnamed = (" (its first road is not in the file: a TAZ, a junction or a route "
                        "of another file, so any road)") if ANY_ROAD in heads else ""  # fmt: skip
             raise RunError(
                 f"{where}: {who} {inside} inside junction {j}'s region on {lane}{unnamed} "
-                f"(departPos {pos!r}) at departSpeed {speed!r}, where {j} plans its vehicles "
+                f"(departPos {pos!r}) at departSpeed {speed!r}{of}, where {j} plans its vehicles "
                 f"before they are in it; start it before the last {n - line:.0f} m of the "
                 "lane or at departSpeed 0"
             )

@@ -216,6 +216,15 @@ def test_a_type_defined_late_in_the_file_is_known_and_unsorted_departures_are_ke
          'departSpeed="desired"/></routes>', "trip 't' may start inside junction B1's"),
         ('<routes><route id="r" edges="A1B1 B1C1"/><vehicle id="v" depart="0" route="r" '
          'departPos="last" departSpeed="5"/></routes>', "vehicle 'v' may start inside"),
+        # the speed its type gives (SUMO takes a vType's departSpeed for its vehicles),
+        # also through a distribution
+        ('<routes><vType id="fast" departSpeed="max"/><flow id="f" type="fast" begin="0" '
+         'end="9" number="2" from="A1B1" to="B1C1" departPos="-25"/></routes>',
+         r"flow 'f' starts inside .* at departSpeed 'max' \(from its type 'fast'\)"),
+        ('<routes><vTypeDistribution id="mix"><vType id="slow" probability="1"/><vType '
+         'id="quick" departSpeed="8" probability="1"/></vTypeDistribution><trip id="t" '
+         'type="mix" depart="0" from="A1B1" to="B1C1" departPos="-25"/></routes>',
+         "trip 't' starts inside .* at departSpeed '8'"),
         ("<routes></routes>", "no vehicle, trip or flow"),
         # a vehicle leaving SUMO before its rear is out of the junction would be lost
         ('<routes><flow id="f" begin="0" end="9" number="2" from="A1B1" to="B1C1" '
