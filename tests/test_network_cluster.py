@@ -232,7 +232,7 @@ def test_a_real_time_cluster_keeps_the_network_gate(tmp_path):
     out = tmp_path / "rt"
     p = _cluster(
         out, "--net", str(net), "--junctions", "all", "--routes", str(routes),
-        "--duration", "180", "--clock", "realtime", "--speed", "3", "--rsus", "3",
+        "--duration", "100", "--clock", "realtime", "--speed", "3", "--rsus", "3",
         "--no-record",
     )  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
