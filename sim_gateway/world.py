@@ -39,6 +39,7 @@ from dica.sim_gateway.demand import Arrival
 from dica.sim_gateway.humans import SignalHeads, define_human_type
 from dica.sim_gateway.insertion import InsertionHold
 from dica.sim_gateway.junction import Car, Junction, Seen
+from dica.sim_gateway.lights_off import switch_off
 from dica.sim_gateway.metrics import TripLog, summarize
 from dica.sim_gateway.network_gate import NetworkGate
 from dica.sim_gateway.route_file import (
@@ -150,6 +151,11 @@ class World:
         self.walkers: Walkers | None = None
         self.sumo_person_collisions = 0  # SUMO's vehicle-person reports
         people = rf.people if rf is not None else 0
+        if not signalised and (self.heads is not None or cfg.peds_per_h > 0 or people):
+            # SUMO's drivers and walkers obey a light the net gives the junction: off
+            ids = [j.inter.junction_id for j in self.junctions]
+            for line in switch_off(ls, ids):
+                print(f"note: {line}", file=sys.stderr)
         if people and len(self.junctions) > 1:
             raise RunError(
                 f"route file {cfg.routes_path} has {people} people on foot: several junctions "
