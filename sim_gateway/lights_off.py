@@ -19,12 +19,12 @@ from dica.sim_gateway.runconfig import RunError
 
 
 def switch_off(ls, junction_ids: Sequence[str]) -> list[str]:
-    """Switch off every traffic light that controls one of ``junction_ids``; what was
-    switched off, one line each. A light that also controls a junction not among them
-    (one light over two nearby junctions) is refused in one line: switching it off
-    would take that junction's light away too."""
+    """Switch off every traffic light that controls one of ``junction_ids``; a line saying
+    which (none if none). A light that also controls a junction not among them (one
+    light over two nearby junctions) is refused in one line: switching it off would
+    take that junction's light away too."""
     chosen = set(junction_ids)
-    said = []
+    off = []
     for tls in ls.trafficlight.getIDList():
         ruled = tuple(ls.trafficlight.getControlledJunctions(tls))
         mine = sorted(chosen.intersection(ruled))
@@ -39,8 +39,8 @@ def switch_off(ls, junction_ids: Sequence[str]) -> list[str]:
                 "or leave them to the light"
             )
         ls.trafficlight.setProgram(tls, "off")
-        said.append(
-            f"traffic light {tls} of junction {', '.join(mine)} is off: its human drivers "
-            "and people on foot go by the ICA's greens"
-        )
-    return said
+        off.append(tls if mine == [tls] else f"{tls} (junction {', '.join(mine)})")
+    if not off:
+        return []
+    which = f"traffic lights {', '.join(off)} are" if len(off) > 1 else f"traffic light {off[0]} is"
+    return [f"{which} off: human drivers and people on foot go by the ICA's greens"]

@@ -41,7 +41,7 @@ def test_people_at_a_lit_junction_cross_by_the_ica_alone(lit, tmp_path):
     p, out = _run(tmp_path, "peds", "--net", str(lit["walk"]), "--junction", "B1",
                   "--peds", "600", "--volume", "200", "--duration", "150")  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
-    assert "traffic light B1 of junction B1 is off" in p.stderr
+    assert "traffic light B1 is off" in p.stderr
     m = json.loads((out / "metrics.json").read_text())
     w = m["walkers"]
     assert w["crossed"] > 40
@@ -54,7 +54,7 @@ def test_human_drivers_at_a_lit_joined_cluster_keep_their_envelopes(lit, tmp_pat
     p, out = _run(tmp_path, "mixed", "--net", str(lit["joined"]), "--junction", "cluster_A_B",
                   "--cav-share", "0.3", "--volume", "350", "--duration", "200")  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
-    assert "traffic light cluster_A_B of junction cluster_A_B is off" in p.stderr
+    assert "traffic light cluster_A_B is off" in p.stderr
     m = json.loads((out / "metrics.json").read_text())
     h = m["humans"]
     assert h["given_green"] > 20
