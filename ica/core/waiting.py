@@ -20,6 +20,7 @@ the least braking distance is 5.4 m.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
 
 import numpy as np
 
@@ -73,24 +74,14 @@ def exit_sweeps(
     exit line, or further on: a long vehicle turning on a tight corner cuts across the
     first metres of the lane beside its own."""
     clear = exit_clearance_m(routes, decel_mps2)
-    moving = {r.id: _crossing(r, length_m, width_m) for r in routes}
-    reach = max(r.cross_length_m for r in routes) + 3.0 * length_m + 10.0
-    out = []
-    by_lane = {r.out_lane: r for r in routes}
-    for lane, r in by_lane.items():
+    reach = _reach(routes, length_m)
+
+    def standing(lane: str, r: Route) -> Rects:
         rears = r.cross_length_m + clear[lane] + np.arange(0.0, reach, STEP_M)
-        standing = _beyond(r, rears, length_m, width_m)
-        lo, hi = _box(standing.corners().reshape(-1, 2))
-        for other in routes:
-            if other.out_lane == lane:
-                continue
-            m = moving[other.id]
-            mlo, mhi = _box(m.corners().reshape(-1, 2))
-            if np.any(mhi < lo) or np.any(hi < mlo):
-                continue
-            if overlap_matrix(m, standing).any():
-                out.append((lane, other.id, clear[lane]))
-    return out
+        return _beyond(r, rears, length_m, width_m)
+
+    touched = _touching(routes, length_m, width_m, "out_lane", standing)
+    return [(lane, other, clear[lane]) for lane, other, _ in touched]
 
 
 def _sweeps(
@@ -98,25 +89,45 @@ def _sweeps(
 ) -> list[tuple[str, str, int]]:
     """(waiting lane, sweeping route, how deep the touch reaches: the index of the
     furthest waiting front touched, fronts ``STEP_M`` apart from ``gap_m`` back)."""
+    fronts = -gap_m - np.arange(0.0, _reach(routes, length_m), STEP_M)
+
+    def standing(_: str, r: Route) -> Rects:
+        return footprints(r, fronts, length_m, width_m)
+
+    touched = _touching(routes, length_m, width_m, "in_lane", standing)
+    return [(lane, other, int(np.flatnonzero(hit).max())) for lane, other, hit in touched]
+
+
+def _reach(routes: tuple[Route, ...], length_m: float) -> float:
+    """How far from a line a standing vehicle is tried: past anything a crossing sweeps."""
+    return max(r.cross_length_m for r in routes) + 3.0 * length_m + 10.0
+
+
+def _touching(
+    routes: tuple[Route, ...],
+    length_m: float,
+    width_m: float,
+    side: str,
+    standing: Callable[[str, Route], Rects],
+) -> Iterator[tuple[str, str, np.ndarray]]:
+    """For each lane on ``side`` of the routes (``in_lane`` or ``out_lane``), the
+    ``standing`` footprints of a vehicle on it, and each route from (or onto) another
+    lane whose crossing touches some of them: (lane, that route, which are touched)."""
     moving = {r.id: _crossing(r, length_m, width_m) for r in routes}
-    reach = max(r.cross_length_m for r in routes) + 3.0 * length_m + 10.0
-    fronts = -gap_m - np.arange(0.0, reach, STEP_M)
-    out = []
-    by_lane = {r.in_lane: r for r in routes}
+    by_lane = {getattr(r, side): r for r in routes}
     for lane, r in by_lane.items():
-        standing = footprints(r, fronts, length_m, width_m)
-        lo, hi = _box(standing.corners().reshape(-1, 2))
+        still = standing(lane, r)
+        lo, hi = _box(still.corners().reshape(-1, 2))
         for other in routes:
-            if other.in_lane == lane:
+            if getattr(other, side) == lane:
                 continue
             m = moving[other.id]
             mlo, mhi = _box(m.corners().reshape(-1, 2))
             if np.any(mhi < lo) or np.any(hi < mlo):
                 continue
-            hit = overlap_matrix(m, standing).any(axis=0)
+            hit = overlap_matrix(m, still).any(axis=0)
             if hit.any():
-                out.append((lane, other.id, int(np.flatnonzero(hit).max())))
-    return out
+                yield lane, other.id, hit
 
 
 def sidewalk_sweeps(
