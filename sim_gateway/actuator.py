@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from dica.ica.core.config import IcaConfig
+from dica.ica.core.stop_law import stop_distance
 from dica.sim_gateway.junction import Car, Junction
 from dica.sim_gateway.metrics import TripLog
 from dica.vehicle_agent.actuation import (
@@ -56,6 +57,9 @@ class Timing:
     off_start: int = 0  # of those, found further than START_TOL_M off the plan at its start
     dropped: int = 0  # plans given up on a revocation (reactive DICA)
     kept: int = 0  # plans the vehicle was told to drop but flew on: it could not stop
+    # steps a vehicle without a plan braked harder than the plans assume, to stop short of
+    # the vehicle ahead (taken over too fast for that braking: see Actuator.stop_speed)
+    hard_braking: int = 0
     slack_s: list[float] = field(default_factory=list)  # plan start minus arrival [s]
     adherence_s: list[float] = field(default_factory=list)  # actual minus planned entry [s]
     worst: list[tuple[float, str, float, float]] = field(default_factory=list)
@@ -78,6 +82,7 @@ class Timing:
             "plans_refused_off_start": self.off_start,
             "plans_dropped": self.dropped,
             "plans_kept": self.kept,
+            "hard_braking_steps": self.hard_braking,
             "plan_slack_p1_s": pct(self.slack_s, 1),
             "plan_slack_median_s": pct(self.slack_s, 50),
             "entry_adherence_p50_s": pct(adh, 50),
@@ -376,7 +381,17 @@ class Actuator:
         kin = self.ica_cfg.kinematics
         cap = min(c.entry_speed_mps, c.speed_mps) if self.asks(c) else c.entry_speed_mps
         room = min(-c.s_m - kin.stop_gap_m, rear_ahead_m - c.s_m - MIN_GAP_M)
-        return stop_speed(room, c.speed_mps, cap, self.h, kin.accel_mps2, kin.decel_mps2)
+        v = stop_speed(room, c.speed_mps, cap, self.h, kin.accel_mps2, kin.decel_mps2)
+        if stop_distance(v, kin.decel_mps2, self.h) > room + 1e-9:
+            # taken over faster than the plans' braking can stop behind the vehicle ahead:
+            # a route file's type that brakes harder (a motorcycle's 10 m/s^2), driven by
+            # SUMO until the region, came up to a queue in it at the road's speed. It brakes
+            # as hard as it can rather than run into the queue.
+            own = self.ls.vehicle.getDecel(c.sumo)
+            if own > kin.decel_mps2:
+                v = stop_speed(room, c.speed_mps, cap, self.h, kin.accel_mps2, own)
+                self.timing.hard_braking += 1
+        return v
 
 
 def _clear_of(lead: Car, c: Car, t: float, h: float) -> bool:

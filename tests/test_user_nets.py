@@ -740,3 +740,52 @@ def test_a_stop_a_metre_either_side_of_its_limit_is_refused_or_served(nets, tmp_
     with pytest.raises(RunError, match="move the stop"):
         run(limit - 1.0)
     assert run(limit + 1.0).safety["overlaps"] == 0
+
+
+_FAST_NODES = """<nodes><node id="C" x="0" y="0" type="priority"/>
+  <node id="N" x="0" y="500"/><node id="S" x="0" y="-500"/>
+  <node id="E" x="500" y="0"/><node id="W" x="-500" y="0"/></nodes>"""
+_FAST_EDGES = (
+    "<edges>"
+    + "".join(
+        f'<edge id="{a}_in" from="{a}" to="C" numLanes="2" speed="30"/>'
+        f'<edge id="C_{a}" from="C" to="{a}" numLanes="2" speed="30"/>'
+        for a in "NSEW"
+    )
+    + "</edges>"
+)
+
+
+def test_a_hard_braking_type_taken_over_at_speed_behind_a_queue_stops_short_of_it(tmp_path):
+    """Motorcycles (SUMO's class brakes at 10 m/s^2) at 108 km/h among a few slow
+    trucks: SUMO's driver brings one to the region behind a queue in it at a speed only
+    its own braking can stop from; the stop law braked at the plans' 4.5 m/s^2 and ran
+    into the queue (61 SUMO collisions on the approach in 130 s, outside the junction
+    area the independent check watches). It brakes as hard as it can there, and the run
+    says how often."""
+    net = plain_net(tmp_path, "fast", _FAST_NODES, _FAST_EDGES)
+    turns = {"N": "SEW", "S": "NEW", "E": "WNS", "W": "ENS"}
+    flows = "".join(
+        f'<flow id="{a}{b}{k}" type="{t}" from="{a}_in" to="C_{b}" begin="0" end="300" '
+        f'probability="{p}" departSpeed="max" departLane="best"/>'
+        for a, (ahead, left, right) in turns.items()
+        for k, (t, b, p) in enumerate((("moto", ahead, 0.2), ("moto", left, 0.08),
+                                       ("moto", right, 0.08), ("truck", ahead, 0.01)))
+    )  # fmt: skip
+    routes = tmp_path / "moto.rou.xml"
+    routes.write_text(
+        '<routes><vType id="moto" vClass="motorcycle"/><vType id="truck" vClass="truck" '
+        'length="12" width="2.55" accel="2.5" decel="4.5" speedFactor="1.1" speedDev="0"/>'
+        f"{flows}</routes>"
+    )
+    out = tmp_path / "run"
+    p = dica_run(
+        [*DICA, "run", "--net", str(net), "--junction", "C", "--routes", str(routes),
+         "--duration", "130", "--out", str(out), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["sumo_collisions"] == 0 and m["safety"]["overlaps"] == 0, m["sumo_collision_log"][:2]
+    assert m["unconfirmed_entries"] == 0 and m["crossed"] > 100
+    assert m["timing"]["hard_braking_steps"] > 0  # it did come to that

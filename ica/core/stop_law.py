@@ -29,6 +29,14 @@ def stop_speed(
     return max(v, v_mps - decel_mps2 * h, 0.0)
 
 
+def stop_distance(v_mps: float, decel_mps2: float, h: float) -> float:
+    """How far a vehicle that moves at ``v_mps`` over the next step, then brakes at
+    ``decel_mps2`` every step after (Euler steps of ``h``, as SUMO moves it), goes before
+    it stands."""
+    n = max(math.ceil(v_mps / (decel_mps2 * h) - 1e-12) - 1, 0)  # moving steps after this
+    return h * ((n + 1) * v_mps - decel_mps2 * h * n * (n + 1) / 2.0) if v_mps > 0.0 else 0.0
+
+
 def predict_stop(
     d_m: float,
     v_mps: float,
