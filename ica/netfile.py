@@ -20,7 +20,7 @@ from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics, SpeedCaps, Turn
 from dica.ica.core.occupancy import Rects
 from dica.ica.core.route import Route, Via, build_route, classify_turn
-from dica.ica.core.waiting import line_backs
+from dica.ica.core.waiting import entry_sweeps, exit_sweeps, line_backs
 
 _DIR_TO_TURN = {"l": Turn.LEFT, "L": Turn.LEFT, "r": Turn.RIGHT, "R": Turn.RIGHT, "s": Turn.THROUGH}
 _VEHICLE_CLASS = "passenger"  # the random demand's
@@ -142,15 +142,31 @@ def load_intersection(
         comm_length_m=comm_length_m,
         crosswalks=_crosswalks(net, junction_id),
     )
-    if fleet:  # worked out now, not in the first such vehicle's request
-        swept = inter.sweeping(*fleet, kin.stop_gap_m, kin.decel_mps2)
-        if swept:  # the lines moved back for the entries: an exit's queue is in reach
-            raise NetworkError(
-                f"junction {junction_id!r}: a {fleet[0]:g} m x {fleet[1]:g} m vehicle turning "
-                f"on {min(swept)} would sweep over the end of a queue on another exit lane "
-                "(the room rule keeps it only its braking distance past the exit line)"
-            )
+    # worked out now, not in the first such vehicle's request
+    if fleet and inter.sweeping(*fleet, kin.stop_gap_m, kin.decel_mps2):
+        raise NetworkError(_still_swept(inter, fleet, kin))
     return inter
+
+
+def _still_swept(inter: Intersection, fleet: tuple[float, float], kin: Kinematics) -> str:
+    """Why a junction whose lines were placed for ``fleet`` still has a route whose
+    vehicles would sweep over a waiting or standing one (its vehicles would be refused
+    for ever): one line naming the lanes."""
+    size = f"a {fleet[0]:g} m x {fleet[1]:g} m vehicle"
+    entry = entry_sweeps(inter.routes, *fleet, kin.stop_gap_m)
+    if entry:
+        lane, route, _ = entry[0]
+        back = max(r.line_back_m for r in inter.routes if r.in_lane == lane)
+        return (
+            f"junction {inter.junction_id!r}: {size} on {route} sweeps over where one waits "
+            f"on {lane}, however far back its line moves ({back:g} m tried): the two lanes "
+            "run into each other before the junction"
+        )
+    lane, route, clear = exit_sweeps(inter.routes, *fleet, kin.decel_mps2)[0]
+    return (
+        f"junction {inter.junction_id!r}: {size} turning on {route} would sweep over {lane} "
+        f"more than {clear:.1f} m past its exit line, where the last of a queue may stand"
+    )
 
 
 def is_crossing_of(edge_id: str, junction_id: str) -> bool:

@@ -38,7 +38,7 @@ def line_backs(
     touches none of the same size crossing from another lane (from its front at that
     lane's line until its rear is out). Only lanes that need it are listed."""
     backs: dict[str, float] = {}
-    for lane, _, deepest in _sweeps(routes, length_m, width_m, gap_m):
+    for lane, _, deepest in entry_sweeps(routes, length_m, width_m, gap_m):
         backs[lane] = max(backs.get(lane, 0.0), (deepest + 1) * STEP_M)
     return backs
 
@@ -50,7 +50,7 @@ def sweeping(
     where one of its size waits, ``gap_m`` short of another lane's line or behind it, or
     stands at the end of a queue on another route's exit lane (:func:`exit_sweeps`):
     the ICA confirms no such crossing (the lines as placed were meant for smaller ones)."""
-    entry = {r for _, r, _ in _sweeps(routes, length_m, width_m, gap_m)}
+    entry = {r for _, r, _ in entry_sweeps(routes, length_m, width_m, gap_m)}
     return frozenset(entry | {r for _, r, _ in exit_sweeps(routes, length_m, width_m, decel_mps2)})
 
 
@@ -84,7 +84,7 @@ def exit_sweeps(
     return [(lane, other, clear[lane]) for lane, other, _ in touched]
 
 
-def _sweeps(
+def entry_sweeps(
     routes: tuple[Route, ...], length_m: float, width_m: float, gap_m: float
 ) -> list[tuple[str, str, int]]:
     """(waiting lane, sweeping route, how deep the touch reaches: the index of the
