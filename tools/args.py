@@ -130,13 +130,15 @@ def chosen_junctions(net: Path, text: str, routes=None) -> tuple[str, ...]:
             raise UsageError(str(e)) from None
         if not found:
             raise UsageError(f"{net} has no junction where two roads or more come in")
-        longest = fleet(routes, None)[0]  # never None: no light's algorithm is named
+        sized = fleet(routes, None)  # never None: no light's algorithm is named
+        longest = sized[0]
         served, notes = [], []
         for j in found:
             try:
-                inter = load_intersection(net, j)
+                inter = load_intersection(net, j, fleet=sized)
             except NetworkError as e:
-                notes.append(f"junction {j} stays as the net has it: {e}")
+                why = str(e).removeprefix(f"junction {j!r}: ")
+                notes.append(f"junction {j} stays as the net has it: {why}")
                 continue
             short = short_exits(inter, longest, Kinematics().decel_mps2, ROOM_GAP_M, ROOM_SLACK_M)
             if short:
