@@ -89,6 +89,11 @@ class Traffic:
         # route-file vehicles by SUMO id: how many crossings each has begun, at any of the
         # run's junctions (a route may loop back, or go on to the next junction)
         self.passes: dict[str, int] = {}
+        # route-file vehicles by SUMO id: the junctions each was sent another way at. Sent
+        # that way again at one of them, it would go round for ever (a route that ends in
+        # a U-turn the junction does not serve, on a net whose only other way back to it
+        # ends in one too): it ends its trip short instead
+        self.detoured: dict[str, set[str]] = {}
 
     def register(self, j: Junction) -> None:
         """A trip record for each of the junction's scheduled vehicles."""
@@ -183,10 +188,13 @@ class Traffic:
                 )  # fmt: skip
                 beyond = route_edges(route)[1]
                 if beyond != dest and ls.vehicle.getRoute(vin)[-1] != dest:
-                    if self._reaches(beyond, dest):
+                    jid = j.inter.junction_id
+                    again = jid in self.detoured.get(vin, ())
+                    self.detoured.setdefault(vin, set()).add(jid)
+                    if not again and self._reaches(beyond, dest):
                         c.reroute_to = dest
-                    else:  # no way back from beyond: it leaves the net at that road's end
-                        self.ended_short += 1
+                    else:  # no way back from beyond (or round again): it leaves the net at
+                        self.ended_short += 1  # that road's end
                 # of SUMO's emergency class: an EV to the junction, unless one is in its
                 # region already (one at a time, as the random demand has them)
                 c.ev = ls.vehicle.getVehicleClass(vin) == "emergency" and not any(

@@ -814,3 +814,31 @@ def test_lanes_that_run_into_each_other_before_the_junction_are_refused(tmp_path
         r"main1_2, however far back its line moves .* run into each other",
     ):
         load_intersection(net, "M", fleet=(5.0, 1.8))
+
+
+def test_a_route_ending_in_a_u_turn_the_junction_does_not_serve_does_not_go_round_for_ever(
+    tmp_path,
+):
+    """netgenerate's grid with its turnarounds: a route that ends by turning back at C1.
+    The junction serves no U-turn, so it sends the vehicle another way and SUMO routes it
+    on, back round the block to the same U-turn (24 crossings in 300 s, never arriving).
+    Sent round at the same junction a second time, it leaves the net at the end of the
+    road it took, counted and named."""
+    net = tmp_path / "turns.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "150",
+          "--default.lanenumber", "1", "-o", str(net)])  # fmt: skip
+    routes = tmp_path / "uturn.rou.xml"
+    routes.write_text('<routes><vehicle id="u" depart="0"><route edges="B0A0 A0A1 A1B1 B1C1 '
+                      'C1B1"/></vehicle></routes>')  # fmt: skip
+    out = tmp_path / "run"
+    p = dica_run(
+        [*DICA, "run", "--net", str(net), "--junctions", "all", "--routes", str(routes),
+         "--duration", "300", "--out", str(out), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    assert "note: 1 vehicles had no way on to their destination" in p.stdout
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["ended_short"] == 1 and m["accounted"]["lost"] == 0
+    rows = list(csv.DictReader((out / "vehicles.csv").open()))
+    assert 4 <= len(rows) <= 10, [r["vin"] for r in rows]  # once round the block at most

@@ -193,7 +193,8 @@ def report_run(out: Path, result) -> int:
     if result.extra.get("ended_short"):
         print(
             f"note: {result.extra['ended_short']} vehicles had no way on to their destination "
-            "from the road their lane led to (the net has no turnarounds there) and left the "
+            "that the junctions serve (no way back from the road their lane led to, or only "
+            "by a U-turn at a junction that had sent them round once already) and left the "
             "net at that road's end"
         )
     print(
