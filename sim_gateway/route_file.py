@@ -121,6 +121,7 @@ def read_route_file(path: Path) -> RouteFile:
     first: dict[str, set[str]] = {}  # a route's or route distribution's first roads
     open_routes: list[str] = []  # route distributions open
     owner: list[tuple[str, set[str]]] = []  # the vehicle, trip or flow open: its own route
+    own_last: list[str | None] = []  # and the last road of that route (read as it ends)
     type_speed: dict[str, str] = {}  # a vType's departSpeed: its vehicles' unless they set one
     start_types: list[str] = []  # each start's type
     try:
@@ -129,6 +130,7 @@ def read_route_file(path: Path) -> RouteFile:
             if event == "start":
                 if tag in _TRAFFIC:
                     owner.append((f"{tag} {el.get('id', '?')!r}", set()))
+                    own_last.append(None)
                 elif tag == "routeDistribution":
                     open_routes.append(el.get("id", ""))
                 if tag == "vTypeDistribution":
@@ -150,8 +152,10 @@ def read_route_file(path: Path) -> RouteFile:
             elif tag == "route":
                 edges = el.get("edges", "").split()
                 heads = {edges[0]} if edges else set(first.get(el.get("refId", ""), ()))
-                if owner:  # its vehicle's own
+                if owner:  # its vehicle's own (cleared once read: its last road kept)
                     owner[-1][1].update(heads)
+                    if edges:
+                        own_last[-1] = edges[-1]
                 else:
                     rid = el.get("id", "")
                     first.setdefault(rid, set()).update(heads)
@@ -179,8 +183,9 @@ def read_route_file(path: Path) -> RouteFile:
                     stops[k] = (who, stops[k][1], frozenset(heads))
                 traffic += 1
                 ids.append((tag, el.get("id", "")))
+                nested = own_last.pop()
                 if el.get("arrivalPos") is not None:
-                    last = _last_edge(el, named_routes)
+                    last = nested or _last_edge(el, named_routes)
                     if last:
                         arrivals[el.get("id", "")] = (last, el.get("arrivalPos", ""))
                 used.add(el.get("type", DEFAULT_TYPE))

@@ -229,6 +229,9 @@ def test_a_type_defined_late_in_the_file_is_known_and_unsorted_departures_are_ke
         # a vehicle leaving SUMO before its rear is out of the junction would be lost
         ('<routes><flow id="f" begin="0" end="9" number="2" from="A1B1" to="B1C1" '
          'arrivalPos="3"/></routes>', "arrivalPos 3 on B1C1"),
+        # the same with its own route inside it, as duarouter and randomTrips -r write it
+        ('<routes><flow id="f" begin="0" end="9" number="2" arrivalPos="2"><route '
+         'edges="A1B1 B1C1"/></flow></routes>', "arrivalPos 2 on B1C1"),
         # SUMO stops the whole run when it meets the second of one id
         ('<routes><vehicle id="x.1" depart="0"><route edges="A1B1 B1C1"/></vehicle>'
          '<flow id="x" begin="1" end="9" number="2" from="A1B1" to="B1C1"/></routes>',
