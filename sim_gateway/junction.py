@@ -195,6 +195,12 @@ class Junction:
             )  # fmt: skip
         return lane.startswith(f":{self.inter.junction_id}_") or lane in self.own_lanes
 
+    def borders(self, lane: str) -> bool:
+        """Whether ``lane`` lies on one of the junction's roads (a sidewalk beside its
+        incoming or exit lanes counts: a vehicle turning there may reach over it)."""
+        edge = lane.rsplit("_", 1)[0]
+        return any(edge in route_edges(r) for r in self.inter.routes)
+
     def measure_room(self) -> None:
         """Measure the room beyond the junction this step (:meth:`room_of`, on demand)."""
         self.measuring = True

@@ -149,7 +149,8 @@ class World:
         self._arrivals = [v.arrival_s for v in schedule]
         # people on foot (--peds): put in, held at the kerb under an ICA, measured
         self.walkers: Walkers | None = None
-        self.sumo_person_collisions = 0  # SUMO's vehicle-person reports
+        self.sumo_person_collisions = 0  # SUMO's vehicle-person reports at the junctions
+        self.sumo_person_collisions_elsewhere = 0  # at junctions SUMO drives, on their roads
         people = rf.people if rf is not None else 0
         if not signalised and (self.heads is not None or cfg.peds_per_h > 0 or people):
             # SUMO's drivers and walkers obey a light the net gives the junction: off
@@ -240,7 +241,10 @@ class World:
                     }
                 )  # fmt: skip
             if hit.victim in people or hit.collider in people:
-                self.sumo_person_collisions += 1
+                if any(j.covers(hit.lane) or j.borders(hit.lane) for j in self.junctions):
+                    self.sumo_person_collisions += 1
+                else:  # a junction the net's own control runs, or a road away from ours
+                    self.sumo_person_collisions_elsewhere += 1
             elif any(j.covers(hit.lane) for j in self.junctions):
                 self.sumo_collisions += 1
             else:  # a route file's net beyond the junctions, driven by SUMO alone
@@ -542,6 +546,7 @@ class World:
                 "min_person_gap_m": closest.as_dict()["min_gap_m"],
                 "min_person_gap_pair": closest.as_dict()["min_gap_pair"],
                 "sumo_person_collisions": self.sumo_person_collisions,
+                "sumo_person_collisions_elsewhere": self.sumo_person_collisions_elsewhere,
             }
             persons = self.walkers.rows()
         if len(self.junctions) > 1:

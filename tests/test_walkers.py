@@ -281,3 +281,19 @@ def test_a_lockstep_cluster_with_people_makes_the_embedded_decisions(tmp_path):
         }
     assert len(drawn["cl"]["walks"]) >= ica["walks"] and drawn["cl"]["top"] > 100
     assert drawn["cl"] == drawn["rec"]
+
+
+def test_a_person_hit_counts_against_the_junction_only_on_its_own_lanes_and_roads():
+    """SUMO's person collisions at junctions the net's own control runs are reported
+    apart (they are SUMO's drivers', not the ICA's); on the junction's crossings, walking
+    areas and the roads it joins (their sidewalks too) they count against the run."""
+    from dica.ica.netfile import load_intersection
+    from dica.sim_gateway.junction import Junction
+    from dica.sim_gateway.scenario import default_scenario
+
+    sc = default_scenario("ch45-walk")
+    j = Junction(load_intersection(sc.net_path, sc.junction_id), False, [], {}, {}, {},
+                 None, None)  # fmt: skip
+    ours = [":C_c0_0", ":C_w1_0", "N_in_0", "E_out_1"]
+    assert all(j.covers(x) or j.borders(x) for x in ours)
+    assert not any(j.covers(x) or j.borders(x) for x in (":B0_c0_0", "B0B1_0", ":D_w0_0"))

@@ -211,9 +211,11 @@ def report_people(result) -> int:
     if not walkers:
         return 0
     hits, sumo_hits = walkers["person_hits"], walkers["sumo_person_collisions"]
+    elsewhere = walkers.get("sumo_person_collisions_elsewhere", 0)
     print(
         f"people: {hits} steps a vehicle touched a person (independent check), "
-        f"{sumo_hits} SUMO person collisions, closest {_num(walkers['min_person_gap_m'])} m"
+        f"{sumo_hits} SUMO person collisions at the junctions ({elsewhere} elsewhere), "
+        f"closest {_num(walkers['min_person_gap_m'])} m"
     )
     return hits + sumo_hits
 
