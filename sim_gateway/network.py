@@ -231,10 +231,12 @@ def run_network(
 
 def recording_path(rrd_path: Path, inter: Intersection, k: int) -> Path:
     """Where junction ``k``'s recording goes: the first at ``rrd_path``, each other beside
-    it as ``<stem>-<junction>.rrd`` (``dica view`` opens them all, one recording each)."""
+    it as ``<stem>-<junction>.rrd`` (``dica view`` opens them all, one recording each); a
+    junction id's ``/`` (SUMO allows it) written ``%2F``."""
     if k == 0:
         return rrd_path
-    return rrd_path.with_name(f"{rrd_path.stem}-{inter.junction_id}{rrd_path.suffix}")
+    name = inter.junction_id.replace("%", "%25").replace("/", "%2F")
+    return rrd_path.with_name(f"{rrd_path.stem}-{name}{rrd_path.suffix}")
 
 
 def trip_file(cfg: RunConfig, run_dir: Path | None) -> Path | None:

@@ -301,3 +301,16 @@ def test_vehicles_that_appear_in_the_region_are_queued_in_the_order_they_stand(t
     assert {"fast", "slow"} <= arrived
     assert res.requests["rejections"].get("no_room", 0) > 0  # the fast one waited
     assert res.requests["rejections"].get("not_head", 0) == 0
+
+
+def test_a_junction_id_with_a_slash_records_beside_the_others():
+    """SUMO allows ``/`` in a junction id; its recording is a file beside the others,
+    not a path into a directory that is not there (a traceback before)."""
+    from types import SimpleNamespace
+
+    from dica.sim_gateway.network import recording_path
+
+    rrd = Path("/runs/x/spacetime.rrd")
+    assert recording_path(rrd, SimpleNamespace(junction_id="a"), 0) == rrd
+    got = recording_path(rrd, SimpleNamespace(junction_id="x/y%z"), 1)
+    assert got == Path("/runs/x/spacetime-x%2Fy%25z.rrd") and got.parent == rrd.parent
