@@ -7,6 +7,8 @@ entry point), so a bad value that slipped through would show as an exception.
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from dica.tools.cli import main as dica
@@ -62,6 +64,19 @@ BAD = [
     (["link", "set", "/nonexistent"], "no link emulator spec"),
     (["bench", "timing", "--seeds", "x"], "--seeds wants integers"),
     (["bench", "timing", "--profiles", "storm"], "unknown profile"),
+    (
+        [
+            "bench",
+            "routes",
+            "--net",
+            "/no/such.net.xml",
+            "--junction",
+            "C",
+            "--routes",
+            "x.rou.xml",
+        ],
+        "net not found: /no/such.net.xml",
+    ),
 ]
 
 
@@ -81,3 +96,30 @@ def test_experiment_passes_a_lone_option_as_extra():
     argv = ["--out", "x", "--extra", "--no-platoon", "--seeds", "1"]
     assert parser().parse_args(_joined_extra(argv)).extra == "--no-platoon"
     assert _joined_extra(["--extra", "--ev-prob 0.02"]) == ["--extra=--ev-prob 0.02"]
+
+
+def test_bench_routes_takes_a_user_s_relative_paths_and_says_why_a_file_fails(
+    tmp_path, monkeypatch, capsys
+):
+    """The runs start in the project's directory, so the user's paths are made absolute
+    first; a route file the run refuses is one line, not a traceback."""
+    from dica.sim_gateway.scenario import default_scenario
+
+    sc = default_scenario("ch45")
+    net = tmp_path / "x.net.xml"
+    net.write_bytes(Path(sc.net_path).read_bytes())
+    (tmp_path / "ok.rou.xml").write_text(
+        '<routes><flow id="f" begin="0" end="9" number="2" from="N_in" to="S_out"/></routes>'
+    )
+    (tmp_path / "bad.rou.xml").write_text(
+        '<routes><flow id="f" begin="0" end="9" number="2" from="N_in" to="S_out" '
+        'arrivalPos="1"/></routes>'
+    )
+    monkeypatch.chdir(tmp_path)
+    args = ["bench", "routes", "--net", "x.net.xml", "--junction", sc.junction_id,
+            "--duration", "20", "--repeat", "1", "--routes"]  # fmt: skip
+    assert dica([*args, "ok.rou.xml"]) == 0
+    assert "enhanced DICA at" in capsys.readouterr().out
+    assert dica([*args, "bad.rou.xml"]) == 2
+    err = capsys.readouterr().err
+    assert "arrivalPos 1 on S_out" in err and len(err.strip().splitlines()) == 1, err

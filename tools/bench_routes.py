@@ -67,7 +67,7 @@ def sumo_alone(net: Path, routes: Path, duration_s: float) -> float:
     cmd = sumo_command(str(net), 0.05, ("-r", str(routes)))
     p = subprocess.run([sys.executable, "-c", code, *cmd], capture_output=True, text=True)
     if p.returncode != 0:
-        raise RuntimeError(f"SUMO alone failed: {p.stderr.strip().splitlines()[-1:]}")
+        raise options.UsageError(f"SUMO alone could not run it: {_last_line(p.stderr)}")
     return float(p.stdout.strip().splitlines()[-1])
 
 
@@ -78,8 +78,13 @@ def dica_run(net: Path, routes: Path, junction: str, duration_s: float) -> dict:
                "--out", tmp, "--quiet"]  # fmt: skip
         p = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
         if p.returncode not in (0, 1):
-            raise RuntimeError(f"dica run failed: {p.stderr.strip().splitlines()[-1:]}")
+            raise options.UsageError(_last_line(p.stderr).removeprefix("dica: "))
         return json.loads((Path(tmp) / "metrics.json").read_text())
+
+
+def _last_line(text: str) -> str:
+    lines = text.strip().splitlines()
+    return lines[-1] if lines else "(nothing said)"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -94,7 +99,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.net is None:
             net, routes, junction = default_demand(Path(tmp), args.duration)
         else:
-            net, routes, junction = Path(args.net), Path(args.routes), args.junction
+            # the runs start in the project's directory: the user's paths from here
+            net, routes = Path(args.net).resolve(), Path(args.routes).resolve()
+            junction = args.junction
+            for what, path in (("net", net), ("route file", routes)):
+                if not path.is_file():
+                    raise options.UsageError(f"{what} not found: {path}")
         alone, best = [], None
         started = time.perf_counter()
         for _ in range(args.repeat):
