@@ -35,6 +35,7 @@ from dica.ica.core.limits import Kinematics
 from dica.ica.core.waiting import exit_sweeps, line_backs
 from dica.ica.netfile import MAX_VEHICLE_LENGTH_M, SERVED_CLASSES, stop_room_m
 from dica.sim_gateway.runconfig import RunError
+from dica.sim_gateway.xml_source import xml_source
 
 MAX_LENGTH_M = MAX_VEHICLE_LENGTH_M
 DEFAULT_TYPE = "DEFAULT_VEHTYPE"
@@ -88,7 +89,7 @@ def fleet_size(path: Path) -> tuple[float, float]:
         raise RunError(f"route file not found: {path}")
     length, width = CAR_SIZE
     try:
-        for _, el in ET.iterparse(Path(path)):
+        for _, el in ET.iterparse(xml_source(path)):
             if el.tag == "vType":
                 own = CLASS_SIZES.get(el.get("vClass", "passenger"), CAR_SIZE)
                 length = max(length, float(el.get("length", own[0])))
@@ -125,7 +126,7 @@ def read_route_file(path: Path) -> RouteFile:
     type_speed: dict[str, str] = {}  # a vType's departSpeed: its vehicles' unless they set one
     start_types: list[str] = []  # each start's type
     try:
-        for event, el in ET.iterparse(path, events=("start", "end")):
+        for event, el in ET.iterparse(xml_source(path), events=("start", "end")):
             tag = el.tag
             if event == "start":
                 if tag in _TRAFFIC:

@@ -49,6 +49,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
+from dica.sim_gateway.xml_source import xml_source
+
 DISSERTATION_LAYOUTS: tuple[str, ...] = ("ch3", "ch45")
 OWN_LAYOUTS: tuple[str, ...] = ("skewed", "tee")
 WALK = "-walk"  # a layout's variant with sidewalks and crossings
@@ -151,7 +153,7 @@ def junction_type(net_path: Path, junction_id: str) -> str | None:
     import xml.etree.ElementTree as ET
 
     try:
-        for _, el in ET.iterparse(net_path, events=("end",)):
+        for _, el in ET.iterparse(xml_source(net_path), events=("end",)):
             if el.tag == "junction" and el.get("id") == junction_id:
                 return el.get("type")
             if el.tag in ("edge", "junction", "connection"):
@@ -192,7 +194,7 @@ def tls_program_type(net_path: Path, tls_id: str) -> str | None:
     import xml.etree.ElementTree as ET
 
     try:
-        for _, el in ET.iterparse(net_path, events=("end",)):
+        for _, el in ET.iterparse(xml_source(net_path), events=("end",)):
             if el.tag == "tlLogic" and el.get("id") == tls_id:
                 return el.get("type", "static")
             if el.tag in ("edge", "junction", "connection"):
@@ -209,7 +211,7 @@ def light_id(net_path: Path, junction_id: str) -> str:
 
     incoming: set[str] = set()
     try:
-        for _, el in ET.iterparse(net_path, events=("end",)):
+        for _, el in ET.iterparse(xml_source(net_path), events=("end",)):
             if el.tag == "edge" and el.get("to") == junction_id:
                 incoming.add(el.get("id", ""))  # internal edges have no "to"
             elif el.tag == "connection" and el.get("from") in incoming and el.get("tl"):
@@ -230,7 +232,7 @@ def unlit(net_path: Path, junction_ids: Sequence[str]) -> list[str]:
     lit: set[str] = set()
     wanted = set(junction_ids)
     try:
-        for _, el in ET.iterparse(net_path, events=("end",)):
+        for _, el in ET.iterparse(xml_source(net_path), events=("end",)):
             if el.tag == "edge" and el.get("to") in wanted:
                 into[el.get("id", "")] = el.get("to", "")
             elif el.tag == "connection" and el.get("from") in into and el.get("tl"):

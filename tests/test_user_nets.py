@@ -845,3 +845,19 @@ def test_a_route_ending_in_a_u_turn_the_junction_does_not_serve_does_not_go_roun
     assert m["ended_short"] == 1 and m["accounted"]["lost"] == 0
     rows = list(csv.DictReader((out / "vehicles.csv").open()))
     assert 4 <= len(rows) <= 10, [r["vin"] for r in rows]  # once round the block at most
+
+
+def test_a_gzipped_net_and_route_file_run_as_sumo_reads_them(nets, tmp_path):
+    """SUMO reads .gz nets and demand; so does every check that reads them before it
+    ("not well-formed (invalid token)" before)."""
+    import gzip
+
+    net = tmp_path / "grid.net.xml.gz"
+    net.write_bytes(gzip.compress(nets["grid"].read_bytes()))
+    routes = tmp_path / "demand.rou.xml.gz"
+    routes.write_bytes(gzip.compress(TRUCKS.encode()))
+    cfg = RunConfig(net_path=str(net), junction_id="B1", routes_path=str(routes),
+                    duration_s=60.0)  # fmt: skip
+    res = embedded.run(cfg, load_intersection(net, "B1", fleet=(12.0, 2.55)), run_dir=tmp_path)
+    assert res.extra["accounted"]["generated"] > 5 and res.extra["accounted"]["lost"] == 0
+    assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
