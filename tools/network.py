@@ -135,7 +135,10 @@ def parser() -> options.Parser:
                    "a route file's are those of an emergency vClass). --algorithm rdica lets "
                    "them through each junction first")  # fmt: skip
     p.add_argument("--seed", type=int, default=12, help="the drawn demand's seed (default 12)")
-    p.add_argument("--duration", type=float, default=600.0, help="seconds of demand (default 600)")
+    p.add_argument("--duration", type=float, default=600.0,
+                   help="seconds of the drawn demand (default 600); with --routes the file's "
+                   "demand runs as it is, and the run may end once the network is empty after "
+                   "this long")  # fmt: skip
     p.add_argument("--drain", type=float, default=900.0,
                    help="at most this long after the demand for every vehicle to leave "
                    "(default 900)")  # fmt: skip
