@@ -53,7 +53,9 @@ def write_outputs(
     metrics["real_time_factor"] = result.simulated_s / result.wall_s if result.wall_s > 0 else None
     metrics["mode"] = mode
     metrics.update(result.extra)
-    if cfg.ev_prob > 0:  # emergency vehicles and the others apart
+    # emergency vehicles and the others apart: drawn (--ev-prob) or a route file's
+    with_ev = cfg.ev_prob > 0 or any(tr.ev for tr in result.trips.trips.values())
+    if with_ev:
         end = result.sim_time_s if cfg.until_left else cfg.duration_s
         metrics.update(summarize_ev(result.trips, end))
     if cfg.cav_share < 1.0:  # human drivers and connected vehicles apart
@@ -68,7 +70,6 @@ def write_outputs(
     }
     _atomic(out / "config.json", json.dumps(config, indent=2, default=list))
     # runs without emergency vehicles keep the file exactly as it was (no "ev" column)
-    with_ev = cfg.ev_prob > 0
     mixed = cfg.cav_share < 1.0  # and those without human drivers keep it without "human"
     with _Replacing(out / "vehicles.csv") as fh:
         w = csv.writer(fh)

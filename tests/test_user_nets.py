@@ -861,3 +861,26 @@ def test_a_gzipped_net_and_route_file_run_as_sumo_reads_them(nets, tmp_path):
     res = embedded.run(cfg, load_intersection(net, "B1", fleet=(12.0, 2.55)), run_dir=tmp_path)
     assert res.extra["accounted"]["generated"] > 5 and res.extra["accounted"]["lost"] == 0
     assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
+
+
+def test_a_route_file_s_emergency_vehicles_are_measured_apart(nets, tmp_path):
+    """Under rdica a route file's vehicles of the emergency class are its EVs; the run
+    measures them apart from the others, as it does drawn ones (it did not: the figures
+    were written only for --ev-prob)."""
+    routes = tmp_path / "ev.rou.xml"
+    routes.write_text(
+        '<routes><vType id="amb" vClass="emergency"/>'
+        '<flow id="ev" type="amb" begin="0" end="80" period="20" from="A1B1" to="B1C1"/>'
+        '<flow id="car" begin="0" end="80" period="3" from="B0B1" to="B1B2"/></routes>'
+    )
+    out = tmp_path / "run"
+    p = dica_run(
+        [*DICA, "run", "--net", str(nets["grid"]), "--junction", "B1", "--routes", str(routes),
+         "--algorithm", "rdica", "--duration", "90", "--out", str(out), "--quiet"],
+        capture_output=True, text=True, cwd=ROOT, timeout=300,
+    )  # fmt: skip
+    assert p.returncode == 0, p.stdout + p.stderr
+    m = json.loads((out / "metrics.json").read_text())
+    assert m["ev"]["generated"] == 4 and m["normal"]["generated"] > 20
+    rows = list(csv.DictReader((out / "vehicles.csv").open()))
+    assert sum(r["ev"] == "1" for r in rows) == 4, rows[:2]
