@@ -89,10 +89,10 @@ class Traffic:
         # route-file vehicles by SUMO id: how many crossings each has begun, at any of the
         # run's junctions (a route may loop back, or go on to the next junction)
         self.passes: dict[str, int] = {}
-        # route-file vehicles by SUMO id: the junctions each was sent another way at. Sent
-        # that way again at one of them, it would go round for ever (a route that ends in
-        # a U-turn the junction does not serve, on a net whose only other way back to it
-        # ends in one too): it ends its trip short instead
+        # route-file vehicles by SUMO id: the junctions each was sent another way at for a
+        # U-turn the junction does not serve. Sent round for it there again, it would go
+        # round for ever (SUMO's way back to the road it wanted turns back there too): it
+        # ends its trip short instead
         self.detoured: dict[str, set[str]] = {}
 
     def register(self, j: Junction) -> None:
@@ -175,6 +175,7 @@ class Traffic:
                 if j.lane_len_m[lane] - ls.vehicle.getLanePosition(vin) > comm:
                     continue
                 dest = ls.vehicle.getRoute(vin)[-1]
+                u_turn = self._u_turn(vin)
                 route = self._way_through(j, vin, lane)
                 if route is None:
                     j.passing.add(vin)
@@ -189,8 +190,9 @@ class Traffic:
                 beyond = route_edges(route)[1]
                 if beyond != dest and ls.vehicle.getRoute(vin)[-1] != dest:
                     jid = j.inter.junction_id
-                    again = jid in self.detoured.get(vin, ())
-                    self.detoured.setdefault(vin, set()).add(jid)
+                    again = u_turn and jid in self.detoured.get(vin, ())
+                    if u_turn:
+                        self.detoured.setdefault(vin, set()).add(jid)
                     if not again and self._reaches(beyond, dest):
                         c.reroute_to = dest
                     else:  # no way back from beyond (or round again): it leaves the net at
@@ -203,13 +205,26 @@ class Traffic:
                 ls.vehicle.setLaneChangeMode(vin, 0)
                 j.cars[c.vin] = j.by_sumo[vin] = c
                 j.active.append(c)
-                free = self.free_flow_s(route, comm, c.entry_speed_mps, c.length_m)
+                # free flow from the road speed, or from the speed SUMO brought it at where
+                # that is higher (a net's limit above the plans' road speed): slower arrivals
+                # count as delay (a queue reaching back past the region is the junction's)
+                arrived = ls.vehicle.getSpeed(vin)
+                free = None
+                if arrived > c.entry_speed_mps:
+                    free = self.free_flow_s(route, comm, arrived, c.length_m)
+                if free is None:
+                    free = self.free_flow_s(route, comm, c.entry_speed_mps, c.length_m)
                 self.log.trips[c.vin] = Trip(
                     c.vin, route.id, route.turn.value, t, free_flow_scheduled_s=free,
                     inserted_s=t, ev=c.ev,
                 )  # fmt: skip
                 out.append(c)
         return out
+
+    def _u_turn(self, vin: str) -> bool:
+        """Whether the link ``vin``'s route takes next turns back (SUMO's direction t)."""
+        links = self.ls.vehicle.getNextLinks(vin)
+        return bool(links) and links[0][6] == "t"
 
     def _way_through(self, j: Junction, vin: str, lane: str) -> Route | None:
         ls = self.ls
