@@ -197,6 +197,14 @@ def report_run(out: Path, result) -> int:
             "by a U-turn at a junction that had sent them round once already) and left the "
             "net at that road's end"
         )
+    reactive = result.extra.get("reactive") or {}
+    bound, added = reactive.get("max_added_delay_s"), reactive.get("added_delay_max_s", 0.0)
+    if bound is not None and added > bound + 1e-6:
+        print(
+            f"note: reorderings added up to {added:.1f} s to a vehicle, over the {bound:g} s "
+            "bound (--max-added-delay): the solvers keep it on the plans they foresee, and "
+            "near saturation the real ones can come later"
+        )
     print(
         f"{result.simulated_s:.0f} s simulated in {result.wall_s:.1f} s; wrote {out}/metrics.json"
     )

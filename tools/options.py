@@ -184,7 +184,8 @@ OPTIONS: dict[str, Option] = {
             "--max-added-delay",
             "rdica: the most delay emergency vehicles' reorderings may add to any one other "
             "vehicle, summed over every reordering it meets [s] (default 2; inf: no bound, "
-            "the dissertation's); the solvers keep it, checked on the real re-plans",
+            "the dissertation's); the solvers keep it on the re-plans they foresee, and a run "
+            "says if the real ones went over it",
             float,
             _run("max_added_delay_s"),
             LIMITS["max_added_delay_s"],
