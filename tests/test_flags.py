@@ -64,6 +64,8 @@ BAD = [
     (["link", "set", "/nonexistent"], "no link emulator spec"),
     (["bench", "timing", "--seeds", "x"], "--seeds wants integers"),
     (["bench", "timing", "--profiles", "storm"], "unknown profile"),
+    (["run", "--approach-weights", "N_in=inf"], "finite weights of 0 or more"),
+    (["run", "--approach-weights", "N_in=-1"], "finite weights of 0 or more"),
     (
         [
             "bench",
@@ -123,3 +125,16 @@ def test_bench_routes_takes_a_user_s_relative_paths_and_says_why_a_file_fails(
     assert dica([*args, "bad.rou.xml"]) == 2
     err = capsys.readouterr().err
     assert "arrivalPos 1 on S_out" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_human_drivers_with_a_route_file_are_refused_as_such(tmp_path, capsys):
+    from dica.sim_gateway.scenario import default_scenario
+
+    sc = default_scenario("ch45")
+    routes = tmp_path / "r.rou.xml"
+    routes.write_text('<routes><trip id="t" depart="0" from="N_in" to="S_out"/></routes>')
+    args = ["run", "--net", str(sc.net_path), "--junction", sc.junction_id, "--routes",
+            str(routes), "--cav-share", "0.5", "--out", str(tmp_path / "o")]  # fmt: skip
+    assert dica(args) == 2
+    err = capsys.readouterr().err
+    assert "it does not take --routes" in err and len(err.strip().splitlines()) == 1, err

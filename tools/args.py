@@ -9,6 +9,7 @@ processes) both build on these two modules and on nothing of each other.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
 
@@ -235,9 +236,12 @@ def _weights(text: str | None) -> tuple[tuple[str, float], ...]:
     for item in text.split(","):
         name, _, value = item.partition("=")
         try:
-            out.append((name.strip(), float(value)))
+            weight = float(value)
         except ValueError:
             raise UsageError(f"--approach-weights wants EDGE=WEIGHT,..., got {item!r}") from None
+        if not (math.isfinite(weight) and weight >= 0.0):
+            raise UsageError(f"--approach-weights wants finite weights of 0 or more, got {item!r}")
+        out.append((name.strip(), weight))
     return tuple(out)
 
 
