@@ -22,6 +22,7 @@ import numpy as np
 
 from dica.sim_gateway.runconfig import RunConfig, RunError
 from dica.sim_gateway.safety import PersonCheck, SafetyMonitor
+from dica.sim_gateway.xml_source import xml_source
 
 
 def import_libsumo():
@@ -64,6 +65,18 @@ def sumo_command(net_path: str, step_s: float, extra: tuple[str, ...]) -> list[s
     ]
 
 
+def _from_junctions(cfg: RunConfig) -> bool:
+    """Whether the route file has trips or flows from or to a junction (SUMO reads
+    those only with ``--junction-taz``)."""
+    src = xml_source(cfg.routes_path)
+    try:
+        with open(src, "rb") if isinstance(src, str) else src as fh:
+            data = fh.read()
+    except OSError:
+        return False  # the route file's own check says what is wrong with it
+    return b"fromJunction=" in data or b"toJunction=" in data
+
+
 def start_sumo(ls, cfg: RunConfig, step_s: float) -> list[str]:
     # the whole file at once: SUMO otherwise reads a route file a few minutes ahead at a
     # time, so the vehicle types a file defines at their first use (duarouter writes them
@@ -74,6 +87,8 @@ def start_sumo(ls, cfg: RunConfig, step_s: float) -> list[str]:
         if cfg.routes_path
         else ()
     )
+    if cfg.routes_path and "--junction-taz" not in cfg.sumo_args and _from_junctions(cfg):
+        demand += ("--junction-taz", "true")  # trips from and to junctions need it
     cmd = sumo_command(cfg.net_path, step_s, (*demand, *cfg.sumo_args))
     # SUMO's own words on what it could not load: libsumo raises only "Process Error"
     # and SUMO prints the reason on the process's stderr, so that is kept while it loads

@@ -93,7 +93,8 @@ def test_a_bad_value_is_one_clear_line(args, says, capsys):
 def test_experiment_passes_a_lone_option_as_extra():
     """`dica experiment --extra --no-platoon` hands the flag to every run, as a user
     would write it (argparse alone takes an option-like value for an option)."""
-    from dica.tools.experiment import _joined_extra, parser
+    from dica.tools.experiment import parser
+    from dica.tools.options import joined as _joined_extra
 
     argv = ["--out", "x", "--extra", "--no-platoon", "--seeds", "1"]
     assert parser().parse_args(_joined_extra(argv)).extra == "--no-platoon"
@@ -138,3 +139,12 @@ def test_human_drivers_with_a_route_file_are_refused_as_such(tmp_path, capsys):
     assert dica(args) == 2
     err = capsys.readouterr().err
     assert "it does not take --routes" in err and len(err.strip().splitlines()) == 1, err
+
+
+def test_sumo_options_are_taken_as_written_after_sumo_args():
+    """``--sumo-args --junction-taz``: argparse alone took the lone option-like value for
+    an option of its own and said "expected one argument"."""
+    from dica.tools.options import joined
+
+    assert joined(["run", "--sumo-args", "--junction-taz", "--seed", "3"]) == [
+        "run", "--sumo-args=--junction-taz", "--seed", "3"]  # fmt: skip

@@ -907,3 +907,16 @@ def test_delay_on_a_fast_road_is_counted_from_the_speed_a_vehicle_arrives_at(tmp
     rows = [r for r in csv.DictReader((out / "vehicles.csv").open()) if r["system_delay_s"]]
     assert len(rows) > 20
     assert min(float(r["system_delay_s"]) for r in rows) > -0.1, rows[:3]
+
+
+def test_trips_from_junctions_run_without_asking_for_sumo_s_option(nets, tmp_path):
+    """SUMO reads trips from and to junctions only with --junction-taz: the run gives it
+    when the route file has them ("dica network", which takes no SUMO options, could not
+    run such a file at all)."""
+    text = (
+        '<routes><trip id="j" depart="0" fromJunction="A1" toJunction="C1"/><flow id="k" '
+        'begin="0" end="40" period="5" fromJunction="B0" toJunction="B2"/></routes>'
+    )
+    res = _routes_run(nets, tmp_path, text=text, duration_s=60.0)
+    assert "--junction-taz" in res.sumo_command
+    assert res.extra["accounted"]["crossed"] >= 5 and res.safety["overlaps"] == 0

@@ -121,26 +121,12 @@ def _place(layout: str, extra: list[str]) -> tuple[str, list[str]]:
     return (f"{name}-{where.replace(',', '+')}" if where else name), []
 
 
-def _joined_extra(argv: list[str]) -> list[str]:
-    """``--extra --no-platoon`` as ``--extra=--no-platoon``: argparse would take a
-    lone option-like value for an option of its own."""
-    out, i = [], 0
-    while i < len(argv):
-        if argv[i] == "--extra" and i + 1 < len(argv):
-            out.append(f"--extra={argv[i + 1]}")
-            i += 2
-        else:
-            out.append(argv[i])
-            i += 1
-    return out
-
-
 def main(argv: list[str] | None = None) -> int:
     import shlex
 
     from tqdm import tqdm
 
-    args = options.parse(parser(), _joined_extra(sys.argv[1:] if argv is None else argv))
+    args = options.parse(parser(), argv)
     if args.jobs < 1:
         print("dica experiment: --jobs must be at least 1", file=sys.stderr)
         return 2

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -618,9 +619,27 @@ def out_dir(path: Path) -> Path:
     return path
 
 
+# options whose value is itself options: ``--sumo-args --junction-taz`` is read as
+# ``--sumo-args=--junction-taz`` (argparse would take the lone value for an option of its own)
+VERBATIM = ("--sumo-args", "--extra")
+
+
+def joined(argv: list[str], flags: tuple[str, ...] = VERBATIM) -> list[str]:
+    """``argv`` with each of ``flags`` joined to the value after it (``--flag=value``)."""
+    out, i = [], 0
+    while i < len(argv):
+        if argv[i] in flags and i + 1 < len(argv):
+            out.append(f"{argv[i]}={argv[i + 1]}")
+            i += 2
+        else:
+            out.append(argv[i])
+            i += 1
+    return out
+
+
 def parse(p: argparse.ArgumentParser, argv: list[str] | None) -> argparse.Namespace:
     """Parse and :func:`check`; a refusal is one line and exit status 2."""
-    args = p.parse_args(argv)
+    args = p.parse_args(joined(sys.argv[1:] if argv is None else argv))
     try:
         check(args)
     except UsageError as e:
