@@ -7,6 +7,7 @@ dissertation's layouts: the routes are whatever connections the network has.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import replace
 from pathlib import Path
@@ -236,10 +237,19 @@ def crossing_junctions(net_path: str | Path) -> tuple[str, ...]:
 
 
 def _read(path: Path) -> sumolib.net.Net:
+    """The net as sumolib reads it, read once while the file stays as it is: every
+    junction of a large net is loaded from the same file (``--junctions all``), and
+    reading the whole net for each made that quadratic in the net's size."""
     if not path.is_file():
         raise NetworkError(f"network file not found: {path}")
+    st = path.stat()
+    return _read_once(str(path), st.st_mtime_ns, st.st_size)
+
+
+@functools.lru_cache(maxsize=2)
+def _read_once(path: str, _mtime_ns: int, _size: int) -> sumolib.net.Net:
     try:
-        return sumolib.net.readNet(str(path), withInternal=True)
+        return sumolib.net.readNet(path, withInternal=True)
     except Exception as exc:  # sumolib raises whatever its XML parser raises
         detail = " ".join(str(exc).split()) or type(exc).__name__
         raise NetworkError(f"cannot read SUMO network {path}: {detail}") from exc
