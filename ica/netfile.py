@@ -236,6 +236,11 @@ def crossing_junctions(net_path: str | Path) -> tuple[str, ...]:
     return tuple(sorted(out))
 
 
+def read_net(path: str | Path) -> sumolib.net.Net:
+    """The whole net as sumolib reads it (read once while the file is unchanged)."""
+    return _read(Path(path))
+
+
 def _read(path: Path) -> sumolib.net.Net:
     """The net as sumolib reads it, read once while the file stays as it is: every
     junction of a large net is loaded from the same file (``--junctions all``), and

@@ -21,6 +21,7 @@ from dica.ica.core.config import IcaConfig
 from dica.ica.core.planner import Planner
 from dica.ica.core.route import Route
 from dica.sim_gateway.actuator import MIN_GAP_M
+from dica.sim_gateway.detour import Detours
 from dica.sim_gateway.junction import Car, Junction, lane_index, route_edges
 from dica.sim_gateway.metrics import CRAWL_MPS, Trip, TripLog
 from dica.sim_gateway.sumo_io import Reads
@@ -94,6 +95,9 @@ class Traffic:
         # round for ever (SUMO's way back to the road it wanted turns back there too): it
         # ends its trip short instead
         self.detoured: dict[str, set[str]] = {}
+        # ways on that turn back at no junction of the run (set by the world: its net and
+        # junctions); None: SUMO's router alone
+        self.detours: Detours | None = None
 
     def register(self, j: Junction) -> None:
         """A trip record for each of the junction's scheduled vehicles."""
@@ -193,8 +197,11 @@ class Traffic:
                     again = u_turn and jid in self.detoured.get(vin, ())
                     if u_turn:
                         self.detoured.setdefault(vin, set()).add(jid)
-                    if not again and self._reaches(beyond, dest):
+                    way = None if again else self._way_on(vin, beyond, dest)
+                    if way is not None:
                         c.reroute_to = dest
+                        if way:  # SUMO's own way would turn back at a junction of the run
+                            c.reroute_way = way
                     else:  # no way back from beyond (or round again): it leaves the net at
                         self.ended_short += 1  # that road's end
                 # of SUMO's emergency class: an EV to the junction, unless one is in its
@@ -241,8 +248,11 @@ class Traffic:
         ways = sorted(j.inter.routes_from(lane), key=lambda r: r.id)
         if not ways:
             return None
-        # the first way from which SUMO can route it on to its destination, if any
-        route = next((r for r in ways if self._reaches(route_edges(r)[1], edges[-1])), ways[0])
+        # the first way from which it can be routed on to its destination, if any
+        route = next(
+            (r for r in ways if self._way_on(vin, route_edges(r)[1], edges[-1]) is not None),
+            ways[0],
+        )
         here, beyond = route_edges(route)
         ls.vehicle.setRoute(vin, [here, beyond])
         self.rerouted += 1
@@ -252,10 +262,19 @@ class Traffic:
         taken = j.inter.route(lane, links[0][0]) if links else None
         return route if taken is None else taken
 
-    def _reaches(self, edge: str, dest: str) -> bool:
-        """Whether SUMO finds a way from ``edge`` to ``dest`` (a net without turnarounds
-        may have none back from a road that leads away)."""
-        return edge == dest or bool(self.ls.simulation.findRoute(edge, dest).edges)
+    def _way_on(self, vin: str, edge: str, dest: str) -> tuple[str, ...] | None:
+        """How ``vin`` goes on from road ``edge`` to road ``dest``: () by SUMO's own way,
+        the way (:mod:`sim_gateway.detour`) where SUMO's turns back at a junction of the
+        run (none serves a U-turn), None where there is no way (a net without
+        turnarounds may have none back from a road that leads away)."""
+        if edge == dest:
+            return ()
+        found = tuple(self.ls.simulation.findRoute(edge, dest).edges)
+        if not found:
+            return None
+        if self.detours is None or not self.detours.turns_back(found):
+            return ()
+        return self.detours.way(edge, dest, self.ls.vehicle.getVehicleClass(vin))
 
     def note_tails(self, j: Junction, vw: Reads, present: set[str]) -> None:
         """Per incoming lane, where its rearmost car is and how fast (for join_queue)."""

@@ -36,6 +36,7 @@ from dica.ica.core.envelope import human_limits
 from dica.ica.core.intersection import Intersection
 from dica.sim_gateway.actuator import Actuator
 from dica.sim_gateway.demand import Arrival
+from dica.sim_gateway.detour import Detours
 from dica.sim_gateway.humans import SignalHeads, define_human_type
 from dica.sim_gateway.insertion import InsertionHold
 from dica.sim_gateway.junction import Car, Junction, Seen
@@ -145,6 +146,9 @@ class World:
         if any(v.human for v in schedule):
             self.heads = SignalHeads(ls, self.junction, limits, self.h, cfg.seed, not signalised)
         self.traffic = Traffic(ls, ica_cfg, cfg.length_m, self.log)
+        if cfg.routes_path and not signalised:  # none of them serves a U-turn
+            served = frozenset(j.inter.junction_id for j in self.junctions)
+            self.traffic.detours = Detours(cfg.net_path, served)
         self.traffic.register(self.junction)
         self._arrivals = [v.arrival_s for v in schedule]
         # people on foot (--peds): put in, held at the kerb under an ICA, measured

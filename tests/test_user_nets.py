@@ -823,10 +823,10 @@ def test_a_route_ending_in_a_u_turn_the_junction_does_not_serve_does_not_go_roun
     tmp_path,
 ):
     """netgenerate's grid with its turnarounds: a route that ends by turning back at C1.
-    The junction serves no U-turn, so it sends the vehicle another way and SUMO routes it
-    on, back round the block to the same U-turn (24 crossings in 300 s, never arriving).
-    Sent round at the same junction a second time, it leaves the net at the end of the
-    road it took, counted and named."""
+    The junction serves no U-turn, so it sends the vehicle another way, and SUMO's way on
+    turned back at the next junction or came round the block to the same U-turn (24
+    crossings in 300 s, never arriving). The way on turns back at no junction an ICA
+    serves: the vehicle arrives where its route ends."""
     net = tmp_path / "turns.net.xml"
     make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "150",
           "--default.lanenumber", "1", "-o", str(net)])  # fmt: skip
@@ -840,27 +840,12 @@ def test_a_route_ending_in_a_u_turn_the_junction_does_not_serve_does_not_go_roun
         capture_output=True, text=True, cwd=ROOT, timeout=300,
     )  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
-    assert "note: 1 vehicles had no way on to their destination" in p.stdout
     m = json.loads((out / "metrics.json").read_text())
-    assert m["ended_short"] == 1 and m["accounted"]["lost"] == 0
+    assert m["ended_short"] == 0 and m["accounted"]["lost"] == 0
     rows = list(csv.DictReader((out / "vehicles.csv").open()))
-    assert 4 <= len(rows) <= 10, [r["vin"] for r in rows]  # once round the block at most
-
-
-def test_a_gzipped_net_and_route_file_run_as_sumo_reads_them(nets, tmp_path):
-    """SUMO reads .gz nets and demand; so does every check that reads them before it
-    ("not well-formed (invalid token)" before)."""
-    import gzip
-
-    net = tmp_path / "grid.net.xml.gz"
-    net.write_bytes(gzip.compress(nets["grid"].read_bytes()))
-    routes = tmp_path / "demand.rou.xml.gz"
-    routes.write_bytes(gzip.compress(TRUCKS.encode()))
-    cfg = RunConfig(net_path=str(net), junction_id="B1", routes_path=str(routes),
-                    duration_s=60.0)  # fmt: skip
-    res = embedded.run(cfg, load_intersection(net, "B1", fleet=(12.0, 2.55)), run_dir=tmp_path)
-    assert res.extra["accounted"]["generated"] > 5 and res.extra["accounted"]["lost"] == 0
-    assert res.safety["overlaps"] == 0 and res.sumo_collisions == 0
+    assert 4 <= len(rows) <= 10, [r["vin"] for r in rows]
+    trip = ET.parse(out / "tripinfo.xml").getroot().find("tripinfo")
+    assert trip is not None and trip.get("arrivalLane", "").startswith("C1B1_"), trip
 
 
 def test_a_route_file_s_emergency_vehicles_are_measured_apart(nets, tmp_path):
