@@ -905,3 +905,24 @@ def test_trips_from_junctions_run_without_asking_for_sumo_s_option(nets, tmp_pat
     res = _routes_run(nets, tmp_path, text=text, duration_s=60.0)
     assert "--junction-taz" in res.sumo_command
     assert res.extra["accounted"]["crossed"] >= 5 and res.safety["overlaps"] == 0
+
+
+def test_a_way_on_turns_back_at_no_served_junction(tmp_path):
+    """The detour router: SUMO's way from C1C0 back to C1B1 turns back at C0; with C0
+    served the way found goes round without turning back there (nor anywhere served);
+    a road not in the net has no way to it."""
+    from dica.sim_gateway.detour import Detours
+
+    net = tmp_path / "turns.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "150",
+          "--default.lanenumber", "1", "-o", str(net)])  # fmt: skip
+    served = frozenset(f"{c}{r}" for c in "ABC" for r in "012")
+    d = Detours(str(net), served)
+    assert d.turns_back(("C1C0", "C0C1", "C1B1"))
+    assert not d.turns_back(("C1C0", "C0B0"))
+    way = d.way("C1C0", "C1B1", "passenger")
+    assert way is not None and way[0] == "C1C0" and way[-1] == "C1B1"
+    assert not d.turns_back(way) and len(way) > 3
+    # the road back the other way is reached round a block; a road not in the net never
+    assert Detours(str(net), served).way("C1B1", "B1C1", "passenger") is not None
+    assert Detours(str(net), served).way("C1B1", "nope", "passenger") is None
