@@ -8,6 +8,7 @@ used as a key chunk must not contain Zenoh's special characters.
 from __future__ import annotations
 
 import re
+import zlib
 
 _CHUNK = re.compile(r"^[A-Za-z0-9_.:\-+]{1,128}$")
 
@@ -22,107 +23,117 @@ def chunk(name: str) -> str:
     return name
 
 
+def _junction(junction: str) -> str:
+    """A junction id as a key chunk: as it is, or (SUMO allows ``*``, ``/``, spaces and
+    more in an id) its other characters as ``_`` and a hash of the id that keeps it apart
+    from every other. Every role maps an id alike, so they meet on the same keys."""
+    if _CHUNK.match(junction):
+        return junction
+    tag = f"{zlib.crc32(junction.encode()):08x}"
+    return re.sub(r"[^A-Za-z0-9_.:\-+]", "_", junction)[:100] + "-" + tag
+
+
 def request(junction: str, agent: str = "*") -> str:
     """Queryable (ICA, on ``*``): an agent's REQUEST -> RESPONSE | REJECT, on its own chunk."""
-    return f"dica/{chunk(junction)}/request/{_one(agent)}"
+    return f"dica/{_junction(junction)}/request/{_one(agent)}"
 
 
 def detect(junction: str, agent: str = "*") -> str:
     """Queryable (ICA, on ``*``): DETECT -> ACK | REJECT."""
-    return f"dica/{chunk(junction)}/detect/{_one(agent)}"
+    return f"dica/{_junction(junction)}/detect/{_one(agent)}"
 
 
 def cancel(junction: str, agent: str = "*") -> str:
     """Queryable (ICA, on ``*``): CANCEL -> ACK | REJECT."""
-    return f"dica/{chunk(junction)}/cancel/{_one(agent)}"
+    return f"dica/{_junction(junction)}/cancel/{_one(agent)}"
 
 
 def walk(junction: str, asker: str = "*") -> str:
     """Queryable (ICA): a walker asks to cross (WALK), or is across (ACROSS), through
     ``asker`` (the roadside)."""
-    return f"dica/{chunk(junction)}/walk/{_one(asker)}"
+    return f"dica/{_junction(junction)}/walk/{_one(asker)}"
 
 
 def walks(junction: str, person: str = "*") -> str:
     """The ICA publishes each slot it gives a walker (GO), for observers."""
-    return f"dica/{chunk(junction)}/walks/{_one(person)}"
+    return f"dica/{_junction(junction)}/walks/{_one(person)}"
 
 
 def human(junction: str, asker: str = "*") -> str:
     """Queryable (ICA): the roadside tells of a human driver (SPOTTED), asks for its
     green (ASKGREEN) or shrinks its reservations (SIGHTING), through ``asker``."""
-    return f"dica/{chunk(junction)}/human/{_one(asker)}"
+    return f"dica/{_junction(junction)}/human/{_one(asker)}"
 
 
 def ev(junction: str, asker: str = "*") -> str:
     """Queryable (ICA): the roadside tells of an emergency vehicle on its way (EVCOMING),
     through ``asker``."""
-    return f"dica/{chunk(junction)}/ev/{_one(asker)}"
+    return f"dica/{_junction(junction)}/ev/{_one(asker)}"
 
 
 def greens(junction: str, vin: str = "*") -> str:
     """The ICA publishes each green it gives a human driver (LIT), for observers."""
-    return f"dica/{chunk(junction)}/greens/{_one(vin)}"
+    return f"dica/{_junction(junction)}/greens/{_one(vin)}"
 
 
 def ack(junction: str, agent: str = "*") -> str:
     """Publication (agent): ACK of a RESPONSE received."""
-    return f"dica/{chunk(junction)}/ack/{_one(agent)}"
+    return f"dica/{_junction(junction)}/ack/{_one(agent)}"
 
 
 def revoke(junction: str, agent: str = "*") -> str:
     """Publication (ICA): a confirmation taken back from one of the agent's vehicles."""
-    return f"dica/{chunk(junction)}/revoke/{_one(agent)}"
+    return f"dica/{_junction(junction)}/revoke/{_one(agent)}"
 
 
 def reorder(junction: str) -> str:
     """Publication (ICA): reactive DICA's reorderings and what became of revoked plans."""
-    return f"dica/{chunk(junction)}/reorder"
+    return f"dica/{_junction(junction)}/reorder"
 
 
 def confirmed(junction: str, vin: str = "*") -> str:
     """Publication (ICA): every new confirmation, for observers."""
-    return f"dica/{chunk(junction)}/confirmed/{_one(vin)}"
+    return f"dica/{_junction(junction)}/confirmed/{_one(vin)}"
 
 
 def ica_alive(junction: str) -> str:
-    return f"dica/{chunk(junction)}/alive/ica"  # liveliness token
+    return f"dica/{_junction(junction)}/alive/ica"  # liveliness token
 
 
 def ica_stats(junction: str) -> str:
-    return f"dica/{chunk(junction)}/stats"  # queryable (ICA): its statistics
+    return f"dica/{_junction(junction)}/stats"  # queryable (ICA): its statistics
 
 
 def clock(junction: str) -> str:
-    return f"sim/{chunk(junction)}/clock"
+    return f"sim/{_junction(junction)}/clock"
 
 
 def state(junction: str, agent: str = "*") -> str:
-    return f"sim/{chunk(junction)}/state/{_one(agent)}"
+    return f"sim/{_junction(junction)}/state/{_one(agent)}"
 
 
 def vehicles(junction: str) -> str:
-    return f"sim/{chunk(junction)}/vehicles"  # every vehicle in the region (ICA, observers)
+    return f"sim/{_junction(junction)}/vehicles"  # every vehicle in the region (ICA, observers)
 
 
 def people(junction: str) -> str:
-    return f"sim/{chunk(junction)}/people"  # the people near the junction (observers)
+    return f"sim/{_junction(junction)}/people"  # the people near the junction (observers)
 
 
 def command(junction: str, agent: str = "*") -> str:
-    return f"sim/{chunk(junction)}/command/{_one(agent)}"
+    return f"sim/{_junction(junction)}/command/{_one(agent)}"
 
 
 def agent_alive(junction: str, agent: str = "*") -> str:
-    return f"sim/{chunk(junction)}/alive/{_one(agent)}"
+    return f"sim/{_junction(junction)}/alive/{_one(agent)}"
 
 
 def agent_stats(junction: str, agent: str = "*") -> str:
-    return f"sim/{chunk(junction)}/stats/{_one(agent)}"  # queryable (agent): its statistics
+    return f"sim/{_junction(junction)}/stats/{_one(agent)}"  # queryable (agent): its statistics
 
 
 def observer_alive(junction: str, name: str = "*") -> str:
-    return f"sim/{chunk(junction)}/observer/{_one(name)}"
+    return f"sim/{_junction(junction)}/observer/{_one(name)}"
 
 
 def last(key: str) -> str:
@@ -137,7 +148,7 @@ def _one(name: str) -> str:
 def ica_name(junction: str) -> str:
     """The identity of junction ``junction``'s ICA on a site of several junctions, where
     each ICA has its own log-in and seal (a one-junction site's ICA is plain ``ica``)."""
-    return f"ica-{chunk(junction)}"
+    return f"ica-{_junction(junction)}"
 
 
 def writer_of(key: str, action: str) -> str | None:

@@ -265,3 +265,18 @@ def test_keys_refuse_special_characters() -> None:
     for bad in ("a/b", "x?y", "", "$z", "**"):
         with pytest.raises(keys.KeyChunkError):
             keys.command("C", bad)
+
+
+def test_a_junction_id_a_key_cannot_hold_is_made_one_alike_by_every_role() -> None:
+    """SUMO allows ``*``, ``/``, ``$`` and spaces in a junction id; every role puts an id
+    into its keys the same way (its other characters as ``_`` and a hash of the id), so
+    they meet on one key per junction, and two ids never share one (each role's keys
+    raised before, and the cluster's processes each ended in a traceback)."""
+    assert keys.request("c*d") == keys.request("c*d") == "dica/c_d-9064c502/request/*"
+    assert keys.clock("c*d").startswith("sim/c_d-") and keys.clock("c*d").endswith("/clock")
+    assert keys.request("c_d") == "dica/c_d/request/*"  # a plain id stays as it is
+    assert keys.request("c?d") != keys.request("c*d")  # apart, though both read c_d
+    assert keys.ica_name("j/1*$x").startswith("ica-j_1__x-")
+    assert keys.writer_of(keys.confirmed("c*d", "v1"), "put") == "ica"
+    for j in ("a/b", "x?y", "$z", "**", "a b", "é"):
+        assert "/" not in keys.clock(j)[4:-6]  # one chunk between sim/ and /clock

@@ -263,6 +263,10 @@ try:
     ids = chosen_junctions(Path(sys.argv[1]), sys.argv[2], sys.argv[3] or None)
     for j in ids:  # each one the ICA can serve, before any role starts
         load_intersection(sys.argv[1], j)
+        if '/' in j:  # each junction's ICA, log and recording are files named by it
+            raise UsageError(f'junction id {j!r} has a /, and the files the cluster keeps per '
+                             'junction are named by it: run it embedded (dica run --junctions), '
+                             'or give it another id in the net')
 except (UsageError, NetworkError) as e:
     sys.exit(f'run_cluster: {e}')
 print(' '.join(ids))" "$net" "$junctions" "$routes_file") || exit 2
