@@ -17,6 +17,7 @@ import sumolib
 
 from dica.ica.core.config import IcaConfig
 from dica.ica.core.crosswalk import Crosswalk
+from dica.ica.core.gridlock import exit_caps
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.limits import Kinematics, SpeedCaps, Turn
 from dica.ica.core.occupancy import Rects
@@ -136,6 +137,12 @@ def load_intersection(
             ).moved_back(backs[r.in_lane])
             for r in routes
         ]
+    if fleet:  # an exit too short to stop on from a route's cap: the crossing slower
+        from dica.ica.core.dica import ROOM_GAP_M, ROOM_SLACK_M
+
+        caps_in = exit_caps(routes, fleet[0], kin.decel_mps2, ROOM_GAP_M, ROOM_SLACK_M,
+                            kin.min_cross_mps)  # fmt: skip
+        routes = [replace(r, speed_cap_mps=caps_in[r.id]) if r.id in caps_in else r for r in routes]
     inter = Intersection(
         junction_id=junction_id,
         routes=tuple(routes),

@@ -22,6 +22,7 @@ import math
 from collections.abc import Iterable, Sequence
 
 from dica.ica.core.intersection import Intersection
+from dica.ica.core.route import Route
 
 # [m] what one vehicle takes of a standing queue beyond its length: SUMO's standstill gap
 # (2.5 m) and a metre of slack for where a driver stops behind the one ahead
@@ -61,6 +62,36 @@ def full_need_m(
             e = edge_of(r.out_lane)
             need[e] = max(need.get(e, 0.0), max_length_m + gap_m + slack_m + brake)
     return need
+
+
+def exit_caps(
+    routes: Iterable[Route],
+    max_length_m: float,
+    decel_mps2: float,
+    gap_m: float,
+    slack_m: float,
+    floor_mps: float,
+) -> dict[str, float]:
+    """Per route onto an exit road too short for the downstream-space rule at the route's
+    cap, the crossing cap at which it fits: the road's shortest lane less the longest
+    vehicle, its gap and one car more leaves the braking distance, and the cap is the
+    speed that brakes in it (a roundabout's 22.3 m ring link: 29 km/h where the ring's
+    30 km/h needs 22.7 m). Not below ``floor_mps``: a road shorter than that still is
+    (:func:`short_exits`)."""
+    routes = list(routes)
+    length: dict[str, float] = {}
+    for r in routes:
+        e = edge_of(r.out_lane)
+        length[e] = min(length.get(e, math.inf), r.out_lane_m)
+    out: dict[str, float] = {}
+    for r in routes:
+        brake = length[edge_of(r.out_lane)] - (max_length_m + gap_m + slack_m)
+        if r.speed_cap_mps**2 / (2.0 * decel_mps2) <= brake:
+            continue
+        cap = math.floor(math.sqrt(2.0 * decel_mps2 * max(brake, 0.0)) * 100.0) / 100.0
+        if cap >= floor_mps:
+            out[r.id] = cap
+    return out
 
 
 def short_exits(
