@@ -64,6 +64,8 @@ BAD = [
     (["link", "set", "/nonexistent"], "no link emulator spec"),
     (["bench", "timing", "--seeds", "x"], "--seeds wants integers"),
     (["bench", "timing", "--profiles", "storm"], "unknown profile"),
+    (["bench", "routes", "--repeat", "0"], "--repeat wants 1 or more runs"),
+    (["bench", "network", "--repeat", "0"], "--repeat wants 1 or more runs"),
     (["run", "--approach-weights", "N_in=inf"], "finite weights of 0 or more"),
     (["run", "--approach-weights", "N_in=-1"], "finite weights of 0 or more"),
     (

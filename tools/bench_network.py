@@ -114,6 +114,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rsus", type=int, default=3,
                    help="the cluster's roadside units, each a router (default 3)")  # fmt: skip
     args = options.parse(p, argv)
+    if not (args.repeat >= 1 and args.duration > 0.0):
+        raise options.UsageError("--repeat wants 1 or more runs, --duration a time above 0 s")
     started = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="dica-bench-network-") as tmp:
         d = Path(tmp)

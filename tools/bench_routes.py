@@ -93,6 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--duration", type=float, default=900.0, help="simulated s (default 900)")
     p.add_argument("--repeat", type=int, default=3, help="runs of each (default 3)")
     args = options.parse(p, argv)
+    if not (args.repeat >= 1 and args.duration > 0.0):
+        raise options.UsageError("--repeat wants 1 or more runs, --duration a time above 0 s")
     if (args.net is None) != (args.routes is None):
         raise options.UsageError("give --net, --junction and --routes together, or none")
     with tempfile.TemporaryDirectory(prefix="dica-bench-routes-") as tmp:
