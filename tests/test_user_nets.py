@@ -42,6 +42,15 @@ def nets(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     return build_nets(tmp_path_factory.mktemp("usernets"))
 
 
+def _cli(out: Path, *args: str):
+    """``dica run ARGS --out OUT --quiet`` as a user runs it: its completed process, and
+    its metrics (None if it wrote none)."""
+    p = dica_run([*DICA, "run", *args, "--out", str(out), "--quiet"],
+                 capture_output=True, text=True, cwd=ROOT, timeout=300)  # fmt: skip
+    metrics = out / "metrics.json"
+    return p, json.loads(metrics.read_text()) if metrics.is_file() else None
+
+
 def test_routes_keep_the_nets_own_limits_and_only_car_lanes(nets):
     grid = load_intersection(nets["grid"], "B1")
     assert grid.routes
@@ -305,21 +314,13 @@ def test_a_junction_whose_exit_is_short_crosses_onto_it_slower(tmp_path):
     routes.write_text('<routes><flow id="f" begin="0" end="60" number="5" from="ei" '
                       'to="wo"/></routes>')  # fmt: skip
     for where in (["--junction", "r0"], ["--junctions", "r0,r2"]):
-        out = tmp_path / "x"
-        p = dica_run(
-            [*DICA, "run", "--net", str(net), *where, "--routes", str(routes),
-             "--duration", "120", "--out", str(out), "--quiet"],
-            capture_output=True, text=True, cwd=ROOT, timeout=300,
-        )  # fmt: skip
+        p, m = _cli(tmp_path / "x", "--net", str(net), *where, "--routes", str(routes),
+                    "--duration", "120")  # fmt: skip
         assert p.returncode == 0, p.stdout + p.stderr
-        m = json.loads((out / "metrics.json").read_text())
         assert m["accounted"]["crossed"] >= 5 and m["accounted"]["lost"] == 0
         assert m["unconfirmed_entries"] == 0 and m.get("stood_inside", 0) == 0
-    p = dica_run(
-        [*DICA, "run", "--net", str(net), "--junctions", "all", "--routes", str(routes),
-         "--duration", "30", "--out", str(tmp_path / "y"), "--quiet"],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
-    )  # fmt: skip
+    p, _ = _cli(tmp_path / "y", "--net", str(net), "--junctions", "all", "--routes",
+                str(routes), "--duration", "30")  # fmt: skip
     assert p.returncode == 2 and "Traceback" not in p.stderr, p.stderr
     said = [ln for ln in p.stderr.strip().splitlines() if not ln.startswith("note: ")]
     assert len(said) == 1 and "a link on a cycle of links needs" in said[0], p.stderr
@@ -798,13 +799,9 @@ def test_a_hard_braking_type_taken_over_at_speed_behind_a_queue_stops_short_of_i
         f"{flows}</routes>"
     )
     out = tmp_path / "run"
-    p = dica_run(
-        [*DICA, "run", "--net", str(net), "--junction", "C", "--routes", str(routes),
-         "--duration", "130", "--out", str(out), "--quiet"],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
-    )  # fmt: skip
+    p, m = _cli(out, "--net", str(net), "--junction", "C", "--routes", str(routes),
+                "--duration", "130")  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
-    m = json.loads((out / "metrics.json").read_text())
     assert m["sumo_collisions"] == 0 and m["safety"]["overlaps"] == 0, m["sumo_collision_log"][:2]
     assert m["unconfirmed_entries"] == 0 and m["crossed"] > 100
     assert m["timing"]["hard_braking_steps"] > 0  # it did come to that
@@ -850,13 +847,9 @@ def test_a_route_ending_in_a_u_turn_the_junction_does_not_serve_does_not_go_roun
     routes.write_text('<routes><vehicle id="u" depart="0"><route edges="B0A0 A0A1 A1B1 B1C1 '
                       'C1B1"/></vehicle></routes>')  # fmt: skip
     out = tmp_path / "run"
-    p = dica_run(
-        [*DICA, "run", "--net", str(net), "--junctions", "all", "--routes", str(routes),
-         "--duration", "300", "--out", str(out), "--quiet"],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
-    )  # fmt: skip
+    p, m = _cli(out, "--net", str(net), "--junctions", "all", "--routes", str(routes),
+                "--duration", "300")  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
-    m = json.loads((out / "metrics.json").read_text())
     assert m["ended_short"] == 0 and m["accounted"]["lost"] == 0
     rows = list(csv.DictReader((out / "vehicles.csv").open()))
     assert 4 <= len(rows) <= 10, [r["vin"] for r in rows]
@@ -875,13 +868,9 @@ def test_a_route_file_s_emergency_vehicles_are_measured_apart(nets, tmp_path):
         '<flow id="car" begin="0" end="80" period="3" from="B0B1" to="B1B2"/></routes>'
     )
     out = tmp_path / "run"
-    p = dica_run(
-        [*DICA, "run", "--net", str(nets["grid"]), "--junction", "B1", "--routes", str(routes),
-         "--algorithm", "rdica", "--duration", "90", "--out", str(out), "--quiet"],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
-    )  # fmt: skip
+    p, m = _cli(out, "--net", str(nets["grid"]), "--junction", "B1", "--routes", str(routes),
+                "--algorithm", "rdica", "--duration", "90")  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
-    m = json.loads((out / "metrics.json").read_text())
     assert m["ev"]["generated"] == 4 and m["normal"]["generated"] > 20
     rows = list(csv.DictReader((out / "vehicles.csv").open()))
     assert sum(r["ev"] == "1" for r in rows) == 4, rows[:2]
@@ -899,11 +888,8 @@ def test_delay_on_a_fast_road_is_counted_from_the_speed_a_vehicle_arrives_at(tmp
         'to="C_W" departSpeed="max"/></routes>'
     )
     out = tmp_path / "run"
-    p = dica_run(
-        [*DICA, "run", "--net", str(net), "--junction", "C", "--routes", str(routes),
-         "--duration", "120", "--out", str(out), "--quiet"],
-        capture_output=True, text=True, cwd=ROOT, timeout=300,
-    )  # fmt: skip
+    p, _ = _cli(out, "--net", str(net), "--junction", "C", "--routes", str(routes),
+                "--duration", "120")  # fmt: skip
     assert p.returncode == 0, p.stdout + p.stderr
     rows = [r for r in csv.DictReader((out / "vehicles.csv").open()) if r["system_delay_s"]]
     assert len(rows) > 20
