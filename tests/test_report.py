@@ -132,3 +132,18 @@ def test_a_run_says_when_reorderings_went_over_their_bound(capsys, tmp_path):
     assert "reorderings added up to 133.2 s to a vehicle, over the 2 s bound" in (
         capsys.readouterr().out
     )
+
+
+def test_a_run_cut_short_is_left_out_of_the_report_with_a_note(tmp_path, capsys):
+    """A metrics.json that is not JSON (a run killed while writing, an edit) is named and
+    left out; the report does not end in a traceback."""
+    from dica.tools.cli import main as dica
+
+    bad = tmp_path / "runs" / "a"
+    bad.mkdir(parents=True)
+    (bad / "metrics.json").write_text('{"generated": 1\n"crossed": 1}')
+    (bad / "config.json").write_text('{"run": {}}')
+    code = dica(["report", str(tmp_path / "runs"), "--out", str(tmp_path / "rep")])
+    err = capsys.readouterr().err
+    assert "runs/a: not a run dica report can read" in err, err
+    assert "Traceback" not in err and code == 2

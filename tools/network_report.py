@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import re
+import sys
 from collections import defaultdict
 from pathlib import Path
 
@@ -30,7 +31,14 @@ def load_network_runs(root: Path) -> list[dict]:
     """Every ``dica network`` run below ``root``."""
     runs = []
     for m in sorted(root.rglob("metrics.json")):
-        metrics = json.loads(m.read_text())
+        try:
+            metrics = json.loads(m.read_text())
+        except (OSError, ValueError) as e:  # cut short or not JSON: not this report's to read
+            print(f"note: {m.parent}: its metrics.json cannot be read ({type(e).__name__}); "
+                  "left out", file=sys.stderr)  # fmt: skip
+            continue
+        if not isinstance(metrics, dict):
+            continue
         run = metrics.get("network_run")
         if not run or "network" not in metrics:
             continue

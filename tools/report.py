@@ -64,44 +64,56 @@ SLACK_S = 5.0
 
 
 def load_runs(root: Path) -> list[dict]:
+    """Every run under ``root`` (a metrics.json beside a config.json); one whose files
+    cannot be read as a run's (cut short, edited, another tool's) is left out with a note
+    naming it, not the whole report."""
     runs = []
     for m in sorted(root.rglob("metrics.json")):
         cfg_path = m.parent / "config.json"
         if not cfg_path.exists():
             continue
-        metrics = json.loads(m.read_text())
-        if "network_run" in metrics:  # a dica network run: tools/network_report.py
+        try:
+            run = _load_run(m, cfg_path)
+        except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+            print(f"note: {m.parent}: not a run dica report can read ({type(e).__name__}: "
+                  f"{' '.join(str(e).split())}); left out", file=sys.stderr)  # fmt: skip
             continue
-        cfg = json.loads(cfg_path.read_text())["run"]
-        weights = cfg.get("approach_weights") or []
-        shape = []
-        if weights:
-            shape.append("weights " + ",".join(f"{a}={w:g}" for a, w in weights))
-        if cfg.get("volume_end_per_10min") is not None:
-            shape.append(f"to {cfg['volume_end_per_10min']:g}")
-        if cfg.get("ev_prob"):
-            shape.append(f"p_EV {cfg['ev_prob']:g}")
-        shape += _settings(cfg)
-        layout = Path(cfg["net_path"]).name.split(".")[0].split("-tls")[0]
-        algorithm = cfg["algorithm"]
-        if algorithm == "rdica":
-            algorithm = f"rdica-{cfg.get('solver', 'exact')}"
-            if "max_added_delay_s" in cfg:  # (runs before the bound have no such key)
-                bound = float(cfg["max_added_delay_s"])
-                algorithm += f" (bound {bound:g} s)" if math.isfinite(bound) else " (no bound)"
-        runs.append(
-            {
-                "settled_throughput": _settled_throughput(m.parent, cfg),
-                "dir": m.parent,
-                "layout": layout,
-                "algorithm": algorithm,
-                "volume": cfg["volume_per_10min"],
-                "shape": "; ".join(shape),
-                "seed": cfg["seed"],
-                "metrics": metrics,
-            }
-        )
+        if run is not None:
+            runs.append(run)
     return runs
+
+
+def _load_run(m: Path, cfg_path: Path) -> dict | None:
+    metrics = json.loads(m.read_text())
+    if "network_run" in metrics:  # a dica network run: tools/network_report.py
+        return None
+    cfg = json.loads(cfg_path.read_text())["run"]
+    weights = cfg.get("approach_weights") or []
+    shape = []
+    if weights:
+        shape.append("weights " + ",".join(f"{a}={w:g}" for a, w in weights))
+    if cfg.get("volume_end_per_10min") is not None:
+        shape.append(f"to {cfg['volume_end_per_10min']:g}")
+    if cfg.get("ev_prob"):
+        shape.append(f"p_EV {cfg['ev_prob']:g}")
+    shape += _settings(cfg)
+    layout = Path(cfg["net_path"]).name.split(".")[0].split("-tls")[0]
+    algorithm = cfg["algorithm"]
+    if algorithm == "rdica":
+        algorithm = f"rdica-{cfg.get('solver', 'exact')}"
+        if "max_added_delay_s" in cfg:  # (runs before the bound have no such key)
+            bound = float(cfg["max_added_delay_s"])
+            algorithm += f" (bound {bound:g} s)" if math.isfinite(bound) else " (no bound)"
+    return {
+        "settled_throughput": _settled_throughput(m.parent, cfg),
+        "dir": m.parent,
+        "layout": layout,
+        "algorithm": algorithm,
+        "volume": cfg["volume_per_10min"],
+        "shape": "; ".join(shape),
+        "seed": cfg["seed"],
+        "metrics": metrics,
+    }
 
 
 def _settings(cfg: dict) -> list[str]:
