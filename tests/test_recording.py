@@ -862,3 +862,21 @@ def test_time_padding_widens_every_reserved_box(ch45, tmp_path):
         ((_, halves),) = _rows(data["/charts/data/zones/reserved"], "Boxes2D:half_sizes")[:1]
         widths[pad] = np.array([2 * h[0] / K for h in halves])
     np.testing.assert_allclose(widths[0.5], widths[0.0] + 1.0, atol=1e-4)
+
+
+def test_a_live_view_on_a_taken_port_is_refused_before_the_run(ch45, tmp_path):
+    """Another run's live view holds the port: Rerun only logged that it could not
+    listen, then the observer's last flush raised and its file went without its end.
+    The port is checked first; the file is never started."""
+    import socket
+
+    from dica.sim_gateway.recording.network_view import TopDrawing
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(OSError, match="another live view"):
+            SpaceTimeRecorder(ch45, tmp_path / "live.rrd", live_port=port)
+        with pytest.raises(OSError, match="another live view"):
+            TopDrawing([ch45], tmp_path / "network.rrd", live_port=port)

@@ -29,6 +29,7 @@ from dica.sim_gateway.recording.geometry import (
     outlines,
     sumo_heading_rad,
 )
+from dica.sim_gateway.recording.recorder import finish, free_port
 from dica.sim_gateway.recording.style import (
     CROSSING_RGB,
     LANE_EDGE_RGB,
@@ -59,7 +60,9 @@ class TopDrawing:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         view = rrb.Spatial2DView(origin="network", name="network: every junction, from above")
         sinks: list = [rr.FileSink(str(self.path))]
+        self.live = live_port is not None
         if live_port is not None:
+            free_port(live_port)
             sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=live_port))
         self.rec.set_sinks(*sinks, default_blueprint=rrb.Blueprint(view))
 
@@ -138,8 +141,7 @@ class TopDrawing:
         )
 
     def close(self) -> None:
-        self.rec.flush()
-        self.rec.disconnect()
+        finish(self.rec, self.live)
 
 
 def route_lanes(inters: Sequence[Intersection]) -> list[str]:

@@ -23,6 +23,8 @@ instead, so that viewers see the run as it goes.
 from __future__ import annotations
 
 import math
+import socket
+import sys
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -61,6 +63,28 @@ START_WAIT_S = 60.0  # [s] how long the recording waits for a first confirmation
 FLUSH_S = 20.0  # [s] of simulated time buffered before it is sent (saved file)
 PEOPLE_EVERY_S = 0.25  # [s] of simulated time between two drawings of the people
 LIVE_FLUSH_S = 1.0  # [s] the same when viewers watch live (and rows are sent then)
+
+
+def free_port(port: int) -> None:
+    """Raise OSError if ``port`` on 127.0.0.1 is taken (another run's live view)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        try:
+            s.bind(("127.0.0.1", port))
+        except OSError as e:
+            raise OSError(f"{e.strerror or e} (another live view?)") from None
+
+
+def finish(rec: rr.RecordingStream, live: bool) -> None:
+    """Send what the stream holds and finish its file (Rerun writes the footer on
+    disconnect), even where a live server's thread has stopped."""
+    try:
+        rec.flush()
+    except RuntimeError as e:  # Rerun's gRPC server thread stopped
+        if not live:
+            raise
+        print(f"note: the live view stopped ({e}); the file is finished", file=sys.stderr)
+    finally:
+        rec.disconnect()
 
 
 class SpaceTimeRecorder:
@@ -122,6 +146,7 @@ class SpaceTimeRecorder:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         sinks: list[Any] = [rr.FileSink(str(self.path))]
         if live_port is not None:
+            free_port(live_port)  # Rerun would only log that it cannot listen, then fail late
             sinks.append(rr.GrpcServerSink(bind_ip="127.0.0.1", port=live_port))
         self.rec.set_sinks(*sinks, default_blueprint=self.blueprint())
         self._tables.series(self.rec)
@@ -410,10 +435,11 @@ class SpaceTimeRecorder:
         self._rows.send(self.rec, everything=final or self.live)
 
     def close(self) -> None:
-        """Send what is buffered and finish the file (Rerun writes its footer on disconnect)."""
+        """Send what is buffered and finish the file (Rerun writes its footer on disconnect).
+        A live server that went away (its viewers' side) does not keep the file from
+        being finished."""
         self.flush(final=True)
-        self.rec.flush()
-        self.rec.disconnect()
+        finish(self.rec, self.live)
 
     def _draw(self, steps: list[Step]) -> None:
         """A batch of steps into rows: the top view every TOP_EVERY steps, the charts
