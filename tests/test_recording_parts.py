@@ -173,3 +173,24 @@ def test_the_lane_charts_form_a_grid_with_a_column_per_approach_and_a_row_per_la
         row = names[r * len(approaches) : (r + 1) * len(approaches)]
         assert {ln.rsplit("_", 1)[1] for ln in row} == {str(r)}
         assert [approach_of(ln) for ln in row] == approaches
+
+
+def test_a_packed_style_colour_over_three_rows_draws_without_a_warning(tmp_path):
+    """A style's packed colour (0xRRGGBBAA) repeated over three or four rows reads, as a
+    plain list, like one colour's channels: Rerun warned in every live observer's log."""
+    import warnings
+
+    import rerun as rr
+
+    from dica.sim_gateway.recording.rows import EntityRows
+
+    rec = rr.RecordingStream("t")
+    rec.set_sinks(rr.FileSink(str(tmp_path / "w.rrd")))
+    for n in (3, 4):
+        rows = EntityRows("x", rr.Points2D, {"colors": 0x102030FF})
+        for t in range(n):
+            rows.add(float(t), 1, positions=np.zeros((1, 2)))
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            rows.send(rec)
+    rec.disconnect()

@@ -68,12 +68,21 @@ class EntityRows:
         cols = list(self.archetype.columns(**data).partition(lengths))
         if self.style:
             n = len(times)
-            each = {k: [v] * n for k, v in self.style.items()}
+            each = {k: _each(k, v, n) for k, v in self.style.items()}
             cols += list(self.archetype.columns(**each).partition(np.ones(n, dtype=int)))
         rec.send_columns(
             self.entity, indexes=[rr.TimeColumn(TIMELINE, duration=times)], columns=cols
         )
         self.times, self.lengths, self.fields = [], [], {}
+
+
+def _each(field: str, value: Any, n: int) -> Any:
+    """One style value for each of ``n`` rows; a packed colour (0xRRGGBBAA) as an array of
+    them, which Rerun reads unambiguously (three or four plain ints it could take for
+    one colour's channels, and warned)."""
+    if field == "colors" and isinstance(value, int):
+        return np.full(n, value, dtype=np.uint32)
+    return [value] * n
 
 
 def _joined(parts: list[Any]) -> Any:
