@@ -321,6 +321,8 @@ def _namespaces() -> list[str]:
     "args, says",
     [
         (["--junctions", "J00,NOPE"], "junction 'NOPE' not in"),
+        # (it started every role, two ICAs under one name, and then hung)
+        (["--junctions", "J00,J00"], "names a junction twice"),
         (["--junctions", "all", "--rsus", "9"], "--rsus wants 1 to 4"),
         (["--junctions", "all", "--junction", "J00"], "--junction names one junction"),
         (["--junction", "J00", "--rsus", "2"], "--rsus goes with --junctions"),

@@ -158,6 +158,8 @@ def chosen_junctions(net: Path, text: str, routes=None) -> tuple[str, ...]:
     ids = tuple(x.strip() for x in text.split(","))
     if not all(ids):
         raise UsageError(f"--junctions wants all or J1,J2,..., got {text!r}")
+    if len(set(ids)) < len(ids):
+        raise UsageError(f"--junctions names a junction twice: {','.join(ids)}")
     return ids
 
 
