@@ -242,8 +242,13 @@ class Emulator:
                 asyncio.create_task(self._pump(p, reader, w2, up=True)),
                 asyncio.create_task(self._pump(p, r2, writer, up=False)),
             ]
-            # either side closing ends the link, as a broken radio link would
-            _, pending = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
+            # either side closing ends the link, as a broken radio link would; so does the
+            # emulator stopping (its handlers cancelled: they end quietly, not as errors
+            # asyncio's stream callback would log)
+            try:
+                _, pending = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
+            except asyncio.CancelledError:
+                pending = set(pumps)
             for t in pending:
                 t.cancel()
             for w in (writer, w2):

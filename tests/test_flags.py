@@ -65,6 +65,8 @@ BAD = [
     (["bench", "timing", "--seeds", "x"], "--seeds wants integers"),
     (["bench", "timing", "--profiles", "storm"], "unknown profile"),
     (["bench", "routes", "--repeat", "0"], "--repeat wants 1 or more runs"),
+    (["run", "--sumo-args", '"--fcd-output f.xml'], "No closing quotation"),
+    (["experiment", "--out", "/tmp/x", "--extra", '--sumo-args "x'], "No closing quotation"),
     (["bench", "network", "--repeat", "0"], "--repeat wants 1 or more runs"),
     (["run", "--approach-weights", "N_in=inf"], "finite weights of 0 or more"),
     (["run", "--approach-weights", "N_in=-1"], "finite weights of 0 or more"),

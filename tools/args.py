@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import shlex
 import sys
 from pathlib import Path
 
@@ -52,7 +53,6 @@ def intersection(args: argparse.Namespace):
 
 def run_config(args: argparse.Namespace):
     """The RunConfig and intersection the run options name (shared with `dica gateway`)."""
-    import shlex
 
     from dica.sim_gateway.runconfig import LIGHTS, RunConfig, RunError
 
@@ -84,7 +84,7 @@ def run_config(args: argparse.Namespace):
             duration_s=args.duration,
             until_left=args.until_left,
             margin_m=args.margin,
-            sumo_args=tuple(shlex.split(args.sumo_args)) if args.sumo_args else (),
+            sumo_args=_sumo_args(args.sumo_args),
             tile_m=args.tile_size,
             approach_weights=_weights(args.approach_weights),
             volume_end_per_10min=args.volume_end,
@@ -229,6 +229,14 @@ def report_people(result) -> int:
         f"closest {_num(walkers['min_person_gap_m'])} m"
     )
     return hits + sumo_hits
+
+
+def _sumo_args(text: str | None) -> tuple[str, ...]:
+    """--sumo-args split as a shell would; an unclosed quote is one clear line."""
+    try:
+        return tuple(shlex.split(text)) if text else ()
+    except ValueError as e:
+        raise UsageError(f"--sumo-args {text!r}: {e}") from None
 
 
 def _weights(text: str | None) -> tuple[tuple[str, float], ...]:

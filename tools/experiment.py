@@ -145,7 +145,11 @@ def main(argv: list[str] | None = None) -> int:
         print("dica experiment: --cav-shares must be between 0 and 1", file=sys.stderr)
         return 2
     mixed = args.cav_shares != [1.0]
-    extra = shlex.split(args.extra)
+    try:
+        extra = shlex.split(args.extra)
+    except ValueError as e:  # an unclosed quote
+        print(f"dica experiment: --extra {args.extra!r}: {e}", file=sys.stderr)
+        return 2
     place, layout_args = _place(args.layout, extra)
     cells = []
     grid = product(named, args.cav_shares, shapes, args.seeds)
