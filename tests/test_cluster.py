@@ -124,6 +124,11 @@ def test_lockstep_clusters_make_the_embedded_decisions(tmp_path):
     assert "metrics" in p.stdout and "spacetime.rrd" in p.stdout
     assert "its ICA journal is kept as" in p.stderr
     assert (out / "ica-journal.msgpack.prev").is_file()
+    # the first run's logs and figures kept aside: none of it is this run's
+    assert "holds an earlier run's outputs; kept in" in p.stderr
+    (kept,) = out.glob("earlier-*")
+    assert (kept / "metrics.json").is_file() and (kept / "logs" / "gateway.log").is_file()
+    assert (out / "logs" / "gateway.log").read_text().count("generated, ") == 1
     _no_leftovers(port)
     _embedded(tmp_path / "emb", common)
 

@@ -283,6 +283,19 @@ else
 fi
 
 out="${out:-runs/cluster-$(date +%Y%m%d-%H%M%S)}"
+# what an earlier run left in --out (its logs, figures, recordings) is kept aside, so that
+# none of it is printed or read as this run's (logs were appended to, and a run that
+# failed showed the earlier run's summary and metrics)
+earlier=()
+for f in "$out/logs" "$out/pids" "$out/metrics.json" "$out/config.json" "$out"/*.csv \
+         "$out/tripinfo.xml" "$out"/*.rrd; do
+  [ -e "$f" ] && earlier+=("$f")
+done
+if [ "${#earlier[@]}" -gt 0 ]; then
+  kept="$out/earlier-$(date +%Y%m%d-%H%M%S)"
+  mkdir -p "$kept" && mv "${earlier[@]}" "$kept"/
+  echo "run_cluster: $out holds an earlier run's outputs; kept in $kept" >&2
+fi
 mkdir -p "$out/logs" "$out/pids"
 # an ICA restarted within a run replays its journal and adds to its figures; those left
 # in --out by an earlier run would fill this run's ICAs with that run's reservations and
