@@ -14,8 +14,10 @@ from __future__ import annotations
 import csv
 import dataclasses
 import json
+import math
 import os
 from pathlib import Path
+from typing import Any
 
 from dica.sim_gateway.metrics import summarize_ev, summarize_mixed
 from dica.sim_gateway.runconfig import RunConfig, RunResult
@@ -61,7 +63,7 @@ def write_outputs(
     if cfg.cav_share < 1.0:  # human drivers and connected vehicles apart
         end = result.sim_time_s if cfg.until_left else cfg.duration_s
         metrics.update(summarize_mixed(result.trips, end))
-    _atomic(out / "metrics.json", json.dumps(metrics, indent=2))
+    _atomic(out / "metrics.json", json.dumps(_strict(metrics), indent=2, allow_nan=False))
     config = {
         "mode": mode,
         "run": dataclasses.asdict(cfg),
@@ -129,6 +131,19 @@ def write_outputs(
 
 def _f(x: float | None) -> str:
     return "" if x is None else f"{x:.3f}"
+
+
+def _strict(value: Any) -> Any:
+    """``value`` with every NaN or infinity as null: JSON has neither, and readers other
+    than Python's (jq, a browser's JSON.parse) refuse a file with them (the cluster's
+    link figures are NaN where no message came)."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _strict(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_strict(v) for v in value]
+    return value
 
 
 def _atomic(path: Path, text: str) -> None:

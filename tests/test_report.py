@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 from dica.tools.report import GROWTH, SATURATION_RHO, SLACK_S, bounded, saturation
 
 
@@ -147,3 +149,23 @@ def test_a_run_cut_short_is_left_out_of_the_report_with_a_note(tmp_path, capsys)
     err = capsys.readouterr().err
     assert "runs/a: not a run dica report can read" in err, err
     assert "Traceback" not in err and code == 2
+
+
+def test_metrics_are_strict_json(tmp_path):
+    """No NaN or Infinity in metrics.json (JSON has neither; other readers refuse the
+    file): the cluster's link figures, NaN where no message came, are written null."""
+    import math
+
+    from dica.sim_gateway.outputs import _strict
+    from dica.tools.cli import main as dica
+
+    got = _strict({"a": math.nan, "b": [1.0, math.inf, {"c": -math.inf}], "d": (2, "x")})
+    assert got == {"a": None, "b": [1.0, None, {"c": None}], "d": [2, "x"]}
+    out = tmp_path / "run"
+    assert dica(["run", "--duration", "3", "--out", str(out), "--quiet"]) == 0
+
+    def refuse(name: str) -> None:
+        raise ValueError(f"{name} in metrics.json")
+
+    m = json.loads((out / "metrics.json").read_text(), parse_constant=refuse)
+    assert m["simulated_s"] == 3.0
