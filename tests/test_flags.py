@@ -152,3 +152,14 @@ def test_sumo_options_are_taken_as_written_after_sumo_args():
 
     assert joined(["run", "--sumo-args", "--junction-taz", "--seed", "3"]) == [
         "run", "--sumo-args=--junction-taz", "--seed", "3"]  # fmt: skip
+
+
+def test_link_set_refuses_a_role_the_emulator_has_not(tmp_path, capsys):
+    """`dica link set --role agent` (for agents) changed nothing and said nothing."""
+    from dica.deploy.linkem import Proxy, write_spec
+
+    write_spec(tmp_path, [Proxy("ica", "ica", 7001, 7447), Proxy("agent-1", "agents", 7002, 7447)])
+    assert dica(["link", "set", str(tmp_path), "--role", "agent", "--delay", "5"]) == 2
+    err = capsys.readouterr().err
+    assert "this emulator's roles are agents, ica, or all" in err, err
+    assert dica(["link", "set", str(tmp_path), "--role", "agents", "--delay", "5"]) == 0

@@ -58,7 +58,12 @@ def main(argv: list[str]) -> int:
             serve(proxies, args.dir / PROFILE, seed, stats=args.dir / STATS)
             return 0
         if args.action == "set":
-            read_spec(args.dir)
+            proxies, _ = read_spec(args.dir)
+            roles = sorted({p.role for p in proxies})
+            if args.role != "all" and args.role not in roles:  # a typo would change nothing
+                raise LinkError(
+                    f"--role {args.role!r}: this emulator's roles are {', '.join(roles)}, or all"
+                )
             now = read_profile(args.dir / PROFILE)
             old = asdict(now.get(args.role) or now.get("all") or Faults())
             new = {
