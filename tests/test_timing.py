@@ -434,6 +434,7 @@ def test_lockstep_under_delay_is_exact_and_waits_only_when_an_agent_must_act(tmp
         (["--faulty", "agents,router"], "--faulty takes all or a comma list"),
         (["--secure", "--loss", "0.1"], "TLS streams the emulator cannot read"),
         (["--lead", "soon"], "--lead wants a non-negative number"),
+        (["--lead", "0.3"], "--lead is the real-time clock's"),  # lockstep ignored it
     ],
 )
 def test_bad_fault_options_are_one_clear_line(tmp_path, args, says):

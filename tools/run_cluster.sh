@@ -192,6 +192,8 @@ ev_args=("${solver_args[@]}")
 [ -z "$max_added" ] || { [ "$max_added" = inf ] || number --max-added-delay "$max_added"; solver_args+=(--max-added-delay "$max_added"); }
 [ -z "$ev_prob" ] || ev_args+=(--ev-prob "$ev_prob")
 [ "$lead" = auto ] || number --lead "$lead"
+[ "$lead" = auto ] || [ "$clock" = realtime ] ||
+  die "--lead is the real-time clock's (lockstep plans from the observed step, as dica run does by default); give --clock realtime, or leave it out"
 [ -z "$port" ] || [[ "$port" =~ ^[0-9]+$ ]] || die "--port wants a port number"
 faulty_roles=()
 IFS=',' read -r -a parts <<< "$faulty"
