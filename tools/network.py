@@ -52,7 +52,10 @@ DESCRIPTION = (
     "delay and travel time from each vehicle's scheduled departure, from SUMO's own trip "
     "records; junctions: each junction's figures), trips.csv (a row per vehicle), "
     "vehicles.csv (a row per crossing), the demand and config.json. Exit status 1 if "
-    "anything collided."
+    "anything collided. Signal-free, a vehicle asks once the one ahead of it has entered "
+    "the junction (the dissertation's rule, as the network results were made); dica run "
+    "--junctions and the cluster let it follow as a platoon, so their runs differ from "
+    "this one's."
 )
 
 
