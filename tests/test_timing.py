@@ -474,3 +474,23 @@ def test_realtime_rdica_with_lossy_agent_links_revokes_safely(tmp_path):
     # with 6 revocations, 6 sent and all answered was seen, and one with 3 of 6 run out and
     # 22 sent; the answers above are what must hold)
     assert ica["revokes_sent"] >= r["revoked"]
+
+
+def test_a_junction_or_route_file_the_net_has_not_is_one_line_before_any_role(tmp_path):
+    """A wrong --junction on a user's net, or a route file that is not there: said in
+    one line before any role starts (the roles died one by one, were restarted, and the
+    run said why only then)."""
+    from dica.sim_gateway.scenario import default_scenario
+
+    net = str(default_scenario("ch45").net_path)
+    for args, says in (
+        (["--net", net, "--junction", "NOPE"], "junction 'NOPE' not in"),
+        (["--net", net, "--junction", "C", "--routes", str(tmp_path / "x.rou.xml")],
+         "route file not found"),
+    ):  # fmt: skip
+        p = subprocess.run(
+            ["bash", "tools/run_cluster.sh", "--out", str(tmp_path / "bad"), *args],
+            capture_output=True, text=True, cwd=ROOT, timeout=60,
+        )  # fmt: skip
+        assert p.returncode == 2 and says in p.stderr, p.stderr
+        assert "processes" not in p.stdout  # no role was started

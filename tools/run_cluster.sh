@@ -238,7 +238,9 @@ py=.venv/bin/python
 # the compiled core into numba's cache once, on both cores, before the roles race to
 "$py" -m dica.tools.warm
 # one scenario for every role: build (or find) it once, before anyone races to
+built_in=0  # a built-in layout: its junction is known good
 if [ -z "$net" ]; then
+  built_in=1
   read -r net junction < <("$py" -c "
 import sys
 from dica.sim_gateway.scenario import ScenarioError, default_scenario
@@ -281,6 +283,18 @@ print(' '.join(ids))" "$net" "$junctions" "$routes_file") || exit 2
 else
   [ -z "$rsus" ] || die "--rsus goes with --junctions"
   [ -n "$junction" ] || die "--net needs --junction"
+  # the junction and the route file read once, before any role starts (a role that
+  # refuses them would otherwise die and be restarted, and the run say why only then)
+  [ "$built_in" = 1 ] || "$py" -c "
+import sys
+from pathlib import Path
+from dica.ica.netfile import NetworkError, load_intersection
+try:
+    load_intersection(sys.argv[1], sys.argv[2])
+    if sys.argv[3] and not Path(sys.argv[3]).is_file():
+        raise NetworkError(f'route file not found: {sys.argv[3]}')
+except NetworkError as e:
+    sys.exit(f'run_cluster: {e}')" "$net" "$junction" "$routes_file" || exit 2
   scen=(--net "$net" --junction "$junction")
 fi
 
