@@ -134,6 +134,16 @@ def test_a_run_says_when_reorderings_went_over_their_bound(capsys, tmp_path):
     assert "reorderings added up to 133.2 s to a vehicle, over the 2 s bound" in (
         capsys.readouterr().out
     )
+    # a cluster's: each ICA process's figures, one junction's or several
+    cl = result(0.0)
+    cl.extra = {"roles": {"ica": {"reactive": {"max_added_delay_s": 2.0,
+                                               "added_delay_max_s": 9.7}}}}  # fmt: skip
+    report_run(tmp_path, cl)
+    assert "added up to 9.7 s" in capsys.readouterr().out
+    cl.extra = {"roles": {"J1": {"ica": {"reactive": {"max_added_delay_s": 2.0,
+                                                      "added_delay_max_s": 4.5}}}}}  # fmt: skip
+    report_run(tmp_path, cl)
+    assert "added up to 4.5 s" in capsys.readouterr().out
 
 
 def test_a_run_cut_short_is_left_out_of_the_report_with_a_note(tmp_path, capsys):

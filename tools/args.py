@@ -200,8 +200,9 @@ def report_run(out: Path, result) -> int:
             "by a U-turn at a junction that had sent them round once already) and left the "
             "net at that road's end"
         )
-    reactive = result.extra.get("reactive") or {}
-    bound, added = reactive.get("max_added_delay_s"), reactive.get("added_delay_max_s", 0.0)
+    summaries = _reactive(result.extra)
+    bound = next((r["max_added_delay_s"] for r in summaries if r.get("max_added_delay_s")), None)
+    added = max((r.get("added_delay_max_s") or 0.0 for r in summaries), default=0.0)
     if bound is not None and added > bound + 1e-6:
         print(
             f"note: reorderings added up to {added:.1f} s to a vehicle, over the {bound:g} s "
@@ -213,6 +214,18 @@ def report_run(out: Path, result) -> int:
     )
     collided = result.safety["overlaps"] or result.sumo_collisions or unconfirmed or touched
     return 1 if collided else 0
+
+
+def _reactive(extra: dict) -> list[dict]:
+    """The reorderings' figures of a run: the embedded run's, or each ICA process's in a
+    cluster (its roles' statistics, one ICA or one per junction)."""
+    if extra.get("reactive"):
+        return [extra["reactive"]]
+    roles = extra.get("roles") or {}
+    icas = [roles["ica"]] if isinstance(roles.get("ica"), dict) else [
+        r["ica"] for r in roles.values() if isinstance(r, dict) and isinstance(r.get("ica"), dict)
+    ]  # fmt: skip
+    return [x["reactive"] for x in icas if isinstance(x.get("reactive"), dict)]
 
 
 def report_people(result) -> int:
