@@ -189,6 +189,9 @@ def test_experiment_grid_resumes_and_report_draws(tmp_path):
     assert (grid / "ch45" / "fixed" / "r100-600" / "s12" / "metrics.json").is_file()
     again = dica(*args)
     assert "6 already done, 0 to run" in again.stdout
+    # the same cells with another duration would mix two grids' runs: refused
+    other = dica(*[("50" if a == "40" else a) for a in args])
+    assert other.returncode == 2 and "was run with other settings" in other.stderr
     r = dica("report", str(grid))
     assert r.returncode == 0, r.stderr
     md = (grid / "report" / "report.md").read_text()

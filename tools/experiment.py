@@ -121,6 +121,14 @@ def _place(layout: str, extra: list[str]) -> tuple[str, list[str]]:
     return (f"{name}-{where.replace(',', '+')}" if where else name), []
 
 
+def _settings(cmd: list[str]) -> list[str]:
+    """A cell's run options, but where it writes (the same cell, however --out is
+    spelt)."""
+    args = cmd[3:]
+    k = args.index("--out")
+    return args[:k] + args[k + 2 :]
+
+
 def main(argv: list[str] | None = None) -> int:
     import shlex
 
@@ -179,6 +187,18 @@ def main(argv: list[str] | None = None) -> int:
             *extra,
         ]
         cells.append((cell, cmd))
+    # a cell done with other settings (a --duration or --extra changed since) is not this
+    # grid's: resuming would mix the two, so it is refused
+    changed = [
+        cell for cell, cmd in cells
+        if (cell / "metrics.json").exists() and (cell / "command.json").exists()
+        and json.loads((cell / "command.json").read_text()) != _settings(cmd)
+    ]  # fmt: skip
+    if changed:
+        print(f"dica experiment: {changed[0]} was run with other settings than these "
+              f"({len(changed)} cells): give another --out, or the same settings to resume",
+              file=sys.stderr)  # fmt: skip
+        return 2
     options.out_dir(args.out)
     (args.out / "experiment.json").write_text(
         json.dumps({"layout": place, "cells": [c[1][3:] for c in cells]}, indent=2)
@@ -188,6 +208,7 @@ def main(argv: list[str] | None = None) -> int:
 
     def one(cell: Path, cmd: list[str]) -> tuple[Path, int, str]:
         cell.mkdir(parents=True, exist_ok=True)
+        (cell / "command.json").write_text(json.dumps(_settings(cmd)))  # for a resume
         # from the user's directory: a relative --out or path in --extra means theirs
         p = subprocess.run(cmd, capture_output=True, text=True)
         (cell / "run.log").write_text(p.stdout + p.stderr)
