@@ -446,6 +446,8 @@ class ZenohDrivers:
                     self._publish_state(agent, State(agent, k, part, t, tuple(vehicles), now_ns()))
                 self._wait_commands(k, part, news, out, t)
         else:
+            if self.inbox.stopping.is_set():  # as in lockstep: the run ends here, its outputs
+                raise RunError(f"stopped by a signal at t={t:.2f} s")  # written as far as it got
             for item in self.inbox.drain():
                 self._take(item, None, out)
             pace = self._t0_wall + k * self.step_s / self.speed - time.monotonic()
