@@ -109,7 +109,8 @@ change them while running with: dica link set RUN_DIR/link --role R --delay MS .
 
 other:
   --port P              router port on 127.0.0.1 (default: a free one)
-  --out DIR             run directory (default runs/cluster-TIMESTAMP)
+  --out DIR             run directory (default runs/cluster-TIMESTAMP); what an
+                        earlier run left there is kept aside in DIR/earlier-TIMESTAMP/
   -h, --help            this help
 
 Each process's PID is in RUN_DIR/pids/NAME while it runs. View the recording
