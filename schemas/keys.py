@@ -23,14 +23,20 @@ def chunk(name: str) -> str:
     return name
 
 
+def safe_chunk(name: str, short: int = 128) -> str:
+    """``name`` as a key chunk: as it is when it is one (at most ``short`` characters),
+    else (SUMO allows ``*``, ``/``, spaces and more in an id) its other characters as
+    ``_`` and a hash of the name that keeps it apart from every other. Every role maps a
+    name alike, so they meet on the same keys."""
+    if _CHUNK.match(name) and len(name) <= short:
+        return name
+    tag = f"{zlib.crc32(name.encode()):08x}"
+    return re.sub(r"[^A-Za-z0-9_.:\-+]", "_", name)[:100] + "-" + tag
+
+
 def _junction(junction: str) -> str:
-    """A junction id as a key chunk: as it is, or (SUMO allows ``*``, ``/``, spaces and
-    more in an id) its other characters as ``_`` and a hash of the id that keeps it apart
-    from every other. Every role maps an id alike, so they meet on the same keys."""
-    if _CHUNK.match(junction):
-        return junction
-    tag = f"{zlib.crc32(junction.encode()):08x}"
-    return re.sub(r"[^A-Za-z0-9_.:\-+]", "_", junction)[:100] + "-" + tag
+    """A junction id as a key chunk (:func:`safe_chunk`)."""
+    return safe_chunk(junction)
 
 
 def request(junction: str, agent: str = "*") -> str:

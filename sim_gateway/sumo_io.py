@@ -69,12 +69,17 @@ def _from_junctions(cfg: RunConfig) -> bool:
     """Whether the route file has trips or flows from or to a junction (SUMO reads
     those only with ``--junction-taz``)."""
     src = xml_source(cfg.routes_path)
+    tail = b""
     try:
         with open(src, "rb") if isinstance(src, str) else src as fh:
-            data = fh.read()
+            while chunk := fh.read(1 << 20):  # a megabyte at a time: files can be large
+                seen = tail + chunk
+                if b"fromJunction=" in seen or b"toJunction=" in seen:
+                    return True
+                tail = chunk[-16:]  # a word cut at a chunk's end
     except OSError:
-        return False  # the route file's own check says what is wrong with it
-    return b"fromJunction=" in data or b"toJunction=" in data
+        pass  # the route file's own check says what is wrong with it
+    return False
 
 
 def start_sumo(ls, cfg: RunConfig, step_s: float) -> list[str]:

@@ -13,13 +13,12 @@ yardstick of its delay.
 from __future__ import annotations
 
 import math
-import re
-import zlib
 from collections.abc import Mapping
 
 from dica.ica.core.config import IcaConfig
 from dica.ica.core.planner import Planner
 from dica.ica.core.route import Route
+from dica.schemas.keys import safe_chunk
 from dica.sim_gateway.actuator import MIN_GAP_M
 from dica.sim_gateway.detour import Detours
 from dica.sim_gateway.junction import Car, Junction, lane_index, route_edges
@@ -61,18 +60,12 @@ def crossing_name(sumo_id: str, n: int, taken: Mapping[str, object]) -> str:
     and so on. Names travel as Zenoh key chunks, so an id with other characters than
     letters, digits and ``_.:-+`` becomes one that has only those, kept apart from every
     other by a hash of the id."""
-    name = sumo_id
-    if not _KEY_SAFE.match(name):
-        tag = f"{zlib.crc32(sumo_id.encode()):08x}"
-        name = re.sub(r"[^A-Za-z0-9_.:\-+]", "_", sumo_id)[:100] + "-" + tag
+    name = safe_chunk(sumo_id, short=100)
     if n > 1:
         name = f"{name}+{n}"
     while name in taken:  # a file's own id that looks like another's later crossing
         name += "+"
     return name
-
-
-_KEY_SAFE = re.compile(r"^[A-Za-z0-9_.:\-+]{1,100}$")
 
 
 class Traffic:
@@ -179,8 +172,9 @@ class Traffic:
                 if j.lane_len_m[lane] - ls.vehicle.getLanePosition(vin) > comm:
                     continue
                 dest = ls.vehicle.getRoute(vin)[-1]
-                u_turn = self._u_turn(vin)
-                route = self._way_through(j, vin, lane)
+                links = ls.vehicle.getNextLinks(vin)
+                u_turn = bool(links) and links[0][6] == "t"  # its route turns back next
+                route = self._way_through(j, vin, lane, links)
                 if route is None:
                     j.passing.add(vin)
                     continue
@@ -228,14 +222,9 @@ class Traffic:
                 out.append(c)
         return out
 
-    def _u_turn(self, vin: str) -> bool:
-        """Whether the link ``vin``'s route takes next turns back (SUMO's direction t)."""
-        links = self.ls.vehicle.getNextLinks(vin)
-        return bool(links) and links[0][6] == "t"
-
-    def _way_through(self, j: Junction, vin: str, lane: str) -> Route | None:
+    def _way_through(self, j: Junction, vin: str, lane: str, links) -> Route | None:
+        """The way ``vin`` crosses from ``lane``, its next ``links`` as SUMO has them."""
         ls = self.ls
-        links = ls.vehicle.getNextLinks(vin)
         if not links:
             return None  # its route ends on this lane
         route = j.inter.route(lane, links[0][0])

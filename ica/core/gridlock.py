@@ -64,6 +64,15 @@ def full_need_m(
     return need
 
 
+def exit_lengths_m(routes: Iterable[Route]) -> dict[str, float]:
+    """Per exit road of ``routes``, its shortest lane: the room the rule counts on."""
+    length: dict[str, float] = {}
+    for r in routes:
+        e = edge_of(r.out_lane)
+        length[e] = min(length.get(e, math.inf), r.out_lane_m)
+    return length
+
+
 def exit_caps(
     routes: Iterable[Route],
     max_length_m: float,
@@ -79,10 +88,7 @@ def exit_caps(
     30 km/h needs 22.7 m). Not below ``floor_mps``: a road shorter than that still is
     (:func:`short_exits`)."""
     routes = list(routes)
-    length: dict[str, float] = {}
-    for r in routes:
-        e = edge_of(r.out_lane)
-        length[e] = min(length.get(e, math.inf), r.out_lane_m)
+    length = exit_lengths_m(routes)
     out: dict[str, float] = {}
     for r in routes:
         brake = length[edge_of(r.out_lane)] - (max_length_m + gap_m + slack_m)
@@ -102,10 +108,7 @@ def short_exits(
     need). Where the room beyond is measured, no vehicle is ever let onto such a road,
     and those bound for it wait at the line for good."""
     need = full_need_m([inter], max_length_m, decel_mps2, gap_m, slack_m)
-    length: dict[str, float] = {}
-    for r in inter.routes:
-        e = edge_of(r.out_lane)
-        length[e] = min(length.get(e, math.inf), r.out_lane_m)
+    length = exit_lengths_m(inter.routes)
     return sorted((e, m, need[e]) for e, m in length.items() if m < need[e])
 
 
