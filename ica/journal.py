@@ -129,7 +129,7 @@ class Journal:
         self._write(
             {"k": "green", "vin": lit.vin, "green": lit.green_s, "asked": lit.asked_s,
              "near": lit.near_m, "length": lit.length_m, "width": lit.width_m,
-             "routes": list(lit.routes)}
+             "routes": list(lit.routes), "speed": lit.speed_mps}
         )  # fmt: skip
 
     def reactive(self, snapshot: dict) -> None:
@@ -221,6 +221,7 @@ def replay(path: Path, ica: Controller) -> Replayed:
                     str(rec["vin"]), float(rec["green"]), float(rec["asked"]),
                     float(rec["length"]), float(rec["width"]), limits,
                     float(rec["near"]), tuple(str(r) for r in rec["routes"]),
+                    float(rec.get("speed", 0.0)),
                 )  # fmt: skip
                 out.greens += 1
             elif kind == "sighting" and getattr(ica, "greens", None) is not None:

@@ -624,16 +624,21 @@ class IcaService:
                 return
             ica.advance(msg.t_s)  # as the embedded roadside does before it asks
             if isinstance(msg, AskGreen):
-                ask = ica.regreen if msg.again else ica.green
                 had = ica.greens.get(msg.vin)
                 t_c = time.perf_counter()
-                g = ask(msg.vin, msg.t_s, msg.length_m, msg.width_m, limits, msg.near_m)
+                if msg.again:
+                    g = ica.regreen(msg.vin, msg.t_s, msg.length_m, msg.width_m, limits,
+                                    msg.near_m)  # fmt: skip
+                else:
+                    g = ica.green(msg.vin, msg.t_s, msg.length_m, msg.width_m, limits,
+                                  msg.near_m, msg.speed_mps)  # fmt: skip
                 self.stats.compute_s.append(time.perf_counter() - t_c)
                 if g is None:  # none sooner: the one held stands
                     reply(item.query, item.key, encode(Ack(msg.vin, -1, AskGreen.KIND, now_ns())))
                     return
-                lit = Lit(g.vin, g.green_s, g.asked_s, msg.near_m, msg.length_m, msg.width_m,
-                          g.routes, now_ns(), limits.top_mps, ica.config.step_s)  # fmt: skip
+                lit = Lit(g.vin, g.green_s, g.asked_s, g.near_m, msg.length_m, msg.width_m,
+                          g.routes, now_ns(), limits.top_mps, ica.config.step_s,
+                          g.speed_mps)  # fmt: skip
                 if g is not had:  # a new green (a repeated ask gets the one it holds)
                     if self.journal is not None:
                         self.journal.green(lit)

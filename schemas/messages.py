@@ -17,6 +17,8 @@ from typing import ClassVar
 
 import numpy as np
 
+# 12: an ASKGREEN and a LIT carry ``speed_mps`` (a driver given its green rolling towards
+# its line); 11: EVCOMING exists (notices of emergency vehicles on their way);
 # 10: SPOTTED, ASKGREEN, LIT, SIGHTING and SHRUNK exist (human drivers), and a vehicle
 # state carries a human driver's ``signal``;
 # 9: a WALK carries ``near_lo_m`` (the shortest way the walker may take to the crossing),
@@ -28,7 +30,7 @@ import numpy as np
 # REORDER; 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev``
 # and ``kept_seq``, a setpoint ``drop``, and REVOKE exists (2 had no revocations; 1 had
 # open-loop speed commands)
-VERSION = 11
+VERSION = 12
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
@@ -187,6 +189,8 @@ class AskGreen:
     near_m: float = lim(0.0, 100.0)
     again: bool = lim()
     sent_ns: int = lim(0, 2**63 - 1)
+    # above 0: rolling towards its line at this speed, not standing; a green now or none
+    speed_mps: float = lim(0.0, 100.0, default=0.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -210,6 +214,7 @@ class Lit:
     # speed and the ICA's time step
     top_mps: float = lim(0.0, 200.0, default=0.0)
     step_s: float = lim(0.0, 10.0, default=0.0)
+    speed_mps: float = lim(0.0, 100.0, default=0.0)  # given rolling at this speed (0: standing)
 
 
 @dataclass(frozen=True, slots=True)

@@ -20,7 +20,7 @@ import numpy as np
 
 from dica.ica.core.controller import Controller, build_controller
 from dica.ica.core.dica import Green
-from dica.ica.core.envelope import bounds, human_limits
+from dica.ica.core.envelope import green_bounds, human_limits
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.request import Confirmation, Reason, Rejection, Request, RequestError
 from dica.ica.core.revocation import DROPPED, KEPT, Reorder
@@ -165,11 +165,16 @@ class LocalDrivers:
         self.link.detect(car.vin, car.route.in_lane, t)
         return True
 
-    def green(self, car: Car, t: float, near_m: float, again: bool) -> tuple[float, tuple] | None:
-        ask = self.ica.regreen if again else self.ica.green
+    def green(
+        self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
+    ) -> tuple[float, tuple] | None:
         t_c = time.perf_counter()
         try:
-            g = ask(car.vin, t, car.length_m, car.width_m, self.limits, near_m)
+            if again:
+                g = self.ica.regreen(car.vin, t, car.length_m, car.width_m, self.limits, near_m)
+            else:
+                g = self.ica.green(car.vin, t, car.length_m, car.width_m, self.limits, near_m,
+                                   v_mps)  # fmt: skip
         except RequestError as e:  # not yet (one ahead has not begun to enter): again
             why = str(e.reason)
             self.green_refused[why] = self.green_refused.get(why, 0) + 1
@@ -465,7 +470,8 @@ def _record_humans(
     for t_g, g, given in drivers.greens or ():
         routes = []
         for c in given:
-            fast, slow = bounds(c.dtot.route, c.length_m, g.green_s, heads.step_s, heads.limits)
+            fast, slow = green_bounds(c.dtot.route, c.length_m, g.green_s, heads.step_s,
+                                      heads.limits, g.near_m, g.speed_mps)  # fmt: skip
             routes.append((c.dtot.route.id, c.dtot, fast, slow))
         rec.envelope(t_g, g.vin, routes)
     if drivers.greens:

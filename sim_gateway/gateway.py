@@ -348,8 +348,10 @@ class ZenohDrivers:
         self.log.warning("SPOTTED %s: %s", car.vin, "no answer" if got is None else got.detail)
         return got is not None  # refused: telling it again changes nothing
 
-    def green(self, car: Car, t: float, near_m: float, again: bool) -> tuple[float, tuple] | None:
-        msg = AskGreen(car.vin, t, car.length_m, car.width_m, near_m, again, now_ns())
+    def green(
+        self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
+    ) -> tuple[float, tuple] | None:
+        msg = AskGreen(car.vin, t, car.length_m, car.width_m, near_m, again, now_ns(), v_mps)
         got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Lit, Ack))
         if isinstance(got, Lit):
             return got.green_s, got.routes

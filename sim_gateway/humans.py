@@ -23,7 +23,13 @@ from typing import Protocol
 
 import numpy as np
 
-from dica.ica.core.envelope import STOP_SHORT_M, DriverLimits, bounds, bounds_seen, path_s
+from dica.ica.core.envelope import (
+    STOP_SHORT_M,
+    DriverLimits,
+    bounds_seen,
+    green_bounds,
+    path_s,
+)
 from dica.ica.core.trajectory import Trajectory
 from dica.sim_gateway.junction import Car, Junction, Seen
 from dica.sim_gateway.traffic import HUMAN_VTYPE
@@ -37,6 +43,8 @@ TOL_M = 0.05  # [m] the audit's tolerance on a position (SUMO's rounding)
 # [s] how often the roadside has the ICA shrink a crossing human's reservations to where
 # it is seen, and a waiting one ask again
 TIGHTEN_S = 0.5
+ROLL_NEAR_M = 60.0  # [m] a driver rolling towards its line asks for its green from this near
+ROLL_MIN_MPS = 0.5  # [m/s] slower than this it is about to stand, and asks standing
 
 
 class Desk(Protocol):
@@ -49,9 +57,12 @@ class Desk(Protocol):
         """``car`` entered the communication region (from the detector: no intent).
         False: the ICA did not hear it (it is told again next step)."""
 
-    def green(self, car: Car, t: float, near_m: float, again: bool) -> tuple[float, tuple] | None:
+    def green(
+        self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
+    ) -> tuple[float, tuple] | None:
         """Its green (start, routes) standing ``near_m`` short of its line; ``again``:
-        only a sooner one than it holds. None: none given (not yet, or not sooner)."""
+        only a sooner one than it holds; ``v_mps`` above 0: rolling towards the line at
+        that speed, a green now or none. None: none given (not yet, or not sooner)."""
 
     def tighten(
         self, car: Car, t: float, s_m: float, v_mps: float, lane: str
@@ -95,6 +106,7 @@ class Driver:
     green_s: float = math.nan
     routes: tuple[str, ...] = ()
     resumed: bool = False
+    rolled: bool = False  # given its green rolling towards its line
     lane: str = ""  # the lane it was last seen on when its reservations shrank
     tightened_s: float = -math.inf  # when they last shrank to where it was
     asked_s: float = -math.inf  # when it last asked again for a sooner green
@@ -136,6 +148,12 @@ class SignalHeads:
         v = self.ls.vehicle
         v.setSpeedFactor(c.sumo, f)
         v.setLaneChangeMode(c.sumo, 0)
+        # it keeps its lane and its pace beside the others: past a car standing in the next
+        # lane (a turn lane's queue) it neither holds back so as not to pass on the right nor
+        # slows to let one change in (SUMO's lane-change model does both, by default, to a
+        # driver whose envelope the ICA reserved; both are off the way lanes are kept)
+        v.setParameter(c.sumo, "laneChangeModel.lcOvertakeRight", "1")
+        v.setParameter(c.sumo, "laneChangeModel.lcCooperativeSpeed", "0")
         self.drivers[c.vin] = Driver(c, f)
         if not self.hold:
             return
@@ -158,6 +176,24 @@ class SignalHeads:
                 out.append(d)
         return out
 
+    def rolling(self, seen: list[Seen], t: float) -> list[Driver]:
+        """The drivers at the head of their lane still rolling towards its line, near it,
+        with no green yet, that have not asked for :data:`TIGHTEN_S`: each may be given
+        its green now, so that it need not stop."""
+        out = []
+        for s in seen:
+            d = self.drivers.get(s.car.vin)
+            c = s.car
+            if d is None or not math.isnan(d.green_s) or not c.head or d.resumed:
+                continue
+            near = -c.s_m
+            if not (STOP_SHORT_M < near <= ROLL_NEAR_M and c.speed_mps > ROLL_MIN_MPS):
+                continue
+            if t < d.asked_s + TIGHTEN_S - 1e-9 or self.ls.vehicle.isStopped(c.sumo):
+                continue
+            out.append(d)
+        return out
+
     def serve(self, seen: list[Seen], t: float, desk: Desk) -> None:
         """The human drivers of this step: the ICA hears of those new in the region (from
         the roadside's detector, as of any vehicle); those standing at the head of their
@@ -171,6 +207,12 @@ class SignalHeads:
             got = desk.green(d.car, t, -d.car.s_m, False)
             if got is not None:
                 self.lit(d.car.vin, got[0], got[1], -d.car.s_m)
+        for d in self.rolling(seen, t):
+            d.asked_s = t
+            c = d.car
+            got = desk.green(c, t, -c.s_m, False, c.speed_mps)
+            if got is not None:
+                self.lit(c.vin, got[0], got[1], -c.s_m, c.speed_mps)
         self._tighten(seen, t, desk)
         self.release(t)
 
@@ -201,14 +243,18 @@ class SignalHeads:
                 self.shrunk += 1
                 self.tightened(c.vin, t, routes)
 
-    def lit(self, vin: str, green_s: float, routes: tuple[str, ...], dist_m: float) -> None:
-        """The ICA gave ``vin``, standing ``dist_m`` short of its line, its green from
-        ``green_s``."""
+    def lit(
+        self, vin: str, green_s: float, routes: tuple[str, ...], dist_m: float, v_mps: float = 0.0
+    ) -> None:
+        """The ICA gave ``vin``, standing ``dist_m`` short of its line (or rolling towards
+        it at ``v_mps``), its green from ``green_s``."""
         d = self.drivers[vin]
         d.sooner += not math.isnan(d.green_s)
         d.green_s, d.routes = green_s, routes
         c = d.car
-        d.fast, d.slow = bounds(c.route, c.length_m, green_s, self.step_s, self.limits, dist_m)
+        d.rolled = v_mps > 0.0
+        d.fast, d.slow = green_bounds(c.route, c.length_m, green_s, self.step_s, self.limits,
+                                      dist_m, v_mps)  # fmt: skip
 
     def tightened(self, vin: str, t: float, routes: tuple[str, ...]) -> None:
         """The ICA shrank ``vin``'s reservations at ``t`` to where it was seen, on these
@@ -222,10 +268,15 @@ class SignalHeads:
                                          self.step_s, self.limits, d.green_s)  # fmt: skip
 
     def release(self, t: float) -> None:
-        """End the stop of every driver whose green has come."""
+        """End the stop of every driver whose green has come (one rolling towards it: its
+        stop is taken away before it gets there)."""
+        v = self.ls.vehicle
         for d in self.drivers.values():
             if not d.resumed and t + 1e-9 >= d.green_s:
-                self.ls.vehicle.resume(d.car.sumo)
+                if v.isStopped(d.car.sumo):
+                    v.resume(d.car.sumo)
+                else:
+                    v.replaceStop(d.car.sumo, 0, "")
                 d.resumed = True
 
     # -- the audit -------------------------------------------------------------------
@@ -250,15 +301,16 @@ class SignalHeads:
     def summary(self) -> dict:
         """The human drivers of the run: how many, their wait for the green, the audit."""
         ds = list(self.drivers.values())
-        waits = [d.green_s - d.standing_s for d in ds if not math.isnan(d.green_s)]
+        waits = [d.green_s - d.standing_s for d in ds if not math.isnan(d.green_s + d.standing_s)]
         outside = sorted(d.car.vin for d in ds if d.outside_steps)
         return {
             "count": len(ds),
-            "given_green": len(waits),
+            "given_green": sum(not math.isnan(d.green_s) for d in ds),
             "mean_wait_for_green_s": float(np.mean(waits)) if waits else None,
             "max_wait_for_green_s": float(np.max(waits)) if waits else None,
             "reservations_shrunk": sum(d.tightenings for d in ds),
             "sooner_greens": sum(d.sooner for d in ds),
+            "rolling_greens": sum(d.rolled for d in ds),
             "entered_on_red": sum(d.on_red for d in ds),
             "outside_envelope": len(outside),
             "outside_envelope_vins": outside[:50],

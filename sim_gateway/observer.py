@@ -34,7 +34,7 @@ import numpy as np
 
 from dica.deploy.transport import Inbox, Item
 from dica.ica.core.config import IcaConfig
-from dica.ica.core.envelope import DriverLimits, bounds, envelope_dtot
+from dica.ica.core.envelope import DriverLimits, envelope_dtot, green_bounds
 from dica.ica.core.intersection import Intersection
 from dica.ica.core.walk import WalkSlot
 from dica.ica.core.zones import ConflictTables, Shape
@@ -227,7 +227,8 @@ class Observer:
             r = self.inter.route_by_id(rid)
             if r is None:
                 raise ValueError(f"{g.vin}'s green names no route {rid!r} of this junction")
-            fast, slow = bounds(r, g.length_m, g.green_s, step, limits, g.near_m)
+            fast, slow = green_bounds(r, g.length_m, g.green_s, step, limits, g.near_m,
+                                      g.speed_mps)  # fmt: skip
             d = envelope_dtot(r, shape, fast, slow, self.margin_m, self._tables.grid(r, shape),
                               True)  # fmt: skip
             routes.append((rid, d, fast, slow))

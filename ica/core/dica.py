@@ -48,12 +48,15 @@ from dica.ica.core.conflict import (
 from dica.ica.core.crosswalk import passage
 from dica.ica.core.dtot import Dtot, build_dtot
 from dica.ica.core.envelope import (
+    ROLL_DECEL_MPS2,
+    STOP_SHORT_M,
     DriverLimits,
-    bounds,
     bounds_seen,
     envelope_dtot,
     first_reach,
     follow_delay,
+    green_bounds,
+    path_s,
 )
 from dica.ica.core.gridlock import QUEUE_GAP_M
 from dica.ica.core.handover import Handover
@@ -93,9 +96,12 @@ class Green:
     routes: tuple[str, ...]
     keys: tuple[str, ...]
     rounds: int
+    near_m: float = STOP_SHORT_M  # how far short of its line it was when given it
+    speed_mps: float = 0.0  # rolling towards its line at this speed (0: standing)
 
 
 MAX_GREEN_ROUNDS = 10_000  # a green's search moves it later every round; past this, refused
+ROLL_NEAR_M = 60.0  # [m] a human rolling towards its line asks for its green from this near
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -682,6 +688,7 @@ class Dica:
         width_m: float,
         limits: DriverLimits,
         dist_m: float = 0.5,
+        v_mps: float = 0.0,
     ) -> Green:
         """A human driver standing at the head of its lane asks (its signal head, for it):
         the earliest green at or after ``now_s`` at which every crossing it may make, on
@@ -691,14 +698,23 @@ class Dica:
         would brake inside the junction (:func:`ica.core.envelope.follow_delay`; it would
         fall behind its own envelope). All of them are then reserved, as confirmed
         vehicles are (asked again, the same green). The green is a pure shift of the
-        envelope: the driver stands at the line until then."""
+        envelope: the driver stands at the line until then.
+
+        A driver still rolling towards its line (``v_mps`` above 0) is given its green
+        now or not at all (:func:`ica.core.envelope.bounds_rolling`), and only if at its
+        fastest it never comes so close behind the vehicle ahead in its lane, at that
+        one's slowest, that it would brake before its rear is out."""
         held = self.greens.get(vin)
         if held is not None:
             return held
-        if not all(math.isfinite(x) for x in (now_s, length_m, width_m, dist_m)):
+        if not all(math.isfinite(x) for x in (now_s, length_m, width_m, dist_m, v_mps)):
             raise RequestError(Reason.NOT_FINITE, f"figures of {vin}'s green are not finite")
-        if not 0.0 <= dist_m <= 10.0:
-            raise RequestError(Reason.BAD_STATE, f"{vin} stands {dist_m} m short of its line")
+        rolling = v_mps > 0.0
+        if not 0.0 <= dist_m <= (ROLL_NEAR_M if rolling else 10.0) or v_mps > 70.0:
+            raise RequestError(Reason.BAD_STATE, f"{vin} is {dist_m} m short of its line")
+        if rolling and v_mps * v_mps > 2.0 * ROLL_DECEL_MPS2 * dist_m:
+            # it may be braking harder than its slowest bound does, to stand at its line
+            raise RequestError(Reason.INFEASIBLE, f"{vin} is too fast to be given it rolling")
         if not (0.0 < length_m <= 30.0 and 0.0 < width_m <= 5.0):
             raise RequestError(Reason.BAD_STATE, f"{vin}'s size is not a road vehicle's")
         lane = self._lane_of.get(vin)
@@ -720,7 +736,9 @@ class Dica:
             built = []
             late, hit = 0.0, False
             for r in routes:
-                fast, slow = bounds(r, length_m, g, cfg.step_s, limits, dist_m)
+                fast, slow = green_bounds(r, length_m, g, cfg.step_s, limits, dist_m, v_mps)
+                if rolling:
+                    late = max(late, self._behind_leader(vin, lane, r, fast, length_m))
                 d, fast_in = self._envelope(r, shape, fast, slow)
                 built.append((r, slow, d, fast_in, fast))
                 for c in self.conflicts(d):  # one that only touches still moves it a step
@@ -737,11 +755,36 @@ class Dica:
                     late = max(late, behind)
             if not hit and late <= 1e-9:
                 break
+            if rolling:  # it is slowing for its line: now, or it stops and asks there
+                raise RequestError(Reason.INFEASIBLE, f"no green for {vin} on the move now")
             if rounds >= MAX_GREEN_ROUNDS:
                 raise RequestError(Reason.INFEASIBLE, f"no green for {vin} in {rounds} rounds")
             g += max(late, cfg.step_s)
-        green = Green(vin, g, now_s, (), (), rounds)
+        green = Green(vin, g, now_s, (), (), rounds, dist_m, v_mps)
         return self._reserve(green, built, length_m)
+
+    def _behind_leader(
+        self, vin: str, lane: str, route: Route, fast: Trajectory, length_m: float
+    ) -> float:
+        """How much later a rolling human's fastest crossing of ``route`` would have to
+        be so as never to brake behind a vehicle ahead of it from its lane, at that
+        one's slowest (each of a human's slow bounds, a plan run late by the time pad),
+        both measured from their line: 0 if it never would (it would fall behind its
+        own slowest). Its lane is its own: humans keep their lanes."""
+        pad = 2.0 * self.config.time_pad_s
+        t0, s0 = fast.t0_s, float(fast.s_m[0])
+        late = 0.0
+        for key, c in self._confirmed.items():
+            r = c.dtot.route
+            if r.in_lane != lane or key.split("~", 1)[0] == vin:
+                continue
+            lead = c.dtot.trajectory.shifted(pad)
+            if path_s(lead, t0) <= s0:  # behind it, or level: not a vehicle it follows
+                continue
+            late = max(late, follow_delay(
+                fast, route.cross_length_m, length_m, lead, route.cross_length_m, c.length_m,
+            ))  # fmt: skip
+        return late
 
     def relight(
         self,
@@ -753,23 +796,27 @@ class Dica:
         limits: DriverLimits,
         dist_m: float,
         routes: tuple[str, ...],
+        v_mps: float = 0.0,
     ) -> Green:
         """A green given before a restart (from the journal): its envelopes on ``routes``
-        rebuilt at the same time from the same limits and reserved as they were, without
-        a check (they were checked when given). A later one replaces an earlier."""
+        rebuilt at the same time from the same limits (and the same speed, for one given
+        rolling) and reserved as they were, without a check (they were checked when
+        given). A later one replaces an earlier."""
         shape = Shape.of(length_m, width_m)
         built = []
         for rid in routes:
             r = self.intersection.route_by_id(rid)
             if r is None:
                 raise RequestError(Reason.UNKNOWN_ROUTE, f"{vin}'s green names no route {rid!r}")
-            fast, slow = bounds(r, length_m, green_s, self.config.step_s, limits, dist_m)
+            fast, slow = green_bounds(r, length_m, green_s, self.config.step_s, limits, dist_m,
+                                      v_mps)  # fmt: skip
             d, fast_in = self._envelope(r, shape, fast, slow)
             built.append((r, slow, d, fast_in, fast))
         held = self.greens.get(vin)
         if held is not None:
             self._unreserve(held)
-        return self._reserve(Green(vin, green_s, asked_s, (), (), 0), built, length_m)
+        green = Green(vin, green_s, asked_s, (), (), 0, dist_m, v_mps)
+        return self._reserve(green, built, length_m)
 
     def _goes_ahead(
         self,

@@ -37,6 +37,7 @@ from dica.ica.core.trajectory import Trajectory
 from dica.ica.core.zones import RouteGrid, Shape
 
 STOP_SHORT_M = 0.5  # [m] a human stands this far short of its line at a red head
+ROLL_DECEL_MPS2 = 4.5  # [m/s^2] the most a driver slowing for its red head brakes (SUMO's decel)
 
 
 @dataclass(frozen=True, slots=True)
@@ -162,6 +163,64 @@ def bounds_from(
     return fast, slow
 
 
+def bounds_rolling(
+    route: Route,
+    length_m: float,
+    green_s: float,
+    step_s: float,
+    limits: DriverLimits,
+    dist_m: float,
+    v_mps: float,
+) -> tuple[Trajectory, Trajectory]:
+    """The fastest and the slowest crossing of ``route`` by a driver seen ``dist_m`` short
+    of its line at ``v_mps``, slowing for its red head, whose head turns green at
+    ``green_s`` (now): no faster than full acceleration from there; no slower than
+    braking on at :data:`ROLL_DECEL_MPS2` (its head was red) for its reaction time,
+    standing if that stops it, then the dawdler's. Each until the rear is out."""
+    s_end = route.cross_length_m + length_m
+    fast = euler(green_s, step_s, -dist_m, v_mps, s_end, 0, limits.accel_mps2, limits.top_mps)
+    react = math.ceil(limits.react_s / step_s - 1e-9)
+    slow = _braking(green_s, step_s, -dist_m, v_mps, s_end, react, limits, route)
+    return fast, slow
+
+
+def green_bounds(
+    route: Route,
+    length_m: float,
+    green_s: float,
+    step_s: float,
+    limits: DriverLimits,
+    dist_m: float = STOP_SHORT_M,
+    v_mps: float = 0.0,
+) -> tuple[Trajectory, Trajectory]:
+    """The bounds a green was given with: :func:`bounds` for a driver standing ``dist_m``
+    short of its line, :func:`bounds_rolling` for one rolling towards it at ``v_mps``."""
+    if v_mps > 0.0:
+        return bounds_rolling(route, length_m, green_s, step_s, limits, dist_m, v_mps)
+    return bounds(route, length_m, green_s, step_s, limits, dist_m)
+
+
+def _braking(
+    t0_s: float,
+    step_s: float,
+    s0_m: float,
+    v0_mps: float,
+    s_end_m: float,
+    steps: int,
+    limits: DriverLimits,
+    route: Route,
+) -> Trajectory:
+    """The dawdler's way from ``s0_m`` at ``v0_mps``, after braking at
+    :data:`ROLL_DECEL_MPS2` for ``steps`` steps (standing once stopped)."""
+    v = np.maximum(max(v0_mps, 0.0) - ROLL_DECEL_MPS2 * step_s * np.arange(1, steps + 1), 0.0)
+    head = s0_m + step_s * np.concatenate([[0.0], np.cumsum(v)])
+    slow_a = (1.0 - limits.sigma) * limits.accel_mps2
+    v_on = float(v[-1]) if steps else v0_mps
+    rest = euler(t0_s + steps * step_s, step_s, float(head[-1]), v_on, s_end_m, 0, slow_a,
+                 limits.slow_mps(route, step_s))  # fmt: skip
+    return Trajectory(t0_s, step_s, np.concatenate([head[:-1], rest.s_m]))
+
+
 def bounds_seen(
     route: Route,
     length_m: float,
@@ -175,8 +234,16 @@ def bounds_seen(
     """:func:`bounds_from` for a driver on its green since ``green_s``, seen at ``t_s``: one
     still standing at its line may not have reacted yet, and may wait until its reaction
     time is up. The ICA reserves these bounds and the roadside audits against them."""
-    wait = green_s + limits.react_s - t_s if v_mps <= 1e-9 and s_m <= 0.0 else 0.0
-    return bounds_from(route, length_m, t_s, s_m, v_mps, step_s, limits, wait)
+    left = green_s + limits.react_s - t_s
+    if v_mps <= 1e-9 and s_m <= 0.0:
+        return bounds_from(route, length_m, t_s, s_m, v_mps, step_s, limits, left)
+    if left <= 1e-9:
+        return bounds_from(route, length_m, t_s, s_m, v_mps, step_s, limits)
+    # moving within its reaction time: it may still be braking for its red (a rolling green)
+    fast, _ = bounds_from(route, length_m, t_s, s_m, v_mps, step_s, limits)
+    steps = math.ceil(left / step_s - 1e-9)
+    s_end = route.cross_length_m + length_m
+    return fast, _braking(t_s, step_s, s_m, v_mps, s_end, steps, limits, route)
 
 
 def first_reach(traj: Trajectory, s_m: np.ndarray) -> np.ndarray:
