@@ -65,6 +65,12 @@ def _cell(ms: list[dict]) -> dict:
         "outside": sum(h["outside_envelope"] for h in hum),
         "wait_s": _mean([h.get("mean_wait_for_green_s") for h in hum]),
         "max_wait_s": max((h.get("max_wait_for_green_s") or 0.0 for h in hum), default=None),
+        # the share of human drivers given their green rolling towards the line
+        "rolled": (
+            sum(h.get("rolling_greens", 0) for h in hum) / n
+            if (n := sum(h["count"] for h in hum))
+            else None
+        ),
     }
 
 
@@ -118,9 +124,10 @@ def markdown(cells: dict) -> str:
     shares = sorted({s for (a, s, _) in cells if a == DICA})
     out = [
         "| veh/10 min | share connected | seeds | DICA delay [s] | humans / connected [s] | "
-        "wait for green mean / max [s] | actuated [s] | fixed [s] | all-way stop [s] | "
+        "standing humans' wait for green mean / max [s] | humans given green rolling | "
+        "actuated [s] | fixed [s] | all-way stop [s] | "
         "DICA throughput | collisions | on red / outside envelope |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for v in vols:
         stop = _nearest(cells, STOP, 0.0, v)
@@ -132,7 +139,7 @@ def markdown(cells: dict) -> str:
             out.append(
                 f"| {v:g} | {s:g} | {c['seeds']} | {_f(c['delay_s'])} | "
                 f"{_f(c['human_delay_s'])} / {_f(c['connected_delay_s'])} | "
-                f"{_f(c['wait_s'])} / {_f(c['max_wait_s'])} | "
+                f"{_f(c['wait_s'])} / {_f(c['max_wait_s'])} | {_f(c['rolled'], 2)} | "
                 f"{_f(act and act['delay_s'])} | {_f(fix and fix['delay_s'])} | "
                 f"{_f(stop and stop['delay_s']) if s == 0.0 else ''} | "
                 f"{_f(c['throughput'], 3)} | {c['collisions']} | {c['on_red']} / {c['outside']} |"
