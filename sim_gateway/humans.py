@@ -110,6 +110,7 @@ class Driver:
     lane: str = ""  # the lane it was last seen on when its reservations shrank
     tightened_s: float = -math.inf  # when they last shrank to where it was
     asked_s: float = -math.inf  # when it last asked again for a sooner green
+    refused_s: float = -math.inf  # when it was last refused a green, standing
     asked_shrunk: int = -1  # the ICA's count of shrunk reservations then
     tightenings: int = 0  # how often its reservations shrank to where it was seen
     sooner: int = 0  # how often it was given a sooner green, asking again
@@ -204,9 +205,13 @@ class SignalHeads:
             if d is not None and not d.told:
                 d.told = desk.spotted(s.car, s.car.detected_s)
         for d in self.asking(seen, t):
+            if t < d.refused_s + TIGHTEN_S - 1e-9:
+                continue  # refused a moment ago (walkers come first): not every step
             got = desk.green(d.car, t, -d.car.s_m, False)
             if got is not None:
                 self.lit(d.car.vin, got[0], got[1], -d.car.s_m)
+            else:
+                d.refused_s = t
         for d in self.rolling(seen, t):
             d.asked_s = t
             c = d.car

@@ -222,8 +222,6 @@ def _mixed_refusal(cfg: RunConfig) -> str | None:
                 "--routes (a route file's vehicles are all connected)")  # fmt: skip
     if cfg.junction_ids:
         return "--cav-share draws the random demand's human drivers at one --junction"
-    if cfg.peds_per_h:
-        return "--cav-share with --peds is not served yet: give one of them"
     if cfg.window_s:
         return "--cav-share with --window is not served yet"
     return None

@@ -586,3 +586,88 @@ def test_a_restarted_ica_keeps_walkers_slots_and_what_was_seen_across(walk_net, 
     assert again.walks.slots[":B1_c1"] == ica.walks.slots[":B1_c1"]
     assert again.walks.slot_of("amy", ":B1_c1").end_s == pytest.approx(amy.start_s + 8.0)
     assert again.walks.slot_of("bob", ":B1_c1") == bob
+
+
+# -- walkers and human drivers -------------------------------------------------------
+def _envelope_holds(ica, vin: str, crossing: str, limits) -> list[tuple[float, float]]:
+    """Each of human ``vin``'s reservations on ``crossing``: from its fastest touch to
+    its slowest leaving, worked out here from the bounds its green was given with."""
+    from dica.ica.core.envelope import first_reach, green_bounds
+    from dica.ica.core.walk import hold
+
+    g = ica.greens[vin]
+    out = []
+    for key in g.keys:
+        c = ica.confirmed[key]
+        r, shape = c.dtot.route, c.dtot.shape
+        fast, slow = green_bounds(r, c.length_m, g.green_s, ica.config.step_s, limits,
+                                  g.near_m, g.speed_mps)  # fmt: skip
+        for cid, a, b in ica.crossing_spans(r, shape):
+            if cid == crossing:
+                v = (slow.s_m[-1] - slow.s_m[-2]) / slow.step_s
+                out.append((float(first_reach(fast, np.array([a]))[0]), hold(slow, a, b, v)[1]))
+    return out
+
+
+def test_a_human_drivers_green_and_a_walkers_slot_keep_clear_of_each_other(walk_net):
+    """A walker's slot on a crossing every route of a human's lane passes: a green that
+    would hold the crossing far ahead (walkers asking meanwhile would wait for it) is
+    refused, and later the green comes only once the slot is past its envelope's
+    stretch; a walker asking after a green starts once every envelope on its way has
+    left, counted from the human's fastest touch (not its slowest)."""
+    from dica.ica.core.dica import Dica
+    from dica.ica.core.envelope import human_limits
+    from dica.ica.core.request import Reason, RequestError
+
+    x = load_intersection(walk_net, "B1")
+    limits = human_limits(max(r.road_mps for r in x.routes))
+    lane = "A1B1_1"  # west, the inner lane: through to the east, and left to the north
+    crossing = ":B1_c3"  # over the west arm, which every route of the lane passes first
+    assert all(any(c == crossing for c, _, _ in ica_spans) for ica_spans in (
+        Dica(x).crossing_spans(r, _shape()) for r in x.routes_from(lane) if r.cars))  # fmt: skip
+    # a walker first: the human's green waits until the slot is off its stretch
+    ica = Dica(x)
+    slot = ica.walk("amy", crossing, 0.0, 0.0, near_m=2.0)
+    ica.detect("h", lane, 0.0)
+    with pytest.raises(RequestError) as e:  # after the walk, 25 s ahead or more: not yet
+        ica.green("h", 0.0, 4.5, 1.8, limits)
+    assert e.value.reason == Reason.WALKERS
+    ica.advance(10.0)
+    g = ica.green("h", 10.0, 4.5, 1.8, limits)
+    assert g.green_s > slot.start_s + 10.0
+    lone = Dica(x)
+    lone.detect("h", lane, 0.0)
+    assert lone.green("h", 0.0, 4.5, 1.8, limits).green_s == 0.0  # alone: at once
+    for t_in, t_out in _envelope_holds(ica, "h", crossing, limits):
+        assert not _slot_meets(ica, slot, "h", t_in, t_out)
+    # the human first: a walker after it starts once the envelopes have left its way
+    ica = Dica(x)
+    ica.detect("h", lane, 0.0)
+    ica.green("h", 0.0, 4.5, 1.8, limits, 25.0, 10.0)  # rolling, at once
+    late = ica.walk("bob", crossing, 0.0, 0.0, near_m=2.0)
+    holds = _envelope_holds(ica, "h", crossing, limits)
+    assert all(not _slot_meets(ica, late, "h", a, b) for a, b in holds)
+    assert late.start_s > min(a for a, _ in holds)
+    # refused for holding a crossing too far ahead, its time counts towards its claim (as
+    # a plan's does: after 20 s it may hold one up to 90 s ahead, so it cannot starve)
+    ica = Dica(x)
+    ica.walk("amy", crossing, 0.0, 0.0, near_m=2.0)
+    ica.detect("h", lane, 0.0)
+    with pytest.raises(RequestError):
+        ica.green("h", 0.0, 4.5, 1.8, limits)
+    assert ica._walk_refused == {"h": 0.0}
+
+
+def _shape():
+    from dica.ica.core.zones import Shape
+
+    return Shape.of(4.5, 1.8)
+
+
+def _slot_meets(ica, slot, vin: str, t_in: float, t_out: float) -> bool:
+    c = ica.confirmed[vin]
+    u_lo, u_hi = ica.crossing_reach(c.dtot.route, c.dtot.shape)[slot.crossing]
+    length = ica.walks.crosswalks[slot.crossing].length_m
+    a, b = slot.over(u_lo, u_hi, length, ica.walks.clear_s)
+    pad, gap = 2.0 * ica.config.time_pad_s, ica.walks.gap_s
+    return b > a and a - gap < t_out + pad - 1e-9 and b + gap > t_in - pad + 1e-9

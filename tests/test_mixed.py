@@ -757,6 +757,43 @@ def test_the_all_way_stop_baseline(tmp_path):
 
 
 @pytest.mark.sumo
+def test_human_drivers_and_people_on_foot_keep_clear_of_each_other(tmp_path):
+    """Every driver human at the chapter 4-5 junction with its crossings, 600 people an
+    hour at each: no vehicle touches a person or another vehicle by either check, no
+    human leaves its envelope or goes on red, and every walker is given its start
+    within the bound."""
+    m = _run(tmp_path / "both", "--layout", "ch45-walk", "--volume", "300", "--seed", "12",
+             "--duration", "300", "--cav-share", "0", "--peds", "600")  # fmt: skip
+    h, w = m["humans"], m["walkers"]
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["stood_inside"] == 0
+    assert w["person_hits"] == 0 and w["sumo_person_collisions"] == 0
+    assert h["outside_envelope"] == 0 and h["entered_on_red"] == 0
+    assert h["given_green"] > 40 and w["crossed"] > 50
+    assert w["max_ask_to_go_s"] <= 90.0 + 0.1  # the walkers' bound, and SUMO's step
+    assert m["requests"]["greens_refused"].get("walkers", 0) > 0  # it came to that
+
+
+@pytest.mark.sumo
+def test_a_lockstep_cluster_with_human_drivers_and_people_makes_the_embedded_decisions(
+    tmp_path,
+):
+    """Walkers' asks and human drivers' greens over Zenoh, in the embedded order: the
+    same crossings, byte for byte."""
+    from tests.test_cluster import _cluster
+
+    common = ["--layout", "ch45-walk", "--volume", "300", "--seed", "21", "--duration", "90",
+              "--cav-share", "0.5", "--peds", "300"]  # fmt: skip
+    p = _cluster(tmp_path / "cl", "--agents", "1", *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    m = _run(tmp_path / "emb", *common)
+    for name in ("vehicles.csv", "timeseries.csv"):
+        assert (tmp_path / "cl" / name).read_bytes() == (tmp_path / "emb" / name).read_bytes()
+    assert m["humans"]["given_green"] > 10 and m["walkers"]["generated"] > 10
+    assert m["walkers"]["crossed"] > 0
+    assert m["walkers"]["person_hits"] == 0 and m["collisions"] == 0
+
+
+@pytest.mark.sumo
 def test_all_human_traffic_waits_less_than_at_the_all_way_stop(tmp_path):
     """Every driver human, volume 300: many are given their green rolling towards the
     line and need not stop, so the signal-free junction delays them less than SUMO's
@@ -778,7 +815,6 @@ def test_all_human_traffic_waits_less_than_at_the_all_way_stop(tmp_path):
     "args",
     [
         ("--algorithm", "rdica"),
-        ("--peds", "100"),
         ("--algorithm", "fifo"),
         ("--window", "4"),
     ],

@@ -14,7 +14,7 @@ strip is a rectangle per segment of the centre line. Pure: shapes in, spans out.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -42,6 +42,7 @@ class Crosswalk:
     width_m: float
     crosses: tuple[str, ...] = ()
     corners: tuple[np.ndarray, ...] = ()
+    _length_m: float = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         shape = np.asarray(self.shape, dtype=float).reshape(-1, 2)
@@ -50,11 +51,14 @@ class Crosswalk:
         if not self.width_m > 0.0:
             raise ValueError(f"crossing {self.id}: width must be positive, got {self.width_m}")
         object.__setattr__(self, "shape", shape)
+        length = float(np.linalg.norm(np.diff(shape, axis=0), axis=1).sum())
+        object.__setattr__(self, "_length_m", length)
 
     @property
     def length_m(self) -> float:
-        """How far a walker goes across: the centre line's length."""
-        return float(np.linalg.norm(np.diff(self.shape, axis=0), axis=1).sum())
+        """How far a walker goes across: the centre line's length (asked for each walker
+        a vehicle may meet, so worked out once)."""
+        return self._length_m
 
     def strips(self, margin_m: float = 0.0, along_m: float | None = None) -> list[Rects]:
         """The crossing's area, one rectangle per segment of its centre line (grown by

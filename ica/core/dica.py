@@ -582,11 +582,14 @@ class Dica:
         """The confirmed vehicles' holds of ``crossing``: when, and over which stretch."""
         pad = 2.0 * self.config.time_pad_s
         busy: list[Hold] = []
-        for c in self._confirmed.values():
+        fasts = {k: f for rows in self._human_exits.values() for k, _, _, f in rows}
+        for key, c in self._confirmed.items():
             route, shape = c.dtot.route, c.dtot.shape
             for cid, a, b in self.crossing_spans(route, shape):
                 if cid == crossing:
                     t_in, t_out = hold(c.dtot.trajectory, a, b, c.out_mps)
+                    if key in fasts:  # a human's envelope: from its fastest touch on
+                        t_in = min(t_in, float(first_reach(fasts[key], np.array([a]))[0]))
                     u_lo, u_hi = self.crossing_reach(route, shape)[cid]
                     busy.append((t_in - pad, t_out + pad, u_lo, u_hi))
         return busy
@@ -664,6 +667,12 @@ class Dica:
         pad = 2.0 * self.config.time_pad_s + (self.walks.gap_s if self.walks else 0.0)
         for _cid, a, b in self.crossing_spans(route, shape):
             late = max(late, hold(found.traj, a, b, found.out_mps)[1] + pad - now_s)
+        self._claim_walk(vin, late, now_s)
+
+    def _claim_walk(self, vin: str, late: float, now_s: float) -> None:
+        """Refuse ``vin`` a reservation that holds a crossing ``late`` s from now, past
+        :data:`HOLD_AHEAD_S`, unless it has been refused for that :data:`CLAIM_S` or more
+        and ``late`` is within :data:`WAIT_BOUND_S` (:meth:`_check_walk_ahead`)."""
         if late <= HOLD_AHEAD_S:
             self._walk_refused.pop(vin, None)
             return
@@ -675,7 +684,7 @@ class Dica:
         most = HOLD_AHEAD_S if now_s - since < CLAIM_S else WAIT_BOUND_S
         raise RequestError(
             Reason.WALKERS,
-            f"its plan holds a crossing {late:.1f} s ahead; walkers may be given it first "
+            f"it would hold a crossing {late:.1f} s ahead; walkers may be given it first "
             f"(at most {most:.0f} s ahead)",
         )
 
@@ -743,6 +752,7 @@ class Dica:
                 built.append((r, slow, d, fast_in, fast))
                 for c in self.conflicts(d):  # one that only touches still moves it a step
                     late, hit = max(late, c.delay_s), True
+                late = max(late, self._envelope_walkers(r, shape, fast, slow)[0])
                 fasts = {k: f for k, _, _, f in self._human_exits.get(r.out_lane, ())}
                 for _, _, key in self._exits(r.out_lane):  # never brakes behind one inside
                     c = self._confirmed[key]
@@ -760,8 +770,33 @@ class Dica:
             if rounds >= MAX_GREEN_ROUNDS:
                 raise RequestError(Reason.INFEASIBLE, f"no green for {vin} in {rounds} rounds")
             g += max(late, cfg.step_s)
+        if self.walks is not None:  # walkers asking meanwhile wait for it: not too far ahead
+            ahead = max(self._envelope_walkers(r, shape, f, sl)[1] for r, sl, _, _, f in built)
+            self._claim_walk(vin, ahead - now_s, now_s)
         green = Green(vin, g, now_s, (), (), rounds, dist_m, v_mps)
         return self._reserve(green, built, length_m)
+
+    def _envelope_walkers(
+        self, route: Route, shape: Shape, fast: Trajectory, slow: Trajectory
+    ) -> tuple[float, float]:
+        """A human's envelope on ``route`` against the walkers: how much later it must
+        come to keep clear of every walker's slot on the crossings it passes (each held
+        from its fastest touch to its slowest leaving, padded), and the latest it holds
+        one (with the walkers' gap; -inf: none)."""
+        walks = self.walks
+        if walks is None:
+            return 0.0, -math.inf
+        pad = 2.0 * self.config.time_pad_s
+        v_out = float(slow.s_m[-1] - slow.s_m[-2]) / slow.step_s if len(slow) > 1 else 0.0
+        stretch = self.crossing_reach(route, shape)
+        worst, last = 0.0, -math.inf
+        for cid, a, b in self.crossing_spans(route, shape):
+            t_in = float(first_reach(fast, np.array([a]))[0])
+            t_out = hold(slow, a, b, v_out)[1]
+            u_lo, u_hi = stretch[cid]
+            worst = max(worst, walks.delay(cid, t_in - pad, t_out + pad, u_lo, u_hi))
+            last = max(last, t_out + pad + walks.gap_s)
+        return worst, last
 
     def _behind_leader(
         self, vin: str, lane: str, route: Route, fast: Trajectory, length_m: float
