@@ -1046,3 +1046,30 @@ def test_a_roadside_message_ahead_of_the_icas_clock_waits_for_it(ch45_net, ch45,
         assert proc.wait(15) == 0
     stats = json.loads((tmp_path / "ica.json").read_text())
     assert stats["incarnations"][0]["humans"] == 2  # h0 and h1; h2 never
+
+
+def test_a_rolling_green_never_catches_a_vehicle_gone_out_ahead(ch45):
+    """A human given its green standing leaves by an exit lane slowly (its slowest, from
+    the line); its reservation ends and the ICA forgets it. A driver rolling up fast
+    behind it on the same lane, asking moments later, is refused: at its fastest it
+    would have to brake behind the one gone out (carried on at its last speed) while
+    still inside. Once that one is far enough ahead, the same ask is given."""
+    lane = _lane_with_turns(ch45)
+    ica = Dica(ch45, IcaConfig())
+    ica.detect("a", lane, 0.0)
+    g = ica.green("a", 0.0, 4.5, 1.8, LIMITS)
+    end = max(ica.confirmed[k].dtot.end_s for k in g.keys)
+    ica.detect("b", lane, end)
+    ica.advance(end + 0.1)
+    assert not any(k in ica.confirmed for k in g.keys)  # gone, and forgotten
+    with pytest.raises(RequestError) as e:
+        ica.green("b", end + 0.1, 4.5, 1.8, LIMITS, 20.0, 13.0)
+    assert e.value.reason == Reason.INFEASIBLE
+    ica._ended.clear()  # without the memory of it, the same ask would have been given
+    assert ica.green("b", end + 0.1, 4.5, 1.8, LIMITS, 20.0, 13.0).green_s == end + 0.1
+    later = Dica(ch45, IcaConfig())
+    later.detect("a", lane, 0.0)
+    later.green("a", 0.0, 4.5, 1.8, LIMITS)
+    later.detect("b", lane, end)
+    later.advance(end + 12.0)
+    assert later.green("b", end + 12.0, 4.5, 1.8, LIMITS, 20.0, 13.0)

@@ -186,6 +186,9 @@ class Dica:
         # with exit spacing: per exit lane, recent vehicles whose reservation has ended
         # (rear out of the junction): (time out, speed out, vin)
         self._left: dict[str, list[tuple[float, float, str]]] = {}
+        # per exit lane, the reservations that have ended there in the last LEFT_MEMORY_S
+        # (when, and the reservation): a human rolling up may still catch one of them
+        self._ended: dict[str, list[tuple[float, Confirmed]]] = {}
         self._exit_cache: tuple[int, dict[str, list[tuple[float, float, str]]]] = (-1, {})
         # the driver beyond the junction, per exit lane's road speed
         self._handovers: dict[float, Handover] = {}
@@ -275,6 +278,12 @@ class Dica:
                 self._left.setdefault(c.dtot.route.out_lane, []).append((c.out_s, c.out_mps, vin))
             for lane, rows in self._left.items():
                 self._left[lane] = [r for r in rows if r[0] > now_s - LEFT_MEMORY_S]
+        for vin in gone:  # a human's green looks back at them (Dica.green)
+            c = self._confirmed[vin]
+            self._ended.setdefault(c.dtot.route.out_lane, []).append((now_s, c))
+        if gone:
+            for lane, ended in self._ended.items():
+                self._ended[lane] = [e for e in ended if e[0] > now_s - LEFT_MEMORY_S]
         for vin in gone:
             self._withdraw(vin)
             self.greens.pop(vin, None)
@@ -763,6 +772,11 @@ class Dica:
                     if behind > 1e-9 and self._goes_ahead(fasts.get(key), c, r, slow, length_m):
                         continue
                     late = max(late, behind)
+                for _, c in self._ended.get(r.out_lane, ()):  # nor behind one gone out ahead
+                    late = max(late, follow_delay(
+                        fast, r.cross_length_m, length_m, c.dtot.trajectory.shifted(pad),
+                        c.dtot.route.cross_length_m, c.length_m,
+                    ))  # fmt: skip
             if not hit and late <= 1e-9:
                 break
             if rolling:  # it is slowing for its line: now, or it stops and asks there
