@@ -280,10 +280,13 @@ class Dica:
                 self._left[lane] = [r for r in rows if r[0] > now_s - LEFT_MEMORY_S]
         for vin in gone:  # a human's green looks back at them (Dica.green)
             c = self._confirmed[vin]
-            self._ended.setdefault(c.dtot.route.out_lane, []).append((now_s, c))
-        if gone:
-            for lane, ended in self._ended.items():
-                self._ended[lane] = [e for e in ended if e[0] > now_s - LEFT_MEMORY_S]
+            self._ended.setdefault(c.dtot.route.out_lane, []).append((c.dtot.end_s, c))
+        if self._ended:
+            self._ended = {
+                lane: kept
+                for lane, ended in self._ended.items()
+                if (kept := [e for e in ended if e[0] > now_s - LEFT_MEMORY_S])
+            }
         for vin in gone:
             self._withdraw(vin)
             self.greens.pop(vin, None)
