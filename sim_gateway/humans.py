@@ -24,6 +24,7 @@ from typing import Protocol
 import numpy as np
 
 from dica.ica.core.envelope import (
+    ROLL_NEAR_M,
     STOP_SHORT_M,
     DriverLimits,
     bounds_seen,
@@ -43,7 +44,6 @@ TOL_M = 0.05  # [m] the audit's tolerance on a position (SUMO's rounding)
 # [s] how often the roadside has the ICA shrink a crossing human's reservations to where
 # it is seen, and a waiting one ask again
 TIGHTEN_S = 0.5
-ROLL_NEAR_M = 60.0  # [m] a driver rolling towards its line asks for its green from this near
 ROLL_MIN_MPS = 0.5  # [m/s] slower than this it is about to stand, and asks standing
 
 
@@ -185,7 +185,7 @@ class SignalHeads:
         for s in seen:
             d = self.drivers.get(s.car.vin)
             c = s.car
-            if d is None or not math.isnan(d.green_s) or not c.head or d.resumed:
+            if d is None or not math.isnan(d.green_s) or not c.head:
                 continue
             near = -c.s_m
             if not (STOP_SHORT_M < near <= ROLL_NEAR_M and c.speed_mps > ROLL_MIN_MPS):

@@ -250,6 +250,20 @@ def test_a_rolling_green_is_now_or_none_and_never_behind_a_slow_leader(ch45):
     with pytest.raises(RequestError) as e:  # too fast to stop at its line at 4.5 m/s^2
         ica.green("x", 0.0, 4.5, 1.8, LIMITS, 10.0, 12.0)
     assert e.value.reason == Reason.INFEASIBLE
+    # each limit, and one past it: 60 m out, and as fast as still stops at 4.5 m/s^2
+    for dist, v, ok in (
+        (60.0, 12.0, True),
+        (60.01, 12.0, False),
+        (10.0, math.sqrt(90.0) - 1e-9, True),
+        (10.0, math.sqrt(90.0) + 0.01, False),
+    ):
+        edge = Dica(ch45, IcaConfig())
+        edge.detect("y", lane, 0.0)
+        if ok:
+            assert edge.green("y", 0.0, 4.5, 1.8, LIMITS, dist, v).speed_mps == v
+        else:
+            with pytest.raises(RequestError):
+                edge.green("y", 0.0, 4.5, 1.8, LIMITS, dist, v)
 
 
 def test_a_follower_let_go_after_its_follow_delay_never_brakes_inside(ch45):

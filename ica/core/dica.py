@@ -49,6 +49,7 @@ from dica.ica.core.crosswalk import passage
 from dica.ica.core.dtot import Dtot, build_dtot
 from dica.ica.core.envelope import (
     ROLL_DECEL_MPS2,
+    ROLL_NEAR_M,
     STOP_SHORT_M,
     DriverLimits,
     bounds_seen,
@@ -101,7 +102,6 @@ class Green:
 
 
 MAX_GREEN_ROUNDS = 10_000  # a green's search moves it later every round; past this, refused
-ROLL_NEAR_M = 60.0  # [m] a human rolling towards its line asks for its green from this near
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -731,8 +731,10 @@ class Dica:
         if not all(math.isfinite(x) for x in (now_s, length_m, width_m, dist_m, v_mps)):
             raise RequestError(Reason.NOT_FINITE, f"figures of {vin}'s green are not finite")
         rolling = v_mps > 0.0
-        if not 0.0 <= dist_m <= (ROLL_NEAR_M if rolling else 10.0) or v_mps > 70.0:
+        if not 0.0 <= dist_m <= (ROLL_NEAR_M if rolling else 10.0):
             raise RequestError(Reason.BAD_STATE, f"{vin} is {dist_m} m short of its line")
+        if v_mps > 70.0:
+            raise RequestError(Reason.BAD_STATE, f"{vin} rolls at {v_mps} m/s")
         if rolling and v_mps * v_mps > 2.0 * ROLL_DECEL_MPS2 * dist_m:
             # it may be braking harder than its slowest bound does, to stand at its line
             raise RequestError(Reason.INFEASIBLE, f"{vin} is too fast to be given it rolling")
@@ -755,31 +757,34 @@ class Dica:
         while True:
             rounds += 1
             built = []
-            late, hit = 0.0, False
+            late, hit, ahead = 0.0, False, -math.inf
             for r in routes:
                 fast, slow = green_bounds(r, length_m, g, cfg.step_s, limits, dist_m, v_mps)
                 if rolling:
-                    late = max(late, self._behind_leader(vin, lane, r, fast, length_m))
+                    late = max(late, self._behind_leader(lane, r, fast, length_m))
                 d, fast_in = self._envelope(r, shape, fast, slow)
                 built.append((r, slow, d, fast_in, fast))
                 for c in self.conflicts(d):  # one that only touches still moves it a step
                     late, hit = max(late, c.delay_s), True
-                late = max(late, self._envelope_walkers(r, shape, fast, slow)[0])
+                walk_late, walk_last = self._envelope_walkers(r, shape, fast, slow)
+                late, ahead = max(late, walk_late), max(ahead, walk_last)
                 fasts = {k: f for k, _, _, f in self._human_exits.get(r.out_lane, ())}
-                for _, _, key in self._exits(r.out_lane):  # never brakes behind one inside
-                    c = self._confirmed[key]
+                # never brakes behind one leaving by its exit lane while inside, nor behind
+                # one gone out there ahead of it (it might go ahead of one still to come)
+                ahead_of = [(k, self._confirmed[k]) for _, _, k in self._exits(r.out_lane)]
+                gone_out = [(None, c) for _, c in self._ended.get(r.out_lane, ())]
+                for key, c in ahead_of + gone_out:
                     behind = follow_delay(
                         fast, r.cross_length_m, length_m, c.dtot.trajectory.shifted(pad),
                         c.dtot.route.cross_length_m, c.length_m,
                     )  # fmt: skip
-                    if behind > 1e-9 and self._goes_ahead(fasts.get(key), c, r, slow, length_m):
+                    if (
+                        behind > 1e-9
+                        and key is not None
+                        and self._goes_ahead(fasts.get(key), c, r, slow, length_m)
+                    ):
                         continue
                     late = max(late, behind)
-                for _, c in self._ended.get(r.out_lane, ()):  # nor behind one gone out ahead
-                    late = max(late, follow_delay(
-                        fast, r.cross_length_m, length_m, c.dtot.trajectory.shifted(pad),
-                        c.dtot.route.cross_length_m, c.length_m,
-                    ))  # fmt: skip
             if not hit and late <= 1e-9:
                 break
             if rolling:  # it is slowing for its line: now, or it stops and asks there
@@ -788,7 +793,6 @@ class Dica:
                 raise RequestError(Reason.INFEASIBLE, f"no green for {vin} in {rounds} rounds")
             g += max(late, cfg.step_s)
         if self.walks is not None:  # walkers asking meanwhile wait for it: not too far ahead
-            ahead = max(self._envelope_walkers(r, shape, f, sl)[1] for r, sl, _, _, f in built)
             self._claim_walk(vin, ahead - now_s, now_s)
         green = Green(vin, g, now_s, (), (), rounds, dist_m, v_mps)
         return self._reserve(green, built, length_m)
@@ -815,9 +819,7 @@ class Dica:
             last = max(last, t_out + pad + walks.gap_s)
         return worst, last
 
-    def _behind_leader(
-        self, vin: str, lane: str, route: Route, fast: Trajectory, length_m: float
-    ) -> float:
+    def _behind_leader(self, lane: str, route: Route, fast: Trajectory, length_m: float) -> float:
         """How much later a rolling human's fastest crossing of ``route`` would have to
         be so as never to brake behind a vehicle ahead of it from its lane, at that
         one's slowest (each of a human's slow bounds, a plan run late by the time pad),
@@ -826,9 +828,8 @@ class Dica:
         pad = 2.0 * self.config.time_pad_s
         t0, s0 = fast.t0_s, float(fast.s_m[0])
         late = 0.0
-        for key, c in self._confirmed.items():
-            r = c.dtot.route
-            if r.in_lane != lane or key.split("~", 1)[0] == vin:
+        for c in self._confirmed.values():
+            if c.dtot.route.in_lane != lane:
                 continue
             lead = c.dtot.trajectory.shifted(pad)
             if path_s(lead, t0) <= s0:  # behind it, or level: not a vehicle it follows

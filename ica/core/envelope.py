@@ -38,6 +38,7 @@ from dica.ica.core.zones import RouteGrid, Shape
 
 STOP_SHORT_M = 0.5  # [m] a human stands this far short of its line at a red head
 ROLL_DECEL_MPS2 = 4.5  # [m/s^2] the most a driver slowing for its red head brakes (SUMO's decel)
+ROLL_NEAR_M = 60.0  # [m] a driver rolling towards its line is given a green from this near
 
 
 @dataclass(frozen=True, slots=True)
