@@ -132,6 +132,11 @@ class Journal:
              "routes": list(lit.routes), "speed": lit.speed_mps}
         )  # fmt: skip
 
+    def unlit(self, vin: str, green_s: float) -> None:
+        """The roadside dropped ``vin``'s green of ``green_s`` (late): its reservations
+        went."""
+        self._write({"k": "unlit", "vin": vin, "green": green_s})
+
     def reactive(self, snapshot: dict) -> None:
         """Reactive DICA's event as it now stands (:meth:`ReactiveDica.snapshot`): the
         last one replayed is the one carried on."""
@@ -183,7 +188,8 @@ def replay(path: Path, ica: Controller) -> Replayed:
     """Rebuild the core's state from the journal (before serving again)."""
     out = Replayed()
     recs, out.truncated = records(path)
-    limits = human_limits(ica.config.caps.road_mps)  # the ICA's own, as when it decided
+    cfg = ica.config  # the ICA's own limits, as when it decided
+    limits = human_limits(cfg.caps.road_mps, cfg.green_late_s)
     event = None
     for rec in recs:
         try:
@@ -224,6 +230,8 @@ def replay(path: Path, ica: Controller) -> Replayed:
                     float(rec.get("speed", 0.0)),
                 )  # fmt: skip
                 out.greens += 1
+            elif kind == "unlit" and getattr(ica, "greens", None) is not None:
+                ica.unlight(str(rec["vin"]), float(rec["green"]))
             elif kind == "sighting" and getattr(ica, "greens", None) is not None:
                 ica.tighten(str(rec["vin"]), float(rec["t"]), float(rec["s"]), float(rec["v"]),
                             str(rec["lane"]), limits)  # fmt: skip

@@ -89,6 +89,7 @@ from dica.schemas.messages import (
     Spotted,
     State,
     Stats,
+    Unlit,
     Walk,
 )
 
@@ -117,6 +118,7 @@ class ServiceStats:
     notices: int = 0  # emergency vehicles' notices the roadside gave
     greens: int = 0  # greens given them (sooner ones included)
     shrunk: int = 0  # their reservations shrunk to where they were seen
+    unlit: int = 0  # greens the roadside dropped (late), their reservations freed
     bad_messages: int = 0
     acks: int = 0
     ignored_clocks: int = 0
@@ -144,6 +146,7 @@ class ServiceStats:
             "notices": self.notices,
             "greens": self.greens,
             "shrunk": self.shrunk,
+            "unlit": self.unlit,
             "bad_messages": self.bad_messages,
             "acks": self.acks,
             "ignored_clocks": self.ignored_clocks,
@@ -192,7 +195,8 @@ class IcaService:
         self._revoke_sent: dict[tuple[str, int], float] = {}  # (vin, seq) -> wall time sent
         self._shown: list[Reorder] = []  # the latest reorderings, as observers were told
         self._event_journalled: dict | None = None  # reactive DICA's event as last journalled
-        self._driver_limits = human_limits(ica.config.caps.road_mps)  # as the roadside's
+        cfg = ica.config  # the roadside derives the same
+        self._driver_limits = human_limits(cfg.caps.road_mps, cfg.green_late_s)
 
     def restore(self, path: Path) -> Replayed:
         """Replay a journal into the core before serving (a restarted ICA)."""
@@ -593,7 +597,9 @@ class IcaService:
         reservations shrunk to where it is). Each is decided at the roadside's step time,
         which may be one step ahead of the last CLOCK (the roadside asks first), never
         behind it."""
-        msg = self._from_roadside(item, (Spotted, AskGreen, Sighting), "greens", "human drivers")
+        msg = self._from_roadside(
+            item, (Spotted, AskGreen, Sighting, Unlit), "greens", "human drivers"
+        )
         if msg is None:
             return
         if not _is_chunk(msg.vin):
@@ -605,7 +611,8 @@ class IcaService:
             # observed ahead of the clock does; refused if they never come (HOLD_S)
             self._held.append((since if since is not None else time.monotonic(), item))
             return
-        late = msg.t_s < self.now_s - 1e-9 and not isinstance(msg, Spotted)  # seen before
+        # seen before; a dropped green is told whenever it comes (its driver stands on red)
+        late = msg.t_s < self.now_s - 1e-9 and not isinstance(msg, (Spotted, Unlit))
         if late:
             why = f"t={msg.t_s:g} s is not this step's (clock {self.now_s:g} s)"
             self._reject(item.query, msg.vin, -1, Reason.BAD_TIME, why)
@@ -621,6 +628,13 @@ class IcaService:
                     self.journal.human(msg.vin)
                 self.stats.humans += not known
                 reply(item.query, item.key, encode(Ack(msg.vin, -1, Spotted.KIND, now_ns())))
+                return
+            if isinstance(msg, Unlit):
+                if ica.unlight(msg.vin, msg.green_s):
+                    self.stats.unlit += 1
+                    if self.journal is not None:
+                        self.journal.unlit(msg.vin, msg.green_s)
+                reply(item.query, item.key, encode(Ack(msg.vin, -1, Unlit.KIND, now_ns())))
                 return
             ica.advance(msg.t_s)  # as the embedded roadside does before it asks
             if isinstance(msg, AskGreen):
@@ -638,7 +652,7 @@ class IcaService:
                     return
                 lit = Lit(g.vin, g.green_s, g.asked_s, g.near_m, msg.length_m, msg.width_m,
                           g.routes, now_ns(), limits.top_mps, ica.config.step_s,
-                          g.speed_mps)  # fmt: skip
+                          g.speed_mps, limits.late_s)  # fmt: skip
                 if g is not had:  # a new green (a repeated ask gets the one it holds)
                     if self.journal is not None:
                         self.journal.green(lit)
@@ -776,7 +790,7 @@ def write_stats(path: Path, stats: ServiceStats) -> None:
     runs.append(mine)
     total: dict = {"incarnations": runs}
     for k in ("requests", "confirmed", "repeated", "superseded", "detects", "cancels",
-              "walks", "humans", "notices", "greens", "shrunk", "bad_messages", "acks",
+              "walks", "humans", "notices", "greens", "shrunk", "unlit", "bad_messages", "acks",
               "ignored_clocks", "not_theirs", "handovers"):  # fmt: skip
         total[k] = sum(int(r.get(k, 0)) for r in runs)
     rej: dict[str, int] = {}

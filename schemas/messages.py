@@ -30,7 +30,7 @@ import numpy as np
 # REORDER; 3: DETECT carries the EV flag and the detection speed, a vehicle state ``ev``
 # and ``kept_seq``, a setpoint ``drop``, and REVOKE exists (2 had no revocations; 1 had
 # open-loop speed commands)
-VERSION = 12
+VERSION = 13
 MAX_SAMPLES = 8192  # TSS samples: 400 s at 0.05 s, beyond any request the ICA accepts
 MAX_VEHICLES = 2048  # vehicles in one STATE or COMMAND batch
 MAX_TEXT = 128  # VINs, lane and route ids, agent names
@@ -215,6 +215,21 @@ class Lit:
     top_mps: float = lim(0.0, 200.0, default=0.0)
     step_s: float = lim(0.0, 10.0, default=0.0)
     speed_mps: float = lim(0.0, 100.0, default=0.0)  # given rolling at this speed (0: standing)
+    late_s: float = lim(0.0, 10.0, default=0.0)  # the head may turn green this late
+
+
+@dataclass(frozen=True, slots=True)
+class Unlit:
+    """The roadside kept human driver ``vin``'s head red at sim time ``t_s``: the LIT for
+    its green of ``green_s`` came later than the head may still turn green
+    (``--green-late``). The ICA frees that green's reservations (an ACK); the driver
+    asks again."""
+
+    KIND: ClassVar[str] = "unlit"
+    vin: str = lim(n=MAX_TEXT)
+    t_s: float = lim(*TIME)
+    green_s: float = lim(*TIME)
+    sent_ns: int = lim(0, 2**63 - 1)
 
 
 @dataclass(frozen=True, slots=True)
@@ -509,6 +524,7 @@ MESSAGES: tuple[type, ...] = (
     Spotted,
     AskGreen,
     Lit,
+    Unlit,
     Sighting,
     Shrunk,
     EvComing,

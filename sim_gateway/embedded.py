@@ -128,7 +128,8 @@ class LocalDrivers:
         # human drivers' greens and their reservations as given, to record
         self.greens: list[tuple[float, Green, list]] | None = None
         self.green_refused: dict[str, int] = {}  # greens asked for too soon, by reason
-        self.limits = human_limits(ica.config.caps.road_mps)  # what the ICA assumes
+        cfg_ica = ica.config  # what the ICA assumes
+        self.limits = human_limits(cfg_ica.caps.road_mps, cfg_ica.green_late_s)
         self.delivered: set[tuple[str, int]] = set()  # revocations handed to their vehicles
         self.order = WindowOrder(ica) if cfg.window_s else None
         self.close_s = cfg.window_s  # when the current window closes
@@ -167,7 +168,7 @@ class LocalDrivers:
 
     def green(
         self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
-    ) -> tuple[float, tuple] | None:
+    ) -> tuple[float, tuple, float] | None:
         t_c = time.perf_counter()
         try:
             if again:
@@ -187,7 +188,7 @@ class LocalDrivers:
         if self.greens is not None:  # as given: its reservations may shrink this very step
             held = self.ica.confirmed
             self.greens.append((t, g, [held[k] for k in g.keys if k in held]))
-        return g.green_s, g.routes
+        return g.green_s, g.routes, g.green_s  # in this process: lit on time
 
     def tighten(self, car: Car, t: float, s_m: float, v_mps: float, lane: str) -> tuple | None:
         return self.ica.tighten(car.vin, t, s_m, v_mps, lane, self.limits)

@@ -75,6 +75,7 @@ from dica.schemas.messages import (
     Spotted,
     State,
     Stats,
+    Unlit,
     VehicleState,
     Walk,
 )
@@ -172,6 +173,8 @@ class ZenohDrivers:
         self.humans_unanswered = 0  # human drivers' questions the ICA did not answer
         self.notices_unanswered = 0  # EVs' notices the ICA did not answer
         self.green_refused: dict[str, int] = {}  # greens asked too soon, by reason
+        self.green_late_s = cfg.green_late_s  # how late a head may turn green
+        self.greens_dropped = 0  # LITs come too late to light their head (the ICA told)
         self._human_states: tuple[VehicleState, ...] = ()  # this step's, for observers
         self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
         self.age_ms: list[float] = []
@@ -350,17 +353,44 @@ class ZenohDrivers:
 
     def green(
         self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
-    ) -> tuple[float, tuple] | None:
+    ) -> tuple[float, tuple, float] | None:
         msg = AskGreen(car.vin, t, car.length_m, car.width_m, near_m, again, now_ns(), v_mps)
+        asked = time.monotonic()
         got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Lit, Ack))
         if isinstance(got, Lit):
-            return got.green_s, got.routes
+            head_s = self._head_s(t, got.green_s, time.monotonic() - asked)
+            if head_s is None:
+                self._unlight(car, t, got.green_s)
+                return None
+            return got.green_s, got.routes, head_s
         if isinstance(got, Reject):  # not yet (one ahead has not begun to enter): again
             if not again:
                 self.green_refused[got.reason] = self.green_refused.get(got.reason, 0) + 1
         elif got is None:
             self.humans_unanswered += 1
         return None
+
+    def _head_s(self, t: float, green_s: float, took_s: float) -> float | None:
+        """When the head turns green for a LIT that took ``took_s`` of wall time to come
+        back to an ask at step time ``t``: at its green, or at the first step after it
+        came (the world does not wait for the link in real time: the stepping paused for
+        the answer here, the head is lit as late as a roadside would light it); None if
+        that is more than ``green_late_s`` after the green. Lockstep is never late."""
+        if self.clock == "lockstep":
+            return green_s
+        came = t + math.ceil(took_s * self.speed / self.step_s - 1e-9) * self.step_s
+        head = max(green_s, came)
+        return head if head <= green_s + self.green_late_s + 1e-9 else None
+
+    def _unlight(self, car: Car, t: float, green_s: float) -> None:
+        """A LIT come too late: the head stays red, and the ICA frees that green's
+        reservations (if this is lost, the next ask gets the same stale green back and
+        it is dropped again)."""
+        self.greens_dropped += 1
+        got = self._ask_ica(keys.human(self.junction, "gateway"),
+                            Unlit(car.vin, t, green_s, now_ns()), (Ack,))  # fmt: skip
+        self.humans_unanswered += got is None
+        self.log.info("green of %s for %g s came too late: its head stays red", car.vin, green_s)
 
     def tighten(self, car: Car, t: float, s_m: float, v_mps: float, lane: str) -> tuple | None:
         msg = Sighting(car.vin, t, lane, s_m, v_mps, now_ns())
@@ -782,6 +812,7 @@ class ZenohDrivers:
             "humans_unanswered": self.humans_unanswered,
             "notices_unanswered": self.notices_unanswered,
             "green_refused": dict(sorted(self.green_refused.items())),
+            "greens_dropped_late": self.greens_dropped,
             "speed": self.speed if self.clock == "realtime" else None,
             "agents": dict(sorted(self.fleet.hosted.items())),
             "agent_deaths": self.agent_deaths,

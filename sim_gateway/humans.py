@@ -59,10 +59,12 @@ class Desk(Protocol):
 
     def green(
         self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
-    ) -> tuple[float, tuple] | None:
-        """Its green (start, routes) standing ``near_m`` short of its line; ``again``:
+    ) -> tuple[float, tuple, float] | None:
+        """Its green (start, routes, and when the head turns green: the start, or later by
+        the LIT's way to the roadside) standing ``near_m`` short of its line; ``again``:
         only a sooner one than it holds; ``v_mps`` above 0: rolling towards the line at
-        that speed, a green now or none. None: none given (not yet, or not sooner)."""
+        that speed, a green now or none. None: none given (not yet, not sooner, or come
+        too late to light: the head stays red and the ICA is told)."""
 
     def tighten(
         self, car: Car, t: float, s_m: float, v_mps: float, lane: str
@@ -104,6 +106,7 @@ class Driver:
     told: bool = False  # the ICA knows it is in the region
     standing_s: float = math.nan  # when it first stood at its head
     green_s: float = math.nan
+    head_s: float = math.nan  # when its head turned green: its green, or up to late_s later
     routes: tuple[str, ...] = ()
     resumed: bool = False
     rolled: bool = False  # given its green rolling towards its line
@@ -209,7 +212,7 @@ class SignalHeads:
                 continue  # refused a moment ago (walkers come first): not every step
             got = desk.green(d.car, t, -d.car.s_m, False)
             if got is not None:
-                self.lit(d.car.vin, got[0], got[1], -d.car.s_m)
+                self.lit(d.car.vin, *got, -d.car.s_m)
             else:
                 d.refused_s = t
         for d in self.rolling(seen, t):
@@ -217,7 +220,7 @@ class SignalHeads:
             c = d.car
             got = desk.green(c, t, -c.s_m, False, c.speed_mps)
             if got is not None:
-                self.lit(c.vin, got[0], got[1], -c.s_m, c.speed_mps)
+                self.lit(c.vin, *got, -c.s_m, c.speed_mps)
         self._tighten(seen, t, desk)
         self.release(t)
 
@@ -237,7 +240,7 @@ class SignalHeads:
                 got = desk.green(c, t, -c.s_m, True)
                 if got is not None:
                     self.shrunk += 1
-                    self.lit(c.vin, got[0], got[1], -c.s_m)
+                    self.lit(c.vin, *got, -c.s_m)
                 continue
             turned = s.obs.lane != d.lane
             if not turned and t < d.tightened_s + TIGHTEN_S - 1e-9:
@@ -249,13 +252,20 @@ class SignalHeads:
                 self.tightened(c.vin, t, routes)
 
     def lit(
-        self, vin: str, green_s: float, routes: tuple[str, ...], dist_m: float, v_mps: float = 0.0
+        self,
+        vin: str,
+        green_s: float,
+        routes: tuple[str, ...],
+        head_s: float,
+        dist_m: float,
+        v_mps: float = 0.0,
     ) -> None:
         """The ICA gave ``vin``, standing ``dist_m`` short of its line (or rolling towards
-        it at ``v_mps``), its green from ``green_s``."""
+        it at ``v_mps``), its green from ``green_s``; its head turns green at ``head_s``
+        (as late as the LIT reached the roadside, at most ``limits.late_s`` after it)."""
         d = self.drivers[vin]
         d.sooner += not math.isnan(d.green_s)
-        d.green_s, d.routes = green_s, routes
+        d.green_s, d.head_s, d.routes = green_s, head_s, routes
         c = d.car
         d.rolled = v_mps > 0.0
         d.fast, d.slow = green_bounds(c.route, c.length_m, green_s, self.step_s, self.limits,
@@ -273,11 +283,11 @@ class SignalHeads:
                                          self.step_s, self.limits, d.green_s)  # fmt: skip
 
     def release(self, t: float) -> None:
-        """End the stop of every driver whose green has come (one rolling towards it: its
-        stop is taken away before it gets there)."""
+        """End the stop of every driver whose head has turned green (one rolling towards
+        it: its stop is taken away before it gets there)."""
         v = self.ls.vehicle
         for d in self.drivers.values():
-            if not d.resumed and t + 1e-9 >= d.green_s:
+            if not d.resumed and t + 1e-9 >= d.head_s:
                 if v.isStopped(d.car.sumo):
                     v.resume(d.car.sumo)
                 else:
@@ -292,10 +302,11 @@ class SignalHeads:
             c = s.car
             if d is None or c.exited or math.isnan(c.s_m):
                 continue
-            if math.isnan(d.green_s) or t < d.green_s:
+            if math.isnan(d.green_s) or t < d.head_s:  # its head still red
                 if c.s_m > TOL_M:
                     d.on_red = True
-                continue
+                if math.isnan(d.green_s) or t < d.green_s:
+                    continue
             ahead = c.s_m - path_s(d.fast, t)
             behind = path_s(d.slow, t) - c.s_m
             d.worst_ahead_m = max(d.worst_ahead_m, ahead)
@@ -316,6 +327,10 @@ class SignalHeads:
             "reservations_shrunk": sum(d.tightenings for d in ds),
             "sooner_greens": sum(d.sooner for d in ds),
             "rolling_greens": sum(d.rolled for d in ds),
+            "heads_lit_late": sum(d.head_s > d.green_s + 1e-9 for d in ds),
+            "most_late_head_s": round(
+                max((d.head_s - d.green_s for d in ds if not math.isnan(d.head_s)), default=0.0), 3
+            ),
             "entered_on_red": sum(d.on_red for d in ds),
             "outside_envelope": len(outside),
             "outside_envelope_vins": outside[:50],

@@ -26,6 +26,7 @@ table holds only the withdrawn plans in a cluster run.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from dataclasses import dataclass, field
@@ -220,6 +221,7 @@ class Observer:
         if self._tables is None:
             self._tables = ConflictTables(self.inter, self.margin_m)
         limits = DriverLimits(top_mps=g.top_mps) if g.top_mps > 0.0 else DriverLimits()
+        limits = dataclasses.replace(limits, late_s=g.late_s)
         shape = Shape.of(g.length_m, g.width_m)
         step = g.step_s or IcaConfig().step_s  # a sender that left them out: the defaults
         routes = []

@@ -66,6 +66,7 @@ LIMITS = {
     "window_s": Limit("--window", 0.0, 5.0, "s"),
     "headway_s": Limit("--headway", 0.0, 5.0, "s"),
     "time_pad_s": Limit("--time-pad", 0.0, 5.0, "s"),
+    "green_late_s": Limit("--green-late", 0.0, 5.0, "s"),
     "retry_s": Limit("--retry", 0.05, 60.0, "s"),
     "ev_prob": Limit("--ev-prob", 0.0, 1.0),
     "begin_s": Limit("--begin", 0.0, 1e7, "s"),
@@ -97,6 +98,7 @@ class RunConfig:
     ramp_s: float = 1200.0
     lead_s: float = 0.0  # [s] vehicles plan their REQUESTs this far ahead of what they observed
     time_pad_s: float = 0.0  # [s] the ICA's padding of every confirmed occupancy interval
+    green_late_s: float = 0.0  # [s] how late a human's head may turn green (IcaConfig's)
     ev_prob: float = 0.0  # each arrival an emergency-vehicle candidate with this probability
     solver: str = "exact"  # reactive DICA's ordering solver
     # [s] reactive DICA: the most reorderings may add to any one normal vehicle (inf: none)
@@ -150,11 +152,12 @@ class RunConfig:
             replan_revoked=self.revocation == "replan",
             max_added_delay_s=self.max_added_delay_s,
         )
-        return ControllerSpec.of(
+        spec = ControllerSpec.of(
             "fifo" if self.algorithm in LIGHTS else self.algorithm,
             self.margin_m, self.time_pad_s, self.platoon, self.headway_s, self.run_up,
             self.exit_spacing, self.tile_m, reactive,
         )  # fmt: skip
+        return spec.with_green_late(self.green_late_s)
 
     def _check_mixed(self) -> None:
         why = _mixed_refusal(self)

@@ -129,7 +129,7 @@ class World:
         self.heads: SignalHeads | None = None
         self.human_seen: list[Seen] = []  # this step's, apart from the connected vehicles
         if any(v.human for v in schedule):
-            limits = human_limits(ica_cfg.caps.road_mps)
+            limits = human_limits(ica_cfg.caps.road_mps, ica_cfg.green_late_s)
             define_human_type(ls, limits, cfg.length_m, cfg.width_m, ignore_foes=not signalised)
         self.junctions = [
             Junction.open(

@@ -39,6 +39,7 @@ from dica.ica.core.occupancy import footprints, overlap_matrix
 from dica.ica.core.proposal import propose
 from dica.ica.core.request import Confirmation, Reason, RequestError
 from dica.ica.core.zones import Shape
+from dica.tools.loopback import free_port
 from tests.dica_cli import DICA, dica_run
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -206,6 +207,40 @@ def test_drivers_given_their_green_rolling_stay_between_its_bounds(ch45):
             on = (t >= t[k]) & (t <= min(f2.t_s[-1], s2.t_s[-1]))
             assert (drv[on] >= np.interp(t[on], s2.t_s, s2.s_m) - 1e-9).all()
             assert (drv[on] <= np.interp(t[on], f2.t_s, f2.s_m) + 1e-9).all()
+
+
+def test_a_head_lit_late_keeps_its_driver_between_bounds_that_allow_for_it(ch45):
+    """A head may turn green up to ``late_s`` after its green's time (the LIT's way to a
+    real roadside): a driver that moves only then, and reacts after that, standing at
+    its line or rolling towards it and braking all the while, stays between the bounds
+    of a green given with that allowance. The bounds without it would have lost some of
+    them: the allowance is what keeps them."""
+    late = dataclasses.replace(LIMITS, late_s=0.4)
+    moves = round(late.moves_s / STEP)  # steps until it surely moves: the worst case
+    rng = np.random.default_rng(13)
+    lost = 0
+    for route in ch45.routes:
+        cap = min(route.road_mps, route.exit_mps, route.via_mps)
+        for _ in range(4):
+            f = rng.uniform(LIMITS.speed_factor_min, LIMITS.speed_factor_max)
+            dist = rng.uniform(0.6, 60.0)
+            v0 = rng.uniform(0.5, min(f * route.road_mps, math.sqrt(9.0 * dist)))
+            fast, slow = bounds_rolling(route, 4.5, 2.0, STEP, late, dist, v0)
+            drv = _rolling_driver(rng, route, f, -dist, v0, moves, len(slow) + 5)
+            standing = _krauss(rng, 2.0, -0.5, 0.0, len(slow) + moves, LIMITS.accel_mps2,
+                               LIMITS.sigma, f * cap, moves)  # fmt: skip
+            sfast, sslow = bounds(route, 4.5, 2.0, STEP, late)
+            for (lo, hi), way, unlate in (
+                ((slow, fast), drv, bounds_rolling(route, 4.5, 2.0, STEP, LIMITS, dist, v0)[1]),
+                ((sslow, sfast), standing, bounds(route, 4.5, 2.0, STEP, LIMITS)[1]),
+            ):
+                t = 2.0 + STEP * np.arange(len(way))
+                keep = t <= min(lo.t_s[-1], hi.t_s[-1])
+                assert (way[keep] <= np.interp(t[keep], hi.t_s, hi.s_m) + 1e-9).all()
+                assert (way[keep] >= np.interp(t[keep], lo.t_s, lo.s_m) - 1e-9).all()
+                keep = t <= unlate.t_s[-1]
+                lost += bool((way[keep] < np.interp(t[keep], unlate.t_s, unlate.s_m) - 1e-6).any())
+    assert lost > 0
 
 
 def test_a_rolling_green_is_now_or_none_and_never_behind_a_slow_leader(ch45):
@@ -498,6 +533,24 @@ def test_a_green_reserves_every_route_of_the_lane_and_is_asked_again_alike(ch45)
     assert all(k in ica.confirmed for k in g.keys) and "h" in g.keys
     assert ica.green("h", 4.0, 4.5, 1.8, LIMITS) is g  # a repeat: the same green
     assert len(ica.confirmed) == len(routes)
+
+
+def test_a_green_dropped_late_frees_its_reservations_and_is_given_anew(ch45):
+    """The roadside kept the head red (the LIT came too late): the green of that time
+    goes with its reservations, a connected vehicle may be planned through them, and
+    the driver's next ask is a new green, not the stale one. Told of a green it no
+    longer holds (a repeated UNLIT), the ICA changes nothing."""
+    ica = Dica(ch45, IcaConfig())
+    lane = _lane_with_turns(ch45)
+    ica.detect("h", lane, 0.0)
+    g = ica.green("h", 3.0, 4.5, 1.8, LIMITS)
+    assert not ica.unlight("h", 2.0) and ica.greens["h"] is g  # not that green
+    assert ica.unlight("h", 3.0)
+    assert "h" not in ica.greens and not any(k in ica.confirmed for k in g.keys)
+    assert not ica.unlight("h", 3.0) and ica.unlit == 1
+    again = ica.green("h", 4.0, 4.5, 1.8, LIMITS)
+    assert again is not g and again.green_s == 4.0
+    assert all(k in ica.confirmed for k in again.keys)
 
 
 def _cav_in_the_way(inter, lane: str, shape: Shape):
@@ -900,6 +953,78 @@ def test_a_lockstep_cluster_with_human_drivers_makes_the_embedded_decisions(tmp_
 
 
 @pytest.mark.cluster
+@pytest.mark.timing
+def test_a_real_time_roadside_lights_a_head_late_within_its_allowance_or_keeps_it_red(tmp_path):
+    """Real time, the gateway's link late by 10 to 70 ms each way (at speed 2, up to 0.28 s
+    of sim time a round trip), heads allowed to turn green 0.15 s late: a LIT back in
+    time lights its head as late as it came (the world did not wait for it); a later one
+    is dropped, the head kept red and the ICA told (UNLIT), and the driver asks again.
+    Nobody enters on red or leaves its envelope, which allows for the lateness, and
+    nothing collides."""
+    from tests.test_timing import _run_safe
+
+    out = tmp_path / "rt"
+    m = _run_safe(
+        out,
+        *("--clock", "realtime", "--speed", "2", "--agents", "1", "--port", str(free_port())),
+        *("--volume", "300", "--duration", "60", "--seed", "21", "--cav-share", "0.5"),
+        *("--delay", "10", "--jitter", "60", "--faulty", "gateway", "--green-late", "0.15"),
+        "--no-record",
+    )
+    h = m["humans"]
+    assert h["entered_on_red"] == 0 and h["outside_envelope"] == 0
+    assert h["given_green"] >= 8  # dropped greens were asked for again, and given
+    assert h["heads_lit_late"] >= 1 and 0.05 - 1e-9 <= h["most_late_head_s"] <= 0.15 + 1e-9
+    assert m["greens_dropped_late"] >= 1
+    ica = json.loads((out / "ica.json").read_text())
+    assert 1 <= ica["unlit"] <= m["greens_dropped_late"]  # a stale green is dropped again
+
+
+def _ask(session, key: str, msg):
+    """One query, its one answer decoded."""
+    from dica.schemas.codec import decode, encode
+
+    (r,) = [r for r in session.get(key, payload=encode(msg), timeout=5.0) if r.ok]
+    return decode(r.ok.payload.to_bytes())
+
+
+def _clock(session, j: str, lane: str, k: int, end: bool = False) -> None:
+    """CLOCK k, and (a publication) wait until the ICA has taken it: a SIGHTING of no
+    one at its time is refused as ahead of the clock until then."""
+    from dica.schemas import keys
+    from dica.schemas.codec import encode, now_ns
+    from dica.schemas.messages import Clock, Reject, Sighting
+
+    t = 0.05 * k
+    session.put(keys.clock(j), encode(Clock(k, t, "lockstep", 1.0, end, now_ns())))
+    if end:
+        return
+    deadline = time.monotonic() + 30.0
+    gw = keys.human(j, "gateway")
+    while isinstance(_ask(session, gw, Sighting("nobody", t, lane, 0.0, 0.0, now_ns())), Reject):
+        assert time.monotonic() < deadline, "the ICA never took the clock"
+        time.sleep(0.05)
+
+
+def _a_car_a_green_delays(inter, lane: str, late_s: float):
+    """A car's request from another approach (at 0.05 s, 30 m out) that a human's green at
+    the head of ``lane`` at 0.05 s delays by more than a second: (the request, its route,
+    its entry time without that green)."""
+    limits = human_limits(IcaConfig().caps.road_mps, late_s)
+    for route in (r for r in inter.routes if r.in_lane != lane and r.cars):
+        req = propose(route, vin="car", seq=0, t0_s=0.05, dist_to_entry_m=30.0, speed_mps=10.0)
+        alone, held = Dica(inter), Dica(inter)
+        alone.detect("car", route.in_lane, 0.0)
+        free = alone.handle(req, 0.05).entry_time_s
+        held.detect("h1", lane, 0.0)
+        held.detect("car", route.in_lane, 0.0)
+        held.advance(0.05)
+        held.green("h1", 0.05, 5.0, 1.8, limits, 0.5)
+        if held.handle(req, 0.05).entry_time_s > free + 1.0:
+            return req, route, free
+    raise AssertionError("no car crosses the human's envelope")
+
+
 def test_the_ica_process_serves_the_roadside_alone_and_keeps_greens_over_a_restart(
     ch45_net, ch45, tmp_path
 ):
@@ -909,11 +1034,10 @@ def test_the_ica_process_serves_the_roadside_alone_and_keeps_greens_over_a_resta
     journalled: the restarted ICA still delays a car through its envelope."""
     from dica.ica.convert import request_from_core
     from dica.schemas import keys
-    from dica.schemas.codec import decode, encode, now_ns
+    from dica.schemas.codec import decode, now_ns
     from dica.schemas.messages import (
         Ack,
         AskGreen,
-        Clock,
         Detect,
         Lit,
         Reject,
@@ -930,36 +1054,13 @@ def test_the_ica_process_serves_the_roadside_alone_and_keeps_greens_over_a_resta
     ica.detect("h1", lane, 0.0)
     ica.advance(0.05)
     g = ica.green("h1", 0.05, 5.0, 1.8, human_limits(ica.config.caps.road_mps), 0.5)
-    for route in (r for r in ch45.routes if r.in_lane != lane and r.cars):
-        req = propose(route, vin="car", seq=0, t0_s=0.05, dist_to_entry_m=30.0, speed_mps=10.0)
-        alone, held = Dica(ch45), Dica(ch45)
-        alone.detect("car", route.in_lane, 0.0)
-        free = alone.handle(req, 0.05).entry_time_s
-        held.detect("h1", lane, 0.0)
-        held.detect("car", route.in_lane, 0.0)
-        held.advance(0.05)
-        held.green("h1", 0.05, 5.0, 1.8, human_limits(ica.config.caps.road_mps), 0.5)
-        if held.handle(req, 0.05).entry_time_s > free + 1.0:
-            break
-    else:
-        raise AssertionError("no car crosses the human's envelope")
+    req, route, free = _a_car_a_green_delays(ch45, lane, 0.0)
 
     def ask(session, key, msg):
-        (r,) = [r for r in session.get(key, payload=encode(msg), timeout=5.0) if r.ok]
-        return decode(r.ok.payload.to_bytes())
+        return _ask(session, key, msg)
 
     def clock(session, k, end=False):
-        """CLOCK k, and (a publication) wait until the ICA has taken it: a SIGHTING of no
-        one at its time is refused as ahead of the clock until then."""
-        t = 0.05 * k
-        session.put(keys.clock(j), encode(Clock(k, t, "lockstep", 1.0, end, now_ns())))
-        if end:
-            return
-        deadline = time.monotonic() + 30.0
-        while isinstance(ask(session, gw, Sighting("nobody", t, lane, 0.0, 0.0, now_ns())),
-                         Reject):  # fmt: skip
-            assert time.monotonic() < deadline, "the ICA never took the clock"
-            time.sleep(0.05)
+        _clock(session, j, lane, k, end)
 
     args = ("--net", str(ch45_net.net_path), "--junction", j, "--out", str(tmp_path))
     gw = keys.human(j, "gateway")
@@ -1012,6 +1113,52 @@ def test_the_ica_process_serves_the_roadside_alone_and_keeps_greens_over_a_resta
     first, second = stats["incarnations"]
     assert first["humans"] == 1 and first["greens"] == 1
     assert second["journal_replayed"]["greens"] == 1
+
+
+def test_a_green_dropped_late_is_freed_over_zenoh_and_over_a_restart(ch45_net, ch45, tmp_path):
+    """An ICA told that heads may turn green up to 0.4 s late (--green-late): its LIT says
+    so (an observer draws the same envelope); the roadside's UNLIT frees that green, once
+    however often told, and the driver's next ask is a new green; an agent's UNLIT is
+    refused. Journalled: the restarted ICA plans a car straight through where the
+    dropped greens were."""
+    from dica.ica.convert import request_from_core
+    from dica.schemas import keys
+    from dica.schemas.codec import now_ns
+    from dica.schemas.messages import Ack, AskGreen, Detect, Lit, Reject, Response, Spotted, Unlit
+    from dica.tools.loopback import router_and_ica
+
+    j = ch45_net.junction_id
+    lane = _lane_with_turns(ch45)
+    req, route, free = _a_car_a_green_delays(ch45, lane, 0.4)
+    args = ("--net", str(ch45_net.net_path), "--junction", j, "--out", str(tmp_path),
+            "--green-late", "0.4")  # fmt: skip
+    gw = keys.human(j, "gateway")
+    with router_and_ica(j, args) as (session, proc):
+        assert isinstance(_ask(session, gw, Spotted("h1", lane, 0.0, now_ns())), Ack)
+        _clock(session, j, lane, 1)
+        lit = _ask(session, gw, AskGreen("h1", 0.05, 5.0, 1.8, 0.5, False, now_ns()))
+        assert isinstance(lit, Lit) and lit.late_s == pytest.approx(0.4)
+        no = _ask(session, keys.human(j, "agent-1"), Unlit("h1", 0.05, lit.green_s, now_ns()))
+        assert isinstance(no, Reject) and "only the roadside" in no.detail
+        for _ in range(2):  # told twice (a lost ACK): dropped once
+            assert isinstance(_ask(session, gw, Unlit("h1", 0.05, lit.green_s, now_ns())), Ack)
+        _clock(session, j, lane, 2)
+        new = _ask(session, gw, AskGreen("h1", 0.1, 5.0, 1.8, 0.5, False, now_ns()))
+        assert isinstance(new, Lit) and new.green_s == pytest.approx(0.1)  # not the stale one
+        assert isinstance(_ask(session, gw, Unlit("h1", 0.1, new.green_s, now_ns())), Ack)
+        _clock(session, j, lane, 3, end=True)
+        assert proc.wait(15) == 0
+    with router_and_ica(j, args) as (session, proc):  # the same journal
+        _clock(session, j, lane, 1)
+        det = Detect("car", route.in_lane, 0.0, False, 10.0, now_ns())
+        assert isinstance(_ask(session, keys.detect(j, "a"), det), Ack)
+        got = _ask(session, keys.request(j, "a"), request_from_core(req))
+        assert isinstance(got, Response) and got.entry_time_s < free + 1.0
+        _clock(session, j, lane, 2, end=True)
+        assert proc.wait(15) == 0
+    first, second = json.loads((tmp_path / "ica.json").read_text())["incarnations"]
+    assert first["greens"] == 2 and first["unlit"] == 2
+    assert second["journal_replayed"]["greens"] == 2
 
 
 @pytest.mark.cluster

@@ -41,6 +41,7 @@ from dica.schemas.messages import (
     Spotted,
     State,
     Stats,
+    Unlit,
     VehicleState,
     Walk,
 )
@@ -80,7 +81,8 @@ SAMPLES = {
     Go: Go("p0001", ":C_c0", 14.0, 28.8, 7, 12.5, 1, 3.5, 2.25, 0.8, 1.4, 26.0),
     Spotted: Spotted("h00004", "W_in_0", 10.05, 9),
     AskGreen: AskGreen("h00004", 18.5, 5.0, 1.8, 0.5, False, 10, 7.5),
-    Lit: Lit("h00004", 21.0, 18.5, 0.5, 5.0, 1.8, ("W_S", "W_E", "W_N"), 11, 21.39, 0.05, 7.5),
+    Lit: Lit("h00004", 21.0, 18.5, 0.5, 5.0, 1.8, ("W_S", "W_E", "W_N"), 11, 21.39, 0.05, 7.5, 0.2),
+    Unlit: Unlit("h00004", 21.35, 21.0, 13),
     Sighting: Sighting("h00004", 22.5, ":C_3_0", 2.75, 4.2, 12),
     Shrunk: Shrunk("h00004", 22.5, ("W_E",), 13),
     EvComing: EvComing("v00031", "W_in", "E_out", 41.5, 30.05, 14),

@@ -90,6 +90,7 @@ def run_config(args: argparse.Namespace):
             volume_end_per_10min=args.volume_end,
             ramp_s=args.ramp if args.ramp is not None else args.duration,
             time_pad_s=args.time_pad,
+            green_late_s=getattr(args, "green_late", 0.0),
             lead_s=getattr(args, "lead", 0.0),
             window_s=getattr(args, "window", 0.0),
             ev_prob=_ev_prob(args),
@@ -293,7 +294,8 @@ def headway_s(args: argparse.Namespace) -> float:
 
 
 RUN = (*options.NET, "--algorithm", "--solver", "--max-added-delay", "--tile-size",
-       *options.TRAFFIC, "--margin", "--time-pad", "--platoon", "--headway")  # fmt: skip
+       *options.TRAFFIC, "--margin", "--time-pad", "--green-late", "--platoon",
+       "--headway")  # fmt: skip
 
 
 def add_run_args(p: argparse.ArgumentParser, **changes: dict) -> None:

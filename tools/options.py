@@ -231,6 +231,16 @@ OPTIONS: dict[str, Option] = {
             LIMITS["time_pad_s"],
         ),
         Option(
+            "--green-late",
+            "how late after its green time a human driver's head may still turn green [s]: "
+            "the envelope allows for it and the roadside drops a later green, keeping the "
+            "head red (default 0: the simulation's roadside is never late; run_cluster.sh "
+            "sets it from the link's delay in real time)",
+            float,
+            _ICA.green_late_s,
+            LIMITS["green_late_s"],
+        ),
+        Option(
             "--platoon",
             "a vehicle may ask once the vehicle ahead of it in its lane flies its plan, and "
             "crosses behind it as a platoon (default); --no-platoon: only once that vehicle "
@@ -557,7 +567,8 @@ def add(p: argparse.ArgumentParser, *names: str, **changes: dict[str, Any]) -> N
 
 VOLUME_500 = {"default": 500.0, "help": "vehicles per 10 min (default 500)"}  # the benchmarks'
 NET = ("--layout", "--net", "--junction")
-PLAN = ("--margin", "--time-pad", "--platoon", "--headway", "--run-up", "--exit-spacing")
+PLAN = ("--margin", "--time-pad", "--green-late", "--platoon", "--headway", "--run-up",
+        "--exit-spacing")  # fmt: skip
 TRAFFIC = ("--volume", "--volume-end", "--ramp", "--seed", "--duration", "--until-left",
            "--ev-prob", "--peds", "--cav-share", "--approach-weights", "--sumo-args", "--routes",
            "--begin")  # fmt: skip

@@ -183,7 +183,7 @@ def cmd_ica(args: argparse.Namespace) -> int:
         )  # fmt: skip
         spec = dataclasses.replace(
             spec, config=dataclasses.replace(spec.config, max_request_age_s=args.max_age)
-        )
+        ).with_green_late(args.green_late)
     except ValueError as e:
         raise UsageError(str(e)) from None
     ica = build_controller(spec, inter)

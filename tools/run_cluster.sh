@@ -101,6 +101,10 @@ change them while running with: dica link set RUN_DIR/link --role R --delay MS .
   --time-pad S          the ICA grows every confirmed occupancy interval by S on each
                         side (default: 0 in lockstep; in realtime 0.05, or jitter/1000
                         plus 0.05 if larger)
+  --green-late S        how late after its green time a human driver's head may still
+                        turn green [sim s]; a later LIT is dropped and the head stays
+                        red (default: 0 in lockstep; in realtime 2 x (delay + jitter)
+                        x speed + 0.2 s)
   --lead auto|S         realtime: how far ahead of its observation a REQUEST's plan
                         starts [sim s] (default auto: measured round trip plus margin)
   --max-age S           the ICA refuses REQUESTs observed longer ago (default 1; in
@@ -124,7 +128,7 @@ prob() { number "$1" "$2"; awk -v p="$2" 'BEGIN { exit !(p <= 0.9) }' || die "$1
 
 layout=ch45 net="" junction="" junctions="" rsus="" netns=0 algorithm=enhanced volume=500 duration=600 seed=12
 agents=2 per_agent=0 clock=lockstep speed=1 record=1 port="" out="" secure=0 live=()
-delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" lead=auto
+delay=0 jitter=0 loss=0 dup=0 reorder=0 faulty=all time_pad="" green_late="" lead=auto
 max_age="" restart=1 router_rules=1 ev_prob="" solver="" max_added="" platoon=(--platoon) headway="" run_up=(--run-up)
 exit_spacing=(--exit-spacing)
 demand=()
@@ -166,6 +170,7 @@ while [ $# -gt 0 ]; do
     --reorder) reorder="$2"; shift 2 ;;
     --faulty) faulty="$2"; shift 2 ;;
     --time-pad) time_pad="$2"; shift 2 ;;
+    --green-late) green_late="$2"; shift 2 ;;
     --lead) lead="$2"; shift 2 ;;
     --max-age) max_age="$2"; shift 2 ;;
     --no-restart) restart=0; shift ;;
@@ -184,6 +189,7 @@ awk -v d="$delay" -v j="$jitter" 'BEGIN { exit !(d <= 10000 && j <= 10000) }' ||
   die "--delay and --jitter must be at most 10000 ms"
 prob --loss "$loss"; prob --dup "$dup"; prob --reorder "$reorder"
 [ -z "$time_pad" ] || number --time-pad "$time_pad"
+[ -z "$green_late" ] || number --green-late "$green_late"
 [ -z "$max_age" ] || number --max-age "$max_age"
 [ -z "$ev_prob" ] || number --ev-prob "$ev_prob"
 [ -z "$headway" ] || { number --headway "$headway"; platoon+=(--headway "$headway"); }
@@ -225,6 +231,14 @@ if [ -z "$time_pad" ]; then
     time_pad=$(awk -v j="$jitter" 'BEGIN { p = j / 1000 + 0.05; printf "%.3f", p }')
   else
     time_pad=0
+  fi
+fi
+if [ -z "$green_late" ]; then  # a LIT's round trip at worst, in sim time, and a margin
+  if [ "$clock" = realtime ]; then
+    green_late=$(awk -v d="$delay" -v j="$jitter" -v s="$speed" \
+      'BEGIN { a = 2 * (d + j) / 1000 * s + 0.2; if (a > 5) a = 5; printf "%.3f", a }')
+  else
+    green_late=0
   fi
 fi
 if [ -z "$max_age" ]; then
@@ -533,7 +547,8 @@ link_for() {  # link_for NAME ROLE: role_link = the options that connect NAME to
 # a route file's vehicle types set where lanes' lines stand: every role reads them alike
 fleet=()
 [ -z "$routes_file" ] || fleet=(--routes "$routes_file")
-ica_args=("${fleet[@]}" --algorithm "$algorithm" --time-pad "$time_pad" --max-age "$max_age" --seed "$seed"
+ica_args=("${fleet[@]}" --algorithm "$algorithm" --time-pad "$time_pad" --green-late "$green_late"
+  --max-age "$max_age" --seed "$seed"
   "${solver_args[@]}" "${platoon[@]}" "${run_up[@]}" "${exit_spacing[@]}")
 if [ "${#ids[@]}" -gt 0 ]; then  # each junction's ICA (its figures and journal in ica/J/)
   first=1
@@ -580,6 +595,7 @@ in_ns_of "$vehicles"
 start gateway "${in_ns[@]}" "$dica" gateway "${scen[@]}" --algorithm "$algorithm" --volume "$volume" \
   --duration "$duration" --seed "$seed" --agents "$agents" --per-agent "$per_agent" \
   --clock "$clock" --speed "$speed" --observers "$observers" --time-pad "$time_pad" \
+  --green-late "$green_late" \
   --out "$out" "${ev_args[@]}" "${platoon[@]}" "${demand[@]}" "${role_link[@]}" "${extra[@]}"
 gateway_pid="${pid_of[gateway]}"
 if [ "${#ids[@]}" -gt 0 ]; then

@@ -108,6 +108,10 @@ class IcaConfig:
     # [s] how far off its plan in time a vehicle may be (tracking error, late
     # actuation): every confirmed occupancy interval is grown by it on each side
     time_pad_s: float = 0.0
+    # [s] how late after a human driver's green time its roadside may still turn the head
+    # green (the LIT's way there): the envelope's slow bound allows for it, and the
+    # roadside drops a later LIT (sim_gateway/humans.py)
+    green_late_s: float = 0.0
     platoon: bool = False
     # [s] a follower keeps its lane leader's plan this much later in time as well as
     # ``2 * margin_m`` behind in space (the time-headway of a platoon)
@@ -126,6 +130,8 @@ class IcaConfig:
             raise ValueError("margin_m must be between 0 and 5 m")
         if not 0.0 <= self.time_pad_s <= 5.0:
             raise ValueError("time_pad_s must be between 0 and 5 s")
+        if not 0.0 <= self.green_late_s <= 5.0:
+            raise ValueError("green_late_s must be between 0 and 5 s")
         if not 0.0 <= self.headway_s <= 5.0:
             raise ValueError("headway_s must be between 0 and 5 s")
         if not 0.0 < self.max_request_age_s <= 60.0:

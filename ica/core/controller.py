@@ -10,6 +10,7 @@ DICA (:mod:`dica.ica.core.reactive`) fills them in.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Protocol
 
@@ -140,6 +141,13 @@ class ControllerSpec:
             exit_spacing=exit_spacing,
         )
         return cls(algorithm, config, tile_m, reactive or ReactiveConfig())
+
+    def with_green_late(self, late_s: float) -> ControllerSpec:
+        """This spec, human drivers' heads allowed to turn green up to ``late_s`` late
+        (:attr:`IcaConfig.green_late_s`)."""
+        return dataclasses.replace(
+            self, config=dataclasses.replace(self.config, green_late_s=late_s)
+        )
 
 
 def build_controller(

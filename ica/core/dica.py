@@ -211,6 +211,7 @@ class Dica:
         # human's envelope there: (key, when it may enter at the soonest, when it is out)
         self.greens: dict[str, Green] = {}
         self.shrunk = 0  # how often a human's reservations shrank (tighten, regreen)
+        self.unlit = 0  # greens the roadside dropped, late, and whose reservations went
         # per exit lane, the human reservations onto it: (key, soonest entry, latest exit,
         # fastest crossing)
         self._human_exits: dict[str, list[tuple[str, float, float, Trajectory]]] = {}
@@ -992,6 +993,18 @@ class Dica:
             self._unreserve(new)
         self._restore(held, taken, exits)
         return None
+
+    def unlight(self, vin: str, green_s: float) -> bool:
+        """The roadside kept ``vin``'s head red: its green of ``green_s`` came later than
+        the roadside may still light it (:attr:`IcaConfig.green_late_s`). The driver never
+        moved on it, so its reservations go; it asks again. False if it holds no green
+        of that time (one dropped already, or another given since)."""
+        held = self.greens.get(vin)
+        if held is None or abs(held.green_s - green_s) > 1e-9:
+            return False
+        self._unreserve(held)
+        self.unlit += 1
+        return True
 
     def tighten(
         self,

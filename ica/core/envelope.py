@@ -8,7 +8,9 @@ then on it is somewhere between two bounds, both derived from SUMO's default dri
 - **fastest**: it moves at the green at once (a step early), accelerates at the type's full
   acceleration and reaches the type's top speed (the limit times the highest speed
   factor a human is given);
-- **slowest**: it moves :attr:`DriverLimits.react_s` late, accelerates at
+- **slowest**: it moves :attr:`DriverLimits.moves_s` late (its head may turn green up to
+  :attr:`DriverLimits.late_s` after the green's time, a LIT's way to the roadside, and
+  it reacts :attr:`DriverLimits.react_s` after that), accelerates at
   ``(1 - sigma)`` of it (Krauss's dawdling takes at most ``sigma * accel * step`` off
   each step's speed) and cruises at the lowest speed factor times the lowest limit on
   its way, less one step's dawdle.
@@ -51,6 +53,9 @@ class DriverLimits:
     speed_factor_max: float = 1.1
     top_mps: float = 70.0 / 3.6 * 1.1  # the type's own top speed (never exceeded)
     react_s: float = 1.0  # [s] from the green until it surely moves
+    # [s] how late after its green time the roadside may still turn a head green (the
+    # LIT's way to it); a LIT later than that is dropped and the head stays red
+    late_s: float = 0.0
 
     def __post_init__(self) -> None:
         if not (
@@ -59,8 +64,15 @@ class DriverLimits:
             and 0.0 < self.speed_factor_min <= self.speed_factor_max
             and self.top_mps > 0.0
             and self.react_s >= 0.0
+            and 0.0 <= self.late_s <= 10.0
         ):
             raise ValueError(f"driver limits out of range: {self}")
+
+    @property
+    def moves_s(self) -> float:
+        """[s] from its green time until the driver surely moves: the head may turn green
+        up to :attr:`late_s` late, and the driver reacts :attr:`react_s` after that."""
+        return self.react_s + self.late_s
 
     def slow_mps(self, route: Route, step_s: float) -> float:
         """The slowest a human cruises along ``route`` (at least 1 m/s): the lowest limit on
@@ -70,11 +82,12 @@ class DriverLimits:
         return max(self.speed_factor_min * limit - self.sigma * self.accel_mps2 * step_s, 1.0)
 
 
-def human_limits(road_mps: float) -> DriverLimits:
+def human_limits(road_mps: float, late_s: float = 0.0) -> DriverLimits:
     """What the roadside and the ICA assume of a human driver on a road of ``road_mps``:
-    SUMO's passenger car, at most a tenth over the limit. Both derive it from the same
-    configuration, so neither has to send it."""
-    return DriverLimits(top_mps=road_mps * DriverLimits().speed_factor_max)
+    SUMO's passenger car, at most a tenth over the limit, its head turned green up to
+    ``late_s`` after its green time. Both derive it from the same configuration, so
+    neither has to send it."""
+    return DriverLimits(top_mps=road_mps * DriverLimits().speed_factor_max, late_s=late_s)
 
 
 def profile(
@@ -111,7 +124,7 @@ def bounds(
     fast = profile(green_s, step_s, s0, s_end, -step_s, limits.accel_mps2, limits.top_mps)
     slow_a = (1.0 - limits.sigma) * limits.accel_mps2
     slow = profile(
-        green_s, step_s, s0, s_end, limits.react_s, slow_a, limits.slow_mps(route, step_s)
+        green_s, step_s, s0, s_end, limits.moves_s, slow_a, limits.slow_mps(route, step_s)
     )
     return fast, slow
 
@@ -176,11 +189,12 @@ def bounds_rolling(
     """The fastest and the slowest crossing of ``route`` by a driver seen ``dist_m`` short
     of its line at ``v_mps``, slowing for its red head, whose head turns green at
     ``green_s`` (now): no faster than full acceleration from there; no slower than
-    braking on at :data:`ROLL_DECEL_MPS2` (its head was red) for its reaction time,
-    standing if that stops it, then the dawdler's. Each until the rear is out."""
+    braking on at :data:`ROLL_DECEL_MPS2` (its head was red) until it surely moves (its
+    head may turn green late, and it reacts after that), standing if that stops it,
+    then the dawdler's. Each until the rear is out."""
     s_end = route.cross_length_m + length_m
     fast = euler(green_s, step_s, -dist_m, v_mps, s_end, 0, limits.accel_mps2, limits.top_mps)
-    react = math.ceil(limits.react_s / step_s - 1e-9)
+    react = math.ceil(limits.moves_s / step_s - 1e-9)
     slow = _braking(green_s, step_s, -dist_m, v_mps, s_end, react, limits, route)
     return fast, slow
 
@@ -235,7 +249,7 @@ def bounds_seen(
     """:func:`bounds_from` for a driver on its green since ``green_s``, seen at ``t_s``: one
     still standing at its line may not have reacted yet, and may wait until its reaction
     time is up. The ICA reserves these bounds and the roadside audits against them."""
-    left = green_s + limits.react_s - t_s
+    left = green_s + limits.moves_s - t_s
     if v_mps <= 1e-9 and s_m <= 0.0:
         return bounds_from(route, length_m, t_s, s_m, v_mps, step_s, limits, left)
     if left <= 1e-9:
