@@ -80,7 +80,7 @@ from dica.schemas.messages import (
     Walk,
 )
 from dica.sim_gateway.demand import schedule_for
-from dica.sim_gateway.humans import SignalHeads
+from dica.sim_gateway.humans import DROPPED, SignalHeads
 from dica.sim_gateway.junction import Car, Seen
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.walkers import Walkers
@@ -353,7 +353,7 @@ class ZenohDrivers:
 
     def green(
         self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
-    ) -> tuple[float, tuple, float] | None:
+    ) -> tuple[float, tuple, float] | str | None:
         msg = AskGreen(car.vin, t, car.length_m, car.width_m, near_m, again, now_ns(), v_mps)
         asked = time.monotonic()
         got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Lit, Ack))
@@ -361,7 +361,7 @@ class ZenohDrivers:
             head_s = self._head_s(t, got.green_s, time.monotonic() - asked)
             if head_s is None:
                 self._unlight(car, t, got.green_s)
-                return None
+                return DROPPED
             return got.green_s, got.routes, head_s
         if isinstance(got, Reject):  # not yet (one ahead has not begun to enter): again
             if not again:

@@ -45,6 +45,10 @@ TOL_M = 0.05  # [m] the audit's tolerance on a position (SUMO's rounding)
 # it is seen, and a waiting one ask again
 TIGHTEN_S = 0.5
 ROLL_MIN_MPS = 0.5  # [m/s] slower than this it is about to stand, and asks standing
+# a desk's answer: the green came back too late to light its head, which stays red; the
+# ICA was told and dropped it, and with it any green the driver held before (a sooner
+# one asked for replaces the one held)
+DROPPED = "dropped"
 
 
 class Desk(Protocol):
@@ -59,12 +63,12 @@ class Desk(Protocol):
 
     def green(
         self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
-    ) -> tuple[float, tuple, float] | None:
+    ) -> tuple[float, tuple, float] | str | None:
         """Its green (start, routes, and when the head turns green: the start, or later by
         the LIT's way to the roadside) standing ``near_m`` short of its line; ``again``:
         only a sooner one than it holds; ``v_mps`` above 0: rolling towards the line at
-        that speed, a green now or none. None: none given (not yet, not sooner, or come
-        too late to light: the head stays red and the ICA is told)."""
+        that speed, a green now or none. None: none given (not yet, or not sooner);
+        :data:`DROPPED`: one came too late to light (the head stays red, the ICA told)."""
 
     def tighten(
         self, car: Car, t: float, s_m: float, v_mps: float, lane: str
@@ -211,7 +215,7 @@ class SignalHeads:
             if t < d.refused_s + TIGHTEN_S - 1e-9:
                 continue  # refused a moment ago (walkers come first): not every step
             got = desk.green(d.car, t, -d.car.s_m, False)
-            if got is not None:
+            if isinstance(got, tuple):
                 self.lit(d.car.vin, *got, -d.car.s_m)
             else:
                 d.refused_s = t
@@ -219,7 +223,7 @@ class SignalHeads:
             d.asked_s = t
             c = d.car
             got = desk.green(c, t, -c.s_m, False, c.speed_mps)
-            if got is not None:
+            if isinstance(got, tuple):
                 self.lit(c.vin, *got, -c.s_m, c.speed_mps)
         self._tighten(seen, t, desk)
         self.release(t)
@@ -238,7 +242,10 @@ class SignalHeads:
                     continue
                 d.asked_shrunk, d.asked_s = self.shrunk, t
                 got = desk.green(c, t, -c.s_m, True)
-                if got is not None:
+                if got == DROPPED:  # its green held before is gone too: it asks afresh
+                    d.green_s = d.head_s = math.nan
+                    d.routes, d.fast, d.slow = (), None, None
+                elif got is not None:
                     self.shrunk += 1
                     self.lit(c.vin, *got, -c.s_m)
                 continue
