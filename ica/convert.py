@@ -100,5 +100,5 @@ def go_from_slot(slot: WalkSlot, given_s: float) -> m.Go:
     return m.Go(
         slot.person, slot.crossing, float(slot.start_s), float(slot.end_s), now_ns(),
         float(given_s), int(slot.side), float(slot.near_m), float(slot.near_lo_m),
-        float(slot.v_lo), float(slot.v_hi), float(eta),
+        float(slot.v_lo), float(slot.v_hi), float(eta), float(slot.late_s),
     )  # fmt: skip

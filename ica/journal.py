@@ -117,8 +117,13 @@ class Journal:
             {"k": "walk", "person": slot.person, "crossing": slot.crossing,
              "start": slot.start_s, "end": slot.end_s, "side": slot.side,
              "near": slot.near_m, "v_lo": slot.v_lo, "v_hi": slot.v_hi, "eta": slot.eta_s,
-             "near_lo": slot.near_lo_m}
+             "near_lo": slot.near_lo_m, "late": slot.late_s}
         )  # fmt: skip
+
+    def unwalk(self, person: str, crossing: str, start_s: float) -> None:
+        """The roadside kept ``person`` at the kerb (its GO came late): its slot of
+        ``crossing`` from ``start_s`` went."""
+        self._write({"k": "unwalk", "person": person, "crossing": crossing, "start": start_s})
 
     def human(self, vin: str) -> None:
         """``vin`` is a human driver: the roadside speaks for it, no agent."""
@@ -218,7 +223,7 @@ def replay(path: Path, ica: Controller) -> Replayed:
                         str(rec["person"]), str(rec["crossing"]), float(rec["start"]),
                         float(rec["end"]), int(rec["side"]), float(rec["near"]),
                         float(rec["v_lo"]), float(rec["v_hi"]), float(rec["eta"]),
-                        float(rec.get("near_lo", 0.0)),
+                        float(rec.get("near_lo", 0.0)), float(rec.get("late", 0.0)),
                     )
                 )  # fmt: skip
                 out.walks += 1
@@ -230,6 +235,8 @@ def replay(path: Path, ica: Controller) -> Replayed:
                     float(rec.get("speed", 0.0)),
                 )  # fmt: skip
                 out.greens += 1
+            elif kind == "unwalk" and getattr(ica, "walks", None) is not None:
+                ica.unwalk(str(rec["person"]), str(rec["crossing"]), float(rec["start"]))
             elif kind == "unlit" and getattr(ica, "greens", None) is not None:
                 ica.unlight(str(rec["vin"]), float(rec["green"]))
             elif kind == "sighting" and getattr(ica, "greens", None) is not None:

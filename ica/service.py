@@ -629,6 +629,15 @@ class IcaService:
                 self.stats.humans += not known
                 reply(item.query, item.key, encode(Ack(msg.vin, -1, Spotted.KIND, now_ns())))
                 return
+            if isinstance(msg, Unlit) and msg.crossing:  # a walker kept at its kerb
+                if getattr(ica, "walks", None) is None:
+                    raise RequestError(Reason.BAD_STATE, "this junction has no crossings")
+                if ica.unwalk(msg.vin, msg.crossing, msg.green_s):
+                    self.stats.unlit += 1
+                    if self.journal is not None:
+                        self.journal.unwalk(msg.vin, msg.crossing, msg.green_s)
+                reply(item.query, item.key, encode(Ack(msg.vin, -1, Unlit.KIND, now_ns())))
+                return
             if isinstance(msg, Unlit):
                 if ica.unlight(msg.vin, msg.green_s):
                     self.stats.unlit += 1

@@ -161,6 +161,7 @@ class Go:
     v_lo: float = lim(0.0, 20.0, default=1.0)
     v_hi: float = lim(0.0, 20.0, default=2.5)
     eta_s: float = lim(*TIME, default=0.0)
+    late_s: float = lim(0.0, 10.0, default=0.0)  # the roadside may let it go this late
 
 
 @dataclass(frozen=True, slots=True)
@@ -223,13 +224,15 @@ class Unlit:
     """The roadside kept human driver ``vin``'s head red at sim time ``t_s``: the LIT for
     its green of ``green_s`` came later than the head may still turn green
     (``--green-late``). The ICA frees that green's reservations (an ACK); the driver
-    asks again."""
+    asks again. With a ``crossing``, ``vin`` is a walker kept at its kerb: the GO for its
+    slot from ``green_s`` came too late, and the slot goes."""
 
     KIND: ClassVar[str] = "unlit"
     vin: str = lim(n=MAX_TEXT)
     t_s: float = lim(*TIME)
     green_s: float = lim(*TIME)
     sent_ns: int = lim(0, 2**63 - 1)
+    crossing: str = lim(n=MAX_TEXT, default="")
 
 
 @dataclass(frozen=True, slots=True)

@@ -175,6 +175,7 @@ class ZenohDrivers:
         self.green_refused: dict[str, int] = {}  # greens asked too soon, by reason
         self.green_late_s = cfg.green_late_s  # how late a head may turn green
         self.greens_dropped = 0  # LITs come too late to light their head (the ICA told)
+        self.walks_dropped = 0  # GOs come too late to let their walker go (the ICA told)
         self._human_states: tuple[VehicleState, ...] = ()  # this step's, for observers
         self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
         self.age_ms: list[float] = []
@@ -303,9 +304,14 @@ class ZenohDrivers:
         for ask in [*walkers.asks, *walkers.again(t)]:
             msg = Walk(ask.person, ask.crossing, ask.ready_s, ask.walk_m, ask.speed_mps,
                        ask.side, ask.near_m, ask.near_lo_m, now_ns())  # fmt: skip
+            asked = time.monotonic()
             got = self._ask_ica(key, msg, (Go,))
             if isinstance(got, Go):
-                walkers.answer(got.person, got.start_s, got.end_s, t)
+                go_s = self._lit_s(t, got.start_s, time.monotonic() - asked)
+                if go_s is None:  # it stays at the kerb, its slot freed; it asks again
+                    self._unwalk(got, t)
+                    continue
+                walkers.answer(got.person, got.start_s, got.end_s, t, go_s)
             else:
                 self.walks_unanswered += 1
                 why = "no answer" if got is None else f"refused: {got.detail}"
@@ -358,7 +364,7 @@ class ZenohDrivers:
         asked = time.monotonic()
         got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Lit, Ack))
         if isinstance(got, Lit):
-            head_s = self._head_s(t, got.green_s, time.monotonic() - asked)
+            head_s = self._lit_s(t, got.green_s, time.monotonic() - asked)
             if head_s is None:
                 self._unlight(car, t, got.green_s)
                 return DROPPED
@@ -370,17 +376,18 @@ class ZenohDrivers:
             self.humans_unanswered += 1
         return None
 
-    def _head_s(self, t: float, green_s: float, took_s: float) -> float | None:
-        """When the head turns green for a LIT that took ``took_s`` of wall time to come
-        back to an ask at step time ``t``: at its green, or at the first step after it
-        came (the world does not wait for the link in real time: the stepping paused for
-        the answer here, the head is lit as late as a roadside would light it); None if
-        that is more than ``green_late_s`` after the green. Lockstep is never late."""
+    def _lit_s(self, t: float, start_s: float, took_s: float) -> float | None:
+        """When a head turns green (a LIT) or a walker is let go (a GO) whose answer took
+        ``took_s`` of wall time to come back to an ask at step time ``t``: at its start,
+        or at the first step after the answer came (the world does not wait for the link
+        in real time: the stepping paused for the answer here, the signal is given as
+        late as a roadside would give it); None if that is more than ``green_late_s``
+        after the start. Lockstep is never late."""
         if self.clock == "lockstep":
-            return green_s
+            return start_s
         came = t + math.ceil(took_s * self.speed / self.step_s - 1e-9) * self.step_s
-        head = max(green_s, came)
-        return head if head <= green_s + self.green_late_s + 1e-9 else None
+        lit = max(start_s, came)
+        return lit if lit <= start_s + self.green_late_s + 1e-9 else None
 
     def _unlight(self, car: Car, t: float, green_s: float) -> None:
         """A LIT come too late: the head stays red, and the ICA frees that green's
@@ -391,6 +398,16 @@ class ZenohDrivers:
                             Unlit(car.vin, t, green_s, now_ns()), (Ack,))  # fmt: skip
         self.humans_unanswered += got is None
         self.log.info("green of %s for %g s came too late: its head stays red", car.vin, green_s)
+
+    def _unwalk(self, go: Go, t: float) -> None:
+        """A GO come too late: the walker stays at its kerb, and the ICA frees its slot (a
+        lost word is made good as a lost UNLIT is)."""
+        self.walks_dropped += 1
+        msg = Unlit(go.person, t, go.start_s, now_ns(), go.crossing)
+        got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Ack,))
+        self.walks_unanswered += got is None
+        self.log.info("GO of %s for %g s came too late: it stays at the kerb", go.person,
+                      go.start_s)  # fmt: skip
 
     def tighten(self, car: Car, t: float, s_m: float, v_mps: float, lane: str) -> tuple | None:
         msg = Sighting(car.vin, t, lane, s_m, v_mps, now_ns())
@@ -813,6 +830,7 @@ class ZenohDrivers:
             "notices_unanswered": self.notices_unanswered,
             "green_refused": dict(sorted(self.green_refused.items())),
             "greens_dropped_late": self.greens_dropped,
+            "walks_dropped_late": self.walks_dropped,
             "speed": self.speed if self.clock == "realtime" else None,
             "agents": dict(sorted(self.fleet.hosted.items())),
             "agent_deaths": self.agent_deaths,

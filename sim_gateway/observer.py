@@ -200,7 +200,7 @@ class Observer:
         elif item.what == "walk":
             go = decode(item.payload, Go)
             slot = WalkSlot(go.person, go.crossing, go.start_s, go.end_s, go.side, go.near_m,
-                            go.v_lo, go.v_hi, go.eta_s, go.near_lo_m)  # fmt: skip
+                            go.v_lo, go.v_hi, go.eta_s, go.near_lo_m, go.late_s)  # fmt: skip
             self.recorder.walk(go.given_s, slot)
             self.walks += 1
         elif item.what == "green":

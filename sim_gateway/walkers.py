@@ -402,12 +402,15 @@ class Walkers:
         """Per person of this step (:attr:`present`): held at the kerb."""
         return np.array([p in self._held for p in self.present], dtype=bool)
 
-    def answer(self, pid: str, start_s: float, end_s: float, t: float) -> None:
-        """The ICA's slot for ``pid``: let it go at ``start_s`` (now, if that has come)."""
+    def answer(
+        self, pid: str, start_s: float, end_s: float, t: float, go_s: float | None = None
+    ) -> None:
+        """The ICA's slot for ``pid``: let it go at ``start_s`` (now, if that has come), or
+        at ``go_s`` (a real-time roadside whose GO came back late)."""
         w = self._held.get(pid)
         if w is None:
             return
-        w.go_s, w.slot_end_s = start_s, end_s
+        w.go_s, w.slot_end_s = start_s if go_s is None else go_s, end_s
         self.release(t)
 
     def release(self, t: float) -> None:

@@ -338,6 +338,47 @@ def test_a_walk_asked_twice_gets_the_same_slot(walk_net):
     assert ica.walks.slot_of("amy", ":B1_c3") is None
 
 
+def test_a_walker_let_go_late_stays_inside_a_slot_that_allows_for_it(walk_net):
+    """The roadside may let a walker go up to ``late_s`` after its start (its GO's way to a
+    real roadside): a walker let go that late, stepping off its lag after that and
+    walking its slowest, is on each stretch of the crossing only while its slot holds
+    that stretch; the same slot without the allowance would hold it only by the last
+    step's margin (``clear_s``), which is not the link's to spend. A slot the
+    roadside never let go is dropped (UNLIT), and the walker's next ask is a new slot;
+    the ICA's walkers allow the configured lateness."""
+    from dica.ica.core.config import IcaConfig
+    from dica.ica.core.crosswalk import BODY_M, CORNER_M
+    from dica.ica.core.dica import Dica
+    from dica.ica.core.walk import LAG_S, Walkways
+
+    c = Crosswalk("c", np.array([[0.0, 0.0], [16.0, 0.0]]), 4.0)
+    late, plain = Walkways((c,), late_s=0.5), Walkways((c,))
+    for side in (0, 1):
+        walk = 4.0 + 16.0 + CORNER_M  # from the kerb 4 m short, off the corner beyond
+        w = late.slot("amy", "c", 10.0, walk, side=side, near_m=4.0)
+        w0 = plain.slot("amy", "c", 10.0, walk, side=side, near_m=4.0)
+        assert w.end_s == pytest.approx(w0.end_s + 0.5) and w.late_s == 0.5
+        off = 10.0 + 0.5 + LAG_S  # let go late, stepping off its lag after that
+        lost = False
+        for u in np.arange(0.0, 16.0, 0.5):
+            along = u if side == 0 else 16.0 - u  # metres walked on the crossing
+            leaves = off + (4.0 + along + BODY_M) / w.v_lo  # its body's reach past u
+            assert leaves <= w.over(u, u, 16.0, late.clear_s)[1] + 1e-9
+            lost |= leaves > w0.over(u, u, 16.0, plain.clear_s)[1] - plain.clear_s + 1e-9
+        assert lost
+        assert off + walk / w.v_lo + late.clear_s <= w.end_s + 1e-9
+    x = load_intersection(walk_net, "B1")
+    ica = Dica(x, IcaConfig(green_late_s=0.3))
+    first = ica.walk("amy", ":B1_c3", 0.0, 0.0)
+    assert first.late_s == 0.3
+    assert not ica.unwalk("amy", ":B1_c3", first.start_s + 1.0)  # not that slot
+    assert ica.unwalk("amy", ":B1_c3", first.start_s)
+    assert ica.walks.slot_of("amy", ":B1_c3") is None
+    assert not ica.unwalk("amy", ":B1_c3", first.start_s)  # told twice: once
+    again = ica.walk("amy", ":B1_c3", 0.0, 2.0)
+    assert again is not first and again.start_s >= 2.0
+
+
 def test_walkers_are_forgotten_once_across_and_bad_asks_refused(walk_net):
     from dica.ica.core.dica import Dica
     from dica.ica.core.request import RequestError
@@ -439,6 +480,63 @@ def test_the_ica_process_gives_walkers_their_slot_and_keeps_it_over_a_restart(wa
     first, second = stats["incarnations"]
     assert first["walks"] == 1 and first["repeated"] == 1 and stats["walks"] == 1
     assert second["journal_replayed"]["walks"] == 1
+
+
+def test_a_walkers_go_dropped_late_frees_its_slot_on_the_ica_and_over_a_restart(walk_net, tmp_path):
+    """An ICA told the roadside may let walkers go up to 0.3 s late (--green-late): its GO
+    says so and its slot allows for it; the roadside's UNLIT for that crossing (the GO
+    came too late, the walker stayed at its kerb) frees the slot, once however often
+    told, and an agent's is refused; journalled, so the restarted ICA lets a car through
+    where the slot was, which it made wait while the slot stood."""
+    from dica.ica.convert import request_from_core
+    from dica.ica.core.dica import Dica
+    from dica.ica.core.proposal import propose
+    from dica.schemas import keys
+    from dica.schemas.codec import decode, encode, now_ns
+    from dica.schemas.messages import Ack, Clock, Detect, Go, Reject, Response, Unlit, Walk
+    from dica.tools.loopback import router_and_ica
+
+    def ask(session, key, msg):
+        (r,) = [r for r in session.get(key, payload=encode(msg), timeout=5.0) if r.ok]
+        return decode(r.ok.payload.to_bytes())
+
+    def clock(session, ica, k, end):
+        session.put(keys.clock("B1"), encode(Clock(k, 0.05 * k, "lockstep", 1.0, end, now_ns())))
+        if end:
+            assert ica.wait(15) == 0
+
+    x = load_intersection(walk_net, "B1")
+    route = x.route("A1B1_1", "B1C1_1")  # leaves over :B1_c1
+    req = propose(route, vin="car", seq=0, t0_s=0.05, dist_to_entry_m=30.0, speed_mps=10.0)
+    alone = Dica(x)
+    alone.detect("car", route.in_lane, 0.0)
+    free = alone.handle(req, 0.05).entry_time_s
+    args = ("--net", str(walk_net), "--junction", "B1", "--out", str(tmp_path),
+            "--green-late", "0.3")  # fmt: skip
+    gw = keys.walk("B1", "gateway")
+    with router_and_ica("B1", args) as (session, ica):
+        walk = Walk("amy", ":B1_c1", 0.0, 0.0, 0.0, 0, 0.0, 0.0, now_ns())
+        go = ask(session, gw, walk)
+        assert isinstance(go, Go) and go.late_s == pytest.approx(0.3)
+        assert go.end_s == pytest.approx(0.3 + 3.0 + 12.8 + 6.0 + 2.0)
+        drop = Unlit("amy", 0.0, go.start_s, now_ns(), ":B1_c1")
+        no = ask(session, keys.human("B1", "agent-1"), drop)
+        assert isinstance(no, Reject) and "only the roadside" in no.detail
+        for _ in range(2):  # told twice (a lost ACK): dropped once
+            assert isinstance(ask(session, keys.human("B1", "gateway"), drop), Ack)
+        clock(session, ica, 1, False)
+        det = Detect("car", route.in_lane, 0.0, False, 10.0, now_ns())
+        assert isinstance(ask(session, keys.detect("B1", "a"), det), Ack)
+        got = ask(session, keys.request("B1", "a"), request_from_core(req))
+        assert isinstance(got, Response) and got.entry_time_s < free + 1.0  # amy's slot gone
+        clock(session, ica, 2, True)
+    with router_and_ica("B1", args) as (session, ica):  # the same journal
+        clock(session, ica, 1, False)
+        again = ask(session, gw, Walk("amy", ":B1_c1", 0.05, 0.0, 0.0, 0, 0.0, 0.0, now_ns()))
+        assert isinstance(again, Go) and again.start_s >= 0.05  # a new slot, not the dropped
+        clock(session, ica, 2, True)
+    first, second = json.loads((tmp_path / "ica.json").read_text())["incarnations"]
+    assert first["unlit"] == 1 and second["journal_replayed"]["walks"] == 1
 
 
 def test_a_plan_held_far_ahead_by_walkers_waits_its_turn_but_never_for_ever(walk_net):

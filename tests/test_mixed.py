@@ -960,7 +960,9 @@ def test_a_real_time_roadside_lights_a_head_late_within_its_allowance_or_keeps_i
     time lights its head as late as it came (the world did not wait for it); a later one
     is dropped, the head kept red and the ICA told (UNLIT), and the driver asks again.
     Nobody enters on red or leaves its envelope, which allows for the lateness, and
-    nothing collides."""
+    nothing collides. (A walker's GO is given late or dropped alike; walkers mostly
+    start with a phase still to come, so few GOs are ever late: that path is tested on
+    the ICA process, test_crosswalk.py.)"""
     from tests.test_timing import _run_safe
 
     out = tmp_path / "rt"

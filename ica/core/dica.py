@@ -198,7 +198,11 @@ class Dica:
         self._entries: list[tuple[float, float]] = []
         # people crossing: the walkers' reservations of the crossings (None: there are
         # none), and per route and shape the crossings it passes (ica.core.crosswalk)
-        self.walks = Walkways(intersection.crosswalks) if intersection.crosswalks else None
+        self.walks = (
+            Walkways(intersection.crosswalks, late_s=self.config.green_late_s)
+            if intersection.crosswalks
+            else None
+        )
         self._walk_geometry: dict[
             tuple[str, Shape],
             tuple[list[tuple[str, float, float]], dict[str, tuple[float, float]]],
@@ -657,6 +661,15 @@ class Dica:
             want, start_s=start, end_s=want.end_s + shift, eta_s=want.eta_s + shift
         )
         return walks.reserve(moved)
+
+    def unwalk(self, person: str, crossing: str, start_s: float) -> bool:
+        """The roadside kept ``person`` at the kerb of ``crossing``: its GO for ``start_s``
+        came later than it may still let a walker go (:attr:`IcaConfig.green_late_s`).
+        The walker never stepped off, so its slot goes; it asks again. False if it holds
+        no slot of that start there."""
+        if self.walks is None or crossing not in self.walks.crosswalks:
+            raise RequestError(Reason.BAD_STATE, f"{crossing!r} is no crossing of this junction")
+        return self.walks.drop(person, crossing, start_s)
 
     def walked(self, person: str, crossing: str, t_s: float) -> bool:
         """The roadside saw ``person`` off ``crossing`` and its corners at ``t_s``: its

@@ -80,17 +80,20 @@ class WalkSlot:
     v_hi: float = FAST_MPS
     eta_s: float = math.inf  # when it is expected off its way at its own pace (<= end_s)
     near_lo_m: float = 0.0  # [m] the shortest way it may take to the crossing's end
+    late_s: float = 0.0  # [s] how late after start_s the roadside may still let it go
 
     def over(
         self, u_lo: float, u_hi: float, length_m: float, clear_s: float
     ) -> tuple[float, float]:
         """When the walker may be on the stretch ``[u_lo, u_hi]`` of the crossing (metres
         from its end 0): from its fastest arrival at the stretch, a body's reach
-        (:data:`BODY_M`) early, to its slowest departure (stepping off :data:`LAG_S`
-        late) a body's reach past it and ``clear_s`` more, within its slot."""
+        (:data:`BODY_M`) early, to its slowest departure (let go :attr:`late_s` late and
+        stepping off :data:`LAG_S` after that) a body's reach past it and ``clear_s``
+        more, within its slot."""
         a, b = (u_lo, u_hi) if self.side == 0 else (length_m - u_hi, length_m - u_lo)
         t_in = self.start_s + max(a + self.near_lo_m - BODY_M, 0.0) / self.v_hi
-        t_out = self.start_s + LAG_S + max(b + self.near_m + BODY_M, 0.0) / self.v_lo + clear_s
+        lag = LAG_S + self.late_s
+        t_out = self.start_s + lag + max(b + self.near_m + BODY_M, 0.0) / self.v_lo + clear_s
         return min(t_in, self.end_s), min(t_out, self.end_s)
 
 
@@ -118,6 +121,7 @@ class Walkways:
         walk_mps: float = WALK_MPS,
         clear_s: float = CLEAR_S,
         gap_s: float = 0.5,
+        late_s: float = 0.0,
     ) -> None:
         if not walk_mps > 0.0:
             raise ValueError(f"walking speed must be positive, got {walk_mps}")
@@ -125,6 +129,9 @@ class Walkways:
         self.walk_mps = walk_mps
         self.clear_s = clear_s
         self.gap_s = gap_s  # [s] kept between a vehicle's hold and a walker's, either way
+        # [s] how late after its start the roadside may still let a walker go (the GO's way
+        # to it: IcaConfig.green_late_s); a later GO is dropped and the walker asks again
+        self.late_s = late_s
         self.slots: dict[str, list[WalkSlot]] = {c: [] for c in self.crosswalks}
         self.phase_gap_s = PHASE_GAP_S
         self._ended = -math.inf  # when the last of the forgotten walkers was off its way
@@ -141,10 +148,10 @@ class Walkways:
     def walk_s(self, crossing: str, walk_m: float = 0.0, speed_mps: float = 0.0) -> float:
         """How long a walker holds ``crossing``: ``walk_m`` from where it stands until it
         is off the walking area beyond (at least the crossing's length and
-        :data:`CORNER_M`), at its slow pace, stepping off :data:`LAG_S` late, and
-        :attr:`clear_s` more."""
+        :data:`CORNER_M`), at its slow pace, let go up to :attr:`late_s` late and stepping
+        off :data:`LAG_S` after that, and :attr:`clear_s` more."""
         far = max(walk_m, self.crosswalks[crossing].length_m + CORNER_M)
-        return LAG_S + far / self.pace(speed_mps)[0] + self.clear_s
+        return self.late_s + LAG_S + far / self.pace(speed_mps)[0] + self.clear_s
 
     def slot(
         self,
@@ -163,9 +170,10 @@ class Walkways:
         end = start_s + self.walk_s(crossing, walk_m, speed_mps)
         own = speed_mps if speed_mps > 0.0 else self.walk_mps
         far = max(walk_m, self.crosswalks[crossing].length_m + CORNER_M)
-        eta = min(start_s + far / own + self.clear_s, end)
+        eta = min(start_s + self.late_s + far / own + self.clear_s, end)
         near_lo = min(near_lo_m, near_m)
-        return WalkSlot(person, crossing, start_s, end, side, near_m, v_lo, v_hi, eta, near_lo)
+        return WalkSlot(person, crossing, start_s, end, side, near_m, v_lo, v_hi, eta, near_lo,
+                        self.late_s)  # fmt: skip
 
     def earliest(self, want: WalkSlot, ready_s: float, busy: list[Hold]) -> float:
         """The first start at or after ``ready_s`` at which the walk ``want`` (its start
@@ -245,6 +253,17 @@ class Walkways:
         return self.last_end + self.phase_gap_s
 
     # -- the book ----------------------------------------------------------------------
+    def drop(self, person: str, crossing: str, start_s: float) -> bool:
+        """The roadside never let ``person`` go on its slot of ``crossing`` from
+        ``start_s`` (the GO came later than :attr:`late_s` after it): the slot goes (True),
+        and the walker may ask again. False if it holds no slot of that start."""
+        slots = self.slots.get(crossing, [])
+        for i, w in enumerate(slots):
+            if w.person == person and abs(w.start_s - start_s) <= 1e-9:
+                del slots[i]
+                return True
+        return False
+
     def slot_of(self, person: str, crossing: str) -> WalkSlot | None:
         """The slot ``person`` holds on ``crossing``, if any (a WALK asked twice gets it
         again, not a second one)."""
