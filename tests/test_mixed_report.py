@@ -34,5 +34,15 @@ def test_the_report_gives_the_rolling_share_and_the_crossover(tmp_path, capsys):
     # 4 s above the better light at share 0, 2 s below at 0.5: crossing at 0.5 * 4 / 6
     assert "| 300 | 0.33 |" in text
     assert (tmp_path / "mixed.png").stat().st_size > 0
+    # a line that dips below the light, rises above it and falls again: the crossover is
+    # where it stays below, and the dip is said
+    for seed in (12, 21):
+        _cell(tmp_path, "enhanced", 0, 400, seed, 5.0)
+        _cell(tmp_path, "enhanced", 0.5, 400, seed, 9.0)
+        _cell(tmp_path, "enhanced", 1, 400, seed, 3.0)
+        for share in (0, 0.5, 1):
+            _cell(tmp_path, "actuated", share, 400, seed, 6.0)
+    assert mixed_report.main([str(tmp_path)]) == 0
+    assert "| 400 | 0.75 (below it at 0 as well) |" in (tmp_path / "mixed.md").read_text()
     assert mixed_report.main([str(tmp_path / "none")]) == 2
     assert "not a directory" in capsys.readouterr().err

@@ -99,24 +99,37 @@ def best_light(cells: dict, share: float, vol: float) -> tuple[str, float] | Non
     return light, d
 
 
-def crossover(cells: dict, vol: float) -> float | None:
-    """The lowest share at which DICA's delay is below the better light's, linear
-    between the shares run (0 if it is already at the lowest; None if at none)."""
+def _below(cells: dict, vol: float) -> list[tuple[float, float]]:
+    """Per share run at ``vol``: (share, DICA's delay less the better light's)."""
     shares = sorted(s for (a, s, v) in cells if a == DICA and v == vol)
     diff = []
     for s in shares:
         light = best_light(cells, s, vol)
         d = cells[(DICA, s, vol)]["delay_s"]
-        if light is None or d is None:
-            continue
-        diff.append((s, d - light[1]))
-    for i, (s, x) in enumerate(diff):
-        if x < 0.0:
-            if i == 0:
-                return s
-            s0, x0 = diff[i - 1]
-            return s0 + (s - s0) * x0 / (x0 - x)
-    return None
+        if light is not None and d is not None:
+            diff.append((s, d - light[1]))
+    return diff
+
+
+def crossover(cells: dict, vol: float) -> float | None:
+    """The share from which on DICA's delay stays below the better light's at every
+    share run, linear between the last share where it is not and the next (the lowest
+    share if it is below at every one; None if it is not below at the highest)."""
+    diff = _below(cells, vol)
+    if not diff or diff[-1][1] >= 0.0:
+        return None
+    last = max((i for i, (_, x) in enumerate(diff) if x >= 0.0), default=None)
+    if last is None:
+        return diff[0][0]
+    (s0, x0), (s, x) = diff[last], diff[last + 1]
+    return s0 + (s - s0) * x0 / (x0 - x)
+
+
+def below_before(cells: dict, vol: float) -> list[float]:
+    """The shares below the :func:`crossover` at which DICA was below the better light
+    all the same (the line is not monotone there)."""
+    x = crossover(cells, vol)
+    return [s for s, d in _below(cells, vol) if d < 0.0 and (x is None or s < x)]
 
 
 def markdown(cells: dict) -> str:
@@ -148,7 +161,11 @@ def markdown(cells: dict) -> str:
             "|---|---|"]  # fmt: skip
     for v in vols:
         x = crossover(cells, v)
-        out.append(f"| {v:g} | {'not within the shares run' if x is None else f'{x:.2f}'} |")
+        text = "not within the shares run" if x is None else f"{x:.2f}"
+        also = below_before(cells, v)
+        if also:
+            text += f" (below it at {', '.join(f'{s:g}' for s in also)} as well)"
+        out.append(f"| {v:g} | {text} |")
     others = [
         (a, v, c)
         for (a, s, v), c in sorted(cells.items())
