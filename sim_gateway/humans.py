@@ -171,6 +171,16 @@ class SignalHeads:
         v.setStop(c.sumo, edge, pos=lane_m - STOP_SHORT_M, laneIndex=c.lane_index,
                   duration=STOP_S)  # fmt: skip
 
+    def as_human(self, sumo_id: str) -> None:
+        """A route file's vehicle drawn human as it departs: SUMO's driver with the stated
+        limits from the start (its own size kept), so that it comes to the region as a
+        human driver would; once there it is adopted (:meth:`departed`)."""
+        v = self.ls.vehicle
+        size = v.getLength(sumo_id), v.getWidth(sumo_id)
+        v.setType(sumo_id, HUMAN_VTYPE)
+        v.setLength(sumo_id, size[0])
+        v.setWidth(sumo_id, size[1])
+
     def asking(self, seen: list[Seen], t: float) -> list[Driver]:
         """The drivers standing at the head of their lane, with no green yet."""
         out = []

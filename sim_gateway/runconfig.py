@@ -220,9 +220,6 @@ def _mixed_refusal(cfg: RunConfig) -> str | None:
     if alg not in MIXED_ALGORITHMS + LIGHTS and not alg.startswith("t"):
         return (f"--cav-share below 1 runs DICA ({', '.join(MIXED_ALGORITHMS)}, t1..t4) or a "
                 f"light; {alg} does not serve human drivers yet")  # fmt: skip
-    if cfg.routes_path:
-        return ("--cav-share draws human drivers into the random demand; it does not take "
-                "--routes (a route file's vehicles are all connected)")  # fmt: skip
     if cfg.junction_ids:
         return "--cav-share draws the random demand's human drivers at one --junction"
     if cfg.window_s:

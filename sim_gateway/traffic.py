@@ -13,9 +13,13 @@ yardstick of its delay.
 from __future__ import annotations
 
 import math
+import zlib
 from collections.abc import Mapping
 
+import numpy as np
+
 from dica.ica.core.config import IcaConfig
+from dica.ica.core.envelope import ROLL_DECEL_MPS2, STOP_SHORT_M
 from dica.ica.core.planner import Planner
 from dica.ica.core.route import Route
 from dica.schemas.keys import safe_chunk
@@ -77,6 +81,12 @@ class Traffic:
         self.length_m = length_m
         self.log = log
         self.rerouted = 0  # route-file vehicles sent another way (see adopt)
+        # --cav-share with a route file: the share of its vehicles driven by SUMO's own
+        # driver, each drawn from the run's seed and its id (the same in every run of it)
+        self.human_share = 0.0
+        self.seed = 0
+        self.humans_drawn: set[str] = set()  # SUMO ids of those drawn human as they departed
+        self.humans_too_fast = 0  # drawn human, but too fast to stop at a head when seen
         # of those, the ones with no way on to their destination from the road their lane
         # led to: they leave the net at that road's end
         self.ended_short = 0
@@ -203,6 +213,7 @@ class Traffic:
                 c.ev = ls.vehicle.getVehicleClass(vin) == "emergency" and not any(
                     o.ev and not o.exited for o in j.active
                 )
+                c.human = not c.ev and self._human_here(vin, j.lane_len_m[lane])
                 ls.vehicle.setLaneChangeMode(vin, 0)
                 j.cars[c.vin] = j.by_sumo[vin] = c
                 j.active.append(c)
@@ -217,10 +228,36 @@ class Traffic:
                     free = self.free_flow_s(route, comm, c.entry_speed_mps, c.length_m)
                 self.log.trips[c.vin] = Trip(
                     c.vin, route.id, route.turn.value, t, free_flow_scheduled_s=free,
-                    inserted_s=t, ev=c.ev,
+                    inserted_s=t, ev=c.ev, human=c.human,
                 )  # fmt: skip
                 out.append(c)
         return out
+
+    def draws_human(self, vin: str) -> bool:
+        """Whether a route file's vehicle departing is a human driver (:attr:`human_share`,
+        drawn from the seed and its id, so every run of the file draws alike)."""
+        if self.human_share <= 0.0:
+            return False
+        draw = np.random.default_rng([self.seed, 27, zlib.crc32(vin.encode())]).random()
+        if draw >= self.human_share:
+            return False
+        self.humans_drawn.add(vin)
+        return True
+
+    def _human_here(self, vin: str, lane_m: float) -> bool:
+        """Whether a route file's vehicle reaching the region is a human driver: drawn so
+        as it departed, and still able to stop at its head's line braking as a human
+        stops for a red there. One that could not stays connected (and is counted):
+        its head could not hold it."""
+        if vin not in self.humans_drawn:
+            return False
+        ls = self.ls
+        room = lane_m - ls.vehicle.getLanePosition(vin) - STOP_SHORT_M
+        v = ls.vehicle.getSpeed(vin)
+        if v * v > 2.0 * ROLL_DECEL_MPS2 * room:
+            self.humans_too_fast += 1
+            return False
+        return True
 
     def _way_through(self, j: Junction, vin: str, lane: str, links) -> Route | None:
         """The way ``vin`` crosses from ``lane``, its next ``links`` as SUMO has them."""

@@ -128,7 +128,9 @@ class World:
         # human drivers (--cav-share below 1): SUMO's own, each with a signal head at its line
         self.heads: SignalHeads | None = None
         self.human_seen: list[Seen] = []  # this step's, apart from the connected vehicles
-        if any(v.human for v in schedule):
+        # (a route file's share of them is drawn as each reaches the region)
+        humans = any(v.human for v in schedule) or (cfg.routes_path and cfg.cav_share < 1.0)
+        if humans:
             limits = human_limits(ica_cfg.caps.road_mps, ica_cfg.green_late_s)
             define_human_type(ls, limits, cfg.length_m, cfg.width_m, ignore_foes=not signalised)
         self.junctions = [
@@ -143,9 +145,11 @@ class World:
             for x in (inter, *more)
         ]
         self.junction = self.junctions[0]
-        if any(v.human for v in schedule):
+        if humans:
             self.heads = SignalHeads(ls, self.junction, limits, self.h, cfg.seed, not signalised)
         self.traffic = Traffic(ls, ica_cfg, cfg.length_m, self.log)
+        if cfg.routes_path:
+            self.traffic.human_share, self.traffic.seed = 1.0 - cfg.cav_share, cfg.seed
         if cfg.routes_path and not signalised:  # none of them serves a U-turn
             served = frozenset(j.inter.junction_id for j in self.junctions)
             self.traffic.detours = Detours(cfg.net_path, served)
@@ -257,10 +261,14 @@ class World:
             self.walkers.step(t)
         present = set(ls.vehicle.getIDList())
         for vin in departed:
-            if vin not in taken and self.traffic.departed(first, vin, t):
+            if vin in taken:
+                continue
+            if self.traffic.departed(first, vin, t):
                 Reads.subscribe(ls, vin, self.want_xy)
                 if self.heads is not None and first.cars[vin].human:
                     self.heads.departed(first.cars[vin])
+            elif self.heads is not None and self.traffic.draws_human(vin):
+                self.heads.as_human(vin)
         if self.cfg.routes_path:
             # a vehicle is one junction's at a time: the next takes it once the last let go
             held = {c.sumo for j in self.junctions for c in j.active if not c.exited}
@@ -268,6 +276,8 @@ class World:
                 for c in self.traffic.adopt(j, t, held):
                     Reads.subscribe(ls, c.sumo, self.want_xy)
                     held.add(c.sumo)
+                    if c.human and self.heads is not None:
+                        self.heads.departed(c)
             for j in self.junctions:  # beyond a junction its vehicles go on, and may queue
                 j.measure_room()
                 j.note_strangers(ls)
@@ -279,6 +289,11 @@ class World:
         if self.heads is not None:  # the human drivers apart: no machine drives them
             self.human_seen = [s for s in each[0] if s.car.human]
             each[0] = [s for s in each[0] if not s.car.human]
+            for s in self.human_seen:  # a route file's, sent another way: on to where it goes
+                c = s.car
+                if c.exited and c.reroute_to is not None and not c.released:
+                    ls.vehicle.changeTarget(c.sumo, c.reroute_to)
+                    c.released = True
             if self.heads.hold:
                 self.heads.audit(self.human_seen, t)
         if self.actuator.predict_steps:
@@ -538,6 +553,8 @@ class World:
             }
         if self.heads is not None:
             extra["humans"] = self.heads.summary()
+            if self.cfg.routes_path:  # drawn human, but seen too fast to stop at a head
+                extra["humans"]["kept_connected_too_fast"] = self.traffic.humans_too_fast
         persons = None
         if self.walkers is not None:
             checks = [j.person_check.report() for j in self.junctions]

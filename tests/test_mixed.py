@@ -739,6 +739,53 @@ def test_human_drivers_on_a_users_net_of_other_limits(tmp_path):
     assert h["given_green"] > 20 and m["crossed"] > 60
 
 
+FAST_ROUTES = """<routes>
+  <vType id="car" accel="2.6" decel="4.5" length="4.5" width="1.8" sigma="0.5"/>
+  <vType id="truck" accel="2.0" decel="4.5" length="11.0" width="2.5" maxSpeed="25"/>
+  <flow id="ew" type="car" begin="0" end="300" vehsPerHour="400" from="A1B1" to="B1C1"
+        departSpeed="max"/>
+  <flow id="we" type="truck" begin="0" end="300" vehsPerHour="100" from="C1B1" to="B1A1"
+        departSpeed="max"/>
+  <flow id="ns" type="car" begin="0" end="300" vehsPerHour="300" from="B2B1" to="B1B0"
+        departSpeed="max"/>
+  <flow id="sn" type="car" begin="0" end="300" vehsPerHour="200" from="B0B1" to="B1A1"
+        departSpeed="max"/>
+</routes>
+"""
+
+
+@pytest.mark.sumo
+def test_a_route_files_vehicles_drawn_human_keep_their_envelopes_on_a_fast_net(tmp_path):
+    """A user's net at 80 km/h (above the speeds the ICA plans with) and its own route
+    file with trucks: half its vehicles drawn human as they depart (the same ones in
+    every run), SUMO's driver from there, their own size kept; each meets its head at
+    the region and keeps its envelope (drawn at the region instead, one came faster
+    than a human's top speed and braked behind its slowest bound). Nothing collides,
+    every vehicle is accounted for, and
+    share 1 runs the file as before, every vehicle connected."""
+    from tests.user_nets import make, tool
+
+    net = tmp_path / "fast.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "300",
+          "--default.lanenumber", "2", "--default.speed", "22.22", "--no-turnarounds", "true",
+          "-o", str(net)])  # fmt: skip
+    routes = tmp_path / "fast.rou.xml"
+    routes.write_text(FAST_ROUTES)
+    scen = ("--net", str(net), "--junction", "B1", "--routes", str(routes), "--duration", "300")
+    m = _run(tmp_path / "h", *scen, "--cav-share", "0.5")
+    h = m["humans"]
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0 and m["unconfirmed_entries"] == 0
+    assert h["entered_on_red"] == 0 and h["outside_envelope"] == 0
+    assert 0.3 < h["count"] / m["accounted"]["generated"] < 0.7 and h["given_green"] > 30
+    assert m["accounted"]["lost"] == 0
+    humans = {r["vin"] for r in _rows_csv(tmp_path / "h") if r["human"] == "1"}
+    assert any(v.startswith("we.") for v in humans)  # trucks among them, at their size
+    again = _run(tmp_path / "h2", *scen, "--cav-share", "0.5")
+    assert again["humans"]["count"] == h["count"]  # the same draw
+    m1 = _run(tmp_path / "c", *scen)
+    assert "humans" not in m1 and m1["collisions"] == 0
+
+
 @pytest.mark.sumo
 def test_a_net_whose_turns_are_longer_than_drawn_keeps_every_human_in_its_envelope(tmp_path):
     """A spider net, whose internal lanes SUMO drives up to 4 % longer than their drawn
@@ -1006,6 +1053,31 @@ def _clock(session, j: str, lane: str, k: int, end: bool = False) -> None:
     while isinstance(_ask(session, gw, Sighting("nobody", t, lane, 0.0, 0.0, now_ns())), Reject):
         assert time.monotonic() < deadline, "the ICA never took the clock"
         time.sleep(0.05)
+
+
+@pytest.mark.cluster
+def test_a_lockstep_cluster_with_a_route_files_human_drivers_makes_the_embedded_decisions(
+    tmp_path,
+):
+    """A user's net and route file, half its vehicles drawn human: over Zenoh the same
+    vehicles are drawn, told, given their greens and sent on as in one process, byte for
+    byte."""
+    from tests.test_cluster import _cluster
+    from tests.user_nets import ROUTES, build_nets
+
+    net = build_nets(tmp_path)["grid"]
+    routes = tmp_path / "demand.rou.xml"
+    routes.write_text(ROUTES)
+    common = ["--net", str(net), "--junction", "B1", "--routes", str(routes), "--duration",
+              "150", "--cav-share", "0.5"]  # fmt: skip
+    p = _cluster(tmp_path / "cl", "--agents", "1", "--no-record", *common)
+    assert p.returncode == 0, p.stdout + p.stderr
+    _run(tmp_path / "emb", *common)
+    for name in ("vehicles.csv", "timeseries.csv"):
+        assert (tmp_path / "cl" / name).read_bytes() == (tmp_path / "emb" / name).read_bytes()
+    m = json.loads((tmp_path / "cl" / "metrics.json").read_text())
+    assert m["humans"]["given_green"] > 10 and m["humans"]["outside_envelope"] == 0
+    assert m["collisions"] == 0 and m["sumo_collisions"] == 0
 
 
 def _a_car_a_green_delays(inter, lane: str, late_s: float):
