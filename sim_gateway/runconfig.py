@@ -221,7 +221,8 @@ def _mixed_refusal(cfg: RunConfig) -> str | None:
         return (f"--cav-share below 1 runs DICA ({', '.join(MIXED_ALGORITHMS)}, t1..t4) or a "
                 f"light; {alg} does not serve human drivers yet")  # fmt: skip
     if cfg.junction_ids:
-        return "--cav-share draws the random demand's human drivers at one --junction"
+        return ("--cav-share serves human drivers at one --junction; several junctions do "
+                "not serve them yet")  # fmt: skip
     if cfg.window_s:
         return "--cav-share with --window is not served yet"
     return None

@@ -132,17 +132,22 @@ def test_bench_routes_takes_a_user_s_relative_paths_and_says_why_a_file_fails(
     assert "arrivalPos 1 on S_out" in err and len(err.strip().splitlines()) == 1, err
 
 
-def test_human_drivers_with_a_route_file_are_refused_as_such(tmp_path, capsys):
-    from dica.sim_gateway.scenario import default_scenario
+def test_human_drivers_in_a_network_are_refused_as_such(tmp_path, capsys):
+    """A route file's human drivers are served at one junction; across several, one line
+    says they are not yet (before anything starts)."""
+    from tests.user_nets import ROUTES, make, tool
 
-    sc = default_scenario("ch45")
+    net = tmp_path / "grid.net.xml"
+    make([tool("netgenerate"), "--grid", "--grid.number", "3", "--grid.length", "200",
+          "--no-turnarounds", "true", "-o", str(net)])  # fmt: skip
     routes = tmp_path / "r.rou.xml"
-    routes.write_text('<routes><trip id="t" depart="0" from="N_in" to="S_out"/></routes>')
-    args = ["run", "--net", str(sc.net_path), "--junction", sc.junction_id, "--routes",
-            str(routes), "--cav-share", "0.5", "--out", str(tmp_path / "o")]  # fmt: skip
+    routes.write_text(ROUTES)
+    args = ["run", "--net", str(net), "--junctions", "A1,B1", "--routes", str(routes),
+            "--cav-share", "0.5", "--out", str(tmp_path / "o")]  # fmt: skip
     assert dica(args) == 2
     err = capsys.readouterr().err
-    assert "it does not take --routes" in err and len(err.strip().splitlines()) == 1, err
+    assert "several junctions do not serve them yet" in err, err
+    assert len(err.strip().splitlines()) == 1, err
 
 
 def test_sumo_options_are_taken_as_written_after_sumo_args():
