@@ -535,6 +535,52 @@ def test_a_green_reserves_every_route_of_the_lane_and_is_asked_again_alike(ch45)
     assert len(ica.confirmed) == len(routes)
 
 
+def test_a_journal_replays_rolling_and_late_greens_and_the_dropped_ones(ch45, tmp_path):
+    """Journalled greens come back as given: one given rolling (its speed and distance),
+    one under a late-head allowance (wider at its slow end), and a dropped one stays
+    dropped: the restarted core holds the same reservations, occupancy for occupancy."""
+    from dica.ica.journal import Journal, replay
+    from dica.schemas.codec import now_ns
+    from dica.schemas.messages import Lit
+
+    cfg = IcaConfig(green_late_s=0.4)
+    limits = human_limits(cfg.caps.road_mps, cfg.green_late_s)
+    lanes = []
+    for r in ch45.routes:
+        if r.cars and r.in_lane not in lanes:
+            lanes.append(r.in_lane)
+    ica, path = Dica(ch45, cfg), tmp_path / "j.msgpack"
+    j = Journal(path, sync=False)
+    given = {}
+    for vin, lane, dist, v in (("roll", lanes[0], 30.0, 12.0), ("stand", lanes[1], 0.5, 0.0),
+                               ("gone", lanes[2], 0.5, 0.0)):  # fmt: skip
+        ica.detect(vin, lane, 0.0)
+        j.detect(vin, lane, 0.0)
+        j.human(vin)
+        g = ica.green(vin, 1.0, 4.5, 1.8, limits, dist, v)
+        j.green(Lit(vin, g.green_s, g.asked_s, g.near_m, 4.5, 1.8, g.routes, now_ns(),
+                    limits.top_mps, cfg.step_s, g.speed_mps, limits.late_s))  # fmt: skip
+        given[vin] = g
+    assert ica.unlight("gone", given["gone"].green_s)
+    j.unlit("gone", given["gone"].green_s)
+    j.close()
+    back = Dica(ch45, cfg)
+    done = replay(path, back)
+    assert done.greens == 3 and done.skipped == 0
+    assert set(back.greens) == {"roll", "stand"} and back.greens["roll"].speed_mps == 12.0
+    assert set(back.confirmed) == set(ica.confirmed)
+    for k, c in ica.confirmed.items():
+        d = back.confirmed[k].dtot
+        assert np.array_equal(d.lb_s, c.dtot.lb_s) and np.array_equal(d.ub_s, c.dtot.ub_s), k
+    # the allowance is in them: the same greens without it end sooner at the slow end
+    plain = Dica(ch45, IcaConfig())
+    plain.detect("stand", lanes[1], 0.0)
+    g0 = plain.green("stand", 1.0, 4.5, 1.8, human_limits(cfg.caps.road_mps), 0.5)
+    ends = [back.confirmed[k].dtot.ub_s.max() for k in back.greens["stand"].keys]
+    ends0 = [plain.confirmed[k].dtot.ub_s.max() for k in g0.keys]
+    assert max(ends) > max(ends0) + 0.3
+
+
 def test_a_green_dropped_late_frees_its_reservations_and_is_given_anew(ch45):
     """The roadside kept the head red (the LIT came too late): the green of that time
     goes with its reservations, a connected vehicle may be planned through them, and
