@@ -40,6 +40,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
+import zenoh
 
 from dica.deploy.transport import (
     Inbox,
@@ -80,7 +81,7 @@ from dica.schemas.messages import (
     Walk,
 )
 from dica.sim_gateway.demand import schedule_for
-from dica.sim_gateway.humans import DROPPED, SignalHeads
+from dica.sim_gateway.humans import SignalHeads
 from dica.sim_gateway.junction import Car, Seen
 from dica.sim_gateway.runconfig import RunConfig, RunError, RunResult
 from dica.sim_gateway.walkers import Walkers
@@ -96,6 +97,19 @@ LOCKSTEP_ASK_S = 5.0
 NOTICE_S = 1.0  # [s sim] how long a realtime STATE keeps naming a vehicle after news about it
 VEHICLES_EVERY = 20  # steps: how often VEHICLES goes out with no news and no observer
 AGE_BINS_MS = (0, 1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 2000, 5000)  # command age histogram
+
+
+@dataclass(slots=True)
+class _Out:
+    """A human driver's question to the ICA still out (realtime): its answers' channel,
+    when it was asked and from where, and the answer taken."""
+
+    answers: object
+    t_s: float
+    near_m: float
+    v_mps: float
+    s_m: float = 0.0
+    got: object = None
 
 
 @dataclass
@@ -176,6 +190,9 @@ class ZenohDrivers:
         self.green_late_s = cfg.green_late_s  # how late a head may turn green
         self.greens_dropped = 0  # LITs come too late to light their head (the ICA told)
         self.walks_dropped = 0  # GOs come too late to let their walker go (the ICA told)
+        # realtime: the human drivers' questions still out, by VIN and kind ("green",
+        # "sighting"); the world does not wait for them (see _asked)
+        self._out: dict[tuple[str, str], _Out] = {}
         self._human_states: tuple[VehicleState, ...] = ()  # this step's, for observers
         self.fake_tokens = 0  # liveliness tokens of names that are not the site's agents
         self.age_ms: list[float] = []
@@ -336,6 +353,8 @@ class ZenohDrivers:
         (:meth:`sim_gateway.humans.SignalHeads.serve`). While the ICA is gone none is
         asked: those at their line wait on red, those on their green go on in the
         envelopes reserved for them."""
+        if self.clock == "realtime":
+            self._answered(heads, t)
         if self.ica_alive:
             heads.serve(seen, t, self)
         else:
@@ -361,14 +380,16 @@ class ZenohDrivers:
         self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
     ) -> tuple[float, tuple, float] | str | None:
         msg = AskGreen(car.vin, t, car.length_m, car.width_m, near_m, again, now_ns(), v_mps)
-        asked = time.monotonic()
+        if self.clock == "realtime":
+            # asked, not waited for: its LIT lights the head when it comes (_answered). No
+            # sooner green is asked for: the one held might come while it was out, and
+            # the driver be on its way under the reservations the sooner one replaced
+            if not again:
+                self._ask_later(("green", car.vin), msg, t, near_m, v_mps)
+            return None
         got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Lit, Ack))
-        if isinstance(got, Lit):
-            head_s = self._lit_s(t, got.green_s, time.monotonic() - asked)
-            if head_s is None:
-                self._unlight(car, t, got.green_s)
-                return DROPPED
-            return got.green_s, got.routes, head_s
+        if isinstance(got, Lit):  # lockstep: the world waits for it, never late
+            return got.green_s, got.routes, got.green_s
         if isinstance(got, Reject):  # not yet (one ahead has not begun to enter): again
             if not again:
                 self.green_refused[got.reason] = self.green_refused.get(got.reason, 0) + 1
@@ -377,12 +398,11 @@ class ZenohDrivers:
         return None
 
     def _lit_s(self, t: float, start_s: float, took_s: float) -> float | None:
-        """When a head turns green (a LIT) or a walker is let go (a GO) whose answer took
-        ``took_s`` of wall time to come back to an ask at step time ``t``: at its start,
-        or at the first step after the answer came (the world does not wait for the link
-        in real time: the stepping paused for the answer here, the signal is given as
-        late as a roadside would give it); None if that is more than ``green_late_s``
-        after the start. Lockstep is never late."""
+        """When a walker is let go whose GO took ``took_s`` of wall time to come back to an
+        ask at step time ``t``: at its start, or at the first step after the answer came
+        (in real time the stepping paused for the answer here, but the world would not
+        have: the walker goes as late as a roadside would let it); None if that is more
+        than ``green_late_s`` after the start. Lockstep is never late."""
         if self.clock == "lockstep":
             return start_s
         came = t + math.ceil(took_s * self.speed / self.step_s - 1e-9) * self.step_s
@@ -394,9 +414,12 @@ class ZenohDrivers:
         reservations (if this is lost, the next ask gets the same stale green back and
         it is dropped again)."""
         self.greens_dropped += 1
-        got = self._ask_ica(keys.human(self.junction, "gateway"),
-                            Unlit(car.vin, t, green_s, now_ns()), (Ack,))  # fmt: skip
-        self.humans_unanswered += got is None
+        msg = Unlit(car.vin, t, green_s, now_ns())
+        if self.clock == "realtime":  # not waited for either
+            self._ask_later(("unlit", car.vin), msg, t, 0.0, 0.0)
+        else:
+            got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Ack,))
+            self.humans_unanswered += got is None
         self.log.info("green of %s for %g s came too late: its head stays red", car.vin, green_s)
 
     def _unwalk(self, go: Go, t: float) -> None:
@@ -409,8 +432,67 @@ class ZenohDrivers:
         self.log.info("GO of %s for %g s came too late: it stays at the kerb", go.person,
                       go.start_s)  # fmt: skip
 
+    def _ask_later(
+        self, what: tuple[str, str], msg, t: float, near_m: float, v_mps: float, s_m: float = 0.0
+    ) -> None:
+        """Realtime: send ``msg`` to the ICA's human desk without waiting; one question of
+        each kind per driver out at a time (the driver seen ``near_m`` short of its line,
+        or at ``s_m`` along its route, at ``v_mps``, at ``t``)."""
+        if what in self._out:
+            return
+        key = keys.human(self.junction, "gateway")
+        got = self.session.get(key, payload=query_payload(encode(msg)), timeout=WALK_TIMEOUT_S,
+                               **every_answer())  # fmt: skip
+        self._out[what] = _Out(got, t, near_m, v_mps, s_m)
+
+    def _answered(self, heads: SignalHeads, t: float) -> None:
+        """Realtime: the answers come since the last step, taken now. A LIT lights its head
+        now (at its green, if that is still to come), or is dropped if now is later than
+        ``green_late_s`` after its green, as is one whose driver was given another
+        meanwhile (the ICA told either way); a SHRUNK holds its driver to the bounds from
+        where it was seen, if its green is the one it was seen on."""
+        key = keys.human(self.junction, "gateway")
+        for what, out in list(self._out.items()):
+            kind, vin = what
+            try:
+                reply_ = out.answers.try_recv()
+            except zenoh.ZError:  # the query is over (answered, or none came in time)
+                del self._out[what]
+                if out.got is None:
+                    self.humans_unanswered += 1
+                continue
+            if reply_ is None:
+                continue  # still out
+            body = reply_body(reply_, key) if reply_.ok is not None else None
+            if body is None or out.got is not None:
+                continue
+            with contextlib.suppress(DecodeError):
+                out.got = decode(body, Lit, Shrunk, Ack, Reject)
+            d = heads.drivers.get(vin)
+            if d is None:
+                continue
+            if isinstance(out.got, Lit) and kind == "green":
+                g = out.got
+                head_s = max(g.green_s, t)
+                if not math.isnan(d.green_s):  # lit already (never while this was out)
+                    if abs(d.green_s - g.green_s) > 1e-9:
+                        self._unlight(d.car, t, g.green_s)
+                elif head_s > g.green_s + self.green_late_s + 1e-9:
+                    self._unlight(d.car, t, g.green_s)
+                else:
+                    heads.lit(vin, g.green_s, g.routes, head_s, out.near_m, out.v_mps)
+            elif isinstance(out.got, Shrunk) and d.green_s <= out.t_s:
+                heads.shrunk += 1
+                heads.tightened(vin, out.got.t_s, out.got.routes, out.s_m, out.v_mps)
+            elif isinstance(out.got, Reject) and kind == "green":
+                r = out.got.reason
+                self.green_refused[r] = self.green_refused.get(r, 0) + 1
+
     def tighten(self, car: Car, t: float, s_m: float, v_mps: float, lane: str) -> tuple | None:
         msg = Sighting(car.vin, t, lane, s_m, v_mps, now_ns())
+        if self.clock == "realtime":  # its SHRUNK taken when it comes (_answered)
+            self._ask_later(("sighting", car.vin), msg, t, 0.0, v_mps, s_m)
+            return None
         got = self._ask_ica(keys.human(self.junction, "gateway"), msg, (Shrunk, Ack))
         self.humans_unanswered += got is None
         return got.routes if isinstance(got, Shrunk) else None

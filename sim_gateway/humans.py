@@ -47,7 +47,8 @@ TIGHTEN_S = 0.5
 ROLL_MIN_MPS = 0.5  # [m/s] slower than this it is about to stand, and asks standing
 # a desk's answer: the green came back too late to light its head, which stays red; the
 # ICA was told and dropped it, and with it any green the driver held before (a sooner
-# one asked for replaces the one held)
+# one asked for replaces the one held). (The real-time gateway answers none at once: it
+# lights or drops each green as it comes, sim_gateway.gateway.ZenohDrivers._answered)
 DROPPED = "dropped"
 
 
@@ -266,7 +267,7 @@ class SignalHeads:
             routes = desk.tighten(c, t, c.s_m, c.speed_mps, s.obs.lane)
             if routes is not None:
                 self.shrunk += 1
-                self.tightened(c.vin, t, routes)
+                self.tightened(c.vin, t, routes, c.s_m, c.speed_mps)
 
     def lit(
         self,
@@ -288,16 +289,18 @@ class SignalHeads:
         d.fast, d.slow = green_bounds(c.route, c.length_m, green_s, self.step_s, self.limits,
                                       dist_m, v_mps)  # fmt: skip
 
-    def tightened(self, vin: str, t: float, routes: tuple[str, ...]) -> None:
-        """The ICA shrank ``vin``'s reservations at ``t`` to where it was seen, on these
-        routes: the audit holds it to the bounds from there (the same stated limits)
-        of the route it takes."""
+    def tightened(
+        self, vin: str, t: float, routes: tuple[str, ...], s_m: float, v_mps: float
+    ) -> None:
+        """The ICA shrank ``vin``'s reservations at ``t`` to where it was seen then (front
+        ``s_m`` at ``v_mps``), on these routes: the audit holds it to the bounds from
+        there (the same stated limits) of the route it takes."""
         d = self.drivers[vin]
         d.tightenings += 1
         c = d.car
         if c.route.id in routes:
-            d.fast, d.slow = bounds_seen(c.route, c.length_m, t, c.s_m, c.speed_mps,
-                                         self.step_s, self.limits, d.green_s)  # fmt: skip
+            d.fast, d.slow = bounds_seen(c.route, c.length_m, t, s_m, v_mps, self.step_s,
+                                         self.limits, d.green_s)  # fmt: skip
 
     def release(self, t: float) -> None:
         """End the stop of every driver whose head has turned green (one rolling towards
