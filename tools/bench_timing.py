@@ -62,6 +62,8 @@ def run_point(p: Profile, seed: int, args: argparse.Namespace, out: Path) -> dic
     cmd += ["--clock", "realtime", "--speed", f"{args.speed:g}", "--agents", str(args.agents)]
     cmd += ["--volume", f"{args.volume:g}", "--duration", f"{args.duration:g}", "--seed", str(seed)]
     cmd += p.args() if p.name != "none" else []
+    if args.cav_share < 1.0:
+        cmd += ["--cav-share", f"{args.cav_share:g}"]
     t0 = time.perf_counter()
     proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
     row: dict = {"profile": p.name, "seed": seed, **asdict(p), "wall_s": time.perf_counter() - t0}
@@ -92,16 +94,29 @@ def run_point(p: Profile, seed: int, args: argparse.Namespace, out: Path) -> dic
         else None,
         lead_s=max((a.get("lead_s", 0.0) for a in agents.values()), default=None),
         command_age_p99_ms=(m.get("command_age_ms") or {}).get("p99"),
+        # the pace kept: sim seconds a wall second over the speed asked (1: it kept up)
+        pace=m["sim_time_s"] / m["wall_s"] / args.speed if m.get("wall_s") else None,
     )
+    h = m.get("humans")
+    if h is not None:  # human drivers: the audit, and their greens dropped late
+        row.update(
+            humans=h["count"],
+            greens=h["given_green"],
+            humans_outside=h["outside_envelope"],
+            humans_on_red=h["entered_on_red"],
+            greens_dropped=m.get("greens_dropped_late"),
+        )
     return row
 
 
 def table(rows: list[dict]) -> str:
+    humans = any("humans" in r for r in rows)
     head = (
         "| profile | seed | overlaps / SUMO / unconfirmed / lost | crossed / generated | "
         "mean trip (s) | adherence p99 (s) | plans refused | queries unanswered | lead (s) |"
+        + (" pace kept | humans: greens (dropped late), outside / on red |" if humans else "")
     )
-    lines = [head, "|" + "---|" * 9]
+    lines = [head, "|" + "---|" * (11 if humans else 9)]
     for r in rows:
         if "error" in r:
             lines.append(f"| {r['profile']} | {r['seed']} | run failed: {r['error'][0]} |||||||")
@@ -115,6 +130,12 @@ def table(rows: list[dict]) -> str:
             f"{'n/a' if adh is None else f'{adh:.3f}'} | "
             f"{r['plans_refused']} of {r['plans_accepted'] + r['plans_refused']} | {unans} | "
             f"{_n(r['lead_s'])} |"
+            + (
+                f" {_n(r['pace'])} | {r['greens']} of {r['humans']} ({r['greens_dropped']}), "
+                f"{r['humans_outside']} / {r['humans_on_red']} |"
+                if humans and "humans" in r
+                else ""
+            )
         )
     return "\n".join(lines)
 
@@ -211,6 +232,13 @@ def main(argv: list[str] | None = None) -> int:
         "reorder), or names from the sweep separated by ';'",
     )
     p.add_argument("--jobs", type=int, default=2, help="runs at a time (default 2)")
+    p.add_argument(
+        "--cav-share",
+        type=float,
+        default=1.0,
+        help="share of connected vehicles (default 1); below it, human drivers too, and the "
+        "table adds the pace the run kept and the humans' audit",
+    )
     options.add(
         p,
         "--out",
@@ -242,6 +270,9 @@ def main(argv: list[str] | None = None) -> int:
         print(
             "dica bench timing: --speed in (0, 10], --duration 10-7200, --jobs 1-8", file=sys.stderr
         )
+        return 2
+    if not 0.0 <= args.cav_share <= 1.0:
+        print("dica bench timing: --cav-share must be between 0 and 1", file=sys.stderr)
         return 2
     args.out.mkdir(parents=True, exist_ok=True)
     points = [(q, s) for q in profiles for s in seeds]

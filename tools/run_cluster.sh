@@ -103,8 +103,9 @@ change them while running with: dica link set RUN_DIR/link --role R --delay MS .
                         plus 0.05 if larger)
   --green-late S        how late after its green time a human driver's head may still
                         turn green [sim s]; a later LIT is dropped and the head stays
-                        red (default: 0 in lockstep; in realtime 2 x (delay + jitter)
-                        x speed + 0.2 s)
+                        red (default: 0 in lockstep; in realtime (delay + jitter) x
+                        speed x the faulty hops a round trip takes between gateway
+                        and ICA (2 or 4) + 0.2 s)
   --lead auto|S         realtime: how far ahead of its observation a REQUEST's plan
                         starts [sim s] (default auto: measured round trip plus margin)
   --max-age S           the ICA refuses REQUESTs observed longer ago (default 1; in
@@ -235,8 +236,11 @@ if [ -z "$time_pad" ]; then
 fi
 if [ -z "$green_late" ]; then  # a LIT's round trip at worst, in sim time, and a margin
   if [ "$clock" = realtime ]; then
-    green_late=$(awk -v d="$delay" -v j="$jitter" -v s="$speed" \
-      'BEGIN { a = 2 * (d + j) / 1000 * s + 0.2; if (a > 5) a = 5; printf "%.3f", a }')
+    # each way, the gateway's link and the ICA's, where they are faulty
+    hops=0
+    for r in "${faulty_roles[@]}"; do case "$r" in gateway|ica) hops=$((hops + 2)) ;; esac; done
+    green_late=$(awk -v n="$hops" -v d="$delay" -v j="$jitter" -v s="$speed" \
+      'BEGIN { a = n * (d + j) / 1000 * s + 0.2; if (a > 5) a = 5; printf "%.3f", a }')
   else
     green_late=0
   fi
