@@ -120,11 +120,6 @@ class Journal:
              "near_lo": slot.near_lo_m, "late": slot.late_s}
         )  # fmt: skip
 
-    def unwalk(self, person: str, crossing: str, start_s: float) -> None:
-        """The roadside kept ``person`` at the kerb (its GO came late): its slot of
-        ``crossing`` from ``start_s`` went."""
-        self._write({"k": "unwalk", "person": person, "crossing": crossing, "start": start_s})
-
     def human(self, vin: str) -> None:
         """``vin`` is a human driver: the roadside speaks for it, no agent."""
         self._write({"k": "human", "vin": vin})
@@ -137,10 +132,11 @@ class Journal:
              "routes": list(lit.routes), "speed": lit.speed_mps}
         )  # fmt: skip
 
-    def unlit(self, vin: str, green_s: float) -> None:
+    def unlit(self, vin: str, green_s: float, crossing: str = "") -> None:
         """The roadside dropped ``vin``'s green of ``green_s`` (late): its reservations
-        went."""
-        self._write({"k": "unlit", "vin": vin, "green": green_s})
+        went. With a ``crossing``, ``vin`` is a walker kept at its kerb and ``green_s``
+        its slot's start."""
+        self._write({"k": "unlit", "vin": vin, "green": green_s, "crossing": crossing})
 
     def reactive(self, snapshot: dict) -> None:
         """Reactive DICA's event as it now stands (:meth:`ReactiveDica.snapshot`): the
@@ -235,8 +231,8 @@ def replay(path: Path, ica: Controller) -> Replayed:
                     float(rec.get("speed", 0.0)),
                 )  # fmt: skip
                 out.greens += 1
-            elif kind == "unwalk" and getattr(ica, "walks", None) is not None:
-                ica.unwalk(str(rec["person"]), str(rec["crossing"]), float(rec["start"]))
+            elif kind == "unlit" and rec.get("crossing"):
+                ica.unwalk(str(rec["vin"]), str(rec["crossing"]), float(rec["green"]))
             elif kind == "unlit" and getattr(ica, "greens", None) is not None:
                 ica.unlight(str(rec["vin"]), float(rec["green"]))
             elif kind == "sighting" and getattr(ica, "greens", None) is not None:

@@ -629,20 +629,15 @@ class IcaService:
                 self.stats.humans += not known
                 reply(item.query, item.key, encode(Ack(msg.vin, -1, Spotted.KIND, now_ns())))
                 return
-            if isinstance(msg, Unlit) and msg.crossing:  # a walker kept at its kerb
-                if getattr(ica, "walks", None) is None:
-                    raise RequestError(Reason.BAD_STATE, "this junction has no crossings")
-                if ica.unwalk(msg.vin, msg.crossing, msg.green_s):
+            if isinstance(msg, Unlit):  # a head kept red, or (a crossing) a walker at its kerb
+                if msg.crossing:
+                    freed = ica.unwalk(msg.vin, msg.crossing, msg.green_s)
+                else:
+                    freed = ica.unlight(msg.vin, msg.green_s)
+                if freed:
                     self.stats.unlit += 1
                     if self.journal is not None:
-                        self.journal.unwalk(msg.vin, msg.crossing, msg.green_s)
-                reply(item.query, item.key, encode(Ack(msg.vin, -1, Unlit.KIND, now_ns())))
-                return
-            if isinstance(msg, Unlit):
-                if ica.unlight(msg.vin, msg.green_s):
-                    self.stats.unlit += 1
-                    if self.journal is not None:
-                        self.journal.unlit(msg.vin, msg.green_s)
+                        self.journal.unlit(msg.vin, msg.green_s, msg.crossing)
                 reply(item.query, item.key, encode(Ack(msg.vin, -1, Unlit.KIND, now_ns())))
                 return
             ica.advance(msg.t_s)  # as the embedded roadside does before it asks

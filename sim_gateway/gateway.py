@@ -378,7 +378,7 @@ class ZenohDrivers:
 
     def green(
         self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
-    ) -> tuple[float, tuple, float] | str | None:
+    ) -> tuple[float, tuple, float] | None:
         msg = AskGreen(car.vin, t, car.length_m, car.width_m, near_m, again, now_ns(), v_mps)
         if self.clock == "realtime":
             # asked, not waited for: its LIT lights the head when it comes (_answered). No

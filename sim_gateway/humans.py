@@ -45,11 +45,6 @@ TOL_M = 0.05  # [m] the audit's tolerance on a position (SUMO's rounding)
 # it is seen, and a waiting one ask again
 TIGHTEN_S = 0.5
 ROLL_MIN_MPS = 0.5  # [m/s] slower than this it is about to stand, and asks standing
-# a desk's answer: the green came back too late to light its head, which stays red; the
-# ICA was told and dropped it, and with it any green the driver held before (a sooner
-# one asked for replaces the one held). (The real-time gateway answers none at once: it
-# lights or drops each green as it comes, sim_gateway.gateway.ZenohDrivers._answered)
-DROPPED = "dropped"
 
 
 class Desk(Protocol):
@@ -64,12 +59,12 @@ class Desk(Protocol):
 
     def green(
         self, car: Car, t: float, near_m: float, again: bool, v_mps: float = 0.0
-    ) -> tuple[float, tuple, float] | str | None:
-        """Its green (start, routes, and when the head turns green: the start, or later by
-        the LIT's way to the roadside) standing ``near_m`` short of its line; ``again``:
-        only a sooner one than it holds; ``v_mps`` above 0: rolling towards the line at
-        that speed, a green now or none. None: none given (not yet, or not sooner);
-        :data:`DROPPED`: one came too late to light (the head stays red, the ICA told)."""
+    ) -> tuple[float, tuple, float] | None:
+        """Its green (start, routes, and when the head turns green) standing ``near_m``
+        short of its line; ``again``: only a sooner one than it holds; ``v_mps`` above 0:
+        rolling towards the line at that speed, a green now or none. None: none given
+        (not yet, or not sooner; or, from the real-time gateway, not yet answered: it
+        lights or drops each green as its answer comes, ZenohDrivers._answered)."""
 
     def tighten(
         self, car: Car, t: float, s_m: float, v_mps: float, lane: str
@@ -226,7 +221,7 @@ class SignalHeads:
             if t < d.refused_s + TIGHTEN_S - 1e-9:
                 continue  # refused a moment ago (walkers come first): not every step
             got = desk.green(d.car, t, -d.car.s_m, False)
-            if isinstance(got, tuple):
+            if got is not None:
                 self.lit(d.car.vin, *got, -d.car.s_m)
             else:
                 d.refused_s = t
@@ -234,7 +229,7 @@ class SignalHeads:
             d.asked_s = t
             c = d.car
             got = desk.green(c, t, -c.s_m, False, c.speed_mps)
-            if isinstance(got, tuple):
+            if got is not None:
                 self.lit(c.vin, *got, -c.s_m, c.speed_mps)
         self._tighten(seen, t, desk)
         self.release(t)
@@ -253,10 +248,7 @@ class SignalHeads:
                     continue
                 d.asked_shrunk, d.asked_s = self.shrunk, t
                 got = desk.green(c, t, -c.s_m, True)
-                if got == DROPPED:  # its green held before is gone too: it asks afresh
-                    d.green_s = d.head_s = math.nan
-                    d.routes, d.fast, d.slow = (), None, None
-                elif got is not None:
+                if got is not None:
                     self.shrunk += 1
                     self.lit(c.vin, *got, -c.s_m)
                 continue
