@@ -524,6 +524,9 @@ def test_a_walkers_go_dropped_late_frees_its_slot_on_the_ica_and_over_a_restart(
         assert isinstance(no, Reject) and "only the roadside" in no.detail
         for _ in range(2):  # told twice (a lost ACK): dropped once
             assert isinstance(ask(session, keys.human("B1", "gateway"), drop), Ack)
+        elsewhere = Unlit("amy", 0.0, go.start_s, now_ns(), ":Z_c9")  # no crossing of B1
+        no = ask(session, keys.human("B1", "gateway"), elsewhere)
+        assert isinstance(no, Reject) and no.reason == "bad_state"
         clock(session, ica, 1, False)
         det = Detect("car", route.in_lane, 0.0, False, 10.0, now_ns())
         assert isinstance(ask(session, keys.detect("B1", "a"), det), Ack)

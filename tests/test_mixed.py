@@ -591,6 +591,8 @@ def test_a_green_dropped_late_frees_its_reservations_and_is_given_anew(ch45):
     ica.detect("h", lane, 0.0)
     g = ica.green("h", 3.0, 4.5, 1.8, LIMITS)
     assert not ica.unlight("h", 2.0) and ica.greens["h"] is g  # not that green
+    # its UNLIT lost: asked again, the stale green comes back (the roadside drops it again)
+    assert ica.green("h", 3.5, 4.5, 1.8, LIMITS) is g
     assert ica.unlight("h", 3.0)
     assert "h" not in ica.greens and not any(k in ica.confirmed for k in g.keys)
     assert not ica.unlight("h", 3.0) and ica.unlit == 1
@@ -1267,8 +1269,9 @@ def test_a_green_dropped_late_is_freed_over_zenoh_and_over_a_restart(ch45_net, c
         _clock(session, j, lane, 2)
         new = _ask(session, gw, AskGreen("h1", 0.1, 5.0, 1.8, 0.5, False, now_ns()))
         assert isinstance(new, Lit) and new.green_s == pytest.approx(0.1)  # not the stale one
+        _clock(session, j, lane, 3)  # an UNLIT from a step behind the clock is still taken
         assert isinstance(_ask(session, gw, Unlit("h1", 0.1, new.green_s, now_ns())), Ack)
-        _clock(session, j, lane, 3, end=True)
+        _clock(session, j, lane, 4, end=True)
         assert proc.wait(15) == 0
     with router_and_ica(j, args) as (session, proc):  # the same journal
         _clock(session, j, lane, 1)
