@@ -128,7 +128,7 @@ class World:
         # human drivers (--cav-share below 1): SUMO's own, each with a signal head at its line
         self.heads: SignalHeads | None = None
         self.human_seen: list[Seen] = []  # this step's, apart from the connected vehicles
-        # (a route file's share of them is drawn as each reaches the region)
+        # (a route file's share of them is drawn as each departs: Traffic.draws_human)
         humans = any(v.human for v in schedule) or (cfg.routes_path and cfg.cav_share < 1.0)
         if humans:
             limits = human_limits(ica_cfg.caps.road_mps, ica_cfg.green_late_s)
